@@ -1,0 +1,42 @@
+# Set-up, tests, demo and benchmarks of cva_confidence_ros on a fresh machine.
+# `make demo` and `make test` are the two commands of the README; both install what they need.
+
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+# torch is pinned: 2.13.0 is the CPU build that lies on this machine's disk; a bare `torch`
+# pulls a multi-GB CUDA build from the index.
+TORCH := torch==2.13.0
+DEPS := numpy scipy opencv-python-headless scikit-image numba matplotlib tqdm \
+	rosbags 'ros-jazzy-rclpy[fastrtps]' ros-jazzy-common-interfaces mccnn
+TEST_DEPS := pytest pytest-timeout colcon-core colcon-python-setup-py colcon-ros \
+	colcon-library-path colcon-package-information ruff
+DEMO_OUT ?= out/demo
+
+.PHONY: setup test demo bench lint clean
+
+setup: $(STAMP)
+
+$(STAMP): setup.py setup.cfg package.xml Makefile
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q $(TORCH)
+	$(BIN)/python -m pip install -q $(TORCH) $(DEPS) $(TEST_DEPS)
+	$(BIN)/python -m pip install -q --no-deps -e .
+	touch $@
+
+test: setup
+	$(BIN)/python -m pytest -q -p no:cacheprovider --timeout=900 test
+
+demo: setup
+	$(BIN)/cva-demo --out $(DEMO_OUT)
+
+bench: setup
+	$(BIN)/cva-benchmark --json out/bench.json
+
+lint: setup
+	$(BIN)/ruff check cva_confidence_ros msg_tools test
+
+clean:
+	rm -rf $(VENV) build install log *.egg-info out

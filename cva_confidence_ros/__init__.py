@@ -1,0 +1,30 @@
+"""cva_confidence_ros: per-pixel confidence for dense stereo matching with CVA-Net.
+
+Layers (nothing in the core imports rclpy):
+
+* core: :mod:`.matching` (cost volumes), :mod:`.confidence` (confidence methods),
+  :mod:`.model` (CVA-Net), :mod:`.metrics` (the paper's ROC/AUC protocol);
+* I/O: :mod:`.datasets` (stereo data sets), :mod:`msg_tools` (rosbag2);
+* on top: :mod:`.pipeline` (matcher + confidence, shared by node and tools), :mod:`.node`.
+"""
+
+from cva_confidence_ros.errors import (
+    BagError,
+    ConfigError,
+    CVAError,
+    DataError,
+    InputError,
+    ModelError,
+)
+
+__version__ = '0.1.0'
+
+__all__ = [
+    'BagError',
+    'CVAError',
+    'ConfigError',
+    'DataError',
+    'InputError',
+    'ModelError',
+    '__version__',
+]

@@ -1,0 +1,33 @@
+"""One exception tree for the whole package.
+
+Every message says what was expected and what came, e.g.
+``InputError("left and right must have the same shape; got (480, 640) and (480, 639)")``.
+"""
+
+from __future__ import annotations
+
+__all__ = ['BagError', 'CVAError', 'ConfigError', 'DataError', 'InputError', 'ModelError']
+
+
+class CVAError(Exception):
+    """Base class of every error raised on purpose by cva_confidence_ros."""
+
+
+class ConfigError(CVAError, ValueError):
+    """A configuration value (matcher name, parameter, option) is invalid."""
+
+
+class InputError(CVAError, ValueError):
+    """An input array or message has the wrong shape, dtype, encoding or values."""
+
+
+class DataError(CVAError):
+    """A data set, file or folder cannot be read as expected."""
+
+
+class ModelError(CVAError):
+    """Weights are missing, corrupt, or do not fit the matcher or cost-volume depth."""
+
+
+class BagError(CVAError):
+    """A rosbag2 cannot be read or written as expected."""

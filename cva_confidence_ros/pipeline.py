@@ -1,0 +1,210 @@
+"""The processing pipeline shared by the node, the bag replay and the demo.
+
+ROS-free: images in, disparity and confidence out. The node and the tools only translate
+messages and parameters into :class:`PipelineConfig` and arrays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+import time
+
+import cv2
+import numpy as np
+
+from cva_confidence_ros.errors import ConfigError, InputError
+
+__all__ = ['PipelineConfig', 'PipelineResult', 'StereoPipeline']
+
+_DEVICES = ('cpu', 'cuda', 'auto')
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """Everything that decides what the pipeline computes.
+
+    Attributes:
+        matcher: Registered matcher name (``census_bm``, ``census_sgm``, ``mccnn_fast``).
+        max_disparity: Cost-volume depth D at the processed resolution.
+        confidence_method: Registered confidence method (``cva_net``, ``pkrn``, ...).
+        model_path: Weights for learned methods; empty = the shipped weights for the matcher.
+        device: ``cpu``, ``cuda`` or ``auto`` (CUDA when available).
+        confidence_threshold: Pixels with confidence below it are invalid in the filtered output.
+        downsample: 1, 2 or 4; images are shrunk by this factor before matching.
+        lr_check: Also run a left–right consistency check and mark failing pixels invalid.
+        tile_budget_mb: Memory budget of one network tile at inference.
+    """
+
+    matcher: str = 'census_bm'
+    max_disparity: int = 64
+    confidence_method: str = 'cva_net'
+    model_path: str = ''
+    device: str = 'cpu'
+    confidence_threshold: float = 0.5
+    downsample: int = 1
+    lr_check: bool = False
+    tile_budget_mb: float = 512.0
+
+    def __post_init__(self) -> None:
+        from cva_confidence_ros.confidence import CONFIDENCE_METHODS
+        from cva_confidence_ros.matching import MATCHERS
+
+        if self.matcher not in MATCHERS:
+            raise ConfigError(f'unknown matcher {self.matcher!r}; expected one of {MATCHERS.names()}')
+        if self.confidence_method not in CONFIDENCE_METHODS:
+            raise ConfigError(
+                f'unknown confidence_method {self.confidence_method!r}; '
+                f'expected one of {CONFIDENCE_METHODS.names()}'
+            )
+        if not 1 <= int(self.max_disparity) <= 1024:
+            raise ConfigError(f'max_disparity must be in [1, 1024]; got {self.max_disparity}')
+        if self.device not in _DEVICES:
+            raise ConfigError(f'device must be one of {_DEVICES}; got {self.device!r}')
+        if not 0.0 <= float(self.confidence_threshold) <= 1.0:
+            raise ConfigError(
+                f'confidence_threshold must be in [0, 1]; got {self.confidence_threshold}'
+            )
+        if self.downsample not in (1, 2, 4):
+            raise ConfigError(f'downsample must be 1, 2 or 4; got {self.downsample}')
+        if self.tile_budget_mb <= 0:
+            raise ConfigError(f'tile_budget_mb must be > 0; got {self.tile_budget_mb}')
+
+    def replace(self, **changes: object) -> PipelineConfig:
+        """Return a copy with ``changes`` applied (validated)."""
+        names = {f.name for f in fields(self)}
+        unknown = set(changes) - names
+        if unknown:
+            raise ConfigError(f'unknown pipeline options {sorted(unknown)}; expected {sorted(names)}')
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        values.update(changes)
+        return PipelineConfig(**values)  # type: ignore[arg-type]
+
+
+@dataclass
+class PipelineResult:
+    """What one stereo pair yields, at the processed (possibly downsampled) resolution.
+
+    Attributes:
+        disparity: (H, W) float32 winner-takes-all disparity; NaN where the LR check failed.
+        confidence: (H, W) float32 confidence, higher = more trustworthy.
+        valid: (H, W) bool, True where the disparity is finite and confidence ≥ threshold.
+        left: (H, W) or (H, W, 3) uint8 left image at the processed resolution.
+        scale: Processed size / input size (1 / downsample).
+        timings_ms: Milliseconds per stage (``resize``, ``matching``, ``confidence``, ``total``).
+    """
+
+    disparity: np.ndarray
+    confidence: np.ndarray
+    valid: np.ndarray
+    left: np.ndarray
+    scale: float
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def filtered_disparity(self) -> np.ndarray:
+        """Disparity with NaN wherever :attr:`valid` is False."""
+        return np.where(self.valid, self.disparity, np.float32(np.nan)).astype(np.float32)
+
+
+def _check_pair(left: np.ndarray, right: np.ndarray) -> None:
+    for side, image in (('left', left), ('right', right)):
+        if not isinstance(image, np.ndarray):
+            raise InputError(f'{side} image must be a numpy array; got {type(image).__name__}')
+        if image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] != 3):
+            raise InputError(f'{side} image must be H×W or H×W×3; got shape {image.shape}')
+        if image.size == 0:
+            raise InputError(f'{side} image is empty (shape {image.shape})')
+    if left.shape != right.shape:
+        raise InputError(
+            f'left and right images must have the same shape; got {left.shape} and {right.shape}'
+        )
+
+
+def _shrink(image: np.ndarray, factor: int) -> np.ndarray:
+    if factor == 1:
+        return image
+    height, width = image.shape[:2]
+    return cv2.resize(image, (width // factor, height // factor), interpolation=cv2.INTER_AREA)
+
+
+class StereoPipeline:
+    """Matcher + confidence method, configured once, applied to many pairs.
+
+    Args:
+        config: What to compute. Learned weights are loaded once here, not per frame.
+    """
+
+    def __init__(self, config: PipelineConfig) -> None:
+        from cva_confidence_ros.confidence import CONFIDENCE_METHODS
+
+        self.config = config
+        factory = CONFIDENCE_METHODS.get(config.confidence_method)
+        self._method = factory(
+            matcher=config.matcher,
+            max_disparity=config.max_disparity,
+            weights=config.model_path or None,
+            device=config.device,
+            tile_budget_mb=config.tile_budget_mb,
+        )
+
+    def process(self, left: np.ndarray, right: np.ndarray) -> PipelineResult:
+        """Match one rectified pair and estimate per-pixel confidence.
+
+        Args:
+            left: (H, W) or (H, W, 3) uint8 rectified left image (RGB order if colour).
+            right: Same shape and dtype as ``left``.
+
+        Returns:
+            A :class:`PipelineResult` at 1/downsample of the input resolution.
+
+        Raises:
+            InputError: Shapes, dtypes or values that the matcher cannot use.
+        """
+        from cva_confidence_ros.confidence import ConfidenceInputs
+        from cva_confidence_ros.matching import compute_cost_volume, left_right_check, wta_disparity
+
+        _check_pair(left, right)
+        cfg = self.config
+        timings: dict[str, float] = {}
+        start = time.perf_counter()
+        left_s, right_s = _shrink(left, cfg.downsample), _shrink(right, cfg.downsample)
+        timings['resize'] = (time.perf_counter() - start) * 1e3
+
+        tic = time.perf_counter()
+        volume = compute_cost_volume(left_s, right_s, cfg.matcher, cfg.max_disparity)
+        disparity = wta_disparity(volume)
+        volume_right = None
+        disparity_right = None
+        if cfg.lr_check or getattr(self._method, 'needs_right', False):
+            volume_right = compute_cost_volume(
+                left_s, right_s, cfg.matcher, cfg.max_disparity, view='right'
+            )
+            disparity_right = wta_disparity(volume_right)
+        timings['matching'] = (time.perf_counter() - tic) * 1e3
+
+        tic = time.perf_counter()
+        inputs = ConfidenceInputs(
+            cost_volume=volume,
+            disparity=disparity,
+            image=left_s,
+            cost_volume_right=volume_right,
+            disparity_right=disparity_right,
+            matcher=cfg.matcher,
+        )
+        confidence = np.asarray(self._method(inputs), dtype=np.float32)
+        timings['confidence'] = (time.perf_counter() - tic) * 1e3
+
+        if cfg.lr_check and disparity_right is not None:
+            disparity = np.where(
+                left_right_check(disparity, disparity_right), disparity, np.float32(np.nan)
+            ).astype(np.float32)
+        valid = np.isfinite(disparity) & (confidence >= cfg.confidence_threshold)
+        timings['total'] = (time.perf_counter() - start) * 1e3
+        return PipelineResult(
+            disparity=disparity,
+            confidence=confidence,
+            valid=valid,
+            left=left_s,
+            scale=1.0 / cfg.downsample,
+            timings_ms=timings,
+        )

@@ -1,0 +1,63 @@
+"""Build script of the cva_confidence_ros ament_python package.
+
+Two installs are supported from this one file:
+
+* ``colcon build`` in a ROS 2 workspace, which runs ``setup.py develop`` or ``setup.py install``
+  directly. The scripts then land in ``lib/cva_confidence_ros`` (see ``setup.cfg``), where
+  ``ros2 run cva_confidence_ros <name>`` looks for them, under the ROS-style names.
+* ``pip install`` into a virtual environment (PEP 517 build). The scripts land on ``PATH`` under
+  ``cva-*`` names only: a plain ``node`` executable there would shadow Node.js.
+"""
+
+from glob import glob
+import sys
+
+from setuptools import find_packages, setup
+
+PACKAGE = 'cva_confidence_ros'
+
+# (ros2 run name, pip console-script name, module:function)
+ENTRY_POINTS = [
+    ('node', 'cva-node', 'cva_confidence_ros.node:main'),
+    ('train', 'cva-train', 'cva_confidence_ros.training.cli:main'),
+    ('evaluate', 'cva-evaluate', 'cva_confidence_ros.evaluation.cli:main'),
+    ('benchmark', 'cva-benchmark', 'cva_confidence_ros.benchmark:main'),
+    ('demo', 'cva-demo', 'cva_confidence_ros.demo:main'),
+    ('bag_from_dataset', 'cva-bag-from-dataset', 'msg_tools.bag_from_dataset:main'),
+    ('bag_replay', 'cva-bag-replay', 'msg_tools.bag_replay:main'),
+]
+
+
+def _built_by_colcon() -> bool:
+    """Tell a direct ``setup.py install/develop`` run (colcon's ament_python build) from pip."""
+    return any(arg in ('install', 'develop') for arg in sys.argv[1:])
+
+
+def _console_scripts() -> list[str]:
+    if _built_by_colcon():
+        return [f'{ros_name} = {target}' for ros_name, _, target in ENTRY_POINTS]
+    return [f'{pip_name} = {target}' for _, pip_name, target in ENTRY_POINTS]
+
+
+setup(
+    name=PACKAGE,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    package_data={PACKAGE: ['py.typed']},
+    data_files=[
+        ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
+        (f'share/{PACKAGE}', ['package.xml']),
+        (f'share/{PACKAGE}/launch', glob('launch/*.launch.py')),
+        (f'share/{PACKAGE}/config', glob('config/*.yaml')),
+        (f'share/{PACKAGE}/models', glob('models/*.pt') + glob('models/*.md')),
+    ],
+    install_requires=['setuptools', 'numpy', 'scipy', 'opencv-python-headless', 'numba'],
+    zip_safe=True,
+    maintainer='cva_confidence_ros maintainers',
+    maintainer_email='maintainers@cva-confidence-ros.dev',
+    description='Online per-pixel stereo confidence with CVA-Net for ROS 2.',
+    license='Apache-2.0',
+    python_requires='>=3.10',
+    tests_require=['pytest'],
+    entry_points={'console_scripts': _console_scripts()},
+)
