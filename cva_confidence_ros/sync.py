@@ -1,0 +1,199 @@
+"""Match messages from several streams by their time stamps (ROS-free).
+
+``message_filters`` is not on the package index, so the node and ``cva-bag-replay`` share this
+small synchroniser. It works on any objects: the caller passes the stamp (integer nanoseconds)
+next to each message.
+
+Policies:
+
+* **exact** (default): a set is emitted when every key holds a message with the same stamp.
+* **approximate**: a set is emitted as soon as every key holds a message and all chosen stamps
+  lie within ``tolerance_ns`` of each other (max − min ≤ tolerance). When several sets would fit,
+  the one with the smallest spread is taken. Choose a tolerance below half the frame period, so
+  that two frames of one stream can never both fit.
+
+Both policies emit eagerly: a set leaves as soon as it is complete. Messages of a key that are
+older than the ones just emitted can never be part of a later set (streams are time ordered), so
+they are evicted, as is anything that arrives with a stamp at or before the last emitted one of
+its key, and the oldest message of a key whose queue is full. Every evicted message counts once
+in :attr:`StampSynchronizer.dropped`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Hashable, Sequence
+from dataclasses import dataclass, field
+import threading
+from typing import Any
+
+from cva_confidence_ros.errors import ConfigError, InputError
+
+__all__ = ['DEFAULT_KEYS', 'MatchedSet', 'StampSynchronizer']
+
+DEFAULT_KEYS: tuple[str, ...] = ('left', 'right', 'left_info', 'right_info')
+
+
+@dataclass(frozen=True)
+class MatchedSet:
+    """One message per key whose stamps match.
+
+    Attributes:
+        stamp_ns: Stamp of the set in nanoseconds: the common stamp in exact mode, the stamp of
+            the first key's message in approximate mode.
+        items: key → message, one entry per key of the synchroniser.
+        stamps_ns: key → stamp of that message in nanoseconds.
+    """
+
+    stamp_ns: int
+    items: dict[Hashable, Any]
+    stamps_ns: dict[Hashable, int] = field(default_factory=dict)
+
+
+class StampSynchronizer:
+    """Group messages of several keyed streams whose stamps match.
+
+    Args:
+        keys: Names of the streams, e.g. ``('left', 'right', 'left_info', 'right_info')``.
+            At least one, all distinct.
+        queue_size: Most messages held per key while waiting for a match (≥ 1).
+        approximate: Use the approximate policy instead of exact stamp equality.
+        tolerance_ns: Largest spread of stamps in one set, in nanoseconds (≥ 0). Only used
+            when ``approximate`` is True; the exact policy always uses 0.
+
+    Raises:
+        ConfigError: Empty or repeated keys, ``queue_size`` < 1 or ``tolerance_ns`` < 0.
+
+    Thread-safe: :meth:`add` may be called from several threads.
+    """
+
+    def __init__(
+        self,
+        keys: Sequence[Hashable] = DEFAULT_KEYS,
+        queue_size: int = 10,
+        approximate: bool = False,
+        tolerance_ns: int = 0,
+    ) -> None:
+        keys = tuple(keys)
+        if not keys:
+            raise ConfigError('keys must name at least one stream; got an empty sequence')
+        if len(set(keys)) != len(keys):
+            raise ConfigError(f'keys must be distinct; got {keys}')
+        if isinstance(queue_size, bool) or not isinstance(queue_size, int) or queue_size < 1:
+            raise ConfigError(f'queue_size must be an integer >= 1; got {queue_size!r}')
+        if isinstance(tolerance_ns, bool) or not isinstance(tolerance_ns, int) or tolerance_ns < 0:
+            raise ConfigError(f'tolerance_ns must be an integer >= 0; got {tolerance_ns!r}')
+        self.keys = keys
+        self.queue_size = queue_size
+        self.approximate = bool(approximate)
+        self.tolerance_ns = tolerance_ns if self.approximate else 0
+        self.dropped = 0
+        self.matched = 0
+        self._queues: dict[Hashable, list[tuple[int, Any]]] = {key: [] for key in keys}
+        self._last: dict[Hashable, int | None] = {key: None for key in keys}
+        self._lock = threading.Lock()
+
+    def add(self, key: Hashable, stamp_ns: int, msg: Any) -> list[MatchedSet]:
+        """Offer one message; return the sets it completes (empty or one element).
+
+        Args:
+            key: One of :attr:`keys`.
+            stamp_ns: The message's stamp in integer nanoseconds.
+            msg: Any object; handed back untouched inside a :class:`MatchedSet`.
+
+        Returns:
+            The completed sets, oldest first (at most one per call with eager emission).
+
+        Raises:
+            ConfigError: ``key`` is not one of :attr:`keys`.
+            InputError: ``stamp_ns`` is not an integer.
+        """
+        if key not in self._queues:
+            raise ConfigError(f'unknown key {key!r}; expected one of {self.keys}')
+        if isinstance(stamp_ns, bool) or not isinstance(stamp_ns, int):
+            raise InputError(
+                f'stamp_ns must be an integer number of nanoseconds; got {stamp_ns!r}'
+            )
+        with self._lock:
+            last = self._last[key]
+            if last is not None and stamp_ns <= last:
+                self.dropped += 1
+                return []
+            queue = self._queues[key]
+            if any(stamp == stamp_ns for stamp, _ in queue):
+                # A repeated stamp on one stream: keep the first, the newcomer is a duplicate.
+                self.dropped += 1
+                return []
+            queue.append((stamp_ns, msg))
+            queue.sort(key=lambda entry: entry[0])
+            if len(queue) > self.queue_size:
+                queue.pop(0)
+                self.dropped += 1
+            if all(entry[0] != stamp_ns for entry in queue):
+                return []
+            chosen = self._best_set(key, stamp_ns)
+            if chosen is None:
+                return []
+            return [self._emit(chosen)]
+
+    def _best_set(self, key: Hashable, stamp_ns: int) -> dict[Hashable, int] | None:
+        """The tightest set that holds the new message, as key → stamp, or None."""
+        tol = self.tolerance_ns
+        # Only the new message can complete a set: before it came none was complete.
+        candidates = {
+            other: [s for s, _ in self._queues[other] if abs(s - stamp_ns) <= tol]
+            for other in self.keys
+            if other != key
+        }
+        if any(not stamps for stamps in candidates.values()):
+            return None
+        # Any valid set fits in a window [low, low + tol] that holds stamp_ns and starts at
+        # one of the set's stamps, so trying every such start finds them all.
+        starts = {stamp_ns}
+        for stamps in candidates.values():
+            starts.update(s for s in stamps if s <= stamp_ns)
+        best: dict[Hashable, int] | None = None
+        best_spread = -1
+        for low in sorted(starts):
+            high = low + tol
+            chosen: dict[Hashable, int] = {key: stamp_ns}
+            for other, stamps in candidates.items():
+                inside = [s for s in stamps if low <= s <= high]
+                if not inside:
+                    break
+                chosen[other] = min(inside, key=lambda s: abs(s - stamp_ns))
+            else:
+                spread = max(chosen.values()) - min(chosen.values())
+                if best is None or spread < best_spread:
+                    best, best_spread = chosen, spread
+        return best
+
+    def _emit(self, chosen: dict[Hashable, int]) -> MatchedSet:
+        items: dict[Hashable, Any] = {}
+        for key in self.keys:
+            stamp = chosen[key]
+            queue = self._queues[key]
+            kept: list[tuple[int, Any]] = []
+            for entry_stamp, msg in queue:
+                if entry_stamp == stamp:
+                    items[key] = msg
+                elif entry_stamp < stamp:
+                    self.dropped += 1
+                else:
+                    kept.append((entry_stamp, msg))
+            self._queues[key] = kept
+            self._last[key] = stamp
+        self.matched += 1
+        ordered = {key: chosen[key] for key in self.keys}
+        return MatchedSet(stamp_ns=ordered[self.keys[0]], items=items, stamps_ns=ordered)
+
+    def pending(self) -> dict[Hashable, int]:
+        """Number of messages waiting per key."""
+        with self._lock:
+            return {key: len(queue) for key, queue in self._queues.items()}
+
+    def reset(self) -> None:
+        """Forget every waiting message and the last emitted stamps (counters are kept)."""
+        with self._lock:
+            for key in self.keys:
+                self._queues[key] = []
+                self._last[key] = None
