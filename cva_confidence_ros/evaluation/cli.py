@@ -1,0 +1,259 @@
+"""``cva-evaluate``: score confidence methods on stereo data sets with ground truth.
+
+For every scene of the chosen data sets, every matcher and every confidence method, computes
+the error rate, the AUC of the ROC curve and the optimal AUC (Mehltretter & Heipke 2019,
+Sec. 4.1), then writes
+
+* ``--json PATH``: a list of records with keys ``dataset``, ``scene``, ``matcher``, ``method``,
+  ``auc``, ``auc_opt``, ``error_rate``, ``n_pixels``;
+* a Markdown table in the layout of the paper's Table 1 (AUC × 10², mean over scenes, best
+  method per row in bold) to stdout and, with ``--out DIR``, to ``DIR/table.md``;
+* with ``--out DIR``: PNGs under ``DIR/<dataset>/<scene>/<matcher>/`` (disparity, confidence
+  map and green/red correctness overlay per method, ROC curves with the optimal curve).
+
+Progress goes to stderr. Bad input (unknown names, empty data root, weights for another
+matcher or depth) ends with a one-line message and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from pathlib import Path
+import sys
+import time
+from typing import Any
+
+from cva_confidence_ros.errors import ConfigError, CVAError, DataError
+
+__all__ = ['main', 'parse_dataset_names', 'parse_weights']
+
+PROG = 'cva-evaluate'
+
+
+def _split_names(text: str, what: str) -> list[str]:
+    names = [item.strip() for item in text.split(',') if item.strip()]
+    if not names:
+        raise ConfigError(f'expected a comma-separated list of {what}; got {text!r}')
+    return list(dict.fromkeys(names))
+
+
+def parse_dataset_names(text: str) -> list[str]:
+    """Expand ``--dataset``: comma-separated names; ``develop`` = ``DEVELOP_DATASETS``.
+
+    Raises:
+        ConfigError: An unknown data set name.
+    """
+    from cva_confidence_ros.datasets import DATASETS, DEVELOP_DATASETS
+
+    names: list[str] = []
+    for name in _split_names(text, 'data sets'):
+        expanded = list(DEVELOP_DATASETS) if name == 'develop' else [name]
+        for item in expanded:
+            if item not in DATASETS:
+                raise ConfigError(
+                    f'unknown data set {item!r}; expected one of {DATASETS.names()} or develop'
+                )
+            names.append(item)
+    return list(dict.fromkeys(names))
+
+
+def parse_weights(text: str | None, matchers: Sequence[str]) -> dict[str, str | None]:
+    """Map each matcher to its weights file from ``--weights``.
+
+    Args:
+        text: ``PATH`` (for every matcher), ``matcher=PATH[,matcher=PATH...]``, or None.
+        matchers: The matchers being evaluated.
+
+    Returns:
+        Matcher → path, None where the shipped default weights are to be used.
+
+    Raises:
+        ConfigError: A ``matcher=PATH`` pair names an unknown or unevaluated matcher.
+    """
+    if not text:
+        return {m: None for m in matchers}
+    items = [item.strip() for item in text.split(',') if item.strip()]
+    if not all('=' in item for item in items):
+        return {m: text for m in matchers}
+    chosen: dict[str, str | None] = {m: None for m in matchers}
+    for item in items:
+        name, _, path = item.partition('=')
+        name = name.strip()
+        if name not in chosen:
+            raise ConfigError(
+                f'--weights names matcher {name!r}, which is not among --matchers {list(matchers)}'
+            )
+        if not path.strip():
+            raise ConfigError(f'--weights pair {item!r} lacks a path after "="')
+        chosen[name] = path.strip()
+    return chosen
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description='Score stereo confidence methods (CVA-Net and hand-crafted measures) on '
+        'data sets with ground truth: per-scene JSON, a Table-1 Markdown table, PNGs.',
+    )
+    parser.add_argument('--data-root', type=Path, default=None,
+                        help='folder holding the data sets (not needed for motorcycle)')
+    parser.add_argument('--dataset', required=True,
+                        help='data set name(s), comma-separated, or "develop"')
+    parser.add_argument('--split', default=None,
+                        help='data set split (default per data set, e.g. trainingQ)')
+    parser.add_argument('--matchers', required=True,
+                        help='comma-separated matchers: census_bm,census_sgm,mccnn_fast')
+    parser.add_argument('--methods', required=True,
+                        help='comma-separated confidence methods, e.g. cva_net,pkrn,mlm')
+    parser.add_argument('--weights', default=None,
+                        help='CVA-Net weights: one PATH, or matcher=PATH pairs (comma-separated);'
+                        ' default the shipped weights for each matcher and depth')
+    parser.add_argument('--max-disparity', type=int, default=64,
+                        help='cost-volume depth D (default 64, that of the shipped weights)')
+    parser.add_argument('--max-pixels', type=int, default=None,
+                        help='score a fixed random subset of N ground-truth pixels per scene; '
+                        'CVA-Net then runs only there (patch mode)')
+    parser.add_argument('--seed', type=int, default=0, help='seed of the pixel subset')
+    parser.add_argument('--json', type=Path, required=True, help='output JSON file')
+    parser.add_argument('--out', type=Path, default=None,
+                        help='output folder for table.md and PNGs')
+    parser.add_argument('--max-scenes', type=int, default=None,
+                        help='evaluate at most this many scenes per data set')
+    parser.add_argument('--downsample', type=int, default=1,
+                        help='shrink every pair by this integer factor first (quick runs)')
+    parser.add_argument('--device', default='cpu', choices=('cpu', 'cuda', 'auto'),
+                        help='device of learned methods')
+    parser.add_argument('--tile-budget-mb', type=float, default=512.0,
+                        help='memory budget of one network tile')
+    return parser
+
+
+def _log(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def _check_args(args: argparse.Namespace) -> None:
+    if not 1 <= args.max_disparity <= 1024:
+        raise ConfigError(f'--max-disparity must be in [1, 1024]; got {args.max_disparity}')
+    if args.max_pixels is not None and args.max_pixels < 1:
+        raise ConfigError(f'--max-pixels must be ≥ 1; got {args.max_pixels}')
+    if args.max_scenes is not None and args.max_scenes < 1:
+        raise ConfigError(f'--max-scenes must be ≥ 1; got {args.max_scenes}')
+    if args.downsample < 1:
+        raise ConfigError(f'--downsample must be ≥ 1; got {args.downsample}')
+    if args.tile_budget_mb <= 0:
+        raise ConfigError(f'--tile-budget-mb must be > 0; got {args.tile_budget_mb}')
+
+
+def _build_methods(
+    args: argparse.Namespace, matchers: Sequence[str], methods: Sequence[str]
+) -> dict[str, dict[str, Any]]:
+    """Matcher → method name → confidence method; loads (and checks) every weights file once."""
+    from cva_confidence_ros.confidence import CONFIDENCE_METHODS
+
+    weights = parse_weights(args.weights, matchers)
+    built: dict[str, dict[str, Any]] = {}
+    for matcher in matchers:
+        built[matcher] = {}
+        for name in methods:
+            factory = CONFIDENCE_METHODS.get(name)
+            built[matcher][name] = factory(
+                matcher=matcher,
+                max_disparity=args.max_disparity,
+                weights=weights[matcher],
+                device=args.device,
+                tile_budget_mb=args.tile_budget_mb,
+            )
+    return built
+
+
+def _scene_lists(
+    datasets: Sequence[str], root: Path | None, split: str | None, max_scenes: int | None
+) -> list[tuple[str, str]]:
+    from cva_confidence_ros.datasets import list_scenes
+
+    jobs: list[tuple[str, str]] = []
+    for name in datasets:
+        scenes = list(list_scenes(name, root, split=split))
+        if not scenes:
+            where = root if root is not None else '(no --data-root)'
+            raise DataError(f'no stereo pairs of data set {name!r} found under {where}')
+        jobs.extend((name, scene) for scene in scenes[:max_scenes])
+    return jobs
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the evaluation for parsed arguments; raises ``CVAError`` on bad input."""
+    from cva_confidence_ros.datasets import load_scene, resize_sample
+    from cva_confidence_ros.evaluation.records import format_table, write_records
+    from cva_confidence_ros.evaluation.scene import evaluate_scene
+    from cva_confidence_ros.matching import MATCHERS
+
+    _check_args(args)
+    datasets = parse_dataset_names(args.dataset)
+    matchers = _split_names(args.matchers, 'matchers')
+    for matcher in matchers:
+        MATCHERS.get(matcher)
+    methods = _split_names(args.methods, 'confidence methods')
+    built = _build_methods(args, matchers, methods)
+    jobs = _scene_lists(datasets, args.data_root, args.split, args.max_scenes)
+
+    records = []
+    for index, (dataset, scene) in enumerate(jobs, start=1):
+        prefix = f'[{index}/{len(jobs)}] {dataset}/{scene}'
+        tic = time.perf_counter()
+        sample = load_scene(dataset, args.data_root, scene, split=args.split)
+        if args.downsample > 1:
+            sample = resize_sample(sample, args.downsample)
+        _log(f'{prefix} loaded {sample.left.shape[1]}x{sample.left.shape[0]} '
+             f'{time.perf_counter() - tic:.2f} s')
+        for matcher in matchers:
+            plot_dir = None
+            if args.out is not None:
+                plot_dir = args.out / dataset / scene / matcher
+            records.extend(
+                evaluate_scene(
+                    sample,
+                    matcher,
+                    built[matcher],
+                    max_disparity=args.max_disparity,
+                    max_pixels=args.max_pixels,
+                    seed=args.seed,
+                    plot_dir=plot_dir,
+                    log=lambda message, p=prefix: _log(f'{p} {message}'),
+                    method_order=methods,
+                )
+            )
+
+    write_records(records, args.json)
+    table = format_table(records, methods=methods)
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / 'table.md').write_text(table, encoding='utf-8')
+    sys.stdout.write(table)
+    sys.stdout.flush()
+    _log(f'wrote {len(records)} records to {args.json}')
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``cva-evaluate`` (and ``ros2 run cva_confidence_ros evaluate``).
+
+    Returns:
+        0 on success, 2 on bad input (after one line on stderr), 1 if an output file cannot
+        be written.
+    """
+    args = _build_parser().parse_args(argv)
+    try:
+        return run(args)
+    except CVAError as exc:
+        print(f'{PROG}: error: {exc}', file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f'{PROG}: error: {exc}', file=sys.stderr)
+        return 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,191 @@
+"""Per-scene evaluation records, their JSON file and the Table-1 Markdown layout."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import asdict, dataclass
+import json
+import math
+import os
+from pathlib import Path
+
+from cva_confidence_ros.errors import DataError, InputError
+
+__all__ = [
+    'RECORD_KEYS',
+    'EvalRecord',
+    'format_table',
+    'read_records',
+    'write_records',
+]
+
+RECORD_KEYS = (
+    'dataset',
+    'scene',
+    'matcher',
+    'method',
+    'auc',
+    'auc_opt',
+    'error_rate',
+    'n_pixels',
+)
+"""Keys of one JSON record, in file order."""
+
+
+@dataclass(frozen=True)
+class EvalRecord:
+    """Score of one confidence method on one scene and matcher.
+
+    Attributes:
+        dataset: Data set name (``kitti2015``, ``motorcycle``, ...).
+        scene: Scene name within the data set.
+        matcher: Matcher that produced the cost volume and disparity map.
+        method: Confidence method name (``cva_net``, ``pkrn``, ...).
+        auc: Area under the ROC curve (error rate over density), in [0, 1]; lower = better.
+        auc_opt: The optimal AUC for this disparity map (paper Eq. (1)); same for all methods
+            of a scene and matcher.
+        error_rate: Fraction of scored pixels whose disparity is wrong (KITTI criterion).
+        n_pixels: Number of scored pixels (ground truth known; the subset if one was drawn).
+    """
+
+    dataset: str
+    scene: str
+    matcher: str
+    method: str
+    auc: float
+    auc_opt: float
+    error_rate: float
+    n_pixels: int
+
+    def as_dict(self) -> dict[str, str | float | int]:
+        """The record as a JSON-ready dict with exactly :data:`RECORD_KEYS`."""
+        return asdict(self)
+
+    @classmethod
+    def from_mapping(cls, item: Mapping[str, object]) -> EvalRecord:
+        """Build a record from a dict with :data:`RECORD_KEYS` (extra keys are ignored).
+
+        Raises:
+            InputError: A key is missing or a value has the wrong type.
+        """
+        missing = [key for key in RECORD_KEYS if key not in item]
+        if missing:
+            raise InputError(f'evaluation record lacks keys {missing}; got {sorted(item)}')
+        try:
+            return cls(
+                dataset=str(item['dataset']),
+                scene=str(item['scene']),
+                matcher=str(item['matcher']),
+                method=str(item['method']),
+                auc=float(item['auc']),  # type: ignore[arg-type]
+                auc_opt=float(item['auc_opt']),  # type: ignore[arg-type]
+                error_rate=float(item['error_rate']),  # type: ignore[arg-type]
+                n_pixels=int(item['n_pixels']),  # type: ignore[call-overload]
+            )
+        except (TypeError, ValueError) as exc:
+            raise InputError(f'evaluation record has a value of the wrong type: {exc}') from None
+
+
+RecordLike = EvalRecord | Mapping[str, object]
+
+
+def _as_records(records: Iterable[RecordLike]) -> list[EvalRecord]:
+    return [r if isinstance(r, EvalRecord) else EvalRecord.from_mapping(r) for r in records]
+
+
+def write_records(records: Iterable[RecordLike], path: str | os.PathLike[str]) -> Path:
+    """Write records as a JSON list of objects with :data:`RECORD_KEYS`.
+
+    Args:
+        records: :class:`EvalRecord` objects or equivalent dicts.
+        path: Output file; parent folders are created.
+
+    Returns:
+        The path written.
+    """
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    items = [r.as_dict() for r in _as_records(records)]
+    out.write_text(json.dumps(items, indent=2) + '\n', encoding='utf-8')
+    return out
+
+
+def read_records(path: str | os.PathLike[str]) -> list[EvalRecord]:
+    """Read a file written by :func:`write_records`.
+
+    Raises:
+        DataError: The file is missing or not a JSON list.
+        InputError: A record lacks keys.
+    """
+    try:
+        items = json.loads(Path(path).read_text(encoding='utf-8'))
+    except (OSError, json.JSONDecodeError) as exc:
+        raise DataError(f'cannot read evaluation records from {path}: {exc}') from None
+    if not isinstance(items, list):
+        raise DataError(f'{path} must hold a JSON list of records; got {type(items).__name__}')
+    return _as_records(items)
+
+
+def _mean(values: Sequence[float]) -> float:
+    return math.fsum(values) / len(values)
+
+
+def format_table(
+    records: Iterable[RecordLike],
+    methods: Sequence[str] | None = None,
+    decimals: int = 2,
+) -> str:
+    """Render records in the layout of the paper's Table 1 as a Markdown table.
+
+    One row per (data set, matcher), in order of first appearance; the columns are ``Opt.``
+    (the mean optimal AUC) and one per method. Each cell is the AUC × 10² averaged over the
+    scenes of that data set (the mean of per-scene AUCs, as in the paper). In every row the
+    smallest method value, compared after rounding to ``decimals``, is bold (ties: all of
+    them); ``Opt.`` is never bold. A method without records for a row shows ``–``.
+
+    Args:
+        records: :class:`EvalRecord` objects or dicts with :data:`RECORD_KEYS`.
+        methods: Column order; default the order of first appearance. Methods named here
+            but absent from the records get a column of ``–``.
+        decimals: Digits after the decimal point.
+
+    Returns:
+        The Markdown table, lines joined with ``\\n``, ending in a newline. An empty input
+        gives a header-only table.
+    """
+    items = _as_records(records)
+    if methods is None:
+        methods = list(dict.fromkeys(r.method for r in items))
+    rows = list(dict.fromkeys((r.dataset, r.matcher) for r in items))
+
+    aucs: dict[tuple[str, str, str], list[float]] = {}
+    optimal: dict[tuple[str, str], dict[str, float]] = {}
+    for r in items:
+        aucs.setdefault((r.dataset, r.matcher, r.method), []).append(r.auc)
+        # AUC_opt belongs to the scene and matcher, not the method: count each scene once.
+        optimal.setdefault((r.dataset, r.matcher), {}).setdefault(r.scene, r.auc_opt)
+
+    header = ['data set', 'matcher', 'Opt.', *methods]
+    lines = [
+        '| ' + ' | '.join(header) + ' |',
+        '|' + '|'.join([':---', ':---'] + ['---:'] * (len(header) - 2)) + '|',
+    ]
+    for dataset, matcher in rows:
+        opt = _mean(list(optimal[(dataset, matcher)].values())) * 100.0
+        cells = {}
+        for method in methods:
+            values = aucs.get((dataset, matcher, method))
+            if values:
+                cells[method] = f'{_mean(values) * 100.0:.{decimals}f}'
+        best = min((float(text) for text in cells.values()), default=None)
+        row = [dataset, matcher, f'{opt:.{decimals}f}']
+        for method in methods:
+            text = cells.get(method)
+            if text is None:
+                row.append('–')
+            elif float(text) == best:
+                row.append(f'**{text}**')
+            else:
+                row.append(text)
+        lines.append('| ' + ' | '.join(row) + ' |')
+    return '\n'.join(lines) + '\n'

@@ -1,0 +1,347 @@
+"""Score confidence methods on one stereo scene with ground truth (the paper's protocol).
+
+Per scene and matcher: cost volume → winner-takes-all disparity → KITTI error label at every
+pixel with ground truth → for each confidence method the ROC curve, its AUC, and the optimal
+AUC of that disparity map (paper Sec. 4.1, Eq. (1)). Lower AUC is better.
+
+Pixel subsets (``max_pixels``): a fixed random subset of the ground-truth pixels is scored
+instead of all of them. Learned methods that can run at single pixels (CVA-Net, patch mode)
+are computed only there; the other methods are computed densely (they are cheap) and read at
+the same pixels, so every method is scored on exactly the same pixels.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+import time
+from typing import Any
+
+import numpy as np
+
+from cva_confidence_ros.errors import InputError
+from cva_confidence_ros.evaluation.records import EvalRecord
+
+__all__ = [
+    'ScoredMethod',
+    'confidence_at',
+    'evaluate_scene',
+    'overlay_threshold',
+    'score_confidence',
+    'select_pixels',
+]
+
+Logger = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class ScoredMethod:
+    """ROC analysis of one confidence map on a set of pixels.
+
+    Attributes:
+        auc: Area under the ROC curve, in [0, 1]; lower = better.
+        auc_opt: Optimal AUC for the error rate (paper Eq. (1)).
+        error_rate: Fraction of the scored pixels whose disparity is wrong.
+        n_pixels: Number of scored pixels.
+        density: (K,) float ROC density samples in (0, 1], ascending.
+        roc_error: (K,) float error rate among the ``density`` most confident pixels.
+    """
+
+    auc: float
+    auc_opt: float
+    error_rate: float
+    n_pixels: int
+    density: np.ndarray
+    roc_error: np.ndarray
+
+
+def select_pixels(
+    known: np.ndarray, max_pixels: int | None = None, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pick the pixels to score: all ground-truth pixels, or a fixed random subset of them.
+
+    Args:
+        known: (H, W) bool, True where the ground truth is known.
+        max_pixels: Subset size N ≥ 1; None (or N ≥ number of known pixels) = all of them.
+        seed: Seed of the subset; the same (``known``, N, seed) always gives the same pixels.
+
+    Returns:
+        ``(ys, xs)``, two (M,) int64 arrays in row-major order, M = min(N, known pixels).
+
+    Raises:
+        InputError: ``known`` is not 2-D or ``max_pixels`` < 1.
+    """
+    known = np.asarray(known, dtype=bool)
+    if known.ndim != 2:
+        raise InputError(f'known must be an (H, W) bool mask; got shape {known.shape}')
+    if max_pixels is not None and max_pixels < 1:
+        raise InputError(f'max_pixels must be ≥ 1 or None; got {max_pixels}')
+    flat = np.flatnonzero(known)
+    if max_pixels is not None and max_pixels < flat.size:
+        rng = np.random.default_rng(seed)
+        flat = np.sort(rng.choice(flat, size=max_pixels, replace=False))
+    ys, xs = np.unravel_index(flat, known.shape)
+    return ys.astype(np.int64), xs.astype(np.int64)
+
+
+def score_confidence(confidence: np.ndarray, error: np.ndarray) -> ScoredMethod:
+    """ROC curve, AUC and optimal AUC of confidence values against error labels.
+
+    Args:
+        confidence: (N,) or (H, W) float confidence at the scored pixels, higher = more
+            confident; must be finite.
+        error: Same shape, bool, True = the disparity is wrong.
+
+    Returns:
+        The :class:`ScoredMethod`.
+
+    Raises:
+        InputError: Shapes differ, nothing to score, or non-finite confidence.
+    """
+    from cva_confidence_ros.metrics import optimal_auc, roc_auc, roc_curve
+
+    confidence = np.asarray(confidence, dtype=np.float32).ravel()
+    error = np.asarray(error, dtype=bool).ravel()
+    if confidence.shape != error.shape:
+        raise InputError(
+            f'confidence and error must have the same size; got {confidence.size} '
+            f'and {error.size}'
+        )
+    if confidence.size == 0:
+        raise InputError('no pixels to score: the scene has no ground-truth pixels')
+    if not np.isfinite(confidence).all():
+        bad = int((~np.isfinite(confidence)).sum())
+        raise InputError(f'confidence must be finite at scored pixels; got {bad} NaN/inf values')
+    error_rate = float(error.mean())
+    density, roc_error = roc_curve(confidence, error)
+    return ScoredMethod(
+        auc=float(roc_auc(confidence, error)),
+        auc_opt=float(optimal_auc(error_rate)),
+        error_rate=error_rate,
+        n_pixels=int(confidence.size),
+        density=np.asarray(density, dtype=np.float64),
+        roc_error=np.asarray(roc_error, dtype=np.float64),
+    )
+
+
+def overlay_threshold(confidence: np.ndarray, error_rate: float) -> float:
+    """Threshold τ of the green/red correctness overlay for a confidence map.
+
+    Confidences in [0, 1] (learned, probabilistic) use the paper's τ = 0.5. Hand-crafted
+    measures on other scales have no natural 0.5, so τ is their ε-quantile: the most
+    confident 1 − ε of the pixels count as "confident", as many as there are correct ones.
+
+    Args:
+        confidence: Confidence values at the scored pixels, any shape.
+        error_rate: ε of the disparity map on those pixels, in [0, 1].
+
+    Returns:
+        τ as a float.
+    """
+    values = np.asarray(confidence, dtype=np.float64)
+    values = values[np.isfinite(values)]
+    if values.size == 0 or (values.min() >= 0.0 and values.max() <= 1.0):
+        return 0.5
+    return float(np.quantile(values, min(max(error_rate, 0.0), 1.0)))
+
+
+def confidence_at(
+    method: Any, inputs: Any, ys: np.ndarray, xs: np.ndarray
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Confidence of ``method`` at pixels ``(ys, xs)``, computed only there if it can.
+
+    A method that offers ``confidence_at(inputs, ys, xs)`` (or exposes its network as ``net``,
+    as CVA-Net does) is run in patch mode; any other method is run densely and read there.
+
+    Args:
+        method: A confidence method from ``confidence.CONFIDENCE_METHODS``.
+        inputs: Its ``ConfidenceInputs``.
+        ys: (N,) int row indices.
+        xs: (N,) int column indices.
+
+    Returns:
+        ``(values, dense)``: (N,) float32 confidences and the (H, W) float32 map if the method
+        was run densely, else None.
+    """
+    point_fn = getattr(method, 'confidence_at', None)
+    if callable(point_fn):
+        return np.asarray(point_fn(inputs, ys, xs), dtype=np.float32).ravel(), None
+    net = getattr(method, 'net', None)
+    if net is not None:
+        from cva_confidence_ros.model import predict_confidence_at
+
+        values = predict_confidence_at(net, inputs.cost_volume, ys, xs)
+        return np.asarray(values, dtype=np.float32).ravel(), None
+    dense = np.asarray(method(inputs), dtype=np.float32)
+    return dense[ys, xs], dense
+
+
+def _map_range(values: np.ndarray) -> tuple[float | None, float | None]:
+    finite = values[np.isfinite(values)]
+    if finite.size == 0 or (finite.min() >= 0.0 and finite.max() <= 1.0):
+        return 0.0, 1.0
+    # Hand-crafted ratios (PKRN) have long tails that would leave the map black.
+    low, high = np.percentile(finite, [1.0, 99.0])
+    return float(low), float(high)
+
+
+def _write_plots(
+    plot_dir: Path,
+    sample: Any,
+    disparity: np.ndarray,
+    max_disparity: int,
+    error: np.ndarray,
+    ys: np.ndarray,
+    xs: np.ndarray,
+    maps: Mapping[str, np.ndarray],
+    scores: Mapping[str, ScoredMethod],
+) -> None:
+    from cva_confidence_ros.plots import (
+        save_confidence_map,
+        save_correctness_overlay,
+        save_disparity_map,
+        save_roc_curves,
+    )
+
+    mask = np.zeros(disparity.shape, dtype=bool)
+    mask[ys, xs] = True
+    save_disparity_map(disparity, plot_dir / 'disparity.png', max_disparity=max_disparity - 1)
+    for name, confidence in maps.items():
+        vmin, vmax = _map_range(confidence)
+        save_confidence_map(confidence, plot_dir / f'confidence_{name}.png', vmin, vmax)
+        tau = overlay_threshold(confidence[ys, xs], scores[name].error_rate)
+        save_correctness_overlay(
+            confidence, error, plot_dir / f'correct_{name}.png', tau=tau,
+            image=sample.left, mask=mask,
+        )
+    any_score = next(iter(scores.values()))
+    save_roc_curves(
+        {name: (s.density, s.roc_error) for name, s in scores.items()},
+        plot_dir / 'roc.png',
+        error_rate=any_score.error_rate,
+        title=f'{sample.dataset}/{sample.scene}  ε = {100 * any_score.error_rate:.1f} %',
+    )
+
+
+def evaluate_scene(
+    sample: Any,
+    matcher: str,
+    methods: Mapping[str, Any],
+    *,
+    max_disparity: int = 64,
+    max_pixels: int | None = None,
+    seed: int = 0,
+    plot_dir: str | Path | None = None,
+    log: Logger | None = None,
+    method_order: Sequence[str] | None = None,
+) -> list[EvalRecord]:
+    """Score confidence methods on one scene for one matcher.
+
+    The scene is first halved in resolution until its largest ground-truth disparity fits
+    the cost-volume depth (``datasets.fit_disparity_range``, as in the paper).
+
+    Args:
+        sample: A ``datasets.StereoSample`` (left/right uint8 images, (H, W) float32
+            ground-truth disparity with NaN = unknown).
+        matcher: Registered matcher name.
+        methods: Method name → confidence method built for this matcher and depth (from
+            ``confidence.CONFIDENCE_METHODS``); built once by the caller so learned weights
+            are loaded once.
+        max_disparity: Cost-volume depth D.
+        max_pixels: Score a fixed random subset of this many ground-truth pixels; None = all.
+        seed: Seed of that subset.
+        plot_dir: If given, write ``disparity.png``, ``confidence_<method>.png``,
+            ``correct_<method>.png`` (green/red overlay on the scored pixels) and ``roc.png``
+            there. In a subset run, a method computed in patch mode has values only at the
+            scored pixels; the rest of its confidence map is drawn in ``plots.UNKNOWN_RGB``.
+        log: Receives one progress line per stage (matching, each method), with seconds.
+        method_order: Order of the records; default the order of ``methods``.
+
+    Returns:
+        One :class:`EvalRecord` per method, in ``method_order``.
+
+    Raises:
+        InputError: The scene has no ground-truth pixels or a method returns a bad map.
+        ConfigError: Unknown matcher.
+    """
+    from cva_confidence_ros.confidence import ConfidenceInputs
+    from cva_confidence_ros.datasets import fit_disparity_range
+    from cva_confidence_ros.matching import compute_cost_volume, wta_disparity
+    from cva_confidence_ros.metrics import kitti_error
+
+    names = list(method_order) if method_order is not None else list(methods)
+    emit = log if log is not None else (lambda _message: None)
+    sample, _ = fit_disparity_range(sample, max_disparity)
+    gt = np.asarray(sample.disparity, dtype=np.float32)
+    ys, xs = select_pixels(np.isfinite(gt), max_pixels, seed)
+    if ys.size == 0:
+        raise InputError(
+            f'scene {sample.dataset}/{sample.scene} has no ground-truth pixels to score'
+        )
+
+    tic = time.perf_counter()
+    volume = compute_cost_volume(sample.left, sample.right, matcher, max_disparity)
+    disparity = wta_disparity(volume)
+    volume_right = disparity_right = None
+    if any(getattr(methods[name], 'needs_right', False) for name in names):
+        volume_right = compute_cost_volume(
+            sample.left, sample.right, matcher, max_disparity, view='right'
+        )
+        disparity_right = wta_disparity(volume_right)
+    emit(f'{matcher} matching {volume.shape[2]}x{volume.shape[1]}x{volume.shape[0]} '
+         f'{time.perf_counter() - tic:.2f} s')
+    inputs = ConfidenceInputs(
+        cost_volume=volume,
+        disparity=disparity,
+        image=sample.left,
+        cost_volume_right=volume_right,
+        disparity_right=disparity_right,
+        matcher=matcher,
+    )
+    error_map = np.asarray(kitti_error(disparity, gt), dtype=bool)
+    error = error_map[ys, xs]
+    subset = max_pixels is not None
+
+    records: list[EvalRecord] = []
+    maps: dict[str, np.ndarray] = {}
+    scores: dict[str, ScoredMethod] = {}
+    for name in names:
+        tic = time.perf_counter()
+        if subset:
+            values, dense = confidence_at(methods[name], inputs, ys, xs)
+        else:
+            dense = np.asarray(methods[name](inputs), dtype=np.float32)
+            values = None
+        if dense is not None and dense.shape != disparity.shape:
+            raise InputError(
+                f'confidence method {name!r} must return shape {disparity.shape}; '
+                f'got {dense.shape}'
+            )
+        if values is None:
+            values = dense[ys, xs]
+        if dense is None:
+            dense = np.full(disparity.shape, np.nan, dtype=np.float32)
+            dense[ys, xs] = values
+        score = score_confidence(values, error)
+        emit(f'{matcher} {name} {time.perf_counter() - tic:.2f} s '
+             f'AUC {100 * score.auc:.2f} (opt {100 * score.auc_opt:.2f})')
+        maps[name] = dense
+        scores[name] = score
+        records.append(
+            EvalRecord(
+                dataset=sample.dataset,
+                scene=sample.scene,
+                matcher=matcher,
+                method=name,
+                auc=score.auc,
+                auc_opt=score.auc_opt,
+                error_rate=score.error_rate,
+                n_pixels=score.n_pixels,
+            )
+        )
+    if plot_dir is not None and scores:
+        _write_plots(
+            Path(plot_dir), sample, disparity, max_disparity, error_map, ys, xs, maps, scores
+        )
+    return records

@@ -1,0 +1,309 @@
+"""PNG helpers: confidence and disparity maps, the correctness overlay, ROC curves.
+
+Arrays in, PNG path out. Maps are written pixel for pixel (one PNG pixel per array element,
+no axes), so they can be laid over the input image; ROC curves are a small matplotlib figure.
+Only the Agg canvas is used, never ``pyplot``, so importing this module changes no global
+matplotlib state and needs no display.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+import os
+from pathlib import Path
+
+import numpy as np
+
+from cva_confidence_ros.errors import InputError
+
+__all__ = [
+    'CORRECT_RGB',
+    'UNKNOWN_RGB',
+    'WRONG_RGB',
+    'correctness_classes',
+    'optimal_roc_curve',
+    'save_confidence_map',
+    'save_correctness_overlay',
+    'save_disparity_map',
+    'save_roc_curves',
+]
+
+CORRECT_RGB = (0, 200, 0)
+WRONG_RGB = (230, 0, 0)
+UNKNOWN_RGB = (40, 40, 110)
+"""Colour of NaN entries in confidence and disparity maps (e.g. pixels not computed)."""
+
+PathLike = str | os.PathLike[str]
+
+
+def _check_map(name: str, array: np.ndarray) -> np.ndarray:
+    array = np.asarray(array)
+    if array.ndim != 2 or array.size == 0:
+        raise InputError(f'{name} must be a non-empty (H, W) array; got shape {array.shape}')
+    if not np.issubdtype(array.dtype, np.number) and array.dtype != np.bool_:
+        raise InputError(f'{name} must be numeric; got dtype {array.dtype}')
+    return array
+
+
+def _prepare_path(path: PathLike) -> Path:
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def _write_rgb(rgb: np.ndarray, path: PathLike) -> Path:
+    from matplotlib.image import imsave
+
+    out = _prepare_path(path)
+    imsave(out, np.ascontiguousarray(rgb, dtype=np.uint8), format='png')
+    return out
+
+
+def _colorize(
+    values: np.ndarray, cmap: str, vmin: float | None, vmax: float | None
+) -> np.ndarray:
+    """Map finite values through ``cmap`` onto (H, W, 3) uint8; NaN/inf become UNKNOWN_RGB."""
+    from matplotlib import colormaps
+
+    values = values.astype(np.float64)
+    finite = np.isfinite(values)
+    if vmin is None:
+        vmin = float(values[finite].min()) if finite.any() else 0.0
+    if vmax is None:
+        vmax = float(values[finite].max()) if finite.any() else 1.0
+    span = vmax - vmin
+    # A constant map would divide by zero; draw it mid-grey rather than fail.
+    scaled = (values - vmin) / span if span > 0 else np.full(values.shape, 0.5)
+    scaled = np.clip(np.where(finite, scaled, 0.0), 0.0, 1.0)
+    rgb = (colormaps[cmap](scaled)[..., :3] * 255.0 + 0.5).astype(np.uint8)
+    rgb[~finite] = UNKNOWN_RGB
+    return rgb
+
+
+def save_confidence_map(
+    confidence: np.ndarray,
+    path: PathLike,
+    vmin: float | None = None,
+    vmax: float | None = None,
+    cmap: str = 'gray',
+) -> Path:
+    """Write a confidence map as a PNG, black = low, white = high (as in the paper's figures).
+
+    Args:
+        confidence: (H, W) float array, any real range; NaN marks pixels without a value
+            (drawn in ``UNKNOWN_RGB``).
+        path: Output PNG file; parent folders are created.
+        vmin: Value drawn black; default the finite minimum (use 0 for learned confidence).
+        vmax: Value drawn white; default the finite maximum (use 1 for learned confidence).
+        cmap: Any matplotlib colormap name.
+
+    Returns:
+        The path written, an (H, W) RGB PNG.
+
+    Raises:
+        InputError: ``confidence`` is not a non-empty numeric 2-D array.
+    """
+    confidence = _check_map('confidence', confidence)
+    return _write_rgb(_colorize(confidence, cmap, vmin, vmax), path)
+
+
+def save_disparity_map(
+    disparity: np.ndarray,
+    path: PathLike,
+    max_disparity: float | None = None,
+    cmap: str = 'magma',
+) -> Path:
+    """Write a disparity map as a PNG, dark = far (small d), bright = near.
+
+    Args:
+        disparity: (H, W) float array, ≥ 0 pixels; NaN/inf = unknown (drawn ``UNKNOWN_RGB``).
+        path: Output PNG file; parent folders are created.
+        max_disparity: Disparity drawn brightest; default the finite maximum.
+        cmap: Any matplotlib colormap name.
+
+    Returns:
+        The path written, an (H, W) RGB PNG.
+
+    Raises:
+        InputError: ``disparity`` is not a non-empty numeric 2-D array.
+    """
+    disparity = _check_map('disparity', disparity)
+    return _write_rgb(_colorize(disparity, cmap, 0.0, max_disparity), path)
+
+
+def correctness_classes(
+    confidence: np.ndarray, error: np.ndarray, tau: float = 0.5
+) -> np.ndarray:
+    """Tell where a confidence map classifies the disparity correctly at threshold ``tau``.
+
+    The paper's rule (Fig. 4 caption): a pixel is classified correctly if its disparity is
+    correct and ``confidence > tau``, or its disparity is wrong and ``confidence <= tau``.
+
+    Args:
+        confidence: (...) float array.
+        error: Same shape, bool; True = the disparity is wrong.
+        tau: Threshold on the confidence.
+
+    Returns:
+        Bool array of the same shape, True where the confidence classifies correctly.
+        NaN confidence compares False both ways, so it yields False; callers mask it out.
+
+    Raises:
+        InputError: The shapes differ.
+    """
+    confidence = np.asarray(confidence)
+    error = np.asarray(error, dtype=bool)
+    if confidence.shape != error.shape:
+        raise InputError(
+            f'confidence and error must have the same shape; got {confidence.shape} '
+            f'and {error.shape}'
+        )
+    with np.errstate(invalid='ignore'):
+        return (~error & (confidence > tau)) | (error & (confidence <= tau))
+
+
+def _gray_background(image: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray:
+    if image is None:
+        return np.zeros((*shape, 3), dtype=np.uint8)
+    image = np.asarray(image)
+    if image.shape[:2] != shape or image.ndim not in (2, 3):
+        raise InputError(
+            f'image must be (H, W) or (H, W, 3) with (H, W) = {shape}; got {image.shape}'
+        )
+    gray = image.astype(np.float64)
+    if gray.ndim == 3:
+        gray = gray[..., :3].mean(axis=2)
+    if image.dtype != np.uint8 and gray.size and np.nanmax(gray) <= 1.0:
+        gray = gray * 255.0
+    # Dimmed so that the green/red classes stand out against the scene.
+    dim = np.clip(gray * 0.5, 0, 255).astype(np.uint8)
+    return np.repeat(dim[..., None], 3, axis=2)
+
+
+def save_correctness_overlay(
+    confidence: np.ndarray,
+    error: np.ndarray,
+    path: PathLike,
+    tau: float = 0.5,
+    image: np.ndarray | None = None,
+    mask: np.ndarray | None = None,
+) -> Path:
+    """Write the paper's green/red correctness visualisation (Fig. 4) as a PNG.
+
+    Green: the disparity is correct and ``confidence > tau``, or it is wrong and
+    ``confidence <= tau`` (the confidence classifies it correctly). Red: the opposite.
+    Pixels outside ``mask`` (no ground truth, not evaluated) or with NaN confidence show the
+    dimmed grey ``image`` (black without one).
+
+    Args:
+        confidence: (H, W) float confidence.
+        error: (H, W) bool, True = disparity wrong.
+        path: Output PNG file; parent folders are created.
+        tau: Threshold; 0.5 for confidences in [0, 1] as in the paper.
+        image: Optional (H, W) or (H, W, 3) reference image drawn under the classes.
+        mask: Optional (H, W) bool, True = pixel is evaluated; default every pixel.
+
+    Returns:
+        The path written, an (H, W) RGB PNG.
+
+    Raises:
+        InputError: Shapes disagree.
+    """
+    confidence = _check_map('confidence', confidence).astype(np.float64)
+    error = _check_map('error', error).astype(bool)
+    shape = confidence.shape
+    if error.shape != shape:
+        raise InputError(f'error must have shape {shape} like confidence; got {error.shape}')
+    if mask is None:
+        mask = np.ones(shape, dtype=bool)
+    else:
+        mask = _check_map('mask', mask).astype(bool)
+        if mask.shape != shape:
+            raise InputError(f'mask must have shape {shape} like confidence; got {mask.shape}')
+    rgb = _gray_background(image, shape)
+    shown = mask & np.isfinite(confidence)
+    right = correctness_classes(confidence, error, tau)
+    rgb[shown & right] = CORRECT_RGB
+    rgb[shown & ~right] = WRONG_RGB
+    return _write_rgb(rgb, path)
+
+
+def optimal_roc_curve(error_rate: float, samples: int = 201) -> tuple[np.ndarray, np.ndarray]:
+    """The ROC curve of a perfect confidence map for a disparity map with error ``error_rate``.
+
+    All correct pixels come first, so the error rate among the first ``p`` of the pixels is
+    ``max(0, p − (1 − ε)) / p`` (its integral is the paper's Eq. (1), AUC_opt).
+
+    Args:
+        error_rate: ε in [0, 1].
+        samples: Number of density samples in (0, 1].
+
+    Returns:
+        ``(density, error_rate)``, two (samples + 1,) float64 arrays, density ascending,
+        including the kink at ``1 − ε``.
+
+    Raises:
+        InputError: ``error_rate`` outside [0, 1] or ``samples`` < 2.
+    """
+    if not 0.0 <= error_rate <= 1.0:
+        raise InputError(f'error_rate must be in [0, 1]; got {error_rate}')
+    if samples < 2:
+        raise InputError(f'samples must be ≥ 2; got {samples}')
+    density = np.unique(np.append(np.linspace(1.0 / samples, 1.0, samples), 1.0 - error_rate))
+    density = density[density > 0]
+    rate = np.maximum(0.0, density - (1.0 - error_rate)) / density
+    return density, rate
+
+
+def save_roc_curves(
+    curves: Mapping[str, tuple[np.ndarray, np.ndarray]],
+    path: PathLike,
+    error_rate: float | None = None,
+    title: str | None = None,
+) -> Path:
+    """Plot ROC curves (error rate over density) of several confidence methods in one figure.
+
+    Args:
+        curves: Method name → ``(density, error_rate)``, 1-D arrays of equal length, density
+            in (0, 1] ascending, as returned by ``metrics.roc_curve``.
+        path: Output PNG file; parent folders are created.
+        error_rate: Overall error ε of the disparity map; when given, the optimal curve is
+            drawn as a dashed black line labelled ``optimal``.
+        title: Figure title.
+
+    Returns:
+        The path written.
+
+    Raises:
+        InputError: A curve's two arrays differ in length or are not 1-D.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=(5.0, 4.0), dpi=100)
+    FigureCanvasAgg(figure)
+    axes = figure.add_subplot(1, 1, 1)
+    for name, (density, rate) in curves.items():
+        density = np.asarray(density, dtype=np.float64)
+        rate = np.asarray(rate, dtype=np.float64)
+        if density.ndim != 1 or density.shape != rate.shape:
+            raise InputError(
+                f'curve {name!r} needs two 1-D arrays of equal length; got {density.shape} '
+                f'and {rate.shape}'
+            )
+        axes.plot(density, rate, label=name, linewidth=1.5)
+    if error_rate is not None:
+        density, rate = optimal_roc_curve(float(error_rate))
+        axes.plot(density, rate, 'k--', label='optimal', linewidth=1.2)
+    axes.set_xlim(0.0, 1.0)
+    axes.set_ylim(bottom=0.0)
+    axes.set_xlabel('density (fraction of pixels, by decreasing confidence)')
+    axes.set_ylabel('error rate')
+    if title:
+        axes.set_title(title, fontsize=10)
+    axes.grid(True, alpha=0.3)
+    axes.legend(fontsize=8, loc='upper left')
+    figure.tight_layout()
+    out = _prepare_path(path)
+    figure.savefig(out, format='png')
+    return out
