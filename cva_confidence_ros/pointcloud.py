@@ -1,0 +1,244 @@
+"""Disparity → 3D points and colour packing, the ROS-free half of the ``points2`` output.
+
+Geometry follows ``image_geometry.StereoCameraModel`` (what ``stereo_image_proc`` uses) for a
+rectified pair with projection matrices ``P_left`` and ``P_right`` (3×4)::
+
+    B  = −P_right[0, 3] / P_right[0, 0]            (baseline, world units)
+    Δ  = cx_right − cx_left                        (principal-point offset, pixels)
+    Z  = fx · B / (d + Δ)
+    X  = (u − cx_left) · Z / fx
+    Y  = (v − cy_left) · Z / fy
+
+where ``d = x_left − x_right`` is the matcher's disparity at left pixel ``(v, u)``. Points with
+``d + Δ ≤ 0`` lie at or beyond infinity and are invalid. ``image_geometry`` uses fx for Y as well;
+fy is the same for a rectified pair, and the general form is kept here.
+
+Colours are packed like ``stereo_image_proc``/PCL: the bits of ``0x00RRGGBB`` reinterpreted as a
+float32 field called ``rgb``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from cva_confidence_ros.errors import InputError
+
+__all__ = [
+    'CLOUD_DTYPE',
+    'StereoGeometry',
+    'disparity_to_points',
+    'make_cloud',
+    'pack_rgb',
+    'unpack_rgb',
+]
+
+#: One point as ``stereo_image_proc`` lays it out: x, y, z, rgb, all float32, 16 bytes.
+CLOUD_DTYPE = np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('rgb', '<f4')])
+
+
+def _projection(matrix: Sequence[float] | np.ndarray, name: str) -> np.ndarray:
+    array = np.asarray(matrix, dtype=np.float64)
+    if array.size != 12:
+        raise InputError(f'{name} must be a 3×4 projection matrix (12 values); got {array.size}')
+    array = array.reshape(3, 4)
+    if not np.all(np.isfinite(array)):
+        raise InputError(f'{name} must be finite; got {array.tolist()}')
+    return array
+
+
+@dataclass(frozen=True)
+class StereoGeometry:
+    """Rectified stereo intrinsics at one resolution.
+
+    Attributes:
+        fx: Focal length along x of the rectified left camera, pixels (> 0).
+        fy: Focal length along y, pixels (> 0).
+        cx: Principal point x of the left camera, pixels.
+        cy: Principal point y of the left camera, pixels.
+        cx_right: Principal point x of the right camera, pixels.
+        baseline: Distance between the camera centres, world units (> 0), the ``T`` of
+            ``stereo_msgs/DisparityImage``.
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    cx_right: float
+    baseline: float
+
+    def __post_init__(self) -> None:
+        values = (self.fx, self.fy, self.cx, self.cy, self.cx_right, self.baseline)
+        if not all(np.isfinite(values)):
+            raise InputError(f'stereo geometry must be finite; got {self}')
+        if self.fx <= 0 or self.fy <= 0:
+            raise InputError(f'focal lengths must be > 0; got fx={self.fx}, fy={self.fy}')
+        if self.baseline <= 0:
+            raise InputError(
+                f'baseline must be > 0 (P_right[0, 3] < 0 for a right camera); got {self.baseline}'
+            )
+
+    @classmethod
+    def from_projections(
+        cls,
+        p_left: Sequence[float] | np.ndarray,
+        p_right: Sequence[float] | np.ndarray,
+    ) -> StereoGeometry:
+        """Build from the two rectified projection matrices (``CameraInfo.p``).
+
+        Args:
+            p_left: 3×4 (or 12 values, row-major) projection matrix of the left camera.
+            p_right: Same for the right camera; ``P_right[0, 3] = −fx · B``.
+
+        Raises:
+            InputError: Wrong size, non-finite values, fx ≤ 0, or a baseline ≤ 0.
+        """
+        left = _projection(p_left, 'P_left')
+        right = _projection(p_right, 'P_right')
+        if right[0, 0] <= 0:
+            raise InputError(f'P_right[0, 0] (fx) must be > 0; got {right[0, 0]}')
+        return cls(
+            fx=float(left[0, 0]),
+            fy=float(left[1, 1]),
+            cx=float(left[0, 2]),
+            cy=float(left[1, 2]),
+            cx_right=float(right[0, 2]),
+            baseline=float(-right[0, 3] / right[0, 0]),
+        )
+
+    @property
+    def disparity_offset(self) -> float:
+        """Δ = cx_right − cx_left, added to a raw disparity before triangulation (pixels)."""
+        return self.cx_right - self.cx
+
+    def scaled(self, factor: float) -> StereoGeometry:
+        """The geometry of the images resized by ``factor`` (e.g. 0.5 for half size).
+
+        Pixel centres are kept aligned (the convention of ``cv2.resize`` with ``INTER_AREA``):
+        a coordinate ``x`` becomes ``(x + 0.5) · factor − 0.5``. The baseline does not change.
+
+        Raises:
+            InputError: ``factor`` ≤ 0.
+        """
+        if not factor > 0:
+            raise InputError(f'scale factor must be > 0; got {factor}')
+
+        def centre(value: float) -> float:
+            return (value + 0.5) * factor - 0.5
+
+        return StereoGeometry(
+            fx=self.fx * factor,
+            fy=self.fy * factor,
+            cx=centre(self.cx),
+            cy=centre(self.cy),
+            cx_right=centre(self.cx_right),
+            baseline=self.baseline,
+        )
+
+
+def disparity_to_points(
+    disparity: np.ndarray,
+    geometry: StereoGeometry,
+    mask: np.ndarray | None = None,
+) -> np.ndarray:
+    """Triangulate every pixel of a left-reference disparity map.
+
+    Args:
+        disparity: (H, W) float32 raw disparity ``x_left − x_right`` in pixels; NaN = invalid.
+        geometry: Intrinsics at the disparity map's resolution.
+        mask: Optional (H, W) bool, True = keep. Pixels outside it become NaN.
+
+    Returns:
+        (H, W, 3) float32 points (X, Y, Z) in the left camera frame (x right, y down, z
+        forward), world units of the baseline. NaN in all three where the disparity is NaN,
+        where ``d + Δ ≤ 0`` or where ``mask`` is False.
+
+    Raises:
+        InputError: ``disparity`` is not 2-D or ``mask`` has another shape.
+    """
+    disparity = np.asarray(disparity)
+    if disparity.ndim != 2:
+        raise InputError(f'disparity must be (H, W); got shape {disparity.shape}')
+    if mask is not None and np.shape(mask) != disparity.shape:
+        raise InputError(
+            f'mask must have the disparity shape {disparity.shape}; got {np.shape(mask)}'
+        )
+    height, width = disparity.shape
+    shifted = disparity.astype(np.float64) + geometry.disparity_offset
+    with np.errstate(invalid='ignore'):
+        keep = np.isfinite(shifted) & (shifted > 0)
+    if mask is not None:
+        keep &= np.asarray(mask, dtype=bool)
+    depth = np.full((height, width), np.nan)
+    np.divide(geometry.fx * geometry.baseline, shifted, out=depth, where=keep)
+    columns = np.arange(width, dtype=np.float64)[None, :]
+    rows = np.arange(height, dtype=np.float64)[:, None]
+    points = np.empty((height, width, 3), dtype=np.float32)
+    points[..., 0] = (columns - geometry.cx) * depth / geometry.fx
+    points[..., 1] = (rows - geometry.cy) * depth / geometry.fy
+    points[..., 2] = depth
+    return points
+
+
+def pack_rgb(image: np.ndarray) -> np.ndarray:
+    """Pack colours into float32 ``rgb`` values (bits of ``0x00RRGGBB``).
+
+    Args:
+        image: (H, W) uint8 gray (used for all three channels) or (H, W, 3) uint8 RGB.
+
+    Returns:
+        (H, W) float32 whose bit patterns are the packed colours.
+
+    Raises:
+        InputError: Not uint8, or not (H, W) / (H, W, 3).
+    """
+    image = np.asarray(image)
+    if image.dtype != np.uint8:
+        raise InputError(f'colour image must be uint8; got {image.dtype}')
+    if image.ndim == 2:
+        image = np.repeat(image[..., None], 3, axis=2)
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise InputError(f'colour image must be (H, W) or (H, W, 3); got {image.shape}')
+    channels = image.astype(np.uint32)
+    packed = (channels[..., 0] << 16) | (channels[..., 1] << 8) | channels[..., 2]
+    return packed.astype('<u4').view('<f4')
+
+
+def unpack_rgb(packed: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`pack_rgb`: (...) float32 → (..., 3) uint8 RGB."""
+    bits = np.ascontiguousarray(packed, dtype='<f4').view('<u4')
+    return np.stack([(bits >> 16) & 0xFF, (bits >> 8) & 0xFF, bits & 0xFF], axis=-1).astype(
+        np.uint8
+    )
+
+
+def make_cloud(points: np.ndarray, colours: np.ndarray, organized: bool = True) -> np.ndarray:
+    """Assemble XYZ and packed colours into a point array with :data:`CLOUD_DTYPE`.
+
+    Args:
+        points: (H, W, 3) float32 from :func:`disparity_to_points`; NaN rows are dropped points.
+        colours: (H, W) float32 from :func:`pack_rgb`.
+        organized: Keep the (H, W) grid with NaN points (``stereo_image_proc`` style); if False,
+            return only the finite points, row-major, as (N,).
+
+    Returns:
+        (H, W) or (N,) structured array of :data:`CLOUD_DTYPE`.
+
+    Raises:
+        InputError: Shapes that do not fit together.
+    """
+    if points.ndim != 3 or points.shape[2] != 3:
+        raise InputError(f'points must be (H, W, 3); got {points.shape}')
+    if colours.shape != points.shape[:2]:
+        raise InputError(f'colours must be {points.shape[:2]}; got {colours.shape}')
+    cloud = np.empty(points.shape[:2], dtype=CLOUD_DTYPE)
+    cloud['x'] = points[..., 0]
+    cloud['y'] = points[..., 1]
+    cloud['z'] = points[..., 2]
+    cloud['rgb'] = colours
+    if organized:
+        return cloud
+    return cloud[np.isfinite(points[..., 2])]

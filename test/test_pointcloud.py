@@ -1,0 +1,155 @@
+"""Tests of disparity triangulation and colour packing against hand-computed values."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cva_confidence_ros.errors import InputError
+from cva_confidence_ros.pointcloud import (
+    CLOUD_DTYPE,
+    StereoGeometry,
+    disparity_to_points,
+    make_cloud,
+    pack_rgb,
+    unpack_rgb,
+)
+
+# fx = fy = 100 px, cx = 2, cy = 1, baseline 0.5 m → P_right[0, 3] = −50.
+P_LEFT = [100.0, 0.0, 2.0, 0.0, 0.0, 100.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+P_RIGHT = [100.0, 0.0, 2.0, -50.0, 0.0, 100.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+
+
+def test_geometry_from_projections() -> None:
+    geometry = StereoGeometry.from_projections(P_LEFT, np.reshape(P_RIGHT, (3, 4)))
+    assert geometry == StereoGeometry(fx=100, fy=100, cx=2, cy=1, cx_right=2, baseline=0.5)
+    assert geometry.disparity_offset == 0.0
+
+
+def test_points_hand_computed() -> None:
+    geometry = StereoGeometry.from_projections(P_LEFT, P_RIGHT)
+    disparity = np.array([[10.0, 20.0, 5.0, np.nan], [0.0, 25.0, -1.0, 50.0]], np.float32)
+    points = disparity_to_points(disparity, geometry)
+    assert points.shape == (2, 4, 3) and points.dtype == np.float32
+    # (v, u) = (0, 0), d = 10: Z = 100·0.5/10 = 5; X = (0 − 2)·5/100 = −0.1; Y = (0 − 1)·5/100.
+    np.testing.assert_allclose(points[0, 0], [-0.1, -0.05, 5.0], rtol=1e-6)
+    # (0, 1), d = 20: Z = 2.5; X = −1·2.5/100; Y = −1·2.5/100.
+    np.testing.assert_allclose(points[0, 1], [-0.025, -0.025, 2.5], rtol=1e-6)
+    # (0, 2), d = 5: Z = 10; X = 0; Y = −0.1.
+    np.testing.assert_allclose(points[0, 2], [0.0, -0.1, 10.0], rtol=1e-6, atol=1e-7)
+    # (1, 1), d = 25: Z = 2; X = −0.02; Y = 0.
+    np.testing.assert_allclose(points[1, 1], [-0.02, 0.0, 2.0], rtol=1e-6, atol=1e-7)
+    # (1, 3), d = 50: Z = 1; X = 0.01; Y = 0.
+    np.testing.assert_allclose(points[1, 3], [0.01, 0.0, 1.0], rtol=1e-6, atol=1e-7)
+    # NaN, zero and negative disparities are not points.
+    for v, u in ((0, 3), (1, 0), (1, 2)):
+        assert np.all(np.isnan(points[v, u]))
+
+
+def test_principal_point_offset_and_fy() -> None:
+    # Verged principal points: cx_right = 12 → Δ = 10; fy = 200.
+    p_left = [100.0, 0, 2.0, 0, 0, 200.0, 1.0, 0, 0, 0, 1, 0]
+    p_right = [100.0, 0, 12.0, -50.0, 0, 200.0, 1.0, 0, 0, 0, 1, 0]
+    geometry = StereoGeometry.from_projections(p_left, p_right)
+    assert geometry.disparity_offset == 10.0
+    disparity = np.array([[0.0, -10.0, 15.0]], np.float32)
+    points = disparity_to_points(disparity, geometry)
+    # d = 0 → d + Δ = 10 → Z = 5; X = (0 − 2)·5/100; Y = (0 − 1)·5/200.
+    np.testing.assert_allclose(points[0, 0], [-0.1, -0.025, 5.0], rtol=1e-6)
+    assert np.all(np.isnan(points[0, 1]))
+    # d = 15 → 25 → Z = 2; X = 0; Y = −0.01.
+    np.testing.assert_allclose(points[0, 2], [0.0, -0.01, 2.0], rtol=1e-6, atol=1e-7)
+
+
+def test_reprojection_round_trip() -> None:
+    rng = np.random.default_rng(0)
+    geometry = StereoGeometry(
+        fx=700.0, fy=700.0, cx=320.5, cy=240.0, cx_right=325.0, baseline=0.12
+    )
+    disparity = rng.uniform(1, 60, size=(6, 8)).astype(np.float32)
+    points = disparity_to_points(disparity, geometry).astype(np.float64)
+    u = geometry.fx * points[..., 0] / points[..., 2] + geometry.cx
+    v = geometry.fy * points[..., 1] / points[..., 2] + geometry.cy
+    np.testing.assert_allclose(u, np.arange(8)[None, :].repeat(6, 0), atol=1e-3)
+    np.testing.assert_allclose(v, np.arange(6)[:, None].repeat(8, 1), atol=1e-3)
+    # The right camera sees the point at x_right = x_left − d.
+    u_right = geometry.fx * (points[..., 0] - geometry.baseline) / points[..., 2]
+    u_right += geometry.cx_right
+    np.testing.assert_allclose(u - u_right, disparity, atol=1e-3)
+
+
+def test_mask_drops_points() -> None:
+    geometry = StereoGeometry.from_projections(P_LEFT, P_RIGHT)
+    disparity = np.full((2, 2), 10.0, np.float32)
+    mask = np.array([[True, False], [False, True]])
+    points = disparity_to_points(disparity, geometry, mask)
+    assert np.isfinite(points[0, 0]).all() and np.isfinite(points[1, 1]).all()
+    assert np.isnan(points[0, 1]).all() and np.isnan(points[1, 0]).all()
+
+
+def test_scaled_geometry_keeps_pixel_centres() -> None:
+    geometry = StereoGeometry(fx=100.0, fy=80.0, cx=63.5, cy=31.5, cx_right=65.5, baseline=0.3)
+    half = geometry.scaled(0.5)
+    assert half == StereoGeometry(fx=50.0, fy=40.0, cx=31.5, cy=15.5, cx_right=32.5, baseline=0.3)
+    # A disparity of 20 px at full size is 10 px at half size: the same depth comes out.
+    full_point = disparity_to_points(np.array([[20.0]], np.float32), geometry)
+    half_point = disparity_to_points(np.array([[10.0]], np.float32), half)
+    assert full_point[0, 0, 2] == pytest.approx(100 * 0.3 / 22)
+    assert half_point[0, 0, 2] == pytest.approx(50 * 0.3 / 11)
+    assert geometry.scaled(1.0) == geometry
+
+
+def test_pack_rgb_bits() -> None:
+    image = np.array([[[255, 0, 0], [0, 255, 0]], [[0, 0, 255], [1, 2, 3]]], np.uint8)
+    packed = pack_rgb(image)
+    assert packed.dtype == np.float32 and packed.shape == (2, 2)
+    bits = packed.view(np.uint32)
+    assert bits.tolist() == [[0xFF0000, 0x00FF00], [0x0000FF, 0x010203]]
+    np.testing.assert_array_equal(unpack_rgb(packed), image)
+    gray = pack_rgb(np.array([[7]], np.uint8))
+    assert gray.view(np.uint32)[0, 0] == 0x070707
+
+
+def test_make_cloud_organised_and_dense() -> None:
+    geometry = StereoGeometry.from_projections(P_LEFT, P_RIGHT)
+    disparity = np.array([[10.0, np.nan], [20.0, 25.0]], np.float32)
+    points = disparity_to_points(disparity, geometry)
+    colours = pack_rgb(np.array([[1, 2], [3, 4]], np.uint8))
+    organised = make_cloud(points, colours, organized=True)
+    assert organised.dtype == CLOUD_DTYPE and CLOUD_DTYPE.itemsize == 16
+    assert organised.shape == (2, 2)
+    assert np.isnan(organised['z'][0, 1])
+    assert organised['z'][0, 0] == pytest.approx(5.0)
+    dense = make_cloud(points, colours, organized=False)
+    assert dense.shape == (3,)
+    np.testing.assert_allclose(dense['z'], [5.0, 2.5, 2.0], rtol=1e-6)
+    assert unpack_rgb(dense['rgb'])[:, 0].tolist() == [1, 3, 4]
+
+
+@pytest.mark.parametrize(
+    ('p_left', 'p_right', 'match'),
+    [
+        (P_LEFT[:11], P_RIGHT, '12 values'),
+        (P_LEFT, [100.0, 0, 2, 50.0, 0, 100, 1, 0, 0, 0, 1, 0], 'baseline'),
+        (P_LEFT, [0.0] * 12, 'fx'),
+        ([0.0] * 12, P_RIGHT, 'focal'),
+        ([np.nan] * 12, P_RIGHT, 'finite'),
+    ],
+)
+def test_invalid_projections(p_left: list, p_right: list, match: str) -> None:
+    with pytest.raises(InputError, match=match):
+        StereoGeometry.from_projections(p_left, p_right)
+
+
+def test_invalid_arrays() -> None:
+    geometry = StereoGeometry.from_projections(P_LEFT, P_RIGHT)
+    with pytest.raises(InputError, match='disparity'):
+        disparity_to_points(np.zeros((2, 2, 1), np.float32), geometry)
+    with pytest.raises(InputError, match='mask'):
+        disparity_to_points(np.zeros((2, 2), np.float32), geometry, np.ones((3, 2), bool))
+    with pytest.raises(InputError, match='uint8'):
+        pack_rgb(np.zeros((2, 2), np.float32))
+    with pytest.raises(InputError, match='3'):
+        pack_rgb(np.zeros((2, 2, 4), np.uint8))
+    with pytest.raises(InputError, match='> 0'):
+        geometry.scaled(0.0)
