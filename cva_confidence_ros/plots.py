@@ -62,11 +62,12 @@ def _write_rgb(rgb: np.ndarray, path: PathLike) -> Path:
 def _colorize(
     values: np.ndarray, cmap: str, vmin: float | None, vmax: float | None
 ) -> np.ndarray:
-    """Map finite values through ``cmap`` onto (H, W, 3) uint8; NaN/inf become UNKNOWN_RGB."""
+    """Map values through ``cmap`` onto (H, W, 3) uint8; NaN becomes UNKNOWN_RGB."""
     from matplotlib import colormaps
 
     values = values.astype(np.float64)
     finite = np.isfinite(values)
+    known = ~np.isnan(values)
     if vmin is None:
         vmin = float(values[finite].min()) if finite.any() else 0.0
     if vmax is None:
@@ -74,9 +75,10 @@ def _colorize(
     span = vmax - vmin
     # A constant map would divide by zero; draw it mid-grey rather than fail.
     scaled = (values - vmin) / span if span > 0 else np.full(values.shape, 0.5)
-    scaled = np.clip(np.where(finite, scaled, 0.0), 0.0, 1.0)
+    # ±inf is a legitimate extreme (e.g. a ratio over a zero cost); it saturates the map.
+    scaled = np.clip(np.where(known, scaled, 0.0), 0.0, 1.0)
     rgb = (colormaps[cmap](scaled)[..., :3] * 255.0 + 0.5).astype(np.uint8)
-    rgb[~finite] = UNKNOWN_RGB
+    rgb[~known] = UNKNOWN_RGB
     return rgb
 
 
@@ -90,8 +92,8 @@ def save_confidence_map(
     """Write a confidence map as a PNG, black = low, white = high (as in the paper's figures).
 
     Args:
-        confidence: (H, W) float array, any real range; NaN marks pixels without a value
-            (drawn in ``UNKNOWN_RGB``).
+        confidence: (H, W) float array, any real range (±inf saturate); NaN marks pixels
+            without a value (drawn in ``UNKNOWN_RGB``).
         path: Output PNG file; parent folders are created.
         vmin: Value drawn black; default the finite minimum (use 0 for learned confidence).
         vmax: Value drawn white; default the finite maximum (use 1 for learned confidence).
@@ -116,7 +118,8 @@ def save_disparity_map(
     """Write a disparity map as a PNG, dark = far (small d), bright = near.
 
     Args:
-        disparity: (H, W) float array, ≥ 0 pixels; NaN/inf = unknown (drawn ``UNKNOWN_RGB``).
+        disparity: (H, W) float array, ≥ 0 pixels; NaN = unknown (drawn ``UNKNOWN_RGB``).
+            Callers with ``inf`` = unknown (PFM ground truth) convert it to NaN first.
         path: Output PNG file; parent folders are created.
         max_disparity: Disparity drawn brightest; default the finite maximum.
         cmap: Any matplotlib colormap name.
@@ -221,7 +224,7 @@ def save_correctness_overlay(
         if mask.shape != shape:
             raise InputError(f'mask must have shape {shape} like confidence; got {mask.shape}')
     rgb = _gray_background(image, shape)
-    shown = mask & np.isfinite(confidence)
+    shown = mask & ~np.isnan(confidence)
     right = correctness_classes(confidence, error, tau)
     rgb[shown & right] = CORRECT_RGB
     rgb[shown & ~right] = WRONG_RGB

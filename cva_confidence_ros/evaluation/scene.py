@@ -90,14 +90,14 @@ def score_confidence(confidence: np.ndarray, error: np.ndarray) -> ScoredMethod:
 
     Args:
         confidence: (N,) or (H, W) float confidence at the scored pixels, higher = more
-            confident; must be finite.
+            confident; ±inf allowed, NaN not.
         error: Same shape, bool, True = the disparity is wrong.
 
     Returns:
         The :class:`ScoredMethod`.
 
     Raises:
-        InputError: Shapes differ, nothing to score, or non-finite confidence.
+        InputError: Shapes differ, nothing to score, or NaN confidence.
     """
     from cva_confidence_ros.metrics import optimal_auc, roc_auc, roc_curve
 
@@ -110,9 +110,9 @@ def score_confidence(confidence: np.ndarray, error: np.ndarray) -> ScoredMethod:
         )
     if confidence.size == 0:
         raise InputError('no pixels to score: the scene has no ground-truth pixels')
-    if not np.isfinite(confidence).all():
-        bad = int((~np.isfinite(confidence)).sum())
-        raise InputError(f'confidence must be finite at scored pixels; got {bad} NaN/inf values')
+    if np.isnan(confidence).any():
+        bad = int(np.isnan(confidence).sum())
+        raise InputError(f'confidence must not be NaN at scored pixels; got {bad} NaN values')
     error_rate = float(error.mean())
     density, roc_error = roc_curve(confidence, error)
     return ScoredMethod(
