@@ -171,7 +171,8 @@ def confidence_at(
     if net is not None:
         from cva_confidence_ros.model import predict_confidence_at
 
-        values = predict_confidence_at(net, inputs.cost_volume, ys, xs)
+        device = getattr(method, 'device', 'cpu')
+        values = predict_confidence_at(net, inputs.cost_volume, ys, xs, device=device)
         return np.asarray(values, dtype=np.float32).ravel(), None
     dense = np.asarray(method(inputs), dtype=np.float32)
     return dense[ys, xs], dense

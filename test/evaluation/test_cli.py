@@ -1,0 +1,126 @@
+"""End-to-end tests of ``cva-evaluate`` on the scikit-image Motorcycle pair, shrunk small."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from cva_confidence_ros.evaluation import RECORD_KEYS
+from cva_confidence_ros.evaluation.cli import main, parse_weights
+
+pytest.importorskip('skimage')
+
+# 1/8 of 741×500: 92×62 px; the largest disparity (~60 px at full size) shrinks to ~7.5 px.
+_SMALL = ['--dataset', 'motorcycle', '--downsample', '8', '--max-disparity', '16']
+
+
+def _rows(table: str) -> list[list[str]]:
+    return [[c.strip() for c in line.strip('|').split('|')] for line in table.strip().split('\n')]
+
+
+def test_handcrafted_methods_end_to_end(tmp_path, capsys) -> None:
+    out = tmp_path / 'out'
+    json_path = tmp_path / 'r.json'
+    code = main([*_SMALL, '--matchers', 'census_bm', '--methods', 'pkrn,mlm,lrd',
+                 '--json', str(json_path), '--out', str(out)])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    records = json.loads(json_path.read_text())
+    assert [r['method'] for r in records] == ['pkrn', 'mlm', 'lrd']
+    for record in records:
+        assert list(record) == list(RECORD_KEYS)
+        assert record['dataset'] == 'motorcycle' and record['matcher'] == 'census_bm'
+        assert 0.0 < record['auc_opt'] <= record['auc'] <= record['error_rate'] + 1e-9
+        assert record['n_pixels'] > 0.5 * 92 * 62  # dense ground truth
+    # All methods share the disparity map, hence the error rate, AUC_opt and pixel count.
+    assert len({(r['error_rate'], r['auc_opt'], r['n_pixels']) for r in records}) == 1
+
+    rows = _rows(captured.out)
+    assert rows[0] == ['data set', 'matcher', 'Opt.', 'pkrn', 'mlm', 'lrd']
+    assert rows[2][:3] == ['motorcycle', 'census_bm', f"{100 * records[0]['auc_opt']:.2f}"]
+    best = min(records, key=lambda r: r['auc'])
+    assert f"**{100 * best['auc']:.2f}**" in rows[2]
+    assert (out / 'table.md').read_text() == captured.out
+    assert '[1/1] motorcycle/' in captured.err and 'pkrn' in captured.err
+
+    scene_dir = next((out / 'motorcycle').iterdir()) / 'census_bm'
+    names = sorted(p.name for p in scene_dir.iterdir())
+    assert names == sorted(['disparity.png', 'roc.png'] + [
+        f'{kind}_{m}.png' for kind in ('confidence', 'correct') for m in ('pkrn', 'mlm', 'lrd')
+    ])
+
+
+def test_cva_net_patch_mode_with_random_weights(tmp_path, capsys) -> None:
+    torch = pytest.importorskip('torch')
+    from cva_confidence_ros.model import CVANet, save_weights
+
+    torch.manual_seed(0)
+    weights = tmp_path / 'random.pt'
+    save_weights(CVANet(16), weights, matcher='census_bm', max_disparity=16)
+    json_path = tmp_path / 'r.json'
+    code = main([*_SMALL, '--matchers', 'census_bm', '--methods', 'cva_net,score',
+                 '--weights', f'census_bm={weights}', '--max-pixels', '200', '--seed', '3',
+                 '--json', str(json_path), '--out', str(tmp_path / 'out')])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    records = json.loads(json_path.read_text())
+    assert [r['method'] for r in records] == ['cva_net', 'score']
+    assert all(r['n_pixels'] == 200 for r in records)
+    assert records[0]['error_rate'] == records[1]['error_rate']
+    assert 0.0 <= records[0]['auc'] <= 1.0
+    assert np.isfinite(records[0]['auc'])
+
+    # Same seed, same subset, same numbers; another seed draws other pixels.
+    again = tmp_path / 'again.json'
+    assert main([*_SMALL, '--matchers', 'census_bm', '--methods', 'score', '--max-pixels',
+                 '200', '--seed', '3', '--json', str(again)]) == 0
+    assert json.loads(again.read_text())[0] == records[1]
+
+
+@pytest.mark.parametrize(
+    ('args', 'message'),
+    [
+        (['--dataset', 'nope', '--matchers', 'census_bm', '--methods', 'pkrn'],
+         'unknown data set'),
+        (['--dataset', 'motorcycle', '--matchers', 'sad', '--methods', 'pkrn'], 'unknown matcher'),
+        (['--dataset', 'motorcycle', '--matchers', 'census_bm', '--methods', 'magic'],
+         'unknown confidence method'),
+        (['--dataset', 'kitti2015', '--matchers', 'census_bm', '--methods', 'pkrn'], 'kitti2015'),
+        (['--dataset', 'motorcycle', '--matchers', 'census_bm', '--methods', 'pkrn',
+          '--weights', 'census_sgm=x.pt'], 'census_sgm'),
+        (['--dataset', 'motorcycle', '--matchers', 'census_bm', '--methods', 'pkrn',
+          '--max-pixels', '0'], '--max-pixels'),
+    ],
+)
+def test_bad_input_exits_2_with_one_line(tmp_path, capsys, args, message) -> None:
+    empty_root = tmp_path / 'empty'
+    empty_root.mkdir()
+    code = main([*args, '--data-root', str(empty_root), '--json', str(tmp_path / 'r.json')])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.count('\n') == 1 and err.startswith('cva-evaluate: error:')
+    assert message in err
+    assert not (tmp_path / 'r.json').exists()
+
+
+def test_weights_for_another_depth_exit_2(tmp_path, capsys) -> None:
+    pytest.importorskip('torch')
+    from cva_confidence_ros.model import CVANet, save_weights
+
+    weights = tmp_path / 'd32.pt'
+    save_weights(CVANet(32), weights, matcher='census_bm', max_disparity=32)
+    code = main([*_SMALL, '--matchers', 'census_bm', '--methods', 'cva_net',
+                 '--weights', str(weights), '--json', str(tmp_path / 'r.json')])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count('\n') == 1 and 'cva-evaluate: error:' in err
+
+
+def test_parse_weights() -> None:
+    matchers = ['census_bm', 'mccnn_fast']
+    assert parse_weights(None, matchers) == {'census_bm': None, 'mccnn_fast': None}
+    assert parse_weights('w.pt', matchers) == {'census_bm': 'w.pt', 'mccnn_fast': 'w.pt'}
+    assert parse_weights('mccnn_fast=a.pt', matchers) == {'census_bm': None, 'mccnn_fast': 'a.pt'}
+    assert parse_weights('census_bm=a.pt, mccnn_fast=b.pt', matchers) == {
+        'census_bm': 'a.pt', 'mccnn_fast': 'b.pt'}
