@@ -114,27 +114,33 @@ class StereoGeometry:
         """Δ = cx_right − cx_left, added to a raw disparity before triangulation (pixels)."""
         return self.cx_right - self.cx
 
-    def scaled(self, factor: float) -> StereoGeometry:
+    def scaled(self, factor: float, factor_y: float | None = None) -> StereoGeometry:
         """The geometry of the images resized by ``factor`` (e.g. 0.5 for half size).
 
-        Pixel centres are kept aligned (the convention of ``cv2.resize`` with ``INTER_AREA``):
-        a coordinate ``x`` becomes ``(x + 0.5) · factor − 0.5``. The baseline does not change.
+        Pixel centres are kept aligned (the convention of ``cv2.resize``): a coordinate ``x``
+        becomes ``(x + 0.5) · factor − 0.5``. The baseline does not change.
+
+        Args:
+            factor: New width / old width (> 0).
+            factor_y: New height / old height (> 0); ``None`` = ``factor``. Differs from
+                ``factor`` when a size does not divide evenly (e.g. 375 rows halved to 187).
 
         Raises:
-            InputError: ``factor`` ≤ 0.
+            InputError: A factor ≤ 0.
         """
-        if not factor > 0:
-            raise InputError(f'scale factor must be > 0; got {factor}')
+        factor_y = factor if factor_y is None else factor_y
+        if not (factor > 0 and factor_y > 0):
+            raise InputError(f'scale factors must be > 0; got {factor} and {factor_y}')
 
-        def centre(value: float) -> float:
-            return (value + 0.5) * factor - 0.5
+        def centre(value: float, scale: float) -> float:
+            return (value + 0.5) * scale - 0.5
 
         return StereoGeometry(
             fx=self.fx * factor,
-            fy=self.fy * factor,
-            cx=centre(self.cx),
-            cy=centre(self.cy),
-            cx_right=centre(self.cx_right),
+            fy=self.fy * factor_y,
+            cx=centre(self.cx, factor),
+            cy=centre(self.cy, factor_y),
+            cx_right=centre(self.cx_right, factor),
             baseline=self.baseline,
         )
 

@@ -97,6 +97,9 @@ def test_scaled_geometry_keeps_pixel_centres() -> None:
     assert full_point[0, 0, 2] == pytest.approx(100 * 0.3 / 22)
     assert half_point[0, 0, 2] == pytest.approx(50 * 0.3 / 11)
     assert geometry.scaled(1.0) == geometry
+    anisotropic = geometry.scaled(0.5, 0.25)
+    assert (anisotropic.fx, anisotropic.fy) == (50.0, 20.0)
+    assert (anisotropic.cx, anisotropic.cy) == (31.5, 7.5)
 
 
 def test_pack_rgb_bits() -> None:
