@@ -1,0 +1,30 @@
+"""Confidence methods selected by name: hand-crafted measures and learned networks.
+
+Every method module registers its methods in :data:`CONFIDENCE_METHODS` when it is imported;
+adding a method is one new module and one import line at the end of this file.
+"""
+
+from __future__ import annotations
+
+from cva_confidence_ros.confidence.base import (
+    CONFIDENCE_METHODS,
+    GENERIC_OPTIONS,
+    ConfidenceFactory,
+    ConfidenceInputs,
+    ConfidenceMethod,
+    compute_confidence,
+)
+
+__all__ = [
+    'CONFIDENCE_METHODS',
+    'GENERIC_OPTIONS',
+    'ConfidenceFactory',
+    'ConfidenceInputs',
+    'ConfidenceMethod',
+    'compute_confidence',
+]
+
+# Method modules, imported for their registrations: add one line per module, keep them sorted.
+from cva_confidence_ros.confidence import (  # noqa: E402
+    handcrafted,  # noqa: F401  (pkrn, mlm, lrd, lrc, score)
+)

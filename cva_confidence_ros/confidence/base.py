@@ -1,0 +1,170 @@
+"""Inputs, base class and registry shared by every confidence method.
+
+A method is registered under a name as a *factory* ``(**options) -> ConfidenceMethod``. The
+pipeline calls every factory with the same generic options (:data:`GENERIC_OPTIONS`); a method
+ignores those it has no use for, so one call site serves hand-crafted and learned methods.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from dataclasses import dataclass, fields
+from typing import Any, ClassVar
+
+import numpy as np
+
+from cva_confidence_ros.errors import ConfigError, InputError
+from cva_confidence_ros.registry import Registry
+
+__all__ = [
+    'CONFIDENCE_METHODS',
+    'GENERIC_OPTIONS',
+    'ConfidenceFactory',
+    'ConfidenceInputs',
+    'ConfidenceMethod',
+    'compute_confidence',
+]
+
+#: Options the pipeline passes to every factory; methods that do not use them ignore them.
+GENERIC_OPTIONS = frozenset({'matcher', 'max_disparity', 'weights', 'device', 'tile_budget_mb'})
+
+
+def _as_volume(name: str, volume: Any) -> np.ndarray:
+    if not isinstance(volume, np.ndarray):
+        raise InputError(f'{name} must be a numpy array; got {type(volume).__name__}')
+    if volume.ndim != 3 or 0 in volume.shape:
+        raise InputError(f'{name} must be a non-empty (D, H, W) array; got shape {volume.shape}')
+    return np.ascontiguousarray(volume, dtype=np.float32)
+
+
+def _as_disparity(name: str, disparity: Any, shape: tuple[int, int]) -> np.ndarray:
+    if not isinstance(disparity, np.ndarray):
+        raise InputError(f'{name} must be a numpy array; got {type(disparity).__name__}')
+    if disparity.shape != shape:
+        raise InputError(f'{name} must have shape {shape} (H, W); got {disparity.shape}')
+    return np.asarray(disparity, dtype=np.float32)
+
+
+@dataclass(frozen=True)
+class ConfidenceInputs:
+    """Everything a confidence method may look at for one stereo pair.
+
+    Arrays are checked on construction and converted to float32 (no copy if they already are).
+
+    Attributes:
+        cost_volume: (D, H, W) float32 left-reference costs in [0, 1], 0 = perfect match;
+            ``[d, y, x]`` matches left ``(y, x)`` with right ``(y, x - d)``.
+        disparity: (H, W) float32 left disparity (winner-takes-all), NaN = invalid.
+        image: (H, W) or (H, W, 3) uint8 left image (RGB order if colour).
+        cost_volume_right: Optional (D, H, W) float32 right-reference costs; ``[d, y, x]``
+            matches right ``(y, x)`` with left ``(y, x + d)``.
+        disparity_right: Optional (H, W) float32 right disparity, NaN = invalid.
+        matcher: Name of the matcher that produced the volume (learned methods check it).
+    """
+
+    cost_volume: np.ndarray
+    disparity: np.ndarray
+    image: np.ndarray
+    cost_volume_right: np.ndarray | None = None
+    disparity_right: np.ndarray | None = None
+    matcher: str = ''
+
+    def __post_init__(self) -> None:
+        volume = _as_volume('cost_volume', self.cost_volume)
+        shape = (volume.shape[1], volume.shape[2])
+        object.__setattr__(self, 'cost_volume', volume)
+        object.__setattr__(self, 'disparity', _as_disparity('disparity', self.disparity, shape))
+        image = self.image
+        if not isinstance(image, np.ndarray) or image.shape[:2] != shape or not (
+            image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)
+        ):
+            got = image.shape if isinstance(image, np.ndarray) else type(image).__name__
+            raise InputError(f'image must be {shape} or {shape + (3,)}; got {got}')
+        if self.cost_volume_right is not None:
+            right = _as_volume('cost_volume_right', self.cost_volume_right)
+            if right.shape != volume.shape:
+                raise InputError(
+                    f'cost_volume_right must have the shape of cost_volume {volume.shape}; '
+                    f'got {right.shape}'
+                )
+            object.__setattr__(self, 'cost_volume_right', right)
+        if self.disparity_right is not None:
+            object.__setattr__(
+                self,
+                'disparity_right',
+                _as_disparity('disparity_right', self.disparity_right, shape),
+            )
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(H, W) of the maps."""
+        return (self.cost_volume.shape[1], self.cost_volume.shape[2])
+
+    @property
+    def max_disparity(self) -> int:
+        """Cost-volume depth D."""
+        return int(self.cost_volume.shape[0])
+
+
+class ConfidenceMethod(ABC):
+    """A confidence measure: ``method(inputs) -> (H, W) float32``, higher = more confident.
+
+    Subclasses are (frozen) dataclasses whose fields are the method's options; they set
+    :attr:`needs_right` when they read the right-reference volume or disparity.
+    """
+
+    needs_right: ClassVar[bool] = False
+
+    @abstractmethod
+    def __call__(self, inputs: ConfidenceInputs) -> np.ndarray:
+        """Compute the (H, W) float32 confidence map of ``inputs``."""
+
+    @classmethod
+    def from_options(cls, **options: Any) -> ConfidenceMethod:
+        """Factory for the registry: build from options, dropping :data:`GENERIC_OPTIONS`.
+
+        Raises:
+            ConfigError: An option that is neither generic nor a field of the method.
+        """
+        own = {f.name for f in fields(cls)} if hasattr(cls, '__dataclass_fields__') else set()
+        unknown = set(options) - own - GENERIC_OPTIONS
+        if unknown:
+            raise ConfigError(
+                f'unknown options {sorted(unknown)} for {cls.__name__}; expected {sorted(own)} '
+                f'or the generic {sorted(GENERIC_OPTIONS)}'
+            )
+        return cls(**{key: value for key, value in options.items() if key in own})
+
+    def _require_right(self, inputs: ConfidenceInputs) -> np.ndarray:
+        if inputs.cost_volume_right is None:
+            raise InputError(
+                f'{type(self).__name__} needs the right-reference cost volume; '
+                'got cost_volume_right=None'
+            )
+        return inputs.cost_volume_right
+
+
+ConfidenceFactory = Callable[..., ConfidenceMethod]
+
+#: name → factory ``(**options) -> ConfidenceMethod``.
+CONFIDENCE_METHODS: Registry[ConfidenceFactory] = Registry('confidence method')
+
+
+def compute_confidence(name: str, inputs: ConfidenceInputs, **options: Any) -> np.ndarray:
+    """Build the method registered as ``name`` with ``options`` and apply it to ``inputs``.
+
+    Args:
+        name: Registered method name (``pkrn``, ``mlm``, ``lrd``, ``lrc``, ``score``, ...).
+        inputs: Cost volume(s), disparity and image of one pair.
+        **options: Method options; the pipeline's generic options are accepted and ignored.
+
+    Returns:
+        (H, W) float32 confidence, higher = more confident.
+
+    Raises:
+        ConfigError: Unknown name or option.
+        InputError: The method needs the right view and ``inputs`` has none.
+    """
+    method = CONFIDENCE_METHODS.get(name)(**options)
+    return np.asarray(method(inputs), dtype=np.float32)

@@ -1,0 +1,220 @@
+"""Hand-crafted confidence measures computed from cost volumes and disparity maps.
+
+Definitions follow Hu & Mordohai (TPAMI 2012), with the notation of a cost curve ``c(d)`` at a
+pixel, its minimum ``c1`` at ``d1`` and its second-smallest value ``c2`` (the *naive* variant,
+not restricted to local minima; ``c2 == c1`` when the minimum is attained twice):
+
+* ``score``: matching score, ``-c1``.
+* ``pkrn``: naive peak ratio, ``(c2 + eps) / (c1 + eps)``.
+* ``mlm``: maximum likelihood measure, softmax of ``-c / (2 sigma^2)`` evaluated at ``d1``.
+* ``lrd``: left-right difference, ``(c2 - c1) / (|c1 - min_d c_R(x - d1, d)| + eps)``.
+* ``lrc``: left-right consistency, ``-|d_L(x) - d_R(x - round(d_L(x)))|``.
+
+All are vectorised with numpy and process the volume in blocks of rows, so temporary arrays stay
+small even for deep volumes. Higher values mean more confident.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from cva_confidence_ros.confidence.base import (
+    CONFIDENCE_METHODS,
+    ConfidenceInputs,
+    ConfidenceMethod,
+)
+from cva_confidence_ros.errors import ConfigError, InputError
+
+__all__ = [
+    'LeftRightConsistency',
+    'LeftRightDifference',
+    'MatchingScore',
+    'MaximumLikelihood',
+    'PeakRatioNaive',
+    'left_right_difference_map',
+    'two_smallest',
+]
+
+# Temporaries per block of rows stay below about this many float32 values (~32 MB).
+_BLOCK_VALUES = 8 * 1024 * 1024
+
+
+def _row_blocks(volume: np.ndarray) -> list[slice]:
+    depth, height, width = volume.shape
+    rows = max(1, _BLOCK_VALUES // max(1, depth * width))
+    return [slice(top, min(top + rows, height)) for top in range(0, height, rows)]
+
+
+def _map_rows(volume: np.ndarray, fn: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+    """Apply ``fn`` ((D, h, W) → (h, W)) to blocks of rows and stack the results (H, W)."""
+    out = np.empty(volume.shape[1:], dtype=np.float64)
+    for rows in _row_blocks(volume):
+        out[rows] = fn(volume[:, rows])
+    return out
+
+
+def two_smallest(volume: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Smallest cost, its disparity and the second-smallest cost of every pixel.
+
+    Args:
+        volume: (D, H, W) float32 cost volume, D ≥ 2.
+
+    Returns:
+        ``(c1, d1, c2)``: (H, W) float32 minimum, (H, W) int64 arg-minimum (the first one on
+        ties) and (H, W) float32 second-smallest value (naive: any disparity but ``d1``).
+
+    Raises:
+        InputError: D < 2.
+    """
+    if volume.ndim != 3 or volume.shape[0] < 2:
+        raise InputError(f'expected a (D, H, W) cost volume with D ≥ 2; got shape {volume.shape}')
+    c1 = np.empty(volume.shape[1:], dtype=np.float32)
+    c2 = np.empty_like(c1)
+    d1 = np.empty(volume.shape[1:], dtype=np.int64)
+    for rows in _row_blocks(volume):
+        block = volume[:, rows]
+        smallest = np.partition(block, 1, axis=0)
+        c1[rows], c2[rows] = smallest[0], smallest[1]
+        d1[rows] = np.argmin(block, axis=0)
+    return c1, d1, c2
+
+
+def _check_positive(name: str, value: float) -> None:
+    if not (np.isfinite(value) and value > 0):
+        raise ConfigError(f'{name} must be a finite number > 0; got {value}')
+
+
+@dataclass(frozen=True)
+class MatchingScore(ConfidenceMethod):
+    """Matching score measure (MSM): ``-c1``, the negated minimum cost."""
+
+    def __call__(self, inputs: ConfidenceInputs) -> np.ndarray:
+        """Return (H, W) float32 in [-1, 0] for costs in [0, 1]."""
+        return (-inputs.cost_volume.min(axis=0)).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class PeakRatioNaive(ConfidenceMethod):
+    """Naive peak ratio (PKRN): ``(c2 + eps) / (c1 + eps)``, ≥ 1.
+
+    Attributes:
+        eps: Added to both costs so that a perfect match (``c1 = 0``) stays finite.
+    """
+
+    eps: float = 1e-3
+
+    def __post_init__(self) -> None:
+        _check_positive('eps', self.eps)
+
+    def __call__(self, inputs: ConfidenceInputs) -> np.ndarray:
+        """Return (H, W) float32 in [1, (1 + eps) / eps] for costs in [0, 1]."""
+        c1, _, c2 = two_smallest(inputs.cost_volume)
+        eps = np.float32(self.eps)
+        return ((c2 + eps) / (c1 + eps)).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class MaximumLikelihood(ConfidenceMethod):
+    """Maximum likelihood measure (MLM): ``exp(-c1 / 2σ²) / Σ_d exp(-c(d) / 2σ²)``.
+
+    Attributes:
+        sigma: Spread of the cost likelihood. The default suits costs normalised to [0, 1]:
+            a cost 0.1 above the minimum weighs ``exp(-1.25) ≈ 0.29`` of the minimum.
+    """
+
+    sigma: float = 0.2
+
+    def __post_init__(self) -> None:
+        _check_positive('sigma', self.sigma)
+
+    def __call__(self, inputs: ConfidenceInputs) -> np.ndarray:
+        """Return (H, W) float32 in (0, 1]; 1/D for a flat cost curve."""
+        scale = 1.0 / (2.0 * self.sigma**2)
+
+        def block_mlm(block: np.ndarray) -> np.ndarray:
+            # Shifting by the minimum keeps every exponent ≤ 0: no overflow, and the sum ≥ 1.
+            shifted = (block - block.min(axis=0)).astype(np.float64)
+            return 1.0 / np.exp(-scale * shifted).sum(axis=0)
+
+        return _map_rows(inputs.cost_volume, block_mlm).astype(np.float32)
+
+
+def left_right_difference_map(
+    volume: np.ndarray, volume_right: np.ndarray, eps: float
+) -> np.ndarray:
+    """Left-right difference ``(c2 - c1) / (|c1 - min_d c_R(x - d1, d)| + eps)``.
+
+    Args:
+        volume: (D, H, W) float32 left-reference costs.
+        volume_right: (D, H, W) float32 right-reference costs.
+        eps: > 0, keeps the ratio finite when both minima are equal.
+
+    Returns:
+        (H, W) float32 ≥ 0. Where ``x - d1 < 0`` the right pixel lies outside the image and the
+        nearest column (0) is used.
+    """
+    c1, d1, c2 = two_smallest(volume)
+    right_min = volume_right.min(axis=0)
+    height, width = c1.shape
+    cols = np.clip(np.arange(width)[None, :] - d1, 0, width - 1)
+    rows = np.arange(height)[:, None]
+    denom = np.abs(c1 - right_min[rows, cols]) + np.float32(eps)
+    return ((c2 - c1) / denom).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class LeftRightDifference(ConfidenceMethod):
+    """Left-right difference (LRD); needs the right-reference cost volume.
+
+    Attributes:
+        eps: Added to the denominator so that equal left and right minima stay finite.
+    """
+
+    eps: float = 1e-3
+    needs_right = True
+
+    def __post_init__(self) -> None:
+        _check_positive('eps', self.eps)
+
+    def __call__(self, inputs: ConfidenceInputs) -> np.ndarray:
+        """Return (H, W) float32 ≥ 0."""
+        volume_right = self._require_right(inputs)
+        return left_right_difference_map(inputs.cost_volume, volume_right, self.eps)
+
+
+@dataclass(frozen=True)
+class LeftRightConsistency(ConfidenceMethod):
+    """Left-right consistency (LRC): ``-|d_L(x) - d_R(x - round(d_L(x)))|``.
+
+    Uses ``inputs.disparity_right``, or the arg-minimum of ``inputs.cost_volume_right`` when
+    only the volume is given. Pixels whose right correspondence lies outside the image or whose
+    disparity is NaN get ``-D`` (D = volume depth), below every checkable value (≥ ``-(D-1)``).
+    """
+
+    needs_right = True
+
+    def __call__(self, inputs: ConfidenceInputs) -> np.ndarray:
+        """Return (H, W) float32 in [-D, 0]."""
+        disparity_right = inputs.disparity_right
+        if disparity_right is None:
+            disparity_right = np.argmin(self._require_right(inputs), axis=0).astype(np.float32)
+        disparity = inputs.disparity
+        height, width = disparity.shape
+        worst = np.float32(-inputs.max_disparity)
+        finite = np.isfinite(disparity)
+        cols = np.arange(width)[None, :] - np.rint(np.where(finite, disparity, 0)).astype(np.int64)
+        inside = finite & (cols >= 0) & (cols < width)
+        rows = np.broadcast_to(np.arange(height)[:, None], cols.shape)
+        matched = disparity_right[rows, np.clip(cols, 0, width - 1)]
+        diff = -np.abs(disparity - matched)
+        return np.where(inside & np.isfinite(diff), diff, worst).astype(np.float32)
+
+
+CONFIDENCE_METHODS.add('score', MatchingScore.from_options)
+CONFIDENCE_METHODS.add('pkrn', PeakRatioNaive.from_options)
+CONFIDENCE_METHODS.add('mlm', MaximumLikelihood.from_options)
+CONFIDENCE_METHODS.add('lrd', LeftRightDifference.from_options)
+CONFIDENCE_METHODS.add('lrc', LeftRightConsistency.from_options)
