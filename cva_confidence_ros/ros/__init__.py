@@ -1,0 +1,9 @@
+"""rclpy side of the package: message ⇄ numpy conversions and the node's parameters.
+
+Only :mod:`cva_confidence_ros.node` and this subpackage import rclpy or ROS message types; the
+core (matching, confidence, pipeline, point cloud, sync) stays ROS-free.
+"""
+
+from __future__ import annotations
+
+__all__ = ['convert', 'params']

@@ -1,0 +1,308 @@
+"""rclpy messages ⇄ numpy arrays for the node (``sensor_msgs``, ``stereo_msgs``).
+
+Conventions follow ``stereo_image_proc`` so that the node drops into existing pipelines:
+
+* ``stereo_msgs/DisparityImage``: 32FC1 image of ``d − (cx_left − cx_right)`` (so that
+  ``Z = f·T/d`` holds for every valid value), ``f`` and ``T`` (baseline) from the camera infos,
+  ``min_disparity``/``max_disparity`` the searched range after that shift, invalid pixels set to
+  ``min_disparity − 1`` (below the valid range, as ``stereo_image_proc`` does).
+* ``sensor_msgs/PointCloud2``: fields x, y, z, rgb (float32, 16-byte points).
+"""
+
+from __future__ import annotations
+
+from builtin_interfaces.msg import Time
+import numpy as np
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField, RegionOfInterest
+from std_msgs.msg import Header
+from stereo_msgs.msg import DisparityImage
+
+from cva_confidence_ros.errors import InputError
+from cva_confidence_ros.pointcloud import CLOUD_DTYPE, StereoGeometry
+
+__all__ = [
+    'SUPPORTED_ENCODINGS',
+    'array_to_image',
+    'camera_info_to_geometry',
+    'cloud_to_array',
+    'cloud_to_message',
+    'disparity_from_message',
+    'disparity_to_message',
+    'float_image_to_array',
+    'image_to_array',
+    'ns_to_stamp',
+    'pair_to_uint8',
+    'stamp_to_ns',
+]
+
+# encoding → (channels, bytes per channel, index order to RGB or None for gray)
+_ENCODINGS: dict[str, tuple[int, int, tuple[int, ...] | None]] = {
+    'mono8': (1, 1, None),
+    'mono16': (1, 2, None),
+    'rgb8': (3, 1, (0, 1, 2)),
+    'bgr8': (3, 1, (2, 1, 0)),
+    'rgba8': (4, 1, (0, 1, 2)),
+    'bgra8': (4, 1, (2, 1, 0)),
+}
+#: Image encodings accepted on ``left/image_rect`` and ``right/image_rect``.
+SUPPORTED_ENCODINGS: tuple[str, ...] = tuple(_ENCODINGS)
+
+
+def stamp_to_ns(stamp: Time) -> int:
+    """``builtin_interfaces/Time`` → integer nanoseconds."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def ns_to_stamp(stamp_ns: int) -> Time:
+    """Integer nanoseconds → ``builtin_interfaces/Time``."""
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    return Time(sec=sec, nanosec=nanosec)
+
+
+def image_to_array(msg: Image) -> np.ndarray:
+    """Decode a ``sensor_msgs/Image`` into the array layout of the core.
+
+    Args:
+        msg: An image with one of :data:`SUPPORTED_ENCODINGS`; row padding (``step`` larger
+            than a row) and big-endian mono16 are handled.
+
+    Returns:
+        (H, W) uint8 for mono8, (H, W) uint16 for mono16 (see :func:`pair_to_uint8`), or
+        (H, W, 3) uint8 in RGB order for the colour encodings (alpha dropped). A fresh array
+        that does not alias the message buffer.
+
+    Raises:
+        InputError: Unknown encoding, zero size, or a ``step``/``data`` too short for the size.
+    """
+    encoding = msg.encoding.lower()
+    if encoding not in _ENCODINGS:
+        raise InputError(
+            f'image encoding must be one of {SUPPORTED_ENCODINGS}; got {msg.encoding!r}'
+        )
+    channels, depth, order = _ENCODINGS[encoding]
+    height, width, step = int(msg.height), int(msg.width), int(msg.step)
+    if height <= 0 or width <= 0:
+        raise InputError(f'image must have a positive size; got {width}×{height}')
+    row_bytes = width * channels * depth
+    if step < row_bytes:
+        raise InputError(
+            f'image step must be ≥ {row_bytes} bytes for {width} px of {encoding}; got {step}'
+        )
+    data = np.frombuffer(msg.data, dtype=np.uint8)
+    if data.size < step * (height - 1) + row_bytes:
+        raise InputError(
+            f'image data must hold {height} rows of step {step} '
+            f'({step * height} bytes); got {data.size}'
+        )
+    rows = np.lib.stride_tricks.as_strided(data, shape=(height, row_bytes), strides=(step, 1))
+    if depth == 2:
+        dtype = np.dtype('>u2' if msg.is_bigendian else '<u2')
+        return rows.copy().view(dtype).reshape(height, width).astype(np.uint16)
+    pixels = rows.reshape(height, width, channels)
+    if order is None:
+        return pixels[..., 0].copy()
+    return np.ascontiguousarray(pixels[..., list(order)])
+
+
+def pair_to_uint8(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bring a decoded pair to uint8, scaling 16-bit images by one common factor.
+
+    mono16 cameras often use 10 or 12 bits; a fixed ``>> 8`` would leave a handful of gray
+    levels. Both images are scaled by ``255 / max(left.max(), right.max())`` instead, so that
+    their brightness relation (what the matcher relies on) is kept.
+
+    Args:
+        left: (H, W) or (H, W, 3) uint8, or (H, W) uint16.
+        right: Same kind as ``left``.
+
+    Returns:
+        Both as uint8, unchanged if they already were.
+
+    Raises:
+        InputError: One image is 8-bit and the other 16-bit.
+    """
+    if left.dtype == np.uint8 and right.dtype == np.uint8:
+        return left, right
+    if left.dtype != np.uint16 or right.dtype != np.uint16:
+        raise InputError(
+            f'left and right must both be 8-bit or both 16-bit; got {left.dtype} and {right.dtype}'
+        )
+    peak = max(int(left.max()), int(right.max()), 1)
+    scale = 255.0 / peak
+    return (
+        np.round(left * scale).astype(np.uint8),
+        np.round(right * scale).astype(np.uint8),
+    )
+
+
+def array_to_image(array: np.ndarray, header: Header) -> Image:
+    """Encode an (H, W) float32 array as a 32FC1 ``sensor_msgs/Image`` (little-endian).
+
+    Raises:
+        InputError: Not a 2-D array.
+    """
+    if array.ndim != 2:
+        raise InputError(f'a 32FC1 image must be (H, W); got shape {array.shape}')
+    data = np.ascontiguousarray(array, dtype='<f4')
+    height, width = data.shape
+    return Image(
+        header=header,
+        height=height,
+        width=width,
+        encoding='32FC1',
+        is_bigendian=0,
+        step=width * 4,
+        data=data.tobytes(),
+    )
+
+
+def float_image_to_array(msg: Image) -> np.ndarray:
+    """Decode a 32FC1 ``sensor_msgs/Image`` into (H, W) float32.
+
+    Raises:
+        InputError: Another encoding or a buffer that does not fit the size.
+    """
+    if msg.encoding != '32FC1':
+        raise InputError(f'expected a 32FC1 image; got {msg.encoding!r}')
+    height, width, step = int(msg.height), int(msg.width), int(msg.step)
+    data = np.frombuffer(msg.data, dtype=np.uint8)
+    if step < 4 * width or data.size < step * height:
+        raise InputError(
+            f'32FC1 image of {width}×{height} needs step ≥ {4 * width} and {step * height} '
+            f'bytes; got step {step} and {data.size} bytes'
+        )
+    dtype = np.dtype('>f4' if msg.is_bigendian else '<f4')
+    rows = data[: step * height].reshape(height, step)[:, : 4 * width]
+    return rows.copy().view(dtype).reshape(height, width).astype(np.float32)
+
+
+def camera_info_to_geometry(
+    left_info: CameraInfo, right_info: CameraInfo, width: int, height: int
+) -> StereoGeometry:
+    """Check that a pair of rectified camera infos fits the images and read the geometry.
+
+    Args:
+        left_info: ``CameraInfo`` of the left camera.
+        right_info: ``CameraInfo`` of the right camera (``p[3] = −fx·B``).
+        width: Width of the received images, pixels.
+        height: Height of the received images, pixels.
+
+    Returns:
+        The stereo geometry at the received resolution.
+
+    Raises:
+        InputError: A camera info whose size is not the image's, a degenerate projection
+            matrix, or a baseline ≤ 0.
+    """
+    for side, info in (('left', left_info), ('right', right_info)):
+        if (int(info.width), int(info.height)) != (width, height):
+            raise InputError(
+                f'{side} camera info must be for {width}×{height} images; '
+                f'got {info.width}×{info.height}'
+            )
+    return StereoGeometry.from_projections(left_info.p, right_info.p)
+
+
+def disparity_to_message(
+    disparity: np.ndarray,
+    header: Header,
+    geometry: StereoGeometry,
+    max_disparity: int,
+    delta_d: float = 1.0,
+) -> DisparityImage:
+    """Fill a ``stereo_msgs/DisparityImage`` the way ``stereo_image_proc`` does.
+
+    Args:
+        disparity: (H, W) float32 raw disparity ``x_left − x_right``, NaN = invalid.
+        header: Header of the left image (stamp and optical frame).
+        geometry: Stereo geometry at the disparity's resolution.
+        max_disparity: Cost-volume depth D; raw disparities 0 … D − 1 were searched.
+        delta_d: Smallest disparity step of the matcher (1 for integer WTA).
+
+    Returns:
+        The message; its image holds ``d + Δ`` (Δ = cx_right − cx_left) and
+        ``min_disparity − 1`` where ``disparity`` is NaN.
+    """
+    offset = geometry.disparity_offset
+    min_d = float(offset)
+    shifted = disparity.astype(np.float32) + np.float32(offset)
+    shifted = np.where(np.isfinite(shifted), shifted, np.float32(min_d - 1.0)).astype(np.float32)
+    height, width = disparity.shape
+    left_border = min(max(int(max_disparity) - 1, 0), width)
+    return DisparityImage(
+        header=header,
+        image=array_to_image(shifted, header),
+        f=float(geometry.fx),
+        t=float(geometry.baseline),
+        valid_window=RegionOfInterest(
+            x_offset=left_border, y_offset=0, height=height, width=width - left_border
+        ),
+        min_disparity=min_d,
+        max_disparity=float(max_disparity - 1 + offset),
+        delta_d=float(delta_d),
+    )
+
+
+def disparity_from_message(msg: DisparityImage) -> np.ndarray:
+    """(H, W) float32 disparity of a ``DisparityImage``; NaN below ``min_disparity``."""
+    values = float_image_to_array(msg.image)
+    with np.errstate(invalid='ignore'):
+        invalid = ~(values >= msg.min_disparity)
+    values[invalid] = np.nan
+    return values
+
+
+_CLOUD_FIELDS = [
+    PointField(name=name, offset=CLOUD_DTYPE.fields[name][1], datatype=PointField.FLOAT32, count=1)
+    for name in CLOUD_DTYPE.names
+]
+
+
+def cloud_to_message(cloud: np.ndarray, header: Header) -> PointCloud2:
+    """Encode a :data:`~cva_confidence_ros.pointcloud.CLOUD_DTYPE` array as ``PointCloud2``.
+
+    Args:
+        cloud: (H, W) organised cloud (NaN points kept, ``is_dense`` False) or (N,) dense.
+        header: Header of the left image.
+
+    Raises:
+        InputError: Another dtype or dimensionality.
+    """
+    if cloud.dtype != CLOUD_DTYPE:
+        raise InputError(f'cloud dtype must be {CLOUD_DTYPE}; got {cloud.dtype}')
+    if cloud.ndim == 2:
+        height, width = cloud.shape
+        is_dense = bool(np.isfinite(cloud['z']).all())
+    elif cloud.ndim == 1:
+        height, width = 1, cloud.shape[0]
+        is_dense = True
+    else:
+        raise InputError(f'cloud must be (H, W) or (N,); got shape {cloud.shape}')
+    return PointCloud2(
+        header=header,
+        height=height,
+        width=width,
+        fields=list(_CLOUD_FIELDS),
+        is_bigendian=False,
+        point_step=CLOUD_DTYPE.itemsize,
+        row_step=CLOUD_DTYPE.itemsize * width,
+        data=np.ascontiguousarray(cloud).tobytes(),
+        is_dense=is_dense,
+    )
+
+
+def cloud_to_array(msg: PointCloud2) -> np.ndarray:
+    """Decode a ``PointCloud2`` written by :func:`cloud_to_message` into (H, W) points.
+
+    Raises:
+        InputError: A layout other than x, y, z, rgb float32 at offsets 0, 4, 8, 12.
+    """
+    layout = [(f.name, f.offset, f.datatype, f.count) for f in msg.fields]
+    expected = [(f.name, f.offset, f.datatype, f.count) for f in _CLOUD_FIELDS]
+    if layout != expected or msg.point_step != CLOUD_DTYPE.itemsize or msg.is_bigendian:
+        raise InputError(
+            f'cloud must have fields {expected} and point_step {CLOUD_DTYPE.itemsize}; '
+            f'got {layout} and {msg.point_step}'
+        )
+    data = np.frombuffer(msg.data, dtype=CLOUD_DTYPE, count=msg.height * msg.width)
+    return data.reshape(msg.height, msg.width).copy()

@@ -1,0 +1,293 @@
+"""The node's ROS parameters: declarations with descriptions and ranges, and their configs.
+
+Every parameter maps one to one onto a field of :class:`~cva_confidence_ros.pipeline.
+PipelineConfig` (what is computed) or of :class:`NodeConfig` (how the node talks to ROS). The
+defaults are those of the two dataclasses, so there is one source of truth; the shipped
+``config/cva_confidence.yaml`` lists the same names.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import MISSING, dataclass, fields
+from typing import Any
+
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    ParameterType,
+)
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from cva_confidence_ros.errors import ConfigError
+from cva_confidence_ros.pipeline import PipelineConfig
+
+__all__ = [
+    'NODE_PARAMETERS',
+    'PARAMETERS',
+    'PIPELINE_PARAMETERS',
+    'QOS_CHOICES',
+    'NodeConfig',
+    'ParamSpec',
+    'build_configs',
+    'declare_parameters',
+    'parameter_values',
+]
+
+#: QoS presets: ``sensor_data`` (best effort, keep last 5) or ``reliable`` (keep last 10).
+QOS_CHOICES = ('sensor_data', 'reliable')
+
+
+@dataclass(frozen=True)
+class NodeConfig:
+    """How the node subscribes, synchronises and publishes (not what it computes).
+
+    Attributes:
+        publish_points: Publish ``points2``.
+        points_organized: Organised cloud (H×W, NaN for dropped points) instead of a dense one.
+        input_qos: QoS of the four subscriptions, one of :data:`QOS_CHOICES`.
+        output_qos: QoS of the outputs; ``reliable`` serves reliable and best-effort readers.
+        approximate_sync: Pair messages whose stamps differ by up to the tolerance.
+        approximate_sync_tolerance_seconds: Largest stamp spread of one set (≥ 0).
+        queue_size: Messages held per topic while waiting for their partners (≥ 1).
+        diagnostics_period_seconds: Period of ``/diagnostics`` messages and of the status log.
+    """
+
+    publish_points: bool = True
+    points_organized: bool = True
+    input_qos: str = 'sensor_data'
+    output_qos: str = 'reliable'
+    approximate_sync: bool = False
+    approximate_sync_tolerance_seconds: float = 0.01
+    queue_size: int = 10
+    diagnostics_period_seconds: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ('input_qos', 'output_qos'):
+            if getattr(self, name) not in QOS_CHOICES:
+                raise ConfigError(
+                    f'{name} must be one of {QOS_CHOICES}; got {getattr(self, name)!r}'
+                )
+        if not self.approximate_sync_tolerance_seconds >= 0:
+            raise ConfigError(
+                'approximate_sync_tolerance_seconds must be >= 0; '
+                f'got {self.approximate_sync_tolerance_seconds}'
+            )
+        if self.queue_size < 1:
+            raise ConfigError(f'queue_size must be >= 1; got {self.queue_size}')
+        if not self.diagnostics_period_seconds > 0:
+            raise ConfigError(
+                f'diagnostics_period_seconds must be > 0; got {self.diagnostics_period_seconds}'
+            )
+
+    @property
+    def tolerance_ns(self) -> int:
+        """The approximate-sync tolerance in integer nanoseconds."""
+        return round(self.approximate_sync_tolerance_seconds * 1e9)
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One declared parameter.
+
+    Attributes:
+        name: Parameter name, equal to the config field it maps onto.
+        target: ``'pipeline'`` or ``'node'``: which config holds the field.
+        default: Default value; its Python type fixes the parameter type.
+        description: What it does, for ``ros2 param describe``.
+        constraints: Free text on allowed values (choices), for ``ros2 param describe``.
+        low: Lower end of the allowed range (int or float parameters), or None.
+        high: Upper end of the allowed range, or None.
+        read_only: Only settable at start-up (e.g. QoS, which is fixed per subscription).
+    """
+
+    name: str
+    target: str
+    default: Any
+    description: str
+    constraints: str = ''
+    low: float | None = None
+    high: float | None = None
+    read_only: bool = False
+
+    def descriptor(self) -> ParameterDescriptor:
+        """The ``ParameterDescriptor`` with type, description, range and read-only flag."""
+        descriptor = ParameterDescriptor(
+            name=self.name,
+            type=_parameter_type(self.default),
+            description=self.description,
+            additional_constraints=self.constraints,
+            read_only=self.read_only,
+        )
+        if self.low is not None and self.high is not None:
+            if isinstance(self.default, int) and not isinstance(self.default, bool):
+                descriptor.integer_range = [
+                    IntegerRange(from_value=int(self.low), to_value=int(self.high), step=1)
+                ]
+            else:
+                descriptor.floating_point_range = [
+                    FloatingPointRange(
+                        from_value=float(self.low), to_value=float(self.high), step=0.0
+                    )
+                ]
+        return descriptor
+
+
+def _parameter_type(value: Any) -> int:
+    if isinstance(value, bool):
+        return ParameterType.PARAMETER_BOOL
+    if isinstance(value, int):
+        return ParameterType.PARAMETER_INTEGER
+    if isinstance(value, float):
+        return ParameterType.PARAMETER_DOUBLE
+    return ParameterType.PARAMETER_STRING
+
+
+def _default(config: type, name: str) -> Any:
+    for item in fields(config):
+        if item.name == name:
+            if item.default is MISSING:
+                raise ConfigError(f'{config.__name__}.{name} has no default')
+            return item.default
+    raise ConfigError(f'{config.__name__} has no field {name!r}')
+
+
+def _pipeline(name: str, description: str, **extra: Any) -> ParamSpec:
+    return ParamSpec(name, 'pipeline', _default(PipelineConfig, name), description, **extra)
+
+
+def _node(name: str, description: str, **extra: Any) -> ParamSpec:
+    return ParamSpec(name, 'node', _default(NodeConfig, name), description, **extra)
+
+
+PIPELINE_PARAMETERS: tuple[ParamSpec, ...] = (
+    _pipeline(
+        'matcher',
+        'Cost-volume matcher.',
+        constraints='one of census_bm, census_sgm, mccnn_fast',
+    ),
+    _pipeline(
+        'max_disparity',
+        'Cost-volume depth D (disparities 0 … D−1) at the processed resolution.',
+        low=1,
+        high=1024,
+    ),
+    _pipeline(
+        'confidence_method',
+        'Confidence method: cva_net (learned) or a hand-crafted measure.',
+        constraints='cva_net or a hand-crafted measure (pkrn, mlm, lrd, lrc, score)',
+    ),
+    _pipeline(
+        'model_path',
+        'CVA-Net weights file; empty = the shipped weights for the matcher and max_disparity.',
+    ),
+    _pipeline(
+        'device',
+        'Where the network runs; auto = CUDA when available.',
+        constraints='one of cpu, cuda, auto',
+    ),
+    _pipeline(
+        'confidence_threshold',
+        'Pixels with confidence below it are dropped from points2 and disparity_filtered.',
+        low=0.0,
+        high=1.0,
+    ),
+    _pipeline(
+        'downsample',
+        'Process and publish at 1/downsample of the input resolution (camera infos scaled).',
+        constraints='1, 2 or 4',
+        low=1,
+        high=4,
+    ),
+    _pipeline('lr_check', 'Invalidate pixels that fail a left-right consistency check.'),
+    _pipeline(
+        'tile_budget_mb',
+        'Memory budget of one network tile at inference, MB.',
+        low=1.0,
+        high=1048576.0,
+    ),
+)
+
+NODE_PARAMETERS: tuple[ParamSpec, ...] = (
+    _node('publish_points', 'Publish the confidence-filtered point cloud on points2.'),
+    _node(
+        'points_organized',
+        'points2 keeps the image grid with NaN for dropped points; false = only kept points.',
+    ),
+    _node(
+        'input_qos',
+        'QoS of the image and camera-info subscriptions.',
+        constraints='sensor_data (best effort) or reliable',
+        read_only=True,
+    ),
+    _node(
+        'output_qos',
+        'QoS of the published topics; reliable also serves best-effort subscribers.',
+        constraints='sensor_data (best effort) or reliable',
+        read_only=True,
+    ),
+    _node('approximate_sync', 'Pair messages with close, not only equal, stamps.'),
+    _node(
+        'approximate_sync_tolerance_seconds',
+        'Largest stamp difference within one pair when approximate_sync is true, seconds.',
+        low=0.0,
+        high=10.0,
+    ),
+    _node(
+        'queue_size',
+        'Messages held per topic while waiting for their partners.',
+        low=1,
+        high=1000,
+    ),
+    _node(
+        'diagnostics_period_seconds',
+        'Period of the /diagnostics status and of the throttled status log, seconds.',
+        low=0.01,
+        high=3600.0,
+        read_only=True,
+    ),
+)
+
+#: Every declared parameter, pipeline ones first.
+PARAMETERS: tuple[ParamSpec, ...] = PIPELINE_PARAMETERS + NODE_PARAMETERS
+
+
+def declare_parameters(node: Node) -> None:
+    """Declare every parameter of :data:`PARAMETERS` on ``node`` with its descriptor."""
+    node.declare_parameters(
+        namespace='',
+        parameters=[(spec.name, spec.default, spec.descriptor()) for spec in PARAMETERS],
+    )
+
+
+def parameter_values(node: Node) -> dict[str, Any]:
+    """Current values of the declared parameters, by name."""
+    return {spec.name: node.get_parameter(spec.name).value for spec in PARAMETERS}
+
+
+def build_configs(
+    values: Mapping[str, Any], changes: Iterable[Parameter] = ()
+) -> tuple[PipelineConfig, NodeConfig]:
+    """Build both configs from parameter values, with pending ``changes`` applied on top.
+
+    Args:
+        values: name → value for every parameter of :data:`PARAMETERS`.
+        changes: Parameters about to be set (from an on-set-parameters callback).
+
+    Returns:
+        ``(pipeline_config, node_config)``, both validated.
+
+    Raises:
+        ConfigError: An unknown parameter name or a value the configs reject.
+    """
+    merged = dict(values)
+    known = {spec.name for spec in PARAMETERS}
+    for param in changes:
+        if param.name not in known:
+            raise ConfigError(f'unknown parameter {param.name!r}; expected one of {sorted(known)}')
+        merged[param.name] = param.value
+    pipeline = {spec.name: merged[spec.name] for spec in PIPELINE_PARAMETERS}
+    node = {spec.name: merged[spec.name] for spec in NODE_PARAMETERS}
+    return PipelineConfig(**pipeline), NodeConfig(**node)
