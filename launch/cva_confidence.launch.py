@@ -1,0 +1,87 @@
+"""Launch the cva_confidence node with the shipped parameter file.
+
+Usage (full ROS 2 install)::
+
+    ros2 launch cva_confidence_ros cva_confidence.launch.py \
+        stereo_namespace:=/stereo params_file:=/path/to/params.yaml \
+        matcher:=census_sgm max_disparity:=128
+
+The node subscribes to ``<stereo_namespace>/{left,right}/{image_rect,camera_info}`` and
+publishes ``disparity``, ``disparity_filtered``, ``confidence`` and ``points2`` in the same
+namespace, like ``stereo_image_proc``. Launch arguments left empty keep the file's value.
+"""
+
+# The repository's own launch/ folder makes ruff take the `launch` package for first-party.
+# ruff: noqa: I001
+
+from __future__ import annotations
+
+import os
+
+from ament_index_python.packages import get_package_share_directory
+from launch import LaunchContext, LaunchDescription
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+PACKAGE = 'cva_confidence_ros'
+
+# Launch arguments that override one parameter of the file, with the parameter's type.
+OVERRIDES: dict[str, type] = {
+    'matcher': str,
+    'max_disparity': int,
+    'confidence_method': str,
+    'model_path': str,
+    'device': str,
+    'confidence_threshold': float,
+    'downsample': int,
+}
+
+
+def _node(context: LaunchContext) -> list[Node]:
+    overrides = {}
+    for name, kind in OVERRIDES.items():
+        value = LaunchConfiguration(name).perform(context)
+        if value:
+            overrides[name] = kind(value)
+    use_sim_time = LaunchConfiguration('use_sim_time').perform(context).lower() == 'true'
+    return [
+        Node(
+            package=PACKAGE,
+            executable='node',
+            name='cva_confidence',
+            namespace=LaunchConfiguration('stereo_namespace'),
+            output='screen',
+            emulate_tty=True,
+            parameters=[
+                LaunchConfiguration('params_file'),
+                {'use_sim_time': use_sim_time},
+                overrides,
+            ],
+        )
+    ]
+
+
+def generate_launch_description() -> LaunchDescription:
+    """Declare the launch arguments and the node."""
+    default_params = os.path.join(
+        get_package_share_directory(PACKAGE), 'config', 'cva_confidence.yaml'
+    )
+    arguments = [
+        DeclareLaunchArgument(
+            'stereo_namespace', default_value='', description='Namespace of the stereo topics.'
+        ),
+        DeclareLaunchArgument(
+            'params_file', default_value=default_params, description='Node parameter file.'
+        ),
+        DeclareLaunchArgument(
+            'use_sim_time', default_value='false', description='Use the /clock topic.'
+        ),
+    ]
+    arguments += [
+        DeclareLaunchArgument(
+            name, default_value='', description=f'Override {name}; empty keeps it.'
+        )
+        for name in OVERRIDES
+    ]
+    return LaunchDescription([*arguments, OpaqueFunction(function=_node)])
