@@ -1,0 +1,240 @@
+"""Shared helpers of the node tests: synthetic stereo messages and a DDS test client."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+import os
+import threading
+import time
+from typing import Any
+
+import numpy as np
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from std_msgs.msg import Header
+from stereo_msgs.msg import DisparityImage
+
+from cva_confidence_ros.ros.convert import ns_to_stamp
+
+FX = 100.0
+BASELINE = 0.1
+TRUE_DISPARITY = 5
+FRAME = 'left_optical'
+
+
+def domain_id(offset: int) -> int:
+    """A ROS domain for one test module: from the pid, so parallel runs do not cross-talk."""
+    return 101 + (os.getpid() % 30) * 4 + offset
+
+
+def textured_pair(
+    height: int = 64, width: int = 96, disparity: int = TRUE_DISPARITY, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Random blob texture seen with a constant disparity: left[y, x] = right[y, x − d].
+
+    Returns:
+        (H, W) uint8 left and right images.
+    """
+    rng = np.random.default_rng(seed)
+    coarse = rng.integers(0, 256, size=(height // 2 + 1, (width + disparity) // 2 + 1))
+    texture = np.kron(coarse, np.ones((2, 2)))[:height, : width + disparity]
+    texture = (0.5 * texture + 0.5 * rng.integers(0, 256, size=texture.shape)).astype(np.uint8)
+    return texture[:, :width].copy(), texture[:, disparity : disparity + width].copy()
+
+
+def image_msg(array: np.ndarray, stamp_ns: int, encoding: str | None = None) -> Image:
+    """(H, W) uint8/uint16 or (H, W, 3) uint8 → Image (mono8/mono16/rgb8 unless told)."""
+    if encoding is None:
+        encoding = {1: 'mono8', 2: 'mono16'}[array.itemsize] if array.ndim == 2 else 'rgb8'
+    height, width = array.shape[:2]
+    data = np.ascontiguousarray(array)
+    if data.dtype == np.uint16:
+        data = data.astype('<u2')
+    return Image(
+        header=Header(stamp=ns_to_stamp(stamp_ns), frame_id=FRAME),
+        height=height,
+        width=width,
+        encoding=encoding,
+        is_bigendian=0,
+        step=data.nbytes // height,
+        data=data.tobytes(),
+    )
+
+
+def info_msgs(
+    stamp_ns: int, height: int = 64, width: int = 96, fx: float = FX, baseline: float = BASELINE
+) -> tuple[CameraInfo, CameraInfo]:
+    """Rectified left and right camera infos (cx = W/2, cy = H/2, P_right[0, 3] = −fx·B)."""
+    cx, cy = width / 2.0, height / 2.0
+    infos = []
+    for tx, frame in ((0.0, FRAME), (-fx * baseline, 'right_optical')):
+        info = CameraInfo(
+            header=Header(stamp=ns_to_stamp(stamp_ns), frame_id=frame),
+            height=height,
+            width=width,
+            distortion_model='plumb_bob',
+        )
+        info.k = [fx, 0.0, cx, 0.0, fx, cy, 0.0, 0.0, 1.0]
+        info.r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+        info.p = [fx, 0.0, cx, tx, 0.0, fx, cy, 0.0, 0.0, 0.0, 1.0, 0.0]
+        infos.append(info)
+    return infos[0], infos[1]
+
+
+class StereoClient:
+    """A test-side node: publishes stereo inputs and collects the node's outputs over DDS.
+
+    Args:
+        context: The rclpy context (its domain decides who it talks to).
+        namespace: Namespace of the stereo topics.
+    """
+
+    def __init__(self, context: Context, namespace: str = '') -> None:
+        self.node = Node('stereo_test_client', namespace=namespace, context=context)
+        qos = QoSProfile(depth=10)
+        self.pubs = {
+            'left': self.node.create_publisher(Image, 'left/image_rect', qos),
+            'right': self.node.create_publisher(Image, 'right/image_rect', qos),
+            'left_info': self.node.create_publisher(CameraInfo, 'left/camera_info', qos),
+            'right_info': self.node.create_publisher(CameraInfo, 'right/camera_info', qos),
+        }
+        self.received: dict[str, list[Any]] = {}
+        self._cond = threading.Condition()
+        for topic, msg_type in (
+            ('disparity', DisparityImage),
+            ('disparity_filtered', DisparityImage),
+            ('confidence', Image),
+            ('points2', PointCloud2),
+        ):
+            self.received[topic] = []
+            self.node.create_subscription(
+                msg_type, topic, lambda msg, topic=topic: self._store(topic, msg), qos
+            )
+
+    def subscribe(self, topic: str, msg_type: type, qos: QoSProfile | None = None) -> None:
+        """Also collect ``topic`` into :attr:`received`."""
+        self.received[topic] = []
+        self.node.create_subscription(
+            msg_type,
+            topic,
+            lambda msg: self._store(topic, msg),
+            qos or QoSProfile(depth=10),
+        )
+
+    def _store(self, topic: str, msg: Any) -> None:
+        with self._cond:
+            self.received[topic].append(msg)
+            self._cond.notify_all()
+
+    def publish_frame(
+        self,
+        left: np.ndarray,
+        right: np.ndarray,
+        stamp_ns: int,
+        infos: tuple[CameraInfo, CameraInfo] | None = None,
+    ) -> None:
+        """Publish one stereo pair and its camera infos, all stamped ``stamp_ns``."""
+        height, width = left.shape[:2]
+        left_info, right_info = infos or info_msgs(stamp_ns, height, width)
+        self.pubs['left_info'].publish(left_info)
+        self.pubs['right_info'].publish(right_info)
+        self.pubs['left'].publish(image_msg(left, stamp_ns))
+        self.pubs['right'].publish(image_msg(right, stamp_ns))
+
+    def wait_for(
+        self, predicate: Callable[[], bool], timeout: float = 20.0, poll: float = 0.05
+    ) -> bool:
+        """Wait until ``predicate()`` holds (checked on every new message and every ``poll`` s)."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while not predicate():
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return False
+                self._cond.wait(min(poll, remaining))
+        return True
+
+    def by_stamp(self, topic: str, stamp_ns: int) -> Any | None:
+        """The received message of ``topic`` stamped ``stamp_ns``, or None."""
+        with self._cond:
+            for msg in self.received[topic]:
+                stamp = msg.header.stamp
+                if stamp.sec * 1_000_000_000 + stamp.nanosec == stamp_ns:
+                    return msg
+        return None
+
+    def wait_connected(self, timeout: float = 20.0) -> bool:
+        """Wait until the node under test subscribes to all inputs and publishes the outputs."""
+        topics = ('disparity', 'confidence', 'points2', 'disparity_filtered')
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            inputs = all(pub.get_subscription_count() > 0 for pub in self.pubs.values())
+            outputs = all(self.node.count_publishers(self._resolve(t)) > 0 for t in topics)
+            if inputs and outputs:
+                return True
+            time.sleep(0.05)
+        return False
+
+    def _resolve(self, topic: str) -> str:
+        return self.node.resolve_topic_name(topic)
+
+    def send_until_output(
+        self,
+        left: np.ndarray,
+        right: np.ndarray,
+        stamp_ns: int,
+        topics: tuple[str, ...] = ('disparity', 'confidence', 'points2', 'disparity_filtered'),
+        timeout: float = 30.0,
+    ) -> dict[str, Any]:
+        """Publish the frame (again, with fresh stamps after ``stamp_ns``) until every topic
+        answers; discovery of the node's subscribers may lag behind ours.
+
+        Returns:
+            topic → the output message, all stamped with the same (last published) stamp.
+        """
+        deadline = time.monotonic() + timeout
+        stamp = stamp_ns
+        while time.monotonic() < deadline:
+            self.publish_frame(left, right, stamp)
+            got = self.wait_for(
+                lambda s=stamp: all(self.by_stamp(t, s) is not None for t in topics),
+                timeout=min(2.0, max(deadline - time.monotonic(), 0.0)),
+            )
+            if got:
+                return {t: self.by_stamp(t, stamp) for t in topics}
+            stamp += 1_000_000
+        raise TimeoutError(f'no output on {topics} within {timeout} s')
+
+
+class Spinner:
+    """Spin an executor for some nodes in a background thread until :meth:`stop`."""
+
+    def __init__(self, context: Context, *nodes: Node) -> None:
+        self.executor = SingleThreadedExecutor(context=context)
+        for node in nodes:
+            self.executor.add_node(node)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        while not self._stop.is_set() and rclpy.ok(context=self.executor.context):
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(5.0)
+        self.executor.shutdown()
+
+
+def rss_mb() -> float:
+    """Resident memory of this process in MB (Linux)."""
+    with open('/proc/self/status', encoding='ascii') as status:
+        for line in status:
+            if line.startswith('VmRSS:'):
+                return int(line.split()[1]) / 1024.0
+    return float('nan')

@@ -1,0 +1,181 @@
+"""Tests of the rclpy message ⇄ numpy conversions (no DDS needed)."""
+
+from __future__ import annotations
+
+from node_test_utils import image_msg, info_msgs
+import numpy as np
+import pytest
+from sensor_msgs.msg import Image, PointField
+from std_msgs.msg import Header
+
+from cva_confidence_ros.errors import InputError
+from cva_confidence_ros.pointcloud import CLOUD_DTYPE, StereoGeometry, make_cloud
+from cva_confidence_ros.ros.convert import (
+    SUPPORTED_ENCODINGS,
+    array_to_image,
+    camera_info_to_geometry,
+    cloud_to_array,
+    cloud_to_message,
+    disparity_from_message,
+    disparity_to_message,
+    float_image_to_array,
+    image_to_array,
+    ns_to_stamp,
+    pair_to_uint8,
+    stamp_to_ns,
+)
+
+RGB = np.array([[[10, 20, 30], [40, 50, 60], [70, 80, 90]]], np.uint8)  # 1×3 pixels
+
+
+def _raw(data: bytes, height: int, width: int, encoding: str, step: int, big: bool = False):
+    return Image(
+        height=height, width=width, encoding=encoding, step=step, is_bigendian=big, data=data
+    )
+
+
+def test_stamp_round_trip() -> None:
+    stamp = ns_to_stamp(1_700_000_000_123_456_789)
+    assert (stamp.sec, stamp.nanosec) == (1_700_000_000, 123_456_789)
+    assert stamp_to_ns(stamp) == 1_700_000_000_123_456_789
+
+
+@pytest.mark.parametrize(
+    ('encoding', 'pixels'),
+    [
+        ('rgb8', RGB),
+        ('bgr8', RGB[..., ::-1]),
+        ('rgba8', np.concatenate([RGB, np.full((1, 3, 1), 255, np.uint8)], axis=2)),
+        ('bgra8', np.concatenate([RGB[..., ::-1], np.zeros((1, 3, 1), np.uint8)], axis=2)),
+    ],
+)
+def test_colour_encodings_give_rgb(encoding: str, pixels: np.ndarray) -> None:
+    msg = _raw(pixels.tobytes(), 1, 3, encoding, pixels.shape[2] * 3)
+    out = image_to_array(msg)
+    assert out.dtype == np.uint8 and out.shape == (1, 3, 3)
+    np.testing.assert_array_equal(out, RGB)
+
+
+def test_mono8_with_row_padding() -> None:
+    # 2×3 image, rows padded to 4 bytes; the padding byte (99) must not leak in.
+    data = bytes([1, 2, 3, 99, 4, 5, 6, 99])
+    out = image_to_array(_raw(data, 2, 3, 'mono8', 4))
+    np.testing.assert_array_equal(out, [[1, 2, 3], [4, 5, 6]])
+    assert out.flags.writeable and out.flags.c_contiguous
+
+
+@pytest.mark.parametrize('big', [False, True])
+def test_mono16_endianness(big: bool) -> None:
+    values = np.array([[1, 256, 4095]], np.uint16)
+    data = values.astype('>u2' if big else '<u2').tobytes()
+    out = image_to_array(_raw(data, 1, 3, 'mono16', 6, big))
+    assert out.dtype == np.uint16
+    np.testing.assert_array_equal(out, values)
+
+
+def test_supported_encodings() -> None:
+    assert set(SUPPORTED_ENCODINGS) == {'mono8', 'mono16', 'rgb8', 'bgr8', 'rgba8', 'bgra8'}
+
+
+@pytest.mark.parametrize(
+    ('msg', 'match'),
+    [
+        (_raw(b'\x00' * 12, 1, 3, '32FC1', 12), 'encoding'),
+        (_raw(b'\x00' * 4, 2, 3, 'mono8', 3), 'data must hold'),
+        (_raw(b'\x00' * 6, 2, 3, 'mono8', 2), 'step'),
+        (_raw(b'', 0, 3, 'mono8', 3), 'positive size'),
+    ],
+)
+def test_bad_images(msg: Image, match: str) -> None:
+    with pytest.raises(InputError, match=match):
+        image_to_array(msg)
+
+
+def test_pair_to_uint8_scales_16_bit_jointly() -> None:
+    left = np.array([[0, 1000]], np.uint16)
+    right = np.array([[4000, 2000]], np.uint16)
+    out_left, out_right = pair_to_uint8(left, right)
+    # 12-bit data: one factor 255/4000 for both.
+    np.testing.assert_array_equal(out_left, [[0, 64]])
+    np.testing.assert_array_equal(out_right, [[255, 128]])
+    eight = np.zeros((1, 2), np.uint8)
+    assert pair_to_uint8(eight, eight)[0] is eight
+    with pytest.raises(InputError, match='both'):
+        pair_to_uint8(eight, left)
+
+
+def test_float_image_round_trip() -> None:
+    array = np.array([[0.0, 0.5], [np.nan, 1.0], [2.0, -1.0]], np.float32)
+    header = Header(frame_id='f', stamp=ns_to_stamp(5))
+    msg = array_to_image(array, header)
+    assert (msg.encoding, msg.height, msg.width, msg.step) == ('32FC1', 3, 2, 8)
+    assert msg.header.frame_id == 'f'
+    np.testing.assert_array_equal(float_image_to_array(msg), array)
+    with pytest.raises(InputError, match='32FC1'):
+        float_image_to_array(image_msg(np.zeros((2, 2), np.uint8), 0))
+
+
+def test_camera_info_geometry_and_size_check() -> None:
+    left_info, right_info = info_msgs(0, height=64, width=96, fx=100.0, baseline=0.1)
+    geometry = camera_info_to_geometry(left_info, right_info, 96, 64)
+    assert (geometry.fx, geometry.fy, geometry.cx, geometry.cy) == (100.0, 100.0, 48.0, 32.0)
+    assert geometry.cx_right == 48.0
+    assert geometry.baseline == pytest.approx(0.1)
+    with pytest.raises(InputError, match='left camera info must be for 97×64'):
+        camera_info_to_geometry(left_info, right_info, 97, 64)
+    right_info.p[3] = 5.0  # a "right" camera to the left
+    with pytest.raises(InputError, match='baseline'):
+        camera_info_to_geometry(left_info, right_info, 96, 64)
+    right_info.p[3] = np.nan
+    with pytest.raises(InputError, match='finite'):
+        camera_info_to_geometry(left_info, right_info, 96, 64)
+
+
+def test_disparity_message_like_stereo_image_proc() -> None:
+    # cx_left = 48, cx_right = 50: published values are d + 2, invalid = min_disparity − 1.
+    geometry = StereoGeometry(fx=100.0, fy=100.0, cx=48.0, cy=32.0, cx_right=50.0, baseline=0.1)
+    disparity = np.array([[3.0, np.nan, 0.0, 7.5]], np.float32)
+    header = Header(frame_id='left', stamp=ns_to_stamp(42))
+    msg = disparity_to_message(disparity, header, geometry, max_disparity=16, delta_d=0.25)
+    assert msg.header.frame_id == 'left' and msg.image.header.stamp.nanosec == 42
+    assert msg.image.encoding == '32FC1' and (msg.image.height, msg.image.width) == (1, 4)
+    assert msg.f == pytest.approx(100.0) and msg.t == pytest.approx(0.1)
+    assert msg.min_disparity == pytest.approx(2.0) and msg.max_disparity == pytest.approx(17.0)
+    assert msg.delta_d == pytest.approx(0.25)
+    np.testing.assert_array_equal(float_image_to_array(msg.image), [[5.0, 1.0, 2.0, 9.5]])
+    # Z = f·T/d holds on the published value: d = 3 → 5 → Z = 2 (Z = fB/(d + Δ) in the core).
+    assert msg.f * msg.t / 5.0 == pytest.approx(2.0)
+    np.testing.assert_array_equal(disparity_from_message(msg), [[5.0, np.nan, 2.0, 9.5]])
+    window = msg.valid_window
+    assert (window.x_offset, window.y_offset, window.width, window.height) == (4, 0, 0, 1)
+
+
+def test_valid_window() -> None:
+    geometry = StereoGeometry(fx=1.0, fy=1.0, cx=0.0, cy=0.0, cx_right=0.0, baseline=1.0)
+    msg = disparity_to_message(np.zeros((5, 40), np.float32), Header(), geometry, 16)
+    window = msg.valid_window
+    assert (window.x_offset, window.y_offset, window.width, window.height) == (15, 0, 25, 5)
+
+
+def test_cloud_message_round_trip() -> None:
+    points = np.arange(2 * 3 * 3, dtype=np.float32).reshape(2, 3, 3)
+    points[0, 1] = np.nan
+    colours = np.zeros((2, 3), np.float32)
+    header = Header(frame_id='left')
+    organised = cloud_to_message(make_cloud(points, colours, True), header)
+    assert (organised.height, organised.width, organised.is_dense) == (2, 3, False)
+    assert (organised.point_step, organised.row_step) == (16, 48)
+    assert [(f.name, f.offset, f.datatype) for f in organised.fields] == [
+        ('x', 0, PointField.FLOAT32),
+        ('y', 4, PointField.FLOAT32),
+        ('z', 8, PointField.FLOAT32),
+        ('rgb', 12, PointField.FLOAT32),
+    ]
+    back = cloud_to_array(organised)
+    assert back.dtype == CLOUD_DTYPE and back.shape == (2, 3)
+    np.testing.assert_array_equal(back['z'], points[..., 2])
+    dense = cloud_to_message(make_cloud(points, colours, False), header)
+    assert (dense.height, dense.width, dense.is_dense) == (1, 5, True)
+    assert len(dense.data) == 5 * 16
+    with pytest.raises(InputError, match='dtype'):
+        cloud_to_message(np.zeros(3, np.float32), header)
