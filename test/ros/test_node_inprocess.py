@@ -1,0 +1,328 @@
+"""The node in this process, talked to over real DDS by a client node in the same context."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+import os
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray
+from node_test_utils import (
+    BASELINE,
+    FX,
+    TRUE_DISPARITY,
+    Spinner,
+    StereoClient,
+    domain_id,
+    image_msg,
+    info_msgs,
+    textured_pair,
+)
+import numpy as np
+import pytest
+from rcl_interfaces.msg import SetParametersResult
+from rcl_interfaces.srv import SetParameters
+import rclpy
+from rclpy.context import Context
+from rclpy.parameter import Parameter
+
+from cva_confidence_ros.node import ConfidenceNode
+from cva_confidence_ros.ros.convert import (
+    cloud_to_array,
+    disparity_from_message,
+    float_image_to_array,
+)
+from cva_confidence_ros.ros.params import PARAMETERS
+
+pytestmark = pytest.mark.timeout(120)
+
+MAX_DISPARITY = 16
+THRESHOLD = 0.5
+OVERRIDES = [
+    Parameter('matcher', value='census_bm'),
+    Parameter('max_disparity', value=MAX_DISPARITY),
+    Parameter('confidence_method', value='mlm'),
+    Parameter('confidence_threshold', value=THRESHOLD),
+]
+
+
+class _Running:
+    def __init__(self, context: Context) -> None:
+        self.context = context
+        self.node = ConfidenceNode(context=context, parameter_overrides=list(OVERRIDES))
+        self.client = StereoClient(context)
+        self.client.subscribe('/diagnostics', DiagnosticArray)
+        self.spinner = Spinner(context, self.node, self.client.node)
+        self.stamp = 1_000_000_000
+        assert self.client.wait_connected(), 'the node and the client did not discover'
+
+    def next_stamp(self) -> int:
+        # Far apart, so the retries of send_until_output never reach the next test's stamps.
+        self.stamp += 10_000_000_000
+        return self.stamp
+
+    def set(self, **values: object) -> list[SetParametersResult]:
+        """Set parameters on the node (the same callback the parameter service runs)."""
+        return self.node.set_parameters([Parameter(k, value=v) for k, v in values.items()])
+
+
+@pytest.fixture(scope='module')
+def running() -> Iterator[_Running]:
+    previous = os.environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE')
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id(0))
+    state = _Running(context)
+    try:
+        yield state
+    finally:
+        state.spinner.stop()
+        state.node.destroy_node()
+        state.client.node.destroy_node()
+        rclpy.shutdown(context=context)
+        if previous is None:
+            os.environ.pop('ROS_AUTOMATIC_DISCOVERY_RANGE', None)
+        else:
+            os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = previous
+
+
+def _interior(array: np.ndarray, border: int) -> np.ndarray:
+    return array[border:-border, MAX_DISPARITY + border : -border]
+
+
+def test_outputs_for_a_known_disparity(running: _Running) -> None:
+    left, right = textured_pair()
+    out = running.client.send_until_output(left, right, running.next_stamp())
+    disparity_msg, confidence_msg = out['disparity'], out['confidence']
+    filtered_msg, cloud_msg = out['disparity_filtered'], out['points2']
+    stamp = disparity_msg.header.stamp
+
+    for msg in (disparity_msg, confidence_msg, filtered_msg, cloud_msg):
+        assert msg.header.frame_id == 'left_optical'
+        assert msg.header.stamp == stamp
+
+    # Disparity: filled like stereo_image_proc.
+    assert disparity_msg.image.encoding == '32FC1'
+    assert (disparity_msg.image.height, disparity_msg.image.width) == (64, 96)
+    assert disparity_msg.f == pytest.approx(FX)
+    assert disparity_msg.t == pytest.approx(BASELINE)
+    assert (disparity_msg.min_disparity, disparity_msg.max_disparity) == (0.0, 15.0)
+    assert disparity_msg.delta_d > 0
+    assert disparity_msg.valid_window.x_offset == MAX_DISPARITY - 1
+    disparity = disparity_from_message(disparity_msg)
+    inner = _interior(disparity, 4)
+    assert np.mean(np.abs(inner - TRUE_DISPARITY) < 0.5) > 0.95
+
+    # Confidence: same size, [0, 1].
+    assert confidence_msg.encoding == '32FC1'
+    confidence = float_image_to_array(confidence_msg)
+    assert confidence.shape == (64, 96)
+    assert np.all((confidence >= 0) & (confidence <= 1))
+
+    # The filtered disparity keeps exactly the confident pixels.
+    keep = np.isfinite(disparity) & (confidence >= THRESHOLD)
+    assert 0 < keep.sum() < keep.size
+    filtered = disparity_from_message(filtered_msg)
+    np.testing.assert_array_equal(np.isfinite(filtered), keep)
+    np.testing.assert_array_equal(filtered[keep], disparity[keep])
+
+    # The cloud: organised, only confident points, at Z = fB/d, X = (u − cx)Z/f, Y = (v − cy)Z/f.
+    assert (cloud_msg.height, cloud_msg.width) == (64, 96)
+    assert not cloud_msg.is_dense
+    cloud = cloud_to_array(cloud_msg)
+    finite = np.isfinite(cloud['z'])
+    np.testing.assert_array_equal(finite, keep & (disparity > 0))
+    rows, cols = np.nonzero(finite)
+    z = FX * BASELINE / disparity[rows, cols]
+    np.testing.assert_allclose(cloud['z'][rows, cols], z, rtol=1e-5)
+    np.testing.assert_allclose(
+        cloud['x'][rows, cols], (cols - 48.0) * z / FX, rtol=1e-5, atol=1e-6
+    )
+    np.testing.assert_allclose(
+        cloud['y'][rows, cols], (rows - 32.0) * z / FX, rtol=1e-5, atol=1e-6
+    )
+    # Where the disparity is right, the depth is f·B/5 = 2 m; the colour is the gray value.
+    good = finite & (np.abs(disparity - TRUE_DISPARITY) < 0.5)
+    assert good.sum() > 0.5 * finite.sum()
+    np.testing.assert_allclose(cloud['z'][good], 2.0, rtol=1e-5)
+    bits = cloud['rgb'][good].view(np.uint32)
+    gray = left[good].astype(np.uint32)
+    np.testing.assert_array_equal(bits, (gray << 16) | (gray << 8) | gray)
+
+
+@pytest.mark.parametrize('encoding', ['rgb8', 'bgr8', 'rgba8', 'bgra8', 'mono16'])
+def test_other_encodings(running: _Running, encoding: str) -> None:
+    left, right = textured_pair(seed=1)
+    if encoding == 'mono16':
+        # 12-bit data: scaled jointly back to 8 bits, matching is unchanged.
+        left16, right16 = left.astype(np.uint16) * 16, right.astype(np.uint16) * 16
+        left_msg, right_msg = image_msg(left16, 0), image_msg(right16, 0)
+    else:
+        channels = {'rgb8': 3, 'bgr8': 3, 'rgba8': 4, 'bgra8': 4}[encoding]
+        left_msg = image_msg(np.repeat(left[..., None], channels, 2), 0, encoding)
+        right_msg = image_msg(np.repeat(right[..., None], channels, 2), 0, encoding)
+    stamp = running.next_stamp()
+    client = running.client
+    for attempt in range(10):
+        now = stamp + attempt * 1_000_000
+        for msg in (left_msg, right_msg):
+            msg.header.stamp = rclpy.time.Time(nanoseconds=now).to_msg()
+        left_info, right_info = info_msgs(now)
+        client.pubs['left_info'].publish(left_info)
+        client.pubs['right_info'].publish(right_info)
+        client.pubs['left'].publish(left_msg)
+        client.pubs['right'].publish(right_msg)
+        if client.wait_for(lambda s=now: client.by_stamp('disparity', s) is not None, 2.0):
+            break
+    else:
+        pytest.fail(f'no disparity for a {encoding} pair')
+    disparity = disparity_from_message(client.by_stamp('disparity', now))
+    assert np.mean(np.abs(_interior(disparity, 4) - TRUE_DISPARITY) < 0.5) > 0.95
+
+
+def test_diagnostics(running: _Running) -> None:
+    client = running.client
+    left, right = textured_pair(seed=2)
+    client.send_until_output(left, right, running.next_stamp(), topics=('disparity',))
+
+    def status():
+        for array in reversed(client.received['/diagnostics']):
+            for entry in array.status:
+                values = {kv.key: kv.value for kv in entry.values}
+                if entry.name.startswith('cva_confidence') and 'mean_matching_ms' in values:
+                    return entry, values
+        return None
+
+    assert client.wait_for(lambda: status() is not None, timeout=10.0)
+    entry, values = status()
+    assert entry.hardware_id.endswith('cva_confidence')
+    assert int(values['frames_processed']) >= 1
+    assert int(values['frames_received']) >= int(values['frames_processed'])
+    for key in ('frames_dropped', 'frames_invalid', 'messages_received'):
+        assert int(values[key]) >= 0
+    for stage in ('resize', 'matching', 'confidence', 'total', 'convert', 'publish', 'frame'):
+        assert float(values[f'mean_{stage}_ms']) >= 0.0
+    assert values['matcher'] == 'census_bm' and values['confidence_method'] == 'mlm'
+
+
+def test_parameters_are_declared_with_descriptions_and_ranges(running: _Running) -> None:
+    node = running.node
+    names = {spec.name for spec in PARAMETERS}
+    assert names <= set(node._parameters)
+    descriptors = node.describe_parameters(sorted(names))
+    by_name = {d.name: d for d in descriptors}
+    assert all(d.description for d in descriptors)
+    assert by_name['max_disparity'].integer_range[0].from_value == 1
+    assert by_name['confidence_threshold'].floating_point_range[0].to_value == 1.0
+    assert by_name['input_qos'].read_only
+
+
+def test_invalid_parameter_changes_are_rejected_with_a_reason(running: _Running) -> None:
+    before = running.node.pipeline_config
+    (result,) = running.set(matcher='no_such_matcher')
+    assert not result.successful and 'no_such_matcher' in result.reason
+    (result,) = running.set(max_disparity=5000)  # outside the declared range
+    assert not result.successful
+    (result,) = running.set(downsample=3)
+    assert not result.successful and 'downsample' in result.reason
+    (result,) = running.set(confidence_method='cva_net', model_path='/nonexistent/weights.pt')
+    assert not result.successful and result.reason
+    (result,) = running.set(input_qos='reliable')  # read-only after start
+    assert not result.successful
+    assert running.node.pipeline_config == before
+    assert running.node.get_parameter('matcher').value == 'census_bm'
+
+
+def test_parameter_service_rebuilds_the_pipeline(running: _Running) -> None:
+    client = running.client
+    service = client.node.create_client(SetParameters, '/cva_confidence/set_parameters')
+    try:
+        assert service.wait_for_service(timeout_sec=20.0)
+        request = SetParameters.Request(
+            parameters=[Parameter('max_disparity', value=24).to_parameter_msg()]
+        )
+        future = service.call_async(request)
+        deadline = time.monotonic() + 20.0
+        while not future.done() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert future.done()
+        assert [r.successful for r in future.result().results] == [True]
+        assert running.node.pipeline_config.max_disparity == 24
+        left, right = textured_pair(seed=3)
+        out = client.send_until_output(left, right, running.next_stamp(), topics=('disparity',))
+        assert out['disparity'].max_disparity == 23.0
+    finally:
+        (result,) = running.set(max_disparity=MAX_DISPARITY)
+        assert result.successful
+        client.node.destroy_client(service)
+
+
+def test_downsample_publishes_at_lower_resolution(running: _Running) -> None:
+    (result,) = running.set(downsample=2, max_disparity=8)
+    assert result.successful
+    try:
+        left, right = textured_pair(height=64, width=96, disparity=6, seed=4)
+        out = running.client.send_until_output(left, right, running.next_stamp())
+        disparity_msg = out['disparity']
+        assert (disparity_msg.image.height, disparity_msg.image.width) == (32, 48)
+        assert disparity_msg.f == pytest.approx(FX / 2)
+        assert disparity_msg.t == pytest.approx(BASELINE)
+        disparity = disparity_from_message(disparity_msg)
+        inner = disparity[3:-3, 10:-3]
+        assert np.mean(np.abs(inner - 3.0) <= 1.0) > 0.8
+        confidence = float_image_to_array(out['confidence'])
+        assert confidence.shape == (32, 48)
+        cloud = cloud_to_array(out['points2'])
+        assert cloud.shape == (32, 48)
+        finite = np.isfinite(cloud['z'])
+        # Depth is resolution independent: f/2 · B / (d/2).
+        rows, cols = np.nonzero(finite)
+        np.testing.assert_allclose(
+            cloud['z'][rows, cols], (FX / 2) * BASELINE / disparity[rows, cols], rtol=1e-5
+        )
+    finally:
+        (result,) = running.set(downsample=1, max_disparity=MAX_DISPARITY)
+        assert result.successful
+
+
+def test_dense_cloud(running: _Running) -> None:
+    (result,) = running.set(points_organized=False)
+    assert result.successful
+    try:
+        left, right = textured_pair(seed=5)
+        out = running.client.send_until_output(left, right, running.next_stamp())
+        cloud_msg = out['points2']
+        assert cloud_msg.height == 1 and cloud_msg.is_dense
+        cloud = cloud_to_array(cloud_msg)[0]
+        assert np.isfinite(cloud['z']).all()
+        confidence = float_image_to_array(out['confidence'])
+        disparity = disparity_from_message(out['disparity'])
+        keep = np.isfinite(disparity) & (confidence >= THRESHOLD) & (disparity > 0)
+        assert cloud.shape[0] == keep.sum()
+        np.testing.assert_allclose(cloud['z'], FX * BASELINE / disparity[keep], rtol=1e-5)
+    finally:
+        (result,) = running.set(points_organized=True)
+        assert result.successful
+
+
+def test_approximate_sync(running: _Running) -> None:
+    client = running.client
+    left, right = textured_pair(seed=6)
+    (result,) = running.set(approximate_sync=True, approximate_sync_tolerance_seconds=0.005)
+    assert result.successful
+    try:
+        for _ in range(10):
+            stamp = running.next_stamp()
+            left_info, _ = info_msgs(stamp)
+            _, right_info = info_msgs(stamp + 2_000_000)  # right camera 2 ms late
+            client.pubs['left_info'].publish(left_info)
+            client.pubs['right_info'].publish(right_info)
+            client.pubs['left'].publish(image_msg(left, stamp))
+            client.pubs['right'].publish(image_msg(right, stamp + 2_000_000))
+            if client.wait_for(lambda s=stamp: client.by_stamp('disparity', s) is not None, 2.0):
+                break
+        else:
+            pytest.fail('no output for a pair 2 ms apart after 10 tries')
+    finally:
+        (result,) = running.set(approximate_sync=False)
+        assert result.successful
