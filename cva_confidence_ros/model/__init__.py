@@ -1,0 +1,47 @@
+"""CVA-Net: the network, its inference on whole images or pixel subsets, and weights I/O."""
+
+from __future__ import annotations
+
+from cva_confidence_ros.model.inference import (
+    PAD,
+    FoldedCVANet,
+    fold_batchnorm,
+    pad_cost_volume,
+    predict_confidence,
+    predict_confidence_at,
+    resolve_device,
+    tile_shape,
+)
+from cva_confidence_ros.model.network import (
+    PATCH_SIZE,
+    CVANet,
+    expected_parameter_count,
+    keras_parameter_count,
+)
+from cva_confidence_ros.model.weights import (
+    default_weights_path,
+    load_weights,
+    save_weights,
+    weights_file_name,
+    weights_search_dirs,
+)
+
+__all__ = [
+    'PAD',
+    'PATCH_SIZE',
+    'CVANet',
+    'FoldedCVANet',
+    'default_weights_path',
+    'expected_parameter_count',
+    'fold_batchnorm',
+    'keras_parameter_count',
+    'load_weights',
+    'pad_cost_volume',
+    'predict_confidence',
+    'predict_confidence_at',
+    'resolve_device',
+    'save_weights',
+    'tile_shape',
+    'weights_file_name',
+    'weights_search_dirs',
+]

@@ -1,0 +1,349 @@
+"""Inference with CVA-Net on whole cost volumes or on chosen pixels.
+
+Both entry points fold the batch normalisations into the convolutions first
+(:func:`fold_batchnorm`): at inference a BN is a fixed per-channel affine map, so it can be merged
+into the weights of the convolution before it (and the input BN into the unpadded first
+convolution after it), which removes 17 passes over the activations.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+import contextlib
+import math
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+import torch
+from torch import nn
+import torch.nn.functional as F
+
+from cva_confidence_ros.errors import ConfigError, InputError
+from cva_confidence_ros.model.network import FUSION_LAYERS, PATCH_SIZE, CVANet
+
+__all__ = [
+    'PAD',
+    'FoldedCVANet',
+    'fold_batchnorm',
+    'pad_cost_volume',
+    'predict_confidence',
+    'predict_confidence_at',
+    'resolve_device',
+    'tile_shape',
+]
+
+#: Zero padding added on each image side so that every pixel gets a full 13×13 window.
+PAD = FUSION_LAYERS
+# Rough number of live float32 copies of the widest activation (input, output and the
+# convolution's work buffer) used to turn a memory budget into a tile size.
+_LIVE_COPIES = 3
+_VALUE_TOLERANCE = 1e-3
+
+
+def resolve_device(device: str | torch.device) -> torch.device:
+    """Turn ``'cpu'``, ``'cuda'``, ``'cuda:1'`` or ``'auto'`` into a :class:`torch.device`.
+
+    Raises:
+        ConfigError: An unknown device string, or CUDA asked for but not available.
+    """
+    if isinstance(device, torch.device):
+        resolved = device
+    elif device == 'auto':
+        resolved = torch.device('cuda' if torch.cuda.is_available() else 'cpu')
+    else:
+        try:
+            resolved = torch.device(device)
+        except (RuntimeError, TypeError) as exc:
+            raise ConfigError(
+                f"device must be 'cpu', 'cuda[:N]' or 'auto'; got {device!r}"
+            ) from exc
+    if resolved.type == 'cuda' and not torch.cuda.is_available():
+        raise ConfigError(f'device {device!r} asked for, but CUDA is not available here')
+    if resolved.type not in ('cpu', 'cuda'):
+        raise ConfigError(f"device must be 'cpu', 'cuda[:N]' or 'auto'; got {device!r}")
+    return resolved
+
+
+class FoldedCVANet(nn.Module):
+    """CVA-Net for inference only, with every batch normalisation merged into a convolution.
+
+    Same input and output as :class:`CVANet` in eval mode: (B, 1, D, H + 12, W + 12) →
+    (B, H, W). Built by :func:`fold_batchnorm`; has no dropout and no BN.
+    """
+
+    def __init__(self, net: CVANet) -> None:
+        super().__init__()
+        self.max_disparity = net.max_disparity
+        self.fusion = nn.ModuleList()
+        self.depth = nn.ModuleList()
+        with torch.no_grad():
+            in_scale, in_shift = _bn_affine(net.fusion.input_bn)
+            pairs = zip(net.fusion.convs, net.fusion.norms, strict=True)
+            for index, (conv, norm) in enumerate(pairs):
+                weight = conv.weight.double()
+                bias = conv.bias.double()
+                if index == 0:
+                    # The first convolution is unpadded, so the input BN x → a·x + c moves into
+                    # it exactly: w' = a·w, b' = b + c·Σw.
+                    bias = bias + in_shift[0] * weight.sum(dim=(1, 2, 3, 4))
+                    weight = weight * in_scale[0]
+                self.fusion.append(_folded_copy(conv, weight, bias, norm))
+            for conv, norm in zip(net.depth.convs, net.depth.norms, strict=True):
+                self.depth.append(
+                    _folded_copy(conv, conv.weight.double(), conv.bias.double(), norm)
+                )
+            self.fc1 = _folded_copy(net.classification.fc1, None, None, None)
+            self.fc2 = _folded_copy(net.classification.fc2, None, None, None)
+        self.eval()
+
+    def forward_logits(self, volume: torch.Tensor) -> torch.Tensor:
+        """(B, 1, D, H + 12, W + 12) float32 → (B, H, W) float32 logits."""
+        x = volume
+        for conv in self.fusion:
+            x = F.relu(conv(x))
+        batch, channels, depth, height, width = x.shape
+        x = x.permute(0, 3, 4, 1, 2).reshape(batch * height * width, channels, depth)
+        for conv in self.depth:
+            k = conv.kernel_size[0]
+            x = F.relu(conv(F.pad(x, (k // 2 - 1, k // 2))))
+        x = self.fc2(F.relu(self.fc1(x)))
+        return x.reshape(batch, height, width)
+
+    def forward(self, volume: torch.Tensor) -> torch.Tensor:
+        """Confidence in (0, 1), (B, H, W)."""
+        return torch.sigmoid(self.forward_logits(volume))
+
+
+def _bn_affine(norm: nn.modules.batchnorm._BatchNorm) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-channel (scale, shift) of a BN in eval mode, float64."""
+    scale = norm.weight.double() / torch.sqrt(norm.running_var.double() + norm.eps)
+    shift = norm.bias.double() - norm.running_mean.double() * scale
+    return scale, shift
+
+
+def _folded_copy(
+    conv: nn.Module,
+    weight: torch.Tensor | None,
+    bias: torch.Tensor | None,
+    norm: nn.modules.batchnorm._BatchNorm | None,
+) -> nn.Module:
+    """A new convolution like ``conv`` whose weights include the BN ``norm`` after it."""
+    new = type(conv)(
+        conv.in_channels, conv.out_channels, conv.kernel_size, device=conv.weight.device
+    )
+    weight = conv.weight.double() if weight is None else weight
+    bias = conv.bias.double() if bias is None else bias
+    if norm is not None:
+        scale, shift = _bn_affine(norm)
+        weight = weight * scale.reshape(-1, *([1] * (weight.ndim - 1)))
+        bias = bias * scale + shift
+    new.weight.copy_(weight.float())
+    new.bias.copy_(bias.float())
+    new.requires_grad_(False)
+    return new
+
+
+def fold_batchnorm(net: CVANet) -> FoldedCVANet:
+    """Return an inference-only copy of ``net`` with its batch normalisations folded in.
+
+    The result equals ``net.eval()`` within float32 rounding (about 1e-6 on the confidence);
+    ``net`` itself is not changed.
+    """
+    if not isinstance(net, CVANet):
+        raise ConfigError(f'expected a CVANet; got {type(net).__name__}')
+    return FoldedCVANet(net)
+
+
+@contextlib.contextmanager
+def _eval_mode(net: nn.Module) -> Iterator[nn.Module]:
+    was_training = net.training
+    net.eval()
+    try:
+        yield net
+    finally:
+        net.train(was_training)
+
+
+def _unwrap(net: nn.Module) -> nn.Module:
+    """The model inside a DistributedDataParallel / DataParallel wrapper."""
+    return net.module if hasattr(net, 'module') and isinstance(net.module, nn.Module) else net
+
+
+def _check_volume(net: nn.Module, cost_volume: np.ndarray) -> np.ndarray:
+    if not isinstance(cost_volume, np.ndarray):
+        raise InputError(
+            f'cost_volume must be a numpy array (D, H, W); got {type(cost_volume).__name__}'
+        )
+    if cost_volume.ndim != 3 or min(cost_volume.shape) < 1:
+        raise InputError(f'cost_volume must have shape (D, H, W); got {cost_volume.shape}')
+    if not np.issubdtype(cost_volume.dtype, np.floating):
+        raise InputError(f'cost_volume must be floating point in [0, 1]; got {cost_volume.dtype}')
+    depth = getattr(net, 'max_disparity', None)
+    if cost_volume.shape[0] != depth:
+        raise InputError(
+            f'the network was built for cost volumes of depth D = {depth}; '
+            f'got a volume of depth {cost_volume.shape[0]} (shape {cost_volume.shape})'
+        )
+    low, high = float(np.min(cost_volume)), float(np.max(cost_volume))
+    if not (math.isfinite(low) and math.isfinite(high)):
+        raise InputError('cost_volume contains NaN or infinite values; expected [0, 1]')
+    if low < -_VALUE_TOLERANCE or high > 1.0 + _VALUE_TOLERANCE:
+        raise InputError(
+            f'cost_volume must be normalised to [0, 1]; got values in [{low:.4g}, {high:.4g}]'
+        )
+    return np.ascontiguousarray(cost_volume, dtype=np.float32)
+
+
+def pad_cost_volume(cost_volume: np.ndarray, dtype: np.dtype | type = np.float32) -> np.ndarray:
+    """Zero-pad a (D, H, W) volume by 6 px on each image side → (D, H + 12, W + 12)."""
+    return np.pad(cost_volume.astype(dtype, copy=False), ((0, 0), (PAD, PAD), (PAD, PAD)))
+
+
+def tile_shape(
+    height: int, width: int, max_disparity: int, tile_budget_mb: float
+) -> tuple[int, int]:
+    """Output tile (rows, columns) whose activations fit ``tile_budget_mb`` megabytes.
+
+    The widest activation is the 32-channel fusion output over the padded tile,
+    32 · D · (rows + 12) · (columns + 12) float32 values, counted :data:`_LIVE_COPIES` times.
+    """
+    if tile_budget_mb <= 0:
+        raise ConfigError(f'tile_budget_mb must be > 0; got {tile_budget_mb}')
+    per_pixel = 4 * 32 * max_disparity * _LIVE_COPIES
+    padded_pixels = max(1, int(tile_budget_mb * 1e6 / per_pixel))
+    side = max(1, int(math.sqrt(padded_pixels)) - 2 * PAD)
+    columns = min(width, side)
+    rows = max(1, padded_pixels // (columns + 2 * PAD) - 2 * PAD)
+    return min(height, rows), columns
+
+
+def predict_confidence(
+    net: nn.Module,
+    cost_volume: np.ndarray,
+    device: str | torch.device = 'cpu',
+    tile_budget_mb: float = 512.0,
+    fold_bn: bool = True,
+) -> np.ndarray:
+    """Confidence of every pixel of a whole cost volume, processed in memory-bounded tiles.
+
+    The volume is zero-padded by 6 px on each image side, so border pixels get a value too.
+    Tiles overlap by 12 px of input and give exactly the whole-image result (up to float32
+    rounding, < 1e-5).
+
+    Args:
+        net: A trained :class:`CVANet` (its train/eval mode is left as it was).
+        cost_volume: (D, H, W) float normalised cost volume, values in [0, 1], with
+            D = ``net.max_disparity``.
+        device: ``'cpu'``, ``'cuda'`` or ``'auto'``.
+        tile_budget_mb: Memory budget of one tile's activations, in megabytes.
+        fold_bn: Merge the batch normalisations into the convolutions first (faster).
+
+    Returns:
+        (H, W) float32 confidence in (0, 1).
+
+    Raises:
+        InputError: Wrong shape, depth, dtype or values of ``cost_volume``.
+        ConfigError: Bad device or budget.
+    """
+    net = _unwrap(net)
+    volume = _check_volume(net, cost_volume)
+    torch_device = resolve_device(device)
+    depth, height, width = volume.shape
+    rows, columns = tile_shape(height, width, depth, tile_budget_mb)
+    padded = torch.from_numpy(pad_cost_volume(volume))
+    result = np.empty((height, width), dtype=np.float32)
+    with contextlib.ExitStack() as stack:
+        stack.enter_context(torch.inference_mode())
+        model = _inference_model(net, torch_device, fold_bn, stack)
+        for y0 in range(0, height, rows):
+            y1 = min(height, y0 + rows)
+            for x0 in range(0, width, columns):
+                x1 = min(width, x0 + columns)
+                tile = padded[:, y0 : y1 + 2 * PAD, x0 : x1 + 2 * PAD]
+                tile = tile.to(torch_device)[None, None]
+                result[y0:y1, x0:x1] = model(tile)[0].float().cpu().numpy()
+    return result
+
+
+def _inference_model(
+    net: nn.Module, device: torch.device, fold_bn: bool, stack: contextlib.ExitStack
+) -> nn.Module:
+    if fold_bn:
+        return fold_batchnorm(net).to(device)
+    if next(net.parameters()).device != device:
+        raise ConfigError(
+            f'fold_bn=False runs the network where it lies ({next(net.parameters()).device}); '
+            f'got device {device}'
+        )
+    return stack.enter_context(_eval_mode(net))
+
+
+def predict_confidence_at(
+    net: nn.Module,
+    cost_volume: np.ndarray,
+    ys: np.ndarray,
+    xs: np.ndarray,
+    device: str | torch.device = 'cpu',
+    batch_size: int = 512,
+    fold_bn: bool = True,
+) -> np.ndarray:
+    """Confidence of the given pixels only, from batched 13×13×D extracts.
+
+    Each pixel costs a full 13×13 fusion (about ten times a pixel of
+    :func:`predict_confidence`), so this pays off for sparse subsets only.
+
+    Args:
+        net: A trained :class:`CVANet`.
+        cost_volume: (D, H, W) float normalised cost volume in [0, 1], D = ``net.max_disparity``.
+        ys: (N,) integer rows in [0, H).
+        xs: (N,) integer columns in [0, W).
+        device: ``'cpu'``, ``'cuda'`` or ``'auto'``.
+        batch_size: Extracts per forward pass.
+        fold_bn: Merge the batch normalisations into the convolutions first.
+
+    Returns:
+        (N,) float32 confidence in (0, 1), equal to ``predict_confidence(...)[ys, xs]``.
+
+    Raises:
+        InputError: Bad volume, or coordinates of the wrong shape or outside the image.
+    """
+    net = _unwrap(net)
+    volume = _check_volume(net, cost_volume)
+    ys, xs = _check_pixels(ys, xs, volume.shape[1:])
+    if batch_size < 1:
+        raise ConfigError(f'batch_size must be >= 1; got {batch_size}')
+    torch_device = resolve_device(device)
+    windows = sliding_window_view(pad_cost_volume(volume), (PATCH_SIZE, PATCH_SIZE), axis=(1, 2))
+    result = np.empty(len(ys), dtype=np.float32)
+    with contextlib.ExitStack() as stack:
+        stack.enter_context(torch.inference_mode())
+        model = _inference_model(net, torch_device, fold_bn, stack)
+        for start in range(0, len(ys), batch_size):
+            stop = min(len(ys), start + batch_size)
+            # (D, n, 13, 13) → (n, 1, D, 13, 13)
+            batch = np.ascontiguousarray(windows[:, ys[start:stop], xs[start:stop]].swapaxes(0, 1))
+            extracts = torch.from_numpy(batch)[:, None].to(torch_device)
+            result[start:stop] = model(extracts)[:, 0, 0].float().cpu().numpy()
+    return result
+
+
+def _check_pixels(
+    ys: np.ndarray, xs: np.ndarray, shape: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray]:
+    ys, xs = np.asarray(ys), np.asarray(xs)
+    if ys.ndim != 1 or ys.shape != xs.shape:
+        raise InputError(
+            f'ys and xs must be (N,) arrays of equal length; got {ys.shape}, {xs.shape}'
+        )
+    if ys.size and not (
+        np.issubdtype(ys.dtype, np.integer) and np.issubdtype(xs.dtype, np.integer)
+    ):
+        raise InputError(f'ys and xs must be integer pixel indices; got {ys.dtype}, {xs.dtype}')
+    ys, xs = ys.astype(np.intp), xs.astype(np.intp)
+    height, width = shape
+    if ys.size and (ys.min() < 0 or ys.max() >= height or xs.min() < 0 or xs.max() >= width):
+        raise InputError(
+            f'pixel indices must lie in [0, {height}) × [0, {width}); got rows '
+            f'[{ys.min()}, {ys.max()}] and columns [{xs.min()}, {xs.max()}]'
+        )
+    return ys, xs

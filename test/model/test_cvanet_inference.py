@@ -1,0 +1,136 @@
+"""Whole-image, tiled, per-pixel and BN-folded inference agree."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from cva_confidence_ros.errors import ConfigError, InputError
+from cva_confidence_ros.model import (
+    CVANet,
+    fold_batchnorm,
+    predict_confidence,
+    predict_confidence_at,
+    tile_shape,
+)
+
+DEPTH, HEIGHT, WIDTH = 16, 20, 24
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def _volume(seed: int = 0) -> np.ndarray:
+    """A cost volume with structure: a minimum at a per-pixel disparity, plus noise."""
+    rng = np.random.default_rng(seed)
+    truth = rng.integers(0, DEPTH, size=(HEIGHT, WIDTH))
+    d = np.arange(DEPTH)[:, None, None]
+    volume = np.minimum(1.0, np.abs(d - truth[None]) / 4.0) + rng.normal(
+        0, 0.1, (DEPTH, HEIGHT, WIDTH)
+    )
+    return np.clip(volume, 0.0, 1.0).astype(np.float32)
+
+
+@pytest.fixture(scope='module')
+def net() -> CVANet:
+    """A network whose BN statistics come from data, so that eval outputs are not flat."""
+    torch.manual_seed(0)
+    model = CVANet(DEPTH)
+    for module in model.modules():
+        if isinstance(module, torch.nn.modules.batchnorm._BatchNorm):
+            module.momentum = None  # cumulative average over the calibration passes
+    model.train()
+    with torch.no_grad():
+        for seed in range(3):
+            model(torch.from_numpy(_volume(seed + 10))[None, None, :, :HEIGHT, :WIDTH])
+    return model.eval()
+
+
+def test_output_varies(net):
+    confidence = predict_confidence(net, _volume())
+    assert confidence.shape == (HEIGHT, WIDTH) and confidence.dtype == np.float32
+    assert np.all((confidence > 0) & (confidence < 1))
+    assert confidence.std() > 1e-2
+
+
+def test_tiled_equals_whole_equals_patch(net):
+    volume = _volume()
+    whole = predict_confidence(net, volume, tile_budget_mb=1e3, fold_bn=False)
+    assert tile_shape(HEIGHT, WIDTH, DEPTH, 1e3) == (HEIGHT, WIDTH)
+    budget = 2.0
+    rows, columns = tile_shape(HEIGHT, WIDTH, DEPTH, budget)
+    assert rows < HEIGHT and columns < WIDTH  # several tiles in both directions
+    tiled = predict_confidence(net, volume, tile_budget_mb=budget, fold_bn=False)
+    ys, xs = np.mgrid[:HEIGHT, :WIDTH]
+    patch = predict_confidence_at(
+        net, volume, ys.ravel(), xs.ravel(), batch_size=97, fold_bn=False
+    )
+    np.testing.assert_allclose(tiled, whole, atol=1e-5, rtol=0)
+    np.testing.assert_allclose(patch.reshape(HEIGHT, WIDTH), whole, atol=1e-5, rtol=0)
+    # The network module itself on the zero-padded volume gives the same.
+    padded = np.pad(volume, ((0, 0), (6, 6), (6, 6)))
+    with torch.no_grad():
+        direct = net(torch.from_numpy(padded)[None, None])[0].numpy()
+    np.testing.assert_allclose(direct, whole, atol=1e-5, rtol=0)
+
+
+def test_folded_batchnorm_matches(net):
+    volume = _volume(1)
+    plain = predict_confidence(net, volume, fold_bn=False)
+    folded = predict_confidence(net, volume, fold_bn=True, tile_budget_mb=2.0)
+    np.testing.assert_allclose(folded, plain, atol=1e-5, rtol=0)
+    assert not any(
+        isinstance(m, torch.nn.modules.batchnorm._BatchNorm) for m in fold_batchnorm(net).modules()
+    )
+    ys, xs = np.array([0, 19, 7]), np.array([0, 23, 11])
+    np.testing.assert_allclose(
+        predict_confidence_at(net, volume, ys, xs), plain[ys, xs], atol=1e-5
+    )
+
+
+def test_train_mode_is_restored(net):
+    net.train()
+    try:
+        predict_confidence(net, _volume(), fold_bn=False)
+        assert net.training
+    finally:
+        net.eval()
+
+
+def test_bad_inputs(net):
+    volume = _volume()
+    with pytest.raises(InputError, match='depth D = 16'):
+        predict_confidence(net, volume[:15])
+    with pytest.raises(InputError, match=r'\(D, H, W\)'):
+        predict_confidence(net, volume[0])
+    with pytest.raises(InputError, match=r'\[0, 1\]'):
+        predict_confidence(net, volume * 3)
+    with pytest.raises(InputError, match='NaN'):
+        predict_confidence(net, np.full_like(volume, np.nan))
+    with pytest.raises(InputError, match='lie in'):
+        predict_confidence_at(net, volume, np.array([HEIGHT]), np.array([0]))
+    with pytest.raises(InputError, match='integer'):
+        predict_confidence_at(net, volume, np.array([1.5]), np.array([0.0]))
+    with pytest.raises(ConfigError, match='tile_budget_mb'):
+        predict_confidence(net, volume, tile_budget_mb=0)
+    with pytest.raises(ConfigError, match='device'):
+        predict_confidence(net, volume, device='tpu')
+
+
+def test_empty_pixel_list(net):
+    assert predict_confidence_at(net, _volume(), np.array([], int), np.array([], int)).shape == (
+        0,
+    )
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason='no CUDA device')
+def test_cuda_matches_cpu(net):
+    volume = _volume()
+    cpu = predict_confidence(net, volume)
+    np.testing.assert_allclose(predict_confidence(net, volume, device='cuda'), cpu, atol=1e-4)
