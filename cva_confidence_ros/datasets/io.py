@@ -1,0 +1,279 @@
+"""File formats of stereo data sets: PFM, images, encoded disparity PNGs, calibration files.
+
+Readers return arrays in the package conventions: images uint8 RGB (H, W, 3) or gray (H, W),
+disparities float32 (H, W) with NaN where unknown.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+import re
+
+import cv2
+import numpy as np
+
+from cva_confidence_ros.errors import DataError
+
+__all__ = [
+    'Calibration',
+    'read_disparity_png',
+    'read_image',
+    'read_kitti_calibration',
+    'read_middlebury_calibration',
+    'read_pfm',
+    'write_pfm',
+]
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Pinhole calibration of a rectified stereo pair (left camera).
+
+    Attributes:
+        fx: Focal length along x, pixels.
+        fy: Focal length along y, pixels.
+        cx: Principal point x of the left camera, pixels.
+        cy: Principal point y, pixels.
+        baseline: Distance between the camera centres, metres.
+        doffs: ``cx_right - cx_left`` in pixels (Middlebury); depth is
+            ``fx * baseline / (d + doffs)``.
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    baseline: float
+    doffs: float = 0.0
+
+    def depth(self, disparity: np.ndarray) -> np.ndarray:
+        """Depth in metres, ``fx * baseline / (d + doffs)``; NaN where ``d + doffs ≤ 0``.
+
+        Args:
+            disparity: Disparity, any shape, float, NaN = unknown.
+
+        Returns:
+            float32 array of the same shape.
+        """
+        total = np.asarray(disparity, dtype=np.float64) + self.doffs
+        with np.errstate(divide='ignore', invalid='ignore'):
+            depth = np.where(total > 0, self.fx * self.baseline / total, np.nan)
+        return depth.astype(np.float32)
+
+
+def read_pfm(path: str | Path) -> np.ndarray:
+    """Read a Portable Float Map.
+
+    The rows are stored bottom to top and flipped here; a negative scale means little-endian.
+
+    Args:
+        path: ``.pfm`` file, ``Pf`` (one channel) or ``PF`` (three channels).
+
+    Returns:
+        float32 array (H, W) or (H, W, 3), native byte order, top row first. Values are returned
+        as stored (``inf`` included).
+
+    Raises:
+        DataError: The file is missing, has a bad header or too little data.
+    """
+    path = Path(path)
+    try:
+        with path.open('rb') as stream:
+            magic = stream.readline().strip()
+            tokens: list[bytes] = []
+            while len(tokens) < 3:
+                line = stream.readline()
+                if not line:
+                    break
+                tokens.extend(line.split())
+            data = stream.read()
+    except OSError as exc:
+        raise DataError(f'cannot read PFM file {path}: {exc}') from exc
+    if magic not in (b'PF', b'Pf') or len(tokens) != 3:
+        raise DataError(
+            f'{path} is not a PFM file; expected header "PF|Pf", "W H", "scale"; '
+            f'got {magic!r} {tokens!r}'
+        )
+    try:
+        width, height, scale = int(tokens[0]), int(tokens[1]), float(tokens[2])
+    except ValueError as exc:
+        raise DataError(f'{path}: bad PFM size or scale {tokens!r}') from exc
+    channels = 3 if magic == b'PF' else 1
+    count = width * height * channels
+    if width <= 0 or height <= 0 or scale == 0 or len(data) < 4 * count:
+        raise DataError(
+            f'{path}: expected {width}×{height}×{channels} float32 values and a non-zero scale; '
+            f'got {len(data) // 4} values, scale {scale}'
+        )
+    dtype = np.dtype('<f4' if scale < 0 else '>f4')
+    array = np.frombuffer(data, dtype=dtype, count=count)
+    shape = (height, width, 3) if channels == 3 else (height, width)
+    return np.flipud(array.reshape(shape)).astype(np.float32)
+
+
+def write_pfm(path: str | Path, array: np.ndarray, scale: float = 1.0) -> None:
+    """Write a float array as a little-endian PFM (rows bottom to top, as the format wants).
+
+    Args:
+        path: Output file.
+        array: (H, W) or (H, W, 3) float array; converted to float32.
+        scale: Absolute value of the header scale (stored negative for little-endian).
+
+    Raises:
+        DataError: Bad shape or scale, or the file cannot be written.
+    """
+    array = np.asarray(array, dtype=np.float32)
+    if not (array.ndim == 2 or (array.ndim == 3 and array.shape[2] == 3)):
+        raise DataError(f'PFM holds (H, W) or (H, W, 3) arrays; got shape {array.shape}')
+    if not scale > 0:
+        raise DataError(f'PFM scale must be > 0; got {scale}')
+    magic = 'PF' if array.ndim == 3 else 'Pf'
+    header = f'{magic}\n{array.shape[1]} {array.shape[0]}\n{-scale}\n'.encode('ascii')
+    body = np.flipud(array).astype('<f4').tobytes()
+    try:
+        Path(path).write_bytes(header + body)
+    except OSError as exc:
+        raise DataError(f'cannot write PFM file {path}: {exc}') from exc
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Read an image file as uint8 RGB (H, W, 3) or gray (H, W).
+
+    Alpha channels are dropped; 16-bit images are reduced to 8 bits.
+
+    Raises:
+        DataError: The file is missing or not an image.
+    """
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise DataError(f'cannot read image {path}; expected a PNG/JPEG/PPM/PGM file')
+    if image.dtype == np.uint16:
+        image = (image >> 8).astype(np.uint8)
+    elif image.dtype != np.uint8:
+        raise DataError(f'{path}: expected an 8- or 16-bit image; got dtype {image.dtype}')
+    if image.ndim == 3:
+        code = cv2.COLOR_BGRA2RGB if image.shape[2] == 4 else cv2.COLOR_BGR2RGB
+        image = cv2.cvtColor(image, code)
+    return np.ascontiguousarray(image)
+
+
+def read_disparity_png(path: str | Path, scale: float) -> np.ndarray:
+    """Read a disparity stored as integer image, ``d = value / scale``, 0 = unknown.
+
+    Args:
+        path: 8- or 16-bit single-channel PNG/PGM (KITTI: 16 bit, scale 256).
+        scale: Divisor of the stored values.
+
+    Returns:
+        (H, W) float32 disparity, NaN where the stored value is 0.
+
+    Raises:
+        DataError: The file is missing or not a single-channel integer image.
+    """
+    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if raw is None:
+        raise DataError(f'cannot read disparity image {path}')
+    if raw.ndim == 3:
+        # Some tools save gray disparity maps as 3 equal channels.
+        same = np.array_equal(raw[..., 0], raw[..., 1]) and np.array_equal(
+            raw[..., 0], raw[..., 2]
+        )
+        if not same:
+            raise DataError(f'{path}: expected a single-channel disparity image; got {raw.shape}')
+        raw = raw[..., 0]
+    if raw.dtype not in (np.uint8, np.uint16):
+        raise DataError(f'{path}: expected an 8- or 16-bit disparity image; got {raw.dtype}')
+    disparity = raw.astype(np.float32) / np.float32(scale)
+    disparity[raw == 0] = np.nan
+    return disparity
+
+
+def _read_key_values(path: Path) -> dict[str, str]:
+    try:
+        text = path.read_text(encoding='ascii', errors='replace')
+    except OSError as exc:
+        raise DataError(f'cannot read calibration file {path}: {exc}') from exc
+    values: dict[str, str] = {}
+    for line in text.splitlines():
+        key, sep, value = line.partition('=' if '=' in line else ':')
+        if sep:
+            values[key.strip()] = value.strip()
+    return values
+
+
+def _matrix(text: str, path: Path, key: str) -> np.ndarray:
+    numbers = re.split(r'[\s;\[\]]+', text.strip())
+    try:
+        values = [float(value) for value in numbers if value]
+    except ValueError as exc:
+        raise DataError(f'{path}: {key} is not a list of numbers: {text!r}') from exc
+    return np.asarray(values, dtype=np.float64)
+
+
+def read_middlebury_calibration(path: str | Path) -> Calibration:
+    """Read a Middlebury / ETH3D ``calib.txt`` (``cam0=[f 0 cx; 0 f cy; 0 0 1]``, ``doffs``,
+    ``baseline`` in millimetres).
+
+    Raises:
+        DataError: Missing file or fields.
+    """
+    path = Path(path)
+    values = _read_key_values(path)
+    try:
+        cam0 = _matrix(values['cam0'], path, 'cam0')
+        baseline_mm = float(values['baseline'])
+        doffs = float(values.get('doffs', '0') or 0)
+    except (KeyError, ValueError) as exc:
+        raise DataError(
+            f'{path}: expected cam0=[f 0 cx; 0 f cy; 0 0 1], baseline and doffs; missing or bad '
+            f'{exc}'
+        ) from exc
+    if cam0.size != 9:
+        raise DataError(f'{path}: cam0 must hold 9 numbers; got {cam0.size}')
+    return Calibration(
+        fx=float(cam0[0]),
+        fy=float(cam0[4]),
+        cx=float(cam0[2]),
+        cy=float(cam0[5]),
+        baseline=baseline_mm / 1000.0,
+        doffs=doffs,
+    )
+
+
+def read_kitti_calibration(
+    path: str | Path, left_key: str = 'P2', right_key: str = 'P3'
+) -> Calibration:
+    """Read a KITTI calibration with rectified projection matrices of both cameras.
+
+    KITTI 2012 ``calib/<id>.txt`` holds ``P0 … P3`` (gray: P0/P1, colour: P2/P3); KITTI 2015
+    ``calib_cam_to_cam/<id>.txt`` holds ``P_rect_02``/``P_rect_03``. The baseline is
+    ``(P_left[0, 3] - P_right[0, 3]) / fx``.
+
+    Args:
+        path: Calibration file.
+        left_key: Key of the left projection matrix.
+        right_key: Key of the right projection matrix.
+
+    Raises:
+        DataError: Missing file or keys.
+    """
+    path = Path(path)
+    values = _read_key_values(path)
+    try:
+        left = _matrix(values[left_key], path, left_key).reshape(3, 4)
+        right = _matrix(values[right_key], path, right_key).reshape(3, 4)
+    except (KeyError, ValueError) as exc:
+        raise DataError(
+            f'{path}: expected 3×4 projection matrices {left_key!r} and {right_key!r}; '
+            f'missing or bad {exc}'
+        ) from exc
+    fx = float(left[0, 0])
+    return Calibration(
+        fx=fx,
+        fy=float(left[1, 1]),
+        cx=float(left[0, 2]),
+        cy=float(left[1, 2]),
+        baseline=float(left[0, 3] - right[0, 3]) / fx,
+        doffs=float(right[0, 2] - left[0, 2]),
+    )

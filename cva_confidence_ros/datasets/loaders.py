@@ -1,0 +1,909 @@
+"""Loaders of stereo data sets with ground truth, one registered object per data set.
+
+Every loader reads the layout of the original download (and of the copies under the shared data
+folder), so a user points it at their own KITTI, Middlebury, ETH3D or Scene Flow folder. All
+return :class:`StereoSample` in the package conventions (``left[y, x] ≈ right[y, x - d]``,
+disparity float32 with NaN where unknown, never negative).
+
+Train / develop split (see :data:`TRAIN_DATASETS`, :data:`DEVELOP_DATASETS`): never train on the
+develop sets. ``motorcycle`` is in neither: it is the Middlebury 2014 Motorcycle scene, so it
+must not be trained on either. Middlebury 2014 ``ArtL`` and ``Teddy`` derive from the 2005 Art
+and 2003 Teddy scenes: drop 2005 Art from training data when reporting on Middlebury 2014.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+import re
+
+import numpy as np
+
+from cva_confidence_ros.datasets.io import (
+    Calibration,
+    read_disparity_png,
+    read_image,
+    read_kitti_calibration,
+    read_middlebury_calibration,
+    read_pfm,
+)
+from cva_confidence_ros.errors import ConfigError, DataError
+from cva_confidence_ros.registry import Registry
+
+__all__ = [
+    'DATASETS',
+    'DEVELOP_DATASETS',
+    'TRAIN_DATASETS',
+    'StereoDataset',
+    'StereoSample',
+    'list_scenes',
+    'load_dataset',
+    'load_scene',
+]
+
+PathLike = str | Path
+
+
+@dataclass(frozen=True, eq=False)
+class StereoSample:
+    """One rectified stereo pair with ground truth.
+
+    Attributes:
+        dataset: Registered data set name (``kitti2015``, ``middlebury2014``, ...).
+        scene: Scene id within the data set (as listed by :func:`list_scenes`).
+        left: (H, W, 3) uint8 RGB or (H, W) uint8 gray left image.
+        right: Same shape and dtype as ``left``.
+        disparity: (H, W) float32 left ground-truth disparity in pixels, ≥ 0, NaN = unknown.
+        nonocc: (H, W) bool, True where the pixel is visible in both views, or None if the data
+            set has no occlusion information.
+        calib: Calibration of the pair, or None.
+    """
+
+    dataset: str
+    scene: str
+    left: np.ndarray
+    right: np.ndarray
+    disparity: np.ndarray
+    nonocc: np.ndarray | None = None
+    calib: Calibration | None = None
+
+    def __post_init__(self) -> None:
+        where = f'{self.dataset}/{self.scene}'
+        for side, image in (('left', self.left), ('right', self.right)):
+            if not isinstance(image, np.ndarray) or image.dtype != np.uint8:
+                got = image.dtype if isinstance(image, np.ndarray) else type(image).__name__
+                raise DataError(f'{where}: {side} image must be uint8; got {got}')
+            if image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] != 3):
+                raise DataError(f'{where}: {side} image must be H×W or H×W×3; got {image.shape}')
+        if self.left.shape != self.right.shape:
+            raise DataError(
+                f'{where}: left and right images must have the same shape; '
+                f'got {self.left.shape} and {self.right.shape}'
+            )
+        shape = self.left.shape[:2]
+        if self.disparity.dtype != np.float32 or self.disparity.shape != shape:
+            raise DataError(
+                f'{where}: disparity must be float32 of shape {shape}; '
+                f'got {self.disparity.dtype} {self.disparity.shape}'
+            )
+        if self.nonocc is not None and (
+            self.nonocc.dtype != np.bool_ or self.nonocc.shape != shape
+        ):
+            raise DataError(
+                f'{where}: nonocc must be bool of shape {shape}; '
+                f'got {self.nonocc.dtype} {self.nonocc.shape}'
+            )
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(H, W) of the pair."""
+        return (int(self.left.shape[0]), int(self.left.shape[1]))
+
+    @property
+    def max_disparity(self) -> float:
+        """Largest finite ground-truth disparity (0 if none is known)."""
+        finite = self.disparity[np.isfinite(self.disparity)]
+        return float(finite.max()) if finite.size else 0.0
+
+
+def _clean_disparity(disparity: np.ndarray) -> np.ndarray:
+    """NaN for unknown (±inf, NaN) and negative values; float32."""
+    disparity = np.asarray(disparity, dtype=np.float32).copy()
+    with np.errstate(invalid='ignore'):
+        disparity[~np.isfinite(disparity) | (disparity < 0)] = np.nan
+    return disparity
+
+
+def _first_existing(folder: Path, names: tuple[str, ...]) -> Path | None:
+    for name in names:
+        if (folder / name).is_file():
+            return folder / name
+    return None
+
+
+def _scale_by_width(width: int, steps: tuple[tuple[int, float], ...], last: float) -> float:
+    """Divisor of stored disparities, chosen by the image width (the file name has no size)."""
+    for min_width, scale in steps:
+        if width >= min_width:
+            return scale
+    return last
+
+
+class StereoDataset:
+    """One data set layout: lists scenes under a root and loads them.
+
+    Attributes:
+        name: Registered name.
+        layout: Human-readable description of the expected folder layout (used in errors).
+        splits: Accepted ``split`` values; empty if the data set has no splits.
+        default_split: Split used when ``split`` is None.
+        needs_root: False only for data sets that ship with a library (``motorcycle``).
+    """
+
+    name = ''
+    layout = ''
+    splits: tuple[str, ...] = ()
+    default_split: str | None = None
+    needs_root = True
+
+    def resolve_split(self, split: str | None) -> str | None:
+        """Validate ``split`` and apply the default.
+
+        Raises:
+            ConfigError: A split the data set does not have.
+        """
+        if split is None:
+            return self.default_split
+        if split not in self.splits:
+            raise ConfigError(
+                f'{self.name} has splits {list(self.splits) or "none"}; got split={split!r}'
+            )
+        return split
+
+    def list_scenes(self, root: Path, split: str | None) -> list[str]:
+        """Sorted scene ids under ``root`` (empty if none match the layout)."""
+        raise NotImplementedError
+
+    def load_scene(self, root: Path, scene: str, split: str | None) -> StereoSample:
+        """Load one scene; raise :class:`DataError` if its files are missing or unreadable."""
+        raise NotImplementedError
+
+    def no_pairs(self, folder: Path) -> DataError:
+        """The error for a root without a single pair in this layout."""
+        return DataError(
+            f'no {self.name} stereo pairs found under {folder}; expected {self.layout}'
+        )
+
+    def missing(self, root: Path, scene: str) -> DataError:
+        """The error for an unknown scene."""
+        return DataError(
+            f'{self.name} scene {scene!r} not found under {root}; expected {self.layout}'
+        )
+
+
+class _Kitti(StereoDataset):
+    splits = ('training',)
+    default_split = 'training'
+    occ_dir = ''
+    noc_dir = ''
+    image_dirs: tuple[tuple[str, str], ...] = ()
+    calib_dir = ''
+    calib_keys: dict[str, tuple[str, str]] = {}
+
+    def _base(self, root: Path, split: str | None) -> Path:
+        base = root / str(split)
+        return base if (base / self.occ_dir).is_dir() else root
+
+    def _images(self, base: Path, scene: str) -> tuple[str, Path, Path] | None:
+        for left_dir, right_dir in self.image_dirs:
+            left = base / left_dir / f'{scene}_10.png'
+            right = base / right_dir / f'{scene}_10.png'
+            if left.is_file() and right.is_file():
+                return left_dir, left, right
+        return None
+
+    def list_scenes(self, root: Path, split: str | None) -> list[str]:
+        base = self._base(root, split)
+        folder = base / self.occ_dir
+        if not folder.is_dir():
+            return []
+        scenes = []
+        for path in folder.glob('*_10.png'):
+            scene = path.name[: -len('_10.png')]
+            if re.fullmatch(r'\d{6}', scene) and self._images(base, scene):
+                scenes.append(scene)
+        return sorted(scenes)
+
+    def load_scene(self, root: Path, scene: str, split: str | None) -> StereoSample:
+        base = self._base(root, split)
+        gt_path = base / self.occ_dir / f'{scene}_10.png'
+        found = self._images(base, scene)
+        if found is None or not gt_path.is_file():
+            raise self.missing(root, scene)
+        image_dir, left_path, right_path = found
+        noc_path = base / self.noc_dir / f'{scene}_10.png'
+        nonocc = None
+        if noc_path.is_file():
+            nonocc = np.isfinite(read_disparity_png(noc_path, 256.0))
+        calib = None
+        calib_path = base / self.calib_dir / f'{scene}.txt'
+        if calib_path.is_file():
+            calib = read_kitti_calibration(calib_path, *self.calib_keys[image_dir])
+        return StereoSample(
+            dataset=self.name,
+            scene=scene,
+            left=read_image(left_path),
+            right=read_image(right_path),
+            disparity=_clean_disparity(read_disparity_png(gt_path, 256.0)),
+            nonocc=nonocc,
+            calib=calib,
+        )
+
+
+class Kitti2012(_Kitti):
+    """KITTI stereo 2012: ``training/{colored_0,colored_1}/<id>_10.png`` (or gray
+    ``image_0/image_1``), ``disp_occ/<id>_10.png`` (uint16, d = v / 256, 0 = unknown),
+    optional ``disp_noc/`` (non-occlusion) and ``calib/<id>.txt``."""
+
+    name = 'kitti2012'
+    layout = (
+        '<root>/training/{colored_0,colored_1 or image_0,image_1}/<6 digits>_10.png and '
+        'disp_occ/<6 digits>_10.png (uint16, d = v / 256)'
+    )
+    occ_dir, noc_dir, calib_dir = 'disp_occ', 'disp_noc', 'calib'
+    image_dirs = (('colored_0', 'colored_1'), ('image_0', 'image_1'))
+    calib_keys = {'colored_0': ('P2', 'P3'), 'image_0': ('P0', 'P1')}
+
+
+class Kitti2015(_Kitti):
+    """KITTI stereo 2015: ``training/{image_2,image_3}/<id>_10.png``, ``disp_occ_0/`` (uint16,
+    d = v / 256, 0 = unknown), optional ``disp_noc_0/`` and ``calib_cam_to_cam/<id>.txt``."""
+
+    name = 'kitti2015'
+    layout = (
+        '<root>/training/{image_2,image_3}/<6 digits>_10.png and disp_occ_0/<6 digits>_10.png '
+        '(uint16, d = v / 256)'
+    )
+    occ_dir, noc_dir, calib_dir = 'disp_occ_0', 'disp_noc_0', 'calib_cam_to_cam'
+    image_dirs = (('image_2', 'image_3'),)
+    calib_keys = {'image_2': ('P_rect_02', 'P_rect_03')}
+
+
+class Middlebury2014(StereoDataset):
+    """Middlebury v3 (MiddEval3): ``<split>/<Scene>/{im0,im1}.png``, ``disp0GT.pfm`` (inf =
+    unknown), ``mask0nocc.png`` (255 = visible in both views), ``calib.txt``."""
+
+    name = 'middlebury2014'
+    layout = (
+        '<root>/<trainingQ|trainingH|trainingF>/<Scene>/{im0.png, im1.png, disp0GT.pfm} '
+        '(+ mask0nocc.png, calib.txt)'
+    )
+    splits = ('trainingQ', 'trainingH', 'trainingF')
+    default_split = 'trainingQ'
+
+    def _base(self, root: Path, split: str | None) -> Path:
+        for base in (root / str(split), root / 'MiddEval3' / str(split)):
+            if base.is_dir():
+                return base
+        return root
+
+    @staticmethod
+    def _is_scene(folder: Path) -> bool:
+        return all((folder / name).is_file() for name in ('im0.png', 'im1.png', 'disp0GT.pfm'))
+
+    def list_scenes(self, root: Path, split: str | None) -> list[str]:
+        base = self._base(root, split)
+        if not base.is_dir():
+            return []
+        return sorted(p.name for p in base.iterdir() if p.is_dir() and self._is_scene(p))
+
+    def load_scene(self, root: Path, scene: str, split: str | None) -> StereoSample:
+        folder = self._base(root, split) / scene
+        if not self._is_scene(folder):
+            raise self.missing(root, scene)
+        nonocc = None
+        if (folder / 'mask0nocc.png').is_file():
+            nonocc = read_image(folder / 'mask0nocc.png') == 255
+            if nonocc.ndim == 3:
+                nonocc = nonocc.all(axis=2)
+        calib = None
+        if (folder / 'calib.txt').is_file():
+            calib = read_middlebury_calibration(folder / 'calib.txt')
+        return StereoSample(
+            dataset=self.name,
+            scene=scene,
+            left=read_image(folder / 'im0.png'),
+            right=read_image(folder / 'im1.png'),
+            disparity=_clean_disparity(read_pfm(folder / 'disp0GT.pfm')),
+            nonocc=nonocc,
+            calib=calib,
+        )
+
+
+@dataclass(frozen=True)
+class _Pattern:
+    """File names of one pair inside a scene folder; ``{scene}`` is replaced by its name."""
+
+    left: tuple[str, ...]
+    right: tuple[str, ...]
+    gt: tuple[str, ...]
+    scale: float | None  # None: chosen by the image width
+
+    def match(self, folder: Path) -> tuple[Path, Path, Path] | None:
+        names = [
+            _first_existing(folder, tuple(n.format(scene=folder.name) for n in group))
+            for group in (self.left, self.right, self.gt)
+        ]
+        if any(name is None for name in names):
+            return None
+        return names[0], names[1], names[2]  # type: ignore[return-value]
+
+
+class _FolderPerScene(StereoDataset):
+    """Older Middlebury sets: one folder per scene, 8-bit disparity PNG/PGM, 0 = unknown."""
+
+    patterns: tuple[_Pattern, ...] = ()
+    size_scales: dict[str, float] = {}
+
+    def _base(self, root: Path, split: str | None) -> Path:
+        if split is not None and (root / split).is_dir():
+            return root / split
+        return root
+
+    def _match(self, folder: Path) -> tuple[_Pattern, tuple[Path, Path, Path]] | None:
+        for pattern in self.patterns:
+            files = pattern.match(folder)
+            if files is not None:
+                return pattern, files
+        return None
+
+    def _width_scale(self, width: int) -> float:
+        raise NotImplementedError
+
+    def list_scenes(self, root: Path, split: str | None) -> list[str]:
+        base = self._base(root, split)
+        if not base.is_dir():
+            return []
+        return sorted(p.name for p in base.iterdir() if p.is_dir() and self._match(p))
+
+    def load_scene(self, root: Path, scene: str, split: str | None) -> StereoSample:
+        folder = self._base(root, split) / scene
+        found = self._match(folder) if folder.is_dir() else None
+        if found is None:
+            raise self.missing(root, scene)
+        pattern, (left_path, right_path, gt_path) = found
+        left = read_image(left_path)
+        if pattern.scale is not None:
+            scale = pattern.scale
+        elif split is not None:
+            scale = self.size_scales[split]
+        else:
+            scale = self._width_scale(left.shape[1])
+        nonocc = None
+        if (folder / 'nonocc.png').is_file():
+            nonocc = read_image(folder / 'nonocc.png') == 255
+            if nonocc.ndim == 3:
+                nonocc = nonocc.all(axis=2)
+        return StereoSample(
+            dataset=self.name,
+            scene=scene,
+            left=left,
+            right=read_image(right_path),
+            disparity=_clean_disparity(read_disparity_png(gt_path, scale)),
+            nonocc=nonocc,
+        )
+
+
+class Middlebury2001(_FolderPerScene):
+    """Middlebury 2001: Tsukuba (``scene1.row3.col3/col4.ppm``, ``truedisp.row3.col3.pgm``,
+    d = v / 16), Sawtooth-style scenes (``im2/im6.ppm``, ``disp2.pgm``, d = v / 8) and Map
+    (``im0/im1.pgm``, ``disp0.pgm``, d = v / 8)."""
+
+    name = 'middlebury2001'
+    layout = (
+        '<root>/<scene>/ with scene1.row3.col3.ppm, scene1.row3.col4.ppm, truedisp.row3.col3.pgm '
+        '(v / 16), or im2 + im6 + disp2 (v / 8), or im0 + im1 + disp0 (v / 8), .ppm/.pgm/.png'
+    )
+    patterns = (
+        _Pattern(
+            ('scene1.row3.col3.ppm', 'scene1.row3.col3.png'),
+            ('scene1.row3.col4.ppm', 'scene1.row3.col4.png'),
+            ('truedisp.row3.col3.pgm', 'truedisp.row3.col3.png'),
+            16.0,
+        ),
+        _Pattern(
+            ('im2.ppm', 'im2.pgm', 'im2.png'),
+            ('im6.ppm', 'im6.pgm', 'im6.png'),
+            ('disp2.pgm', 'disp2.png'),
+            8.0,
+        ),
+        _Pattern(
+            ('im0.ppm', 'im0.pgm', 'im0.png'),
+            ('im1.ppm', 'im1.pgm', 'im1.png'),
+            ('disp0.pgm', 'disp0.png'),
+            8.0,
+        ),
+    )
+
+
+class Middlebury2003(_FolderPerScene):
+    """Middlebury 2003 (Cones, Teddy): ``im2/im6`` and ``disp2`` (original names) or
+    ``<scene>_image_02/06.png`` and ``<scene>_disp_02.png``; d = v / 4 at quarter size
+    (v / 2 half, v / 1 full, chosen by the image width or by split ``quarter|half|full``)."""
+
+    name = 'middlebury2003'
+    layout = (
+        '<root>/<scene>/ with im2.png + im6.png + disp2.png, or <scene>_image_02.png + '
+        '<scene>_image_06.png + <scene>_disp_02.png (8 bit, 0 = unknown)'
+    )
+    splits = ('quarter', 'half', 'full')
+    size_scales = {'quarter': 4.0, 'half': 2.0, 'full': 1.0}
+    patterns = (
+        _Pattern(
+            ('{scene}_image_02.png',),
+            ('{scene}_image_06.png',),
+            ('{scene}_disp_02.png',),
+            None,
+        ),
+        _Pattern(
+            ('im2.png', 'im2.ppm'),
+            ('im6.png', 'im6.ppm'),
+            ('disp2.png', 'disp2.pgm'),
+            None,
+        ),
+    )
+
+    def _width_scale(self, width: int) -> float:
+        # Full size is 1800 px wide, half 900, quarter 450.
+        return _scale_by_width(width, ((1200, 1.0), (600, 2.0)), 4.0)
+
+
+class Middlebury2005(_FolderPerScene):
+    """Middlebury 2005 / 2006: ``view1/view5.png`` + ``disp1.png`` (original) or
+    ``img0/img1.png`` + ``disp1.png``; d = v / 3 at third size (v / 2 half, v / 1 full, by
+    image width or split ``ThirdSize|HalfSize|FullSize``, which may also be a subfolder)."""
+
+    name = 'middlebury2005'
+    layout = (
+        '<root>[/<FullSize|HalfSize|ThirdSize>]/<scene>/ with view1.png + view5.png + disp1.png '
+        '(or img0.png + img1.png + disp1.png), 8 bit, 0 = unknown'
+    )
+    splits = ('ThirdSize', 'HalfSize', 'FullSize')
+    size_scales = {'ThirdSize': 3.0, 'HalfSize': 2.0, 'FullSize': 1.0}
+    patterns = (
+        _Pattern(('view1.png',), ('view5.png',), ('disp1.png',), None),
+        _Pattern(('img0.png',), ('img1.png',), ('disp1.png',), None),
+    )
+
+    def _width_scale(self, width: int) -> float:
+        # Full size is 1240–1396 px wide, half 620–698, third 413–465.
+        return _scale_by_width(width, ((1000, 1.0), (550, 2.0)), 3.0)
+
+
+class Middlebury2006(Middlebury2005):
+    """Middlebury 2006: as 2005, plus the OpenCV sample naming ``<scene>L.jpg``,
+    ``<scene>R.jpg``, ``<scene>GT.png``."""
+
+    name = 'middlebury2006'
+    layout = (
+        '<root>[/<FullSize|HalfSize|ThirdSize>]/<scene>/ with view1.png + view5.png + disp1.png '
+        'or <scene>L.(png|jpg) + <scene>R.(png|jpg) + <scene>GT.png, 8 bit, 0 = unknown'
+    )
+    patterns = Middlebury2005.patterns + (
+        _Pattern(
+            ('{scene}L.png', '{scene}L.jpg'),
+            ('{scene}R.png', '{scene}R.jpg'),
+            ('{scene}GT.png',),
+            None,
+        ),
+    )
+
+
+class Eth3d(StereoDataset):
+    """ETH3D low-res two-view: ``two_view_training/<scene>/{im0,im1}.png``, ``calib.txt`` and
+    ``disp0GT.pfm`` + ``mask0nocc.png`` (from ``two_view_training_gt``, in the same folder or a
+    sibling one) or ``disp0.pfm``; inf = unknown."""
+
+    name = 'eth3d'
+    layout = (
+        '<root>/two_view_training/<scene>/{im0.png, im1.png} with disp0GT.pfm (here or in '
+        '<root>/two_view_training_gt/<scene>/) or disp0.pfm'
+    )
+    splits = ('two_view_training',)
+    default_split = 'two_view_training'
+
+    def _base(self, root: Path, split: str | None) -> Path:
+        base = root / str(split)
+        return base if base.is_dir() else root
+
+    def _files(self, root: Path, split: str | None, scene: str) -> tuple[Path, Path | None]:
+        folder = self._base(root, split) / scene
+        gt_folder = root / f'{split}_gt' / scene
+        gt = _first_existing(folder, ('disp0GT.pfm', 'disp0.pfm')) or _first_existing(
+            gt_folder, ('disp0GT.pfm',)
+        )
+        mask = _first_existing(folder, ('mask0nocc.png',)) or _first_existing(
+            gt_folder, ('mask0nocc.png',)
+        )
+        if gt is None or not ((folder / 'im0.png').is_file() and (folder / 'im1.png').is_file()):
+            raise self.missing(root, scene)
+        return gt, mask
+
+    def list_scenes(self, root: Path, split: str | None) -> list[str]:
+        base = self._base(root, split)
+        if not base.is_dir():
+            return []
+        scenes = []
+        for folder in base.iterdir():
+            try:
+                self._files(root, split, folder.name)
+            except DataError:
+                continue
+            scenes.append(folder.name)
+        return sorted(scenes)
+
+    def load_scene(self, root: Path, scene: str, split: str | None) -> StereoSample:
+        gt, mask = self._files(root, split, scene)
+        folder = self._base(root, split) / scene
+        nonocc = None
+        if mask is not None:
+            nonocc = read_image(mask) == 255
+            if nonocc.ndim == 3:
+                nonocc = nonocc.all(axis=2)
+        calib = None
+        if (folder / 'calib.txt').is_file():
+            calib = read_middlebury_calibration(folder / 'calib.txt')
+        return StereoSample(
+            dataset=self.name,
+            scene=scene,
+            left=read_image(folder / 'im0.png'),
+            right=read_image(folder / 'im1.png'),
+            disparity=_clean_disparity(read_pfm(gt)),
+            nonocc=nonocc,
+            calib=calib,
+        )
+
+
+class FlyingThings3D(StereoDataset):
+    """FlyingThings3D (Scene Flow): ``frames_cleanpass/<TRAIN|TEST>/<A|B|C>/<seq>/
+    {left,right}/<frame>.png`` (or ``frames_finalpass``) and ``disparity/…/left/<frame>.pfm``.
+    Scene ids are ``<TRAIN|TEST>/<letter>/<seq>/<frame>``."""
+
+    name = 'flyingthings3d'
+    layout = (
+        '<root>/frames_cleanpass/<TRAIN|TEST>/<A|B|C>/<seq>/{left,right}/<frame>.png and '
+        '<root>/disparity/<TRAIN|TEST>/<A|B|C>/<seq>/left/<frame>.pfm'
+    )
+    splits = ('TRAIN', 'TEST')
+    image_roots = ('frames_cleanpass', 'frames_finalpass')
+
+    def _images(self, root: Path, scene: str) -> tuple[Path, Path] | None:
+        *sequence, frame = scene.split('/')
+        for image_root in self.image_roots:
+            folder = root.joinpath(image_root, *sequence)
+            left, right = folder / 'left' / f'{frame}.png', folder / 'right' / f'{frame}.png'
+            if left.is_file() and right.is_file():
+                return left, right
+        return None
+
+    def list_scenes(self, root: Path, split: str | None) -> list[str]:
+        scenes = []
+        for part in (split,) if split else self.splits:
+            folder = root / 'disparity' / part
+            if not folder.is_dir():
+                continue
+            for pfm in folder.glob('*/*/left/*.pfm'):
+                letter, sequence = pfm.parent.parent.parent.name, pfm.parent.parent.name
+                scene = f'{part}/{letter}/{sequence}/{pfm.stem}'
+                if self._images(root, scene):
+                    scenes.append(scene)
+        return sorted(scenes)
+
+    def load_scene(self, root: Path, scene: str, split: str | None) -> StereoSample:
+        parts = scene.split('/')
+        found = self._images(root, scene) if len(parts) == 4 else None
+        gt = root.joinpath('disparity', *parts[:3], 'left', f'{parts[-1]}.pfm')
+        if found is None or not gt.is_file():
+            raise self.missing(root, scene)
+        return StereoSample(
+            dataset=self.name,
+            scene=scene,
+            left=read_image(found[0]),
+            right=read_image(found[1]),
+            disparity=_clean_disparity(read_pfm(gt)),
+        )
+
+
+class SceneFlowExtra(StereoDataset):
+    """Loose Scene Flow samples in two layouts, one folder each under the root:
+    ``<dir>/{Left,Right}/<id>.png`` + ``<dir>/Disparity/<id>.pfm``, or
+    ``<dir>/RGB_cleanpass/{left,right}/<id>.png`` + ``<dir>/disparity/left/<id>.pfm`` (+
+    ``<dir>/occlusion/left/<id>.png``, 255 = occluded). Scene ids are ``<dir>/<id>``."""
+
+    name = 'sceneflow_extra'
+    layout = (
+        '<root>/<dir>/{Left,Right}/<id>.png + <dir>/Disparity/<id>.pfm, or '
+        '<root>/<dir>/RGB_cleanpass/{left,right}/<id>.png + <dir>/disparity/left/<id>.pfm'
+    )
+
+    @staticmethod
+    def _files(folder: Path, stem: str) -> tuple[Path, Path, Path, Path | None] | None:
+        candidates = (
+            (folder / 'Left', folder / 'Right', folder / 'Disparity', None),
+            (
+                folder / 'RGB_cleanpass' / 'left',
+                folder / 'RGB_cleanpass' / 'right',
+                folder / 'disparity' / 'left',
+                folder / 'occlusion' / 'left',
+            ),
+        )
+        for left, right, gt, occlusion in candidates:
+            files = (left / f'{stem}.png', right / f'{stem}.png', gt / f'{stem}.pfm')
+            if all(path.is_file() for path in files):
+                occ = occlusion / f'{stem}.png' if occlusion is not None else None
+                return files[0], files[1], files[2], occ if occ and occ.is_file() else None
+        return None
+
+    def list_scenes(self, root: Path, split: str | None) -> list[str]:
+        if not root.is_dir():
+            return []
+        scenes = []
+        for folder in root.iterdir():
+            for gt_dir in (folder / 'Disparity', folder / 'disparity' / 'left'):
+                for pfm in gt_dir.glob('*.pfm') if gt_dir.is_dir() else ():
+                    if self._files(folder, pfm.stem):
+                        scenes.append(f'{folder.name}/{pfm.stem}')
+        return sorted(set(scenes))
+
+    def load_scene(self, root: Path, scene: str, split: str | None) -> StereoSample:
+        folder_name, _, stem = scene.partition('/')
+        files = self._files(root / folder_name, stem) if stem else None
+        if files is None:
+            raise self.missing(root, scene)
+        left, right, gt, occlusion = files
+        nonocc = None
+        if occlusion is not None:
+            nonocc = read_image(occlusion) == 0
+            if nonocc.ndim == 3:
+                nonocc = nonocc.all(axis=2)
+        return StereoSample(
+            dataset=self.name,
+            scene=scene,
+            left=read_image(left),
+            right=read_image(right),
+            disparity=_clean_disparity(read_pfm(gt)),
+            nonocc=nonocc,
+        )
+
+
+# TartanAir's fixed rig: f = 320 px, principal point (320, 240), baseline 0.25 m.
+_TARTANAIR_CALIB = Calibration(fx=320.0, fy=320.0, cx=320.0, cy=240.0, baseline=0.25)
+
+
+class TartanAir(StereoDataset):
+    """TartanAir: ``<...>/<id>_left.png``, ``<id>_right.png``, ``<id>_left_disp.npy`` (float32
+    disparity), or the original ``<...>/{image_left,image_right,depth_left}/<id>_left.png``,
+    ``<id>_right.png``, ``<id>_left_depth.npy`` (metric depth; d = 80 / depth). Scene ids are
+    ``<relative folder>/<id>``."""
+
+    name = 'tartanair'
+    layout = (
+        '<root>/<...>/<id>_left.png + <id>_right.png + <id>_left_disp.npy, or '
+        '<root>/<...>/{image_left,image_right,depth_left}/<id>_left.png, <id>_right.png, '
+        '<id>_left_depth.npy'
+    )
+
+    @staticmethod
+    def _files(folder: Path, frame: str) -> tuple[Path, Path, Path, bool] | None:
+        flat = (
+            folder / f'{frame}_left.png',
+            folder / f'{frame}_right.png',
+            folder / f'{frame}_left_disp.npy',
+        )
+        if all(path.is_file() for path in flat):
+            return flat[0], flat[1], flat[2], False
+        nested = (
+            folder / 'image_left' / f'{frame}_left.png',
+            folder / 'image_right' / f'{frame}_right.png',
+            folder / 'depth_left' / f'{frame}_left_depth.npy',
+        )
+        if all(path.is_file() for path in nested):
+            return nested[0], nested[1], nested[2], True
+        return None
+
+    def list_scenes(self, root: Path, split: str | None) -> list[str]:
+        if not root.is_dir():
+            return []
+        scenes = []
+        for path in root.rglob('*_left_disp.npy'):
+            frame = path.name[: -len('_left_disp.npy')]
+            if self._files(path.parent, frame):
+                scenes.append(f'{path.parent.relative_to(root).as_posix()}/{frame}')
+        for path in root.rglob('depth_left/*_left_depth.npy'):
+            frame = path.name[: -len('_left_depth.npy')]
+            if self._files(path.parent.parent, frame):
+                scenes.append(f'{path.parent.parent.relative_to(root).as_posix()}/{frame}')
+        return sorted(set(scenes))
+
+    def load_scene(self, root: Path, scene: str, split: str | None) -> StereoSample:
+        folder, _, frame = scene.rpartition('/')
+        files = self._files(root / folder, frame) if frame else None
+        if files is None:
+            raise self.missing(root, scene)
+        left, right, gt, is_depth = files
+        try:
+            values = np.load(gt).astype(np.float32)
+        except (OSError, ValueError) as exc:
+            raise DataError(f'cannot read {gt} as a float array: {exc}') from exc
+        if is_depth:
+            with np.errstate(divide='ignore'):
+                values = np.float32(_TARTANAIR_CALIB.fx * _TARTANAIR_CALIB.baseline) / values
+        return StereoSample(
+            dataset=self.name,
+            scene=scene,
+            left=read_image(left),
+            right=read_image(right),
+            disparity=_clean_disparity(values),
+            calib=_TARTANAIR_CALIB,
+        )
+
+
+class Motorcycle(StereoDataset):
+    """The Middlebury 2014 Motorcycle pair at quarter size shipped with scikit-image
+    (``skimage.data.stereo_motorcycle()``); no root needed, one scene ``motorcycle``."""
+
+    name = 'motorcycle'
+    layout = 'no files: skimage.data.stereo_motorcycle() (scikit-image)'
+    needs_root = False
+    # From the scikit-image docstring, for the downsampled pair; baseline 193.001 mm.
+    calib = Calibration(
+        fx=994.978, fy=994.978, cx=311.193, cy=254.877, baseline=0.193001, doffs=31.086
+    )
+
+    def list_scenes(self, root: Path, split: str | None) -> list[str]:
+        return ['motorcycle']
+
+    def load_scene(self, root: Path, scene: str, split: str | None) -> StereoSample:
+        if scene != 'motorcycle':
+            raise DataError(f'motorcycle has one scene, "motorcycle"; got {scene!r}')
+        try:
+            from skimage import data
+        except ImportError as exc:
+            raise DataError(
+                'the motorcycle pair needs scikit-image; expected `import skimage` to work'
+            ) from exc
+        left, right, disparity = data.stereo_motorcycle()
+        return StereoSample(
+            dataset=self.name,
+            scene=scene,
+            left=np.ascontiguousarray(left, dtype=np.uint8),
+            right=np.ascontiguousarray(right, dtype=np.uint8),
+            disparity=_clean_disparity(disparity),
+            calib=self.calib,
+        )
+
+
+#: name → data set loader.
+DATASETS: Registry[StereoDataset] = Registry('data set')
+for _dataset in (
+    Kitti2012(),
+    Kitti2015(),
+    Middlebury2014(),
+    Middlebury2001(),
+    Middlebury2003(),
+    Middlebury2005(),
+    Middlebury2006(),
+    Eth3d(),
+    FlyingThings3D(),
+    SceneFlowExtra(),
+    TartanAir(),
+    Motorcycle(),
+):
+    DATASETS.add(_dataset.name, _dataset)
+del _dataset
+
+#: Data sets to train on (the paper trains on KITTI 2012).
+TRAIN_DATASETS: tuple[str, ...] = (
+    'kitti2012',
+    'flyingthings3d',
+    'sceneflow_extra',
+    'tartanair',
+    'eth3d',
+    'middlebury2001',
+    'middlebury2005',
+    'middlebury2006',
+)
+#: Data sets to develop and report on; never train on them.
+DEVELOP_DATASETS: tuple[str, ...] = ('kitti2015', 'middlebury2003', 'middlebury2014')
+
+
+def _resolve(name: str, root: PathLike | None) -> tuple[StereoDataset, Path]:
+    dataset = DATASETS.get(name)
+    if root is None:
+        if dataset.needs_root:
+            raise ConfigError(
+                f'{name} needs a root folder ({dataset.layout}); got root=None'
+            )
+        return dataset, Path('.')
+    path = Path(root).expanduser()
+    if dataset.needs_root and not path.is_dir():
+        raise DataError(f'{name} root {path} is not a folder; expected {dataset.layout}')
+    # A folder that holds several data sets under their registered names works as root too.
+    if (path / name).is_dir():
+        path = path / name
+    return dataset, path
+
+
+def list_scenes(name: str, root: PathLike | None, split: str | None = None) -> list[str]:
+    """Scene ids of a data set, sorted.
+
+    Args:
+        name: Registered data set name (see :data:`DATASETS`).
+        root: Folder of the data set (e.g. the one holding ``training/`` for KITTI), or a
+            folder holding it under its registered name (``<root>/kitti2015/training/…``);
+            None only for ``motorcycle`` (which ignores it).
+        split: Data-set specific split (``trainingQ``/``trainingH``/``trainingF`` for
+            ``middlebury2014``, ``TRAIN``/``TEST`` for ``flyingthings3d``, ...); None = default.
+
+    Raises:
+        ConfigError: Unknown name or split, or a missing root.
+        DataError: The root holds no pair in the expected layout.
+    """
+    dataset, path = _resolve(name, root)
+    resolved = dataset.resolve_split(split)
+    scenes = dataset.list_scenes(path, resolved)
+    if not scenes:
+        raise dataset.no_pairs(path)
+    return scenes
+
+
+def load_scene(
+    name: str, root: PathLike | None, scene: str, split: str | None = None
+) -> StereoSample:
+    """Load one scene of a data set.
+
+    Args:
+        name: Registered data set name.
+        root: As for :func:`list_scenes`.
+        scene: Scene id as returned by :func:`list_scenes`.
+        split: As for :func:`list_scenes`.
+
+    Returns:
+        The :class:`StereoSample` at the data set's native resolution.
+
+    Raises:
+        ConfigError: Unknown name or split, or a missing root.
+        DataError: Missing or unreadable files.
+    """
+    dataset, path = _resolve(name, root)
+    return dataset.load_scene(path, scene, dataset.resolve_split(split))
+
+
+def load_dataset(
+    name: str,
+    root: PathLike | None,
+    split: str | None = None,
+    max_scenes: int | None = None,
+) -> Iterator[StereoSample]:
+    """Iterate over the scenes of a data set, loading one pair at a time.
+
+    The scene list is read (and its errors raised) by this call; each pair is loaded only when
+    the iterator reaches it, in :func:`list_scenes` order.
+
+    Args:
+        name: Registered data set name.
+        root: As for :func:`list_scenes`.
+        split: As for :func:`list_scenes`.
+        max_scenes: Stop after this many scenes (None = all).
+
+    Raises:
+        ConfigError: Unknown name or split, missing root, ``max_scenes`` < 0.
+        DataError: No pairs, or (while iterating) unreadable files.
+    """
+    if max_scenes is not None and max_scenes < 0:
+        raise ConfigError(f'max_scenes must be ≥ 0 or None; got {max_scenes}')
+    scenes = list_scenes(name, root, split)
+    if max_scenes is not None:
+        scenes = scenes[:max_scenes]
+    return (load_scene(name, root, scene, split) for scene in scenes)

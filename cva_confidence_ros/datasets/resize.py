@@ -1,0 +1,149 @@
+"""Downscaling of stereo samples, images and ground truth together.
+
+The paper (Sec. 4) halves the Middlebury resolution until the largest disparity fits into the
+cost-volume depth; :func:`fit_disparity_range` does that with :func:`resize_sample`.
+
+Ground truth is reduced by averaging each ``f × f`` block of the valid disparities and dividing
+by ``f``, which matches the block average that ``cv2.INTER_AREA`` takes of the images. A block
+gets NaN when fewer than half of its pixels have ground truth or when its valid disparities
+spread over more than ``f`` pixels (one pixel at the output scale): such a block straddles a
+depth edge and its image pixel mixes two surfaces, so no single disparity is right for it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+
+from cva_confidence_ros.datasets.io import Calibration
+from cva_confidence_ros.datasets.loaders import StereoSample
+from cva_confidence_ros.errors import ConfigError, DataError
+
+__all__ = ['fit_disparity_range', 'resize_disparity', 'resize_sample']
+
+
+def _check_factor(factor: int) -> int:
+    if isinstance(factor, bool) or not isinstance(factor, (int, np.integer)) or factor < 1:
+        raise ConfigError(f'factor must be an integer ≥ 1; got {factor!r}')
+    return int(factor)
+
+
+def _blocks(array: np.ndarray, factor: int) -> np.ndarray:
+    """(H, W) → (H // f, W // f, f * f) blocks, cropping the last rows and columns."""
+    height, width = array.shape[0] // factor, array.shape[1] // factor
+    cropped = array[: height * factor, : width * factor]
+    blocks = cropped.reshape(height, factor, width, factor).swapaxes(1, 2)
+    return blocks.reshape(height, width, factor * factor)
+
+
+def resize_disparity(disparity: np.ndarray, factor: int) -> np.ndarray:
+    """Shrink a disparity map by an integer factor, NaN-aware (see module docstring).
+
+    Args:
+        disparity: (H, W) float disparity in input pixels, NaN = unknown.
+        factor: Integer ≥ 1.
+
+    Returns:
+        (H // factor, W // factor) float32 disparity in output pixels, NaN = unknown.
+    """
+    factor = _check_factor(factor)
+    disparity = np.asarray(disparity, dtype=np.float32)
+    if factor == 1:
+        return disparity.copy()
+    blocks = _blocks(disparity, factor)
+    valid = np.isfinite(blocks)
+    count = valid.sum(axis=2)
+    total = np.where(valid, blocks, 0.0).sum(axis=2, dtype=np.float64)
+    high = np.where(valid, blocks, -np.inf).max(axis=2)
+    low = np.where(valid, blocks, np.inf).min(axis=2)
+    keep = (2 * count >= factor * factor) & (high - low <= factor)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        mean = total / count
+    return np.where(keep, mean / factor, np.nan).astype(np.float32)
+
+
+def _resize_image(image: np.ndarray, factor: int) -> np.ndarray:
+    height, width = image.shape[0] // factor, image.shape[1] // factor
+    cropped = np.ascontiguousarray(image[: height * factor, : width * factor])
+    # On an exact multiple INTER_AREA is the plain f × f block mean, like the disparity.
+    return cv2.resize(cropped, (width, height), interpolation=cv2.INTER_AREA)
+
+
+def _resize_calibration(calib: Calibration, factor: int) -> Calibration:
+    # Pixel centres sit at integer coordinates, so the principal point maps as (c + ½) / f − ½.
+    return dataclasses.replace(
+        calib,
+        fx=calib.fx / factor,
+        fy=calib.fy / factor,
+        cx=(calib.cx + 0.5) / factor - 0.5,
+        cy=(calib.cy + 0.5) / factor - 0.5,
+        doffs=calib.doffs / factor,
+    )
+
+
+def resize_sample(sample: StereoSample, factor: int) -> StereoSample:
+    """Shrink a stereo sample by an integer factor: images, ground truth, mask and calibration.
+
+    Rows and columns beyond a multiple of ``factor`` are cropped first.
+
+    Args:
+        sample: Input pair.
+        factor: Integer ≥ 1; 1 returns ``sample`` unchanged.
+
+    Returns:
+        A new :class:`StereoSample` of size (H // factor, W // factor): images by block mean
+        (uint8), disparity by :func:`resize_disparity`, ``nonocc`` True where the whole block is
+        non-occluded, calibration with focal length, principal point and ``doffs`` scaled.
+
+    Raises:
+        ConfigError: ``factor`` is not an integer ≥ 1.
+        DataError: The image is smaller than one block.
+    """
+    factor = _check_factor(factor)
+    if factor == 1:
+        return sample
+    height, width = sample.shape
+    if height < factor or width < factor:
+        raise DataError(
+            f'{sample.dataset}/{sample.scene}: cannot shrink a {height}×{width} pair by {factor}'
+        )
+    nonocc = None
+    if sample.nonocc is not None:
+        nonocc = _blocks(sample.nonocc, factor).all(axis=2)
+    return dataclasses.replace(
+        sample,
+        left=_resize_image(sample.left, factor),
+        right=_resize_image(sample.right, factor),
+        disparity=resize_disparity(sample.disparity, factor),
+        nonocc=nonocc,
+        calib=_resize_calibration(sample.calib, factor) if sample.calib is not None else None,
+    )
+
+
+def fit_disparity_range(sample: StereoSample, max_disparity: int) -> tuple[StereoSample, int]:
+    """Halve the resolution until the ground truth fits into a cost volume of depth D.
+
+    The factor is the smallest of 1, 2, 4, … with ``max finite GT disparity / factor < D``
+    (the paper halves Middlebury images until every disparity fits the network's depth).
+
+    Args:
+        sample: Input pair.
+        max_disparity: Cost-volume depth D ≥ 1 (disparities 0 … D − 1).
+
+    Returns:
+        ``(resized sample, factor)``; the sample is returned unchanged with factor 1 when it
+        already fits or has no finite ground truth.
+
+    Raises:
+        ConfigError: ``max_disparity`` < 1.
+        DataError: The image would shrink below one pixel.
+    """
+    if isinstance(max_disparity, bool) or int(max_disparity) != max_disparity or max_disparity < 1:
+        raise ConfigError(f'max_disparity must be an integer ≥ 1; got {max_disparity!r}')
+    largest = sample.max_disparity
+    factor = 1
+    while largest / factor >= max_disparity:
+        factor *= 2
+    return resize_sample(sample, factor), factor

@@ -1,0 +1,121 @@
+"""File formats: PFM, images, encoded disparity PNGs, calibration files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from cva_confidence_ros.datasets.io import (
+    Calibration,
+    read_disparity_png,
+    read_image,
+    read_kitti_calibration,
+    read_middlebury_calibration,
+    read_pfm,
+    write_pfm,
+)
+from cva_confidence_ros.errors import DataError
+
+
+def test_pfm_round_trip_gray_and_colour(tmp_path: Path) -> None:
+    gray = np.arange(12, dtype=np.float32).reshape(3, 4) - 2.5
+    gray[0, 0] = np.inf
+    colour = np.random.default_rng(0).random((2, 3, 3), dtype=np.float32)
+    write_pfm(tmp_path / 'g.pfm', gray)
+    write_pfm(tmp_path / 'c.pfm', colour)
+    np.testing.assert_array_equal(read_pfm(tmp_path / 'g.pfm'), gray)
+    np.testing.assert_array_equal(read_pfm(tmp_path / 'c.pfm'), colour)
+    assert read_pfm(tmp_path / 'g.pfm').dtype == np.float32
+
+
+def test_pfm_rows_bottom_to_top_and_big_endian(tmp_path: Path) -> None:
+    # Hand-written big-endian file (positive scale), rows stored bottom first, with the
+    # trailing spaces some writers put in the header.
+    body = np.array([[3.0, 4.0], [1.0, 2.0]], dtype='>f4').tobytes()
+    (tmp_path / 'be.pfm').write_bytes(b'Pf \n2 2 \n1.0\n' + body)
+    np.testing.assert_array_equal(read_pfm(tmp_path / 'be.pfm'), [[1.0, 2.0], [3.0, 4.0]])
+    # The same values little-endian (negative scale).
+    body = np.array([[3.0, 4.0], [1.0, 2.0]], dtype='<f4').tobytes()
+    (tmp_path / 'le.pfm').write_bytes(b'Pf\n2 2\n-1.0\n' + body)
+    np.testing.assert_array_equal(read_pfm(tmp_path / 'le.pfm'), [[1.0, 2.0], [3.0, 4.0]])
+
+
+def test_written_pfm_header_is_little_endian(tmp_path: Path) -> None:
+    write_pfm(tmp_path / 'x.pfm', np.ones((2, 5)))
+    assert (tmp_path / 'x.pfm').read_bytes().startswith(b'Pf\n5 2\n-1.0\n')
+
+
+@pytest.mark.parametrize(
+    'content', [b'P6\n2 2\n255\n' + bytes(12), b'Pf\n2 2\n-1.0\n' + bytes(8), b'Pf\n2\n']
+)
+def test_bad_pfm(tmp_path: Path, content: bytes) -> None:
+    (tmp_path / 'bad.pfm').write_bytes(content)
+    with pytest.raises(DataError):
+        read_pfm(tmp_path / 'bad.pfm')
+
+
+def test_missing_pfm(tmp_path: Path) -> None:
+    with pytest.raises(DataError, match='cannot read'):
+        read_pfm(tmp_path / 'none.pfm')
+
+
+def test_read_image_rgb_order_gray_and_alpha(tmp_path: Path) -> None:
+    rgb = np.zeros((2, 3, 3), np.uint8)
+    rgb[..., 0] = 200  # red
+    cv2.imwrite(str(tmp_path / 'rgb.png'), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    np.testing.assert_array_equal(read_image(tmp_path / 'rgb.png'), rgb)
+    gray = np.arange(6, dtype=np.uint8).reshape(2, 3)
+    cv2.imwrite(str(tmp_path / 'g.pgm'), gray)
+    np.testing.assert_array_equal(read_image(tmp_path / 'g.pgm'), gray)
+    bgra = np.dstack([np.full((2, 3), c, np.uint8) for c in (10, 20, 30, 255)])
+    cv2.imwrite(str(tmp_path / 'a.png'), bgra)
+    assert read_image(tmp_path / 'a.png')[0, 0].tolist() == [30, 20, 10]
+    with pytest.raises(DataError, match='cannot read image'):
+        read_image(tmp_path / 'missing.png')
+
+
+def test_read_disparity_png_scales_and_marks_unknown(tmp_path: Path) -> None:
+    raw = np.array([[0, 256, 1000], [65535, 128, 0]], dtype=np.uint16)
+    cv2.imwrite(str(tmp_path / 'd.png'), raw)
+    disparity = read_disparity_png(tmp_path / 'd.png', 256.0)
+    assert disparity.dtype == np.float32
+    expected = np.array([[np.nan, 1.0, 1000 / 256], [65535 / 256, 0.5, np.nan]])
+    np.testing.assert_allclose(disparity, expected, equal_nan=True)
+    cv2.imwrite(str(tmp_path / 'd8.png'), np.array([[0, 3, 255]], np.uint8))
+    np.testing.assert_allclose(
+        read_disparity_png(tmp_path / 'd8.png', 3.0), [[np.nan, 1.0, 85.0]], equal_nan=True
+    )
+
+
+def test_middlebury_calibration(tmp_path: Path) -> None:
+    (tmp_path / 'calib.txt').write_text(
+        'cam0=[999.421 0 294.182; 0 999.421 252.932; 0 0 1]\n'
+        'cam1=[999.421 0 326.96; 0 999.421 252.932; 0 0 1]\n'
+        'doffs=32.778\nbaseline=193.001\nwidth=741\nheight=497\nndisp=70\n'
+    )
+    calib = read_middlebury_calibration(tmp_path / 'calib.txt')
+    assert calib == Calibration(
+        fx=999.421, fy=999.421, cx=294.182, cy=252.932, baseline=0.193001, doffs=32.778
+    )
+    # depth = f B / (d + doffs): 999.421 × 0.193001 / 50 m at d = 17.222.
+    assert calib.depth(np.array([17.222]))[0] == pytest.approx(999.421 * 0.193001 / 50.0)
+    (tmp_path / 'bad.txt').write_text('doffs=1\n')
+    with pytest.raises(DataError, match='cam0'):
+        read_middlebury_calibration(tmp_path / 'bad.txt')
+
+
+def test_kitti_calibration(tmp_path: Path) -> None:
+    p2 = '7.2e+02 0 6.0e+02 4.5e+01 0 7.2e+02 1.8e+02 0 0 0 1 0'
+    p3 = '7.2e+02 0 6.0e+02 -3.15e+02 0 7.2e+02 1.8e+02 0 0 0 1 0'
+    (tmp_path / 'c.txt').write_text(f'P0: {p2}\nP1: {p3}\nP2: {p2}\nP3: {p3}\n')
+    calib = read_kitti_calibration(tmp_path / 'c.txt')
+    assert calib.fx == 720.0 and calib.cx == 600.0 and calib.cy == 180.0
+    assert calib.baseline == pytest.approx(360.0 / 720.0)
+    assert calib.doffs == 0.0
+    (tmp_path / 'r.txt').write_text(f'P_rect_02: {p2}\nP_rect_03: {p3}\n')
+    assert read_kitti_calibration(tmp_path / 'r.txt', 'P_rect_02', 'P_rect_03') == calib
+    with pytest.raises(DataError, match='P_rect_02'):
+        read_kitti_calibration(tmp_path / 'c.txt', 'P_rect_02', 'P_rect_03')
