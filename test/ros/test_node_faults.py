@@ -1,0 +1,167 @@
+"""The node under load and bad input: bounded queues, newest frame wins, bad frames dropped."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+import os
+
+from node_test_utils import (
+    Spinner,
+    StereoClient,
+    domain_id,
+    image_msg,
+    info_msgs,
+    rss_mb,
+    textured_pair,
+)
+import numpy as np
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.parameter import Parameter
+
+from cva_confidence_ros.node import ConfidenceNode
+
+pytestmark = pytest.mark.timeout(150)
+
+# Large enough that a frame takes far longer than publishing one.
+HEIGHT, WIDTH, MAX_DISPARITY = 240, 320, 48
+
+
+class _Running:
+    def __init__(self, context: Context) -> None:
+        self.node = ConfidenceNode(
+            context=context,
+            parameter_overrides=[
+                Parameter('matcher', value='census_bm'),
+                Parameter('max_disparity', value=MAX_DISPARITY),
+                Parameter('confidence_method', value='pkrn'),
+                Parameter('diagnostics_period_seconds', value=0.2),
+            ],
+        )
+        self.client = StereoClient(context)
+        self.spinner = Spinner(context, self.node, self.client.node)
+        self.stamp = 1_000_000_000
+        assert self.client.wait_connected(), 'the node and the client did not discover'
+
+    def next_stamp(self) -> int:
+        self.stamp += 1_000_000_000
+        return self.stamp
+
+
+@pytest.fixture(scope='module')
+def running() -> Iterator[_Running]:
+    previous = os.environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE')
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id(1))
+    state = _Running(context)
+    try:
+        yield state
+    finally:
+        state.spinner.stop()
+        state.node.destroy_node()
+        state.client.node.destroy_node()
+        rclpy.shutdown(context=context)
+        if previous is None:
+            os.environ.pop('ROS_AUTOMATIC_DISCOVERY_RANGE', None)
+        else:
+            os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = previous
+
+
+def _burst(running: _Running, left: np.ndarray, right: np.ndarray, count: int) -> list[int]:
+    stamps = [running.next_stamp() for _ in range(count)]
+    for stamp in stamps:
+        running.client.publish_frame(left, right, stamp)
+    return stamps
+
+
+def test_burst_keeps_the_newest_and_memory_flat(running: _Running) -> None:
+    client, node = running.client, running.node
+    left, right = textured_pair(HEIGHT, WIDTH, disparity=9)
+    client.send_until_output(left, right, running.next_stamp(), topics=('disparity',))
+
+    # Warm-up burst: allocator pools, DDS buffers and caches reach their working size.
+    stamps = _burst(running, left, right, 50)
+    assert client.wait_for(lambda: client.by_stamp('disparity', stamps[-1]) is not None, 60)
+    before_rss = rss_mb()
+    before = node.stats()
+
+    for _ in range(3):
+        stamps = _burst(running, left, right, 50)
+        # The newest pair is always processed, however many came before it.
+        assert client.wait_for(
+            lambda s=stamps[-1]: client.by_stamp('disparity', s) is not None, 60
+        ), 'the last pair of the burst was not processed'
+        answered = sum(client.by_stamp('disparity', s) is not None for s in stamps)
+        assert answered < 50, 'every frame of a burst was processed: no load to shed'
+
+    after = node.stats()
+    processed = after['frames_processed'] - before['frames_processed']
+    received = after['frames_received'] - before['frames_received']
+    dropped = after['frames_dropped'] - before['frames_dropped']
+    assert processed < 150
+    assert dropped > 0
+    assert received <= processed + dropped
+    assert rss_mb() - before_rss < 64.0
+    # Nothing is queued behind the scenes: the synchroniser holds at most one queue per topic.
+    assert all(n <= node.node_config.queue_size for n in node._sync.pending().values())
+
+    # Still responsive: a lone frame right after comes out.
+    client.send_until_output(left, right, running.next_stamp(), topics=('disparity',), timeout=20)
+
+
+def _bad_frames(stamp: int) -> dict[str, tuple]:
+    left, right = textured_pair(64, 96, seed=7)
+    left_info, right_info = info_msgs(stamp)
+    float_image = image_msg(np.zeros((64, 96), np.float32).view(np.uint8), stamp, '32FC1')
+    float_image.width, float_image.step = 96, 96 * 4
+    short = image_msg(left, stamp)
+    short.data = short.data[:100]
+    wrong_info = info_msgs(stamp, height=32, width=48)
+    nan_info = info_msgs(stamp)
+    nan_info[1].p[3] = float('nan')
+    narrow = image_msg(right[:, :90], stamp)
+    return {
+        'unknown encoding': (float_image, image_msg(right, stamp), left_info, right_info),
+        'short data': (short, image_msg(right, stamp), left_info, right_info),
+        'left/right sizes differ': (image_msg(left, stamp), narrow, left_info, right_info),
+        'camera info of another size': (
+            image_msg(left, stamp),
+            image_msg(right, stamp),
+            *wrong_info,
+        ),
+        'NaN in the projection': (image_msg(left, stamp), image_msg(right, stamp), *nan_info),
+    }
+
+
+def test_malformed_frames_are_dropped_and_good_ones_still_come_out(running: _Running) -> None:
+    client, node = running.client, running.node
+    left, right = textured_pair(64, 96, seed=7)
+    client.send_until_output(left, right, running.next_stamp(), topics=('disparity',))
+    good_stamps = []
+    bad = 0
+    for name in _bad_frames(0):
+        stamp = running.next_stamp()
+        left_msg, right_msg, left_info, right_info = _bad_frames(stamp)[name]
+        invalid_before = node.stats()['frames_invalid']
+        for key, msg in (
+            ('left_info', left_info),
+            ('right_info', right_info),
+            ('left', left_msg),
+            ('right', right_msg),
+        ):
+            client.pubs[key].publish(msg)
+        assert client.wait_for(lambda n=invalid_before: node.stats()['frames_invalid'] > n, 10), (
+            f'the {name} frame was not rejected'
+        )
+        bad += 1
+        good = running.next_stamp()
+        client.publish_frame(left, right, good)
+        assert client.wait_for(lambda s=good: client.by_stamp('disparity', s) is not None, 10), (
+            f'no output for the good frame after the {name} frame'
+        )
+        good_stamps.append(good)
+        assert client.by_stamp('disparity', stamp) is None
+    assert node.stats()['frames_invalid'] >= bad
+    assert node._worker.is_alive()

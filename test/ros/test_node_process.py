@@ -1,0 +1,173 @@
+"""The installed ``cva-node`` as a separate process, talked to over DDS, stopped by signals."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import threading
+
+from node_test_utils import Spinner, StereoClient, domain_id, textured_pair
+import numpy as np
+import pytest
+import rclpy
+from rclpy.context import Context
+
+from cva_confidence_ros.ros.convert import disparity_from_message, float_image_to_array
+
+pytestmark = pytest.mark.timeout(180)
+
+CVA_NODE = Path(sys.executable).parent / 'cva-node'
+CONFIG = Path(__file__).resolve().parents[2] / 'config' / 'cva_confidence.yaml'
+DOMAIN = domain_id(2)
+NAMESPACE = '/stereo'
+
+
+class NodeProcess:
+    """``cva-node`` in a subprocess with its output collected line by line."""
+
+    def __init__(self, *ros_args: str) -> None:
+        env = dict(
+            os.environ,
+            ROS_DOMAIN_ID=str(DOMAIN),
+            ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+            PYTHONUNBUFFERED='1',
+            OMP_NUM_THREADS='1',
+        )
+        self.process = subprocess.Popen(
+            [str(CVA_NODE), '--ros-args', '-r', f'__ns:={NAMESPACE}', *ros_args],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        self.lines: list[str] = []
+        self.ready = threading.Event()
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        assert self.process.stdout is not None
+        for line in self.process.stdout:
+            self.lines.append(line)
+            if 'ready:' in line:
+                self.ready.set()
+
+    @property
+    def output(self) -> str:
+        return ''.join(self.lines)
+
+    def stop(self, sig: int, timeout: float = 30.0) -> int:
+        """Send ``sig`` and return the exit code (kills it if it does not stop in time)."""
+        self.process.send_signal(sig)
+        try:
+            code = self.process.wait(timeout)
+        finally:
+            if self.process.poll() is None:
+                self.process.kill()
+                self.process.wait(10)
+        self._reader.join(10)
+        return code
+
+
+@pytest.fixture(scope='module')
+def client() -> Iterator[StereoClient]:
+    if not CVA_NODE.exists():
+        pytest.skip(f'{CVA_NODE.name} is not installed next to the interpreter (make setup)')
+    context = Context()
+    rclpy.init(context=context, domain_id=DOMAIN)
+    previous = os.environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE')
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    stereo = StereoClient(context, namespace=NAMESPACE)
+    spinner = Spinner(context, stereo.node)
+    try:
+        yield stereo
+    finally:
+        spinner.stop()
+        stereo.node.destroy_node()
+        rclpy.shutdown(context=context)
+        if previous is None:
+            os.environ.pop('ROS_AUTOMATIC_DISCOVERY_RANGE', None)
+        else:
+            os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = previous
+
+
+def _started(node: NodeProcess) -> None:
+    if not node.ready.wait(90):
+        node.stop(signal.SIGKILL)
+        pytest.fail('cva-node printed no ready line; output:\n' + node.output)
+
+
+def test_cva_node_serves_over_dds_and_stops_on_sigint(client: StereoClient) -> None:
+    node = NodeProcess(
+        '--params-file', str(CONFIG),
+        '-p', 'confidence_method:=mlm',
+        '-p', 'max_disparity:=16',
+    )  # fmt: skip
+    try:
+        _started(node)
+        assert client.wait_connected(30), node.output
+        left, right = textured_pair(seed=11)
+        out = client.send_until_output(left, right, 5_000_000_000, timeout=40)
+    finally:
+        code = node.stop(signal.SIGINT)
+    disparity = disparity_from_message(out['disparity'])
+    assert disparity.shape == (64, 96)
+    assert np.mean(np.abs(disparity[4:-4, 20:-4] - 5.0) < 0.5) > 0.95
+    confidence = float_image_to_array(out['confidence'])
+    assert np.all((confidence >= 0) & (confidence <= 1))
+    assert out['points2'].header.frame_id == 'left_optical'
+    assert code == 0, node.output
+    assert 'Traceback' not in node.output, node.output
+
+
+def test_cva_net_with_given_weights_and_sigterm(client: StereoClient, tmp_path: Path) -> None:
+    torch = pytest.importorskip('torch')
+    from cva_confidence_ros.model import CVANet, save_weights
+
+    torch.manual_seed(0)
+    weights = tmp_path / 'random_cvanet_d16.pt'
+    meta = {'matcher': 'census_bm', 'max_disparity': 16, 'arch': 'cvanet'}
+    save_weights(CVANet(16), weights, meta=meta)
+    node = NodeProcess(
+        '-p', 'confidence_method:=cva_net',
+        '-p', f'model_path:={weights}',
+        '-p', 'max_disparity:=16',
+        '-p', 'confidence_threshold:=0.0',
+    )  # fmt: skip
+    try:
+        _started(node)
+        assert client.wait_connected(30), node.output
+        left, right = textured_pair(seed=12)
+        out = client.send_until_output(left, right, 9_000_000_000, timeout=60)
+    finally:
+        code = node.stop(signal.SIGTERM)
+    confidence = float_image_to_array(out['confidence'])
+    assert confidence.shape == (64, 96)
+    # A sigmoid output: strictly inside (0, 1), and not constant over a textured image.
+    assert np.all((confidence > 0) & (confidence < 1))
+    assert confidence.std() > 0
+    assert code == 0, node.output
+    assert 'Traceback' not in node.output, node.output
+
+
+@pytest.mark.parametrize(
+    ('args', 'message'),
+    [
+        (('-p', 'matcher:=no_such_matcher'), 'no_such_matcher'),
+        (('-p', 'max_disparity:=5000'), 'max_disparity'),
+        (('-p', 'confidence_method:=cva_net', '-p', 'model_path:=/nonexistent.pt'), 'cannot'),
+    ],
+)
+def test_invalid_start_configuration_exits_cleanly(args: tuple[str, ...], message: str) -> None:
+    if not CVA_NODE.exists():
+        pytest.skip('cva-node is not installed')
+    node = NodeProcess(*args)
+    code = node.process.wait(90)
+    node._reader.join(10)
+    assert code == 2, node.output
+    assert message in node.output
+    assert 'Traceback' not in node.output, node.output
