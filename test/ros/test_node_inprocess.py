@@ -61,9 +61,11 @@ class _Running:
         self.stamp += 10_000_000_000
         return self.stamp
 
-    def set(self, **values: object) -> list[SetParametersResult]:
-        """Set parameters on the node (the same callback the parameter service runs)."""
-        return self.node.set_parameters([Parameter(k, value=v) for k, v in values.items()])
+    def set(self, **values: object) -> SetParametersResult:
+        """Set parameters all at once (the callback the parameter service runs)."""
+        return self.node.set_parameters_atomically(
+            [Parameter(k, value=v) for k, v in values.items()]
+        )
 
 
 @pytest.fixture(scope='module')
@@ -219,15 +221,15 @@ def test_parameters_are_declared_with_descriptions_and_ranges(running: _Running)
 
 def test_invalid_parameter_changes_are_rejected_with_a_reason(running: _Running) -> None:
     before = running.node.pipeline_config
-    (result,) = running.set(matcher='no_such_matcher')
+    result = running.set(matcher='no_such_matcher')
     assert not result.successful and 'no_such_matcher' in result.reason
-    (result,) = running.set(max_disparity=5000)  # outside the declared range
+    result = running.set(max_disparity=5000)  # outside the declared range
     assert not result.successful
-    (result,) = running.set(downsample=3)
+    result = running.set(downsample=3)
     assert not result.successful and 'downsample' in result.reason
-    (result,) = running.set(confidence_method='cva_net', model_path='/nonexistent/weights.pt')
+    result = running.set(confidence_method='cva_net', model_path='/nonexistent/weights.pt')
     assert not result.successful and result.reason
-    (result,) = running.set(input_qos='reliable')  # read-only after start
+    result = running.set(input_qos='reliable')  # read-only after start
     assert not result.successful
     assert running.node.pipeline_config == before
     assert running.node.get_parameter('matcher').value == 'census_bm'
@@ -252,13 +254,13 @@ def test_parameter_service_rebuilds_the_pipeline(running: _Running) -> None:
         out = client.send_until_output(left, right, running.next_stamp(), topics=('disparity',))
         assert out['disparity'].max_disparity == 23.0
     finally:
-        (result,) = running.set(max_disparity=MAX_DISPARITY)
+        result = running.set(max_disparity=MAX_DISPARITY)
         assert result.successful
         client.node.destroy_client(service)
 
 
 def test_downsample_publishes_at_lower_resolution(running: _Running) -> None:
-    (result,) = running.set(downsample=2, max_disparity=8)
+    result = running.set(downsample=2, max_disparity=8)
     assert result.successful
     try:
         left, right = textured_pair(height=64, width=96, disparity=6, seed=4)
@@ -281,12 +283,12 @@ def test_downsample_publishes_at_lower_resolution(running: _Running) -> None:
             cloud['z'][rows, cols], (FX / 2) * BASELINE / disparity[rows, cols], rtol=1e-5
         )
     finally:
-        (result,) = running.set(downsample=1, max_disparity=MAX_DISPARITY)
+        result = running.set(downsample=1, max_disparity=MAX_DISPARITY)
         assert result.successful
 
 
 def test_dense_cloud(running: _Running) -> None:
-    (result,) = running.set(points_organized=False)
+    result = running.set(points_organized=False)
     assert result.successful
     try:
         left, right = textured_pair(seed=5)
@@ -301,14 +303,14 @@ def test_dense_cloud(running: _Running) -> None:
         assert cloud.shape[0] == keep.sum()
         np.testing.assert_allclose(cloud['z'], FX * BASELINE / disparity[keep], rtol=1e-5)
     finally:
-        (result,) = running.set(points_organized=True)
+        result = running.set(points_organized=True)
         assert result.successful
 
 
 def test_approximate_sync(running: _Running) -> None:
     client = running.client
     left, right = textured_pair(seed=6)
-    (result,) = running.set(approximate_sync=True, approximate_sync_tolerance_seconds=0.005)
+    result = running.set(approximate_sync=True, approximate_sync_tolerance_seconds=0.005)
     assert result.successful
     try:
         for _ in range(10):
@@ -324,5 +326,5 @@ def test_approximate_sync(running: _Running) -> None:
         else:
             pytest.fail('no output for a pair 2 ms apart after 10 tries')
     finally:
-        (result,) = running.set(approximate_sync=False)
+        result = running.set(approximate_sync=False)
         assert result.successful
