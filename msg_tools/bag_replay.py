@@ -1,0 +1,200 @@
+"""``cva-bag-replay``: run a stereo bag through the node's pipeline and score its confidence.
+
+Reads a rosbag2 (MCAP or sqlite3, any compression ``rosbags`` reads), pairs left/right images
+and camera infos by stamp with the node's synchroniser, runs the node's pipeline (matcher,
+confidence method, weights, downsample, threshold), and writes
+
+* an output bag with what the node publishes (``disparity``, ``confidence``, ``points2``,
+  ``disparity_filtered``), stamped like the input;
+* where the bag has ground truth: ``DIR/report.json`` (``frames``: records with ``frame``,
+  ``stamp_ns``, ``error_rate``, ``auc``, ``auc_opt``, ``kept_density``, ``kept_error_rate``;
+  ``summary``: their means and the frame counters), ``DIR/report.csv``, ``DIR/summary.md`` and
+  PNGs (confidence maps, ROC curves, AUC over time).
+
+Modes: ``offline`` processes as fast as it can (deterministic); ``live`` plays the bag over DDS
+to the node (started as a subprocess with the same parameters, or a running one with
+``--no-start-node``) at the recorded speed times ``--rate-scale`` and records what it
+publishes, dropped frames included.
+
+Exit codes: 0 done, 2 bad input or a fault that stopped the run (one line on stderr), 130
+interrupted (the outputs hold the frames done).
+
+Example::
+
+    cva-bag-replay motorcycle_bag --out replay_bag --report replay --downsample 2
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+import sys
+
+from cva_confidence_ros.errors import CVAError
+from cva_confidence_ros.pipeline import PipelineConfig
+from msg_tools.bagio import STORAGES
+from msg_tools.replay import ReplayOptions, TopicNames
+
+__all__ = ['build_parser', 'main', 'options_from_args']
+
+_DEFAULTS = PipelineConfig.__dataclass_fields__
+
+
+def _default(name: str) -> object:
+    return _DEFAULTS[name].default
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``cva-bag-replay``."""
+    parser = argparse.ArgumentParser(
+        prog='cva-bag-replay',
+        description='Replay a stereo rosbag2 through the CVA confidence pipeline; write an '
+        'output bag and a per-frame confidence report.',
+    )
+    parser.add_argument('bag', type=Path, help='input bag (folder, .mcap or .db3)')
+    parser.add_argument('--out', type=Path, required=True, help='output bag folder to create')
+    parser.add_argument('--report', type=Path, required=True, help='report folder')
+    parser.add_argument('--mode', choices=('offline', 'live'), default='offline',
+                        help='offline: as fast as possible; live: over DDS to the node')
+
+    node = parser.add_argument_group('pipeline (the node parameters of the same names)')
+    node.add_argument('--matcher', default=_default('matcher'), help='census_bm, census_sgm, '
+                      'mccnn_fast (default %(default)s)')
+    node.add_argument('--confidence-method', default=_default('confidence_method'),
+                      help='cva_net or a hand-crafted measure (default %(default)s)')
+    node.add_argument('--weights', default=_default('model_path'),
+                      help='CVA-Net weights (default: the shipped ones for the matcher)')
+    node.add_argument('--max-disparity', type=int, default=_default('max_disparity'),
+                      help='cost-volume depth D (default %(default)s)')
+    node.add_argument('--downsample', type=int, default=_default('downsample'),
+                      help='process at 1/K resolution, K in 1, 2, 4 (default %(default)s)')
+    node.add_argument('--confidence-threshold', type=float,
+                      default=_default('confidence_threshold'),
+                      help='pixels below it are dropped from the filtered outputs')
+    node.add_argument('--device', default=_default('device'), help='cpu, cuda or auto')
+    node.add_argument('--lr-check', action='store_true', help='left-right consistency check')
+    node.add_argument('--tile-budget-mb', type=float, default=_default('tile_budget_mb'),
+                      help='memory budget of one network tile')
+    node.add_argument('--approximate-sync', action='store_true',
+                      help='pair messages whose stamps differ by at most --sync-tolerance')
+    node.add_argument('--sync-tolerance', type=float, default=0.0,
+                      help='approximate sync tolerance in seconds')
+    node.add_argument('--queue-size', type=int, default=10, help='synchroniser queue size')
+    node.add_argument('--no-points', action='store_true', help='do not write points2')
+    node.add_argument('--points-unorganized', action='store_true',
+                      help='points2 holds only the kept points (default: organised H×W)')
+
+    topics = parser.add_argument_group('topics (relative names are put under --topic-prefix)')
+    topics.add_argument('--topic-prefix', default='', help='camera namespace, e.g. /stereo')
+    topics.add_argument('--left-topic', default='left/image_rect')
+    topics.add_argument('--right-topic', default='right/image_rect')
+    topics.add_argument('--left-info-topic', default='left/camera_info')
+    topics.add_argument('--right-info-topic', default='right/camera_info')
+    topics.add_argument('--gt-topic', default=None,
+                        help='ground truth (DisparityImage or 32FC1 Image); default '
+                        'ground_truth/disparity, used when the bag has it')
+
+    report = parser.add_argument_group('report')
+    report.add_argument('--max-pixels', type=int, default=None,
+                        help='score a fixed random subset of N ground-truth pixels per frame')
+    report.add_argument('--seed', type=int, default=0, help='seed of that subset')
+    report.add_argument('--max-plots', type=int, default=10,
+                        help='frames that get confidence and ROC PNGs (default %(default)s)')
+
+    output = parser.add_argument_group('output bag')
+    output.add_argument('--storage', choices=STORAGES, default='mcap',
+                        help='storage of the output bag (default mcap)')
+    output.add_argument('--overwrite', action='store_true', help='replace an existing output bag')
+
+    live = parser.add_argument_group('live mode')
+    live.add_argument('--rate-scale', type=float, default=1.0,
+                      help='play at this multiple of the recorded speed')
+    live.add_argument('--no-start-node', action='store_true',
+                      help='connect to a running cva-node instead of starting one')
+    live.add_argument('--startup-timeout', type=float, default=60.0,
+                      help='seconds to wait for the node to connect')
+    live.add_argument('--drain-timeout', type=float, default=30.0,
+                      help='after the last input, seconds to wait without output')
+    return parser
+
+
+def options_from_args(args: argparse.Namespace) -> ReplayOptions:
+    """Turn parsed arguments into :class:`msg_tools.replay.ReplayOptions`.
+
+    Raises:
+        ConfigError: An invalid value (unknown matcher or method, range errors, ...).
+    """
+    pipeline = PipelineConfig(
+        matcher=args.matcher,
+        max_disparity=args.max_disparity,
+        confidence_method=args.confidence_method,
+        model_path=str(args.weights or ''),
+        device=args.device,
+        confidence_threshold=args.confidence_threshold,
+        downsample=args.downsample,
+        lr_check=args.lr_check,
+        tile_budget_mb=args.tile_budget_mb,
+    )
+    topics = TopicNames(
+        prefix=args.topic_prefix,
+        left=args.left_topic,
+        right=args.right_topic,
+        left_info=args.left_info_topic,
+        right_info=args.right_info_topic,
+        ground_truth=args.gt_topic or 'ground_truth/disparity',
+    )
+    return ReplayOptions(
+        bag=args.bag,
+        out=args.out,
+        report=args.report,
+        pipeline=pipeline,
+        topics=topics,
+        gt_required=args.gt_topic is not None,
+        mode=args.mode,
+        storage=args.storage,
+        approximate_sync=args.approximate_sync,
+        sync_tolerance_s=args.sync_tolerance,
+        queue_size=args.queue_size,
+        max_pixels=args.max_pixels,
+        seed=args.seed,
+        max_plots=args.max_plots,
+        publish_points=not args.no_points,
+        points_organized=not args.points_unorganized,
+        overwrite=args.overwrite,
+        rate_scale=args.rate_scale,
+        start_node=not args.no_start_node,
+        startup_timeout_s=args.startup_timeout,
+        drain_timeout_s=args.drain_timeout,
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``cva-bag-replay``; returns the exit code."""
+    args = build_parser().parse_args(argv)
+    try:
+        options = options_from_args(args)
+        if args.mode == 'live':
+            from msg_tools.live import run_live
+
+            outcome = run_live(options)
+        else:
+            from msg_tools.replay import run_offline
+
+            outcome = run_offline(options)
+    except CVAError as err:
+        print(f'cva-bag-replay: error: {err}', file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print('cva-bag-replay: interrupted before any output was written', file=sys.stderr)
+        return 130
+    stream = sys.stdout if outcome.exit_code == 0 else sys.stderr
+    prefix = '' if outcome.exit_code == 0 else 'cva-bag-replay: '
+    print(f'{prefix}{outcome.message}', file=stream)
+    if outcome.paths:
+        print('outputs: ' + ', '.join(f'{k} {v}' for k, v in sorted(outcome.paths.items())),
+              file=stream)
+    return outcome.exit_code
+
+
+if __name__ == '__main__':
+    sys.exit(main())

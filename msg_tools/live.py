@@ -1,0 +1,512 @@
+"""Live mode of ``cva-bag-replay``: play the bag to the running node over DDS and record it.
+
+The bag's input messages are published as they are stored (raw CDR, rclpy publishers,
+reliable QoS) at the recorded pace times ``rate_scale``; the node's outputs are received raw,
+written unchanged into the output bag and scored like the offline mode's. What this measures
+is the node as it really behaves: frames it drops under load have no output and count as
+``dropped``, and each answered frame carries its latency (last input published → last
+scored output received).
+
+The node is started as a subprocess (``cva-node`` next to the running Python, with the
+replay's pipeline and sync parameters, reliable QoS, and every topic remapped onto the
+replay's names), or, with ``start_node=False``, an already running one is used.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+import os
+from pathlib import Path
+import queue
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from typing import Any
+
+from cva_confidence_ros.errors import BagError, ConfigError, InputError
+from msg_tools.bagio import InputBag
+from msg_tools.convert import camera_geometry, disparity_from_msg, jazzy_typestore, stamp_to_ns
+from msg_tools.progress import Progress
+from msg_tools.replay import (
+    FrameResult,
+    Logger,
+    ReplayOptions,
+    ReplayOutcome,
+    ReplaySession,
+    TopicPlan,
+    log_stderr,
+    make_synchronizer,
+    plan_topics,
+)
+
+__all__ = ['NodeProcess', 'node_arguments', 'run_live']
+
+# The node's topic names (relative, as it declares them) → the replay's output names.
+_NODE_INPUTS = {
+    'left': 'left/image_rect',
+    'right': 'right/image_rect',
+    'left_info': 'left/camera_info',
+    'right_info': 'right/camera_info',
+}
+_NODE_OUTPUTS = {
+    'disparity': 'disparity',
+    'confidence': 'confidence',
+    'disparity_filtered': 'disparity_filtered',
+    'points': 'points2',
+}
+_OUTPUT_TYPES = {
+    'disparity': 'stereo_msgs/msg/DisparityImage',
+    'confidence': 'sensor_msgs/msg/Image',
+    'disparity_filtered': 'stereo_msgs/msg/DisparityImage',
+    'points': 'sensor_msgs/msg/PointCloud2',
+}
+# What a frame needs before it can be scored; points2 is only recorded.
+_SCORED = ('disparity', 'confidence', 'disparity_filtered')
+
+
+def _ros_value(value: object) -> str:
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, float):
+        return repr(float(value))
+    return str(value)
+
+
+def node_arguments(options: ReplayOptions, node_name: str) -> list[str]:
+    """``--ros-args`` for a ``cva-node`` that computes what the replay asks for.
+
+    Parameters: every ``PipelineConfig`` field, the sync and point-cloud options, and
+    reliable QoS on inputs and outputs (so that DDS itself loses nothing and every drop is
+    the node's). Remappings put the node's topics onto the replay's resolved names.
+    """
+    from cva_confidence_ros.ros.params import NodeConfig
+
+    node_config = NodeConfig(
+        publish_points=options.publish_points,
+        points_organized=options.points_organized,
+        input_qos='reliable',
+        output_qos='reliable',
+        approximate_sync=options.approximate_sync,
+        approximate_sync_tolerance_seconds=float(options.sync_tolerance_s),
+        queue_size=options.queue_size,
+    )
+    params = {**asdict(options.pipeline), **asdict(node_config)}
+    args = ['--ros-args', '-r', f'__node:={node_name}']
+    for name, value in params.items():
+        if value == '':
+            continue  # an empty override does not parse; the node's default is '' anyway
+        args += ['-p', f'{name}:={_ros_value(value)}']
+    inputs = options.topics.inputs()
+    outputs = options.topics.outputs()
+    for key, topic in _NODE_INPUTS.items():
+        args += ['-r', f'{topic}:={inputs[key]}']
+    for key, topic in _NODE_OUTPUTS.items():
+        args += ['-r', f'{topic}:={outputs[key]}']
+    return args
+
+
+def _node_command() -> list[str]:
+    beside = Path(sys.executable).with_name('cva-node')
+    if beside.exists():
+        return [str(beside)]
+    found = shutil.which('cva-node')
+    if found:
+        return [found]
+    return [sys.executable, '-m', 'cva_confidence_ros.node']
+
+
+class NodeProcess:
+    """``cva-node`` as a subprocess; its output goes to ``log_path``.
+
+    Args:
+        options: The replay options (parameters and topic names).
+        log_path: File that receives the node's stdout and stderr.
+    """
+
+    def __init__(self, options: ReplayOptions, log_path: Path) -> None:
+        self.name = f'cva_confidence_replay_{os.getpid()}'
+        self.command = _node_command() + node_arguments(options, self.name)
+        self.log_path = log_path
+        self.process: subprocess.Popen[bytes] | None = None
+
+    def start(self) -> NodeProcess:
+        """Start the node (returns at once; it is ready when its topics connect)."""
+        self.log_path.parent.mkdir(parents=True, exist_ok=True)
+        env = dict(os.environ, PYTHONUNBUFFERED='1')
+        with self.log_path.open('wb') as log:
+            self.process = subprocess.Popen(
+                self.command, stdout=log, stderr=subprocess.STDOUT, env=env,
+                stdin=subprocess.DEVNULL,
+            )
+        return self
+
+    @property
+    def exit_code(self) -> int | None:
+        """None while running."""
+        return None if self.process is None else self.process.poll()
+
+    def last_lines(self, count: int = 3) -> str:
+        """The end of the node's log, for error messages."""
+        try:
+            lines = self.log_path.read_text(errors='replace').strip().splitlines()
+        except OSError:
+            return ''
+        return ' | '.join(line.strip() for line in lines[-count:])
+
+    def stop(self, timeout: float = 10.0) -> int | None:
+        """Ctrl-C the node, then terminate and kill it if it does not exit."""
+        process = self.process
+        if process is None:
+            return None
+        if process.poll() is None:
+            process.send_signal(signal.SIGINT)
+            try:
+                process.wait(timeout)
+            except subprocess.TimeoutExpired:
+                process.terminate()
+                try:
+                    process.wait(timeout)
+                except subprocess.TimeoutExpired:
+                    process.kill()
+                    process.wait()
+        return process.returncode
+
+
+@dataclass
+class _PendingFrame:
+    """A pair published to the node whose outputs have not all come yet."""
+
+    frame: int
+    timestamp_ns: int
+    published: float
+    geometry: Any = None
+    size: tuple[int, int] = (0, 0)
+
+
+class _Player:
+    """The replay's rclpy node: raw publishers of the inputs, raw subscriptions of the outputs.
+
+    Output callbacks only queue ``(name, bytes, receive time)``; the main thread does the rest.
+    """
+
+    def __init__(self, plan: TopicPlan, options: ReplayOptions, reliable_outputs: bool) -> None:
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+        self.context = Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node(f'cva_bag_replay_{os.getpid()}', context=self.context)
+        self.received: queue.Queue[tuple[str, bytes, float]] = queue.Queue()
+        publish_qos = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST, depth=max(options.queue_size, 10),
+            reliability=ReliabilityPolicy.RELIABLE,
+        )
+        # A best-effort reader accepts any writer: the only safe choice for a node we did not
+        # configure; a node we started writes reliably, so we read reliably.
+        receive_qos = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST, depth=100,
+            reliability=(ReliabilityPolicy.RELIABLE if reliable_outputs
+                         else ReliabilityPolicy.BEST_EFFORT),
+        )
+        self.publishers = {
+            topic: self.node.create_publisher(_message_class(kind), topic, publish_qos)
+            for topic, kind in plan.input_types.items()
+        }
+        names = [name for name in _OUTPUT_TYPES if name != 'points' or options.publish_points]
+        outputs = options.topics.outputs()
+        self.subscriptions = {
+            name: self.node.create_subscription(
+                _message_class(_OUTPUT_TYPES[name]), outputs[name],
+                lambda raw, name=name: self.received.put((name, raw, time.monotonic())),
+                receive_qos, raw=True,
+            )
+            for name in names
+        }
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self._spin, name='cva_bag_replay_spin', daemon=True)
+        self.thread.start()
+
+    def _spin(self) -> None:
+        from rclpy.executors import ExternalShutdownException
+
+        try:
+            self.executor.spin()
+        except ExternalShutdownException:
+            pass
+
+    def connected(self) -> bool:
+        """Every input has a reader and every output a writer."""
+        return all(p.get_subscription_count() > 0 for p in self.publishers.values()) and all(
+            s.get_publisher_count() > 0 for s in self.subscriptions.values()
+        )
+
+    def missing(self) -> list[str]:
+        """Topics still without a partner (for error messages)."""
+        lonely = [t for t, p in self.publishers.items() if p.get_subscription_count() == 0]
+        lonely += [
+            s.topic_name for s in self.subscriptions.values() if s.get_publisher_count() == 0
+        ]
+        return lonely
+
+    def close(self) -> None:
+        """Stop spinning and shut the context down."""
+        self.executor.shutdown(timeout_sec=2.0)
+        self.node.destroy_node()
+        if self.context.ok():
+            self.context.try_shutdown()
+        self.thread.join(timeout=5.0)
+
+
+def _message_class(msgtype: str) -> Any:
+    import importlib
+
+    package, _, name = msgtype.split('/')
+    return getattr(importlib.import_module(f'{package}.msg'), name)
+
+
+def run_live(options: ReplayOptions, log: Logger = log_stderr) -> ReplayOutcome:
+    """Play the bag to the node over DDS at the recorded speed × ``rate_scale``; record and
+    score what it publishes.
+
+    Returns:
+        The :class:`ReplayOutcome` (same report as offline; ``dropped`` counts the pairs the
+        node did not answer).
+
+    Raises:
+        BagError: The bag cannot be opened or lacks an input topic.
+        ConfigError: The node exits or does not connect within ``startup_timeout_s``.
+    """
+    with InputBag(options.bag) as bag:
+        plan = plan_topics(bag, options, log)
+        node = None
+        if options.start_node:
+            node = NodeProcess(options, Path(options.report) / 'node.log').start()
+            log(f'started cva-node (log {node.log_path})')
+        player = None
+        try:
+            player = _Player(plan, options, reliable_outputs=node is not None)
+            _wait_for_node(player, node, options, log)
+            return _play(bag, plan, player, node, options, log)
+        finally:
+            if player is not None:
+                player.close()
+            if node is not None:
+                code = node.stop()
+                if code not in (0, None):
+                    log(f'cva-node exited with code {code}: {node.last_lines()}')
+
+
+def _wait_for_node(
+    player: _Player, node: NodeProcess | None, options: ReplayOptions, log: Logger
+) -> None:
+    deadline = time.monotonic() + options.startup_timeout_s
+    while not player.connected():
+        if node is not None and node.exit_code is not None:
+            raise ConfigError(
+                f'cva-node exited with code {node.exit_code} before it connected: '
+                f'{node.last_lines()}'
+            )
+        if time.monotonic() > deadline:
+            hint = '' if node is not None else ' (start cva-node, or drop --no-start-node)'
+            raise ConfigError(
+                f'no node connected to {", ".join(player.missing())} within '
+                f'{options.startup_timeout_s:.0f} s{hint}'
+            )
+        time.sleep(0.05)
+    # Matching is seen from our side first; give the node's side a moment to match too.
+    time.sleep(0.5)
+    log('node connected; playing the bag')
+
+
+def _play(
+    bag: InputBag,
+    plan: TopicPlan,
+    player: _Player,
+    node: NodeProcess | None,
+    options: ReplayOptions,
+    log: Logger,
+) -> ReplayOutcome:
+    from rosbags.serde import SerdeError
+
+    store = jazzy_typestore()
+    sync = make_synchronizer(options)
+    key_of = plan.key_of
+    progress = Progress(plan.pairs_expected, prefix='[cva-bag-replay] live: ')
+    session = ReplaySession(options, plan, log, truth_window=None)
+    recorder = _Recorder(session, store, options, player.received)
+    with session:
+        try:
+            start_bag: int | None = None
+            start_wall = 0.0
+            for topic, msgtype, timestamp, raw in bag.messages(plan.topics):
+                if start_bag is None:
+                    start_bag, start_wall = timestamp, time.monotonic()
+                due = start_wall + (timestamp - start_bag) / 1e9 / options.rate_scale
+                recorder.drain(until=due, progress=progress)
+                try:
+                    msg = store.deserialize_cdr(raw, msgtype)
+                except SerdeError as err:
+                    session.skip(f'a message on {topic} at {timestamp} ns', err)
+                    continue
+                stamp = stamp_to_ns(msg.header.stamp)
+                if topic == plan.ground_truth:
+                    session.add_ground_truth(stamp, msg)
+                    continue
+                player.publishers[topic].publish(raw)
+                recorder.published(stamp)
+                for matched in sync.add(key_of[topic], stamp, msg):
+                    recorder.expect(matched, session.counts['pairs'], timestamp)
+                    session.counts['pairs'] += 1
+            recorder.finish(node, progress)
+        finally:
+            session.counts['unpaired'] = sync.dropped + sum(sync.pending().values())
+            session.counts['dropped'] = recorder.unanswered()
+    progress.finish()
+    return session.outcome()
+
+
+class _Recorder:
+    """Receives the node's outputs: writes them to the bag, pairs them per frame, scores."""
+
+    def __init__(
+        self,
+        session: ReplaySession,
+        store: Any,
+        options: ReplayOptions,
+        received: queue.Queue[tuple[str, bytes, float]],
+    ) -> None:
+        self.session = session
+        self.received = received
+        self.store = store
+        self.options = options
+        self.topics = options.topics.outputs()
+        self.frames: dict[int, _PendingFrame] = {}
+        self.parts: dict[int, dict[str, Any]] = {}
+        self.publish_times: dict[int, float] = {}
+        self.last_output = time.monotonic()
+        self.answered = 0
+
+    def published(self, stamp_ns: int) -> None:
+        """Note when the latest input message of a stamp went out."""
+        self.publish_times[stamp_ns] = time.monotonic()
+
+    def expect(self, matched: Any, frame: int, timestamp_ns: int) -> None:
+        """Register a pair the node should answer."""
+        pending = _PendingFrame(
+            frame=frame, timestamp_ns=timestamp_ns,
+            published=self.publish_times.pop(matched.stamp_ns, time.monotonic()),
+        )
+        try:
+            geometry, width, height = camera_geometry(
+                matched.items['left_info'], matched.items['right_info']
+            )
+            pending.geometry, pending.size = geometry, (height, width)
+        except InputError:
+            pass  # the node drops this pair too; it will count as not answered
+        self.frames[matched.stamp_ns] = pending
+
+    def unanswered(self) -> int:
+        """Pairs published whose outputs never (all) came."""
+        return self.session.counts['pairs'] - self.answered
+
+    def drain(self, until: float, progress: Progress) -> None:
+        """Handle outputs until the wall-clock time ``until`` (monotonic seconds)."""
+        while True:
+            left = until - time.monotonic()
+            if left <= 0:
+                return
+            try:
+                item = self.received.get(timeout=min(left, 0.05))
+            except queue.Empty:
+                continue
+            self._handle(*item, progress=progress)
+
+    def finish(self, node: NodeProcess | None, progress: Progress) -> None:
+        """After the last input: wait for the outstanding outputs (or the drain timeout)."""
+        self.last_output = time.monotonic()
+        while self.frames and time.monotonic() - self.last_output < self.options.drain_timeout_s:
+            if node is not None and node.exit_code is not None:
+                raise BagError(f'cva-node exited with code {node.exit_code}: {node.last_lines()}')
+            try:
+                item = self.received.get(timeout=0.1)
+            except queue.Empty:
+                continue
+            self._handle(*item, progress=progress)
+        # Late points2 of the last frame may still be in the queue: record them too.
+        while True:
+            try:
+                item = self.received.get_nowait()
+            except queue.Empty:
+                return
+            self._handle(*item, progress=progress)
+
+    def _handle(self, name: str, raw: bytes, received: float, progress: Progress) -> None:
+        from rosbags.serde import SerdeError
+
+        self.last_output = received
+        try:
+            msg = self.store.deserialize_cdr(raw, _OUTPUT_TYPES[name])
+        except SerdeError as err:
+            self.session.skip(f'an output on {self.topics[name]}', err)
+            return
+        stamp = stamp_to_ns(msg.header.stamp)
+        pending = self.frames.get(stamp)
+        timestamp = pending.timestamp_ns if pending is not None else stamp
+        self.session.write(self.topics[name], _OUTPUT_TYPES[name], raw, timestamp)
+        if pending is None or name not in _SCORED:
+            return
+        parts = self.parts.setdefault(stamp, {})
+        parts[name] = msg
+        if any(key not in parts for key in _SCORED):
+            return
+        del self.parts[stamp], self.frames[stamp]
+        self.answered += 1
+        progress.update()
+        self._score(pending, stamp, parts, received)
+        # Outputs come in stamp order per topic: older pairs still incomplete were dropped.
+        for older in [s for s in self.frames if s < stamp]:
+            del self.frames[older]
+            self.parts.pop(older, None)
+        self.session.drop_ground_truth_before(stamp)
+
+    def _score(
+        self, pending: _PendingFrame, stamp: int, parts: dict[str, Any], received: float
+    ) -> None:
+        import numpy as np
+
+        from cva_confidence_ros.ros.convert import float_image_to_array
+
+        if pending.geometry is None:
+            return
+        disparity_msg = parts['disparity']
+        height, width = int(disparity_msg.image.height), int(disparity_msg.image.width)
+        full_h, full_w = pending.size
+        geometry = pending.geometry
+        if (height, width) != (full_h, full_w):
+            geometry = geometry.scaled(width / full_w, height / full_h)
+        try:
+            disparity = disparity_from_msg(disparity_msg, geometry.disparity_offset)
+            filtered = disparity_from_msg(
+                parts['disparity_filtered'], geometry.disparity_offset
+            )
+            confidence = float_image_to_array(parts['confidence'])
+        except InputError as err:
+            self.session.skip(f'outputs of frame {pending.frame}', err)
+            return
+        self.session.add_result(
+            FrameResult(
+                frame=pending.frame,
+                stamp_ns=stamp,
+                disparity=disparity,
+                confidence=confidence,
+                kept=np.isfinite(filtered),
+                offset=pending.geometry.disparity_offset,
+                latency_ms=(received - pending.published) * 1e3,
+            )
+        )

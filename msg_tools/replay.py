@@ -1,0 +1,743 @@
+"""The replay engine of ``cva-bag-replay``: options, topic plan, output messages, and the
+offline mode (the live mode is :mod:`msg_tools.live`; both share :class:`ReplaySession`).
+
+Offline mode reads the bag in time order, pairs left/right images and camera infos by stamp
+with the node's synchroniser (``sync.StampSynchronizer``), runs the node's pipeline
+(``pipeline.StereoPipeline``) on every pair as fast as it can, writes what the node would
+publish into an output bag (header stamps of the input, bag timestamps of the input left
+image) and scores each frame against the ground truth topic, when the bag has one.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+import sys
+from typing import Any
+
+import numpy as np
+
+from cva_confidence_ros.errors import BagError, ConfigError, InputError
+from cva_confidence_ros.pipeline import PipelineConfig, PipelineResult
+from cva_confidence_ros.pointcloud import StereoGeometry
+from msg_tools.bagio import STORAGES, InputBag, OutputBag, remove_bag
+from msg_tools.convert import (
+    CAMERA_INFO,
+    DISPARITY_IMAGE,
+    IMAGE,
+    POINT_CLOUD2,
+    disparity_from_msg,
+    jazzy_typestore,
+    stamp_to_ns,
+)
+from msg_tools.progress import GracefulInterrupt, Progress
+from msg_tools.scoring import FrameScore, ReplayReport, ReportWriter, score_frame
+
+__all__ = [
+    'FrameResult',
+    'Logger',
+    'NodeOutputs',
+    'ReplayOptions',
+    'ReplayOutcome',
+    'ReplaySession',
+    'TopicNames',
+    'TopicPlan',
+    'log_stderr',
+    'make_synchronizer',
+    'node_outputs',
+    'plan_topics',
+    'run_offline',
+    'stereo_inputs',
+]
+
+Logger = Callable[[str], None]
+
+INPUT_KEYS = ('left', 'right', 'left_info', 'right_info')
+_INPUT_TYPES = {'left': IMAGE, 'right': IMAGE, 'left_info': CAMERA_INFO, 'right_info': CAMERA_INFO}
+GT_TYPES = (DISPARITY_IMAGE, IMAGE)
+# Skips are counted always but logged only this often, so a bag of bad frames stays readable.
+_MAX_SKIP_LOGS = 20
+
+
+def log_stderr(message: str) -> None:
+    """Print one ``[cva-bag-replay]`` line on stderr."""
+    print(f'[cva-bag-replay] {message}', file=sys.stderr, flush=True)
+
+
+@dataclass(frozen=True)
+class TopicNames:
+    """Topic names of the replay; relative names are resolved under ``prefix``.
+
+    Defaults are stereo_image_proc's names. A bag recorded under a camera namespace (e.g.
+    ``/stereo/left/image_rect``) needs only ``prefix='/stereo'``; a name given absolute (with
+    a leading ``/``) is used as it is.
+
+    Attributes:
+        prefix: Namespace of every relative name ('' = root).
+        left, right: Rectified images (sensor_msgs/Image).
+        left_info, right_info: Camera infos (sensor_msgs/CameraInfo).
+        ground_truth: Ground-truth disparity (stereo_msgs/DisparityImage or 32FC1 Image).
+        disparity, confidence, points, disparity_filtered: What the node publishes.
+    """
+
+    prefix: str = ''
+    left: str = 'left/image_rect'
+    right: str = 'right/image_rect'
+    left_info: str = 'left/camera_info'
+    right_info: str = 'right/camera_info'
+    ground_truth: str = 'ground_truth/disparity'
+    disparity: str = 'disparity'
+    confidence: str = 'confidence'
+    points: str = 'points2'
+    disparity_filtered: str = 'disparity_filtered'
+
+    def __post_init__(self) -> None:
+        for name, value in asdict(self).items():
+            if name != 'prefix' and not str(value).strip('/'):
+                raise ConfigError(f'topic {name} must be a non-empty name; got {value!r}')
+            if any(c.isspace() for c in str(value)):
+                raise ConfigError(f'topic {name} must not contain spaces; got {value!r}')
+
+    def resolve(self, name: str) -> str:
+        """The absolute topic name of ``name`` (which may be one of the attribute names)."""
+        value = getattr(self, name, name)
+        if value.startswith('/'):
+            return value
+        prefix = '/' + self.prefix.strip('/') if self.prefix.strip('/') else ''
+        return f'{prefix}/{value.strip("/")}'
+
+    def inputs(self) -> dict[str, str]:
+        """Synchroniser key → absolute input topic."""
+        return {key: self.resolve(key) for key in INPUT_KEYS}
+
+    def outputs(self) -> dict[str, str]:
+        """Output name → absolute topic, for what the node publishes."""
+        names = ('disparity', 'confidence', 'points', 'disparity_filtered')
+        return {name: self.resolve(name) for name in names}
+
+
+@dataclass(frozen=True)
+class ReplayOptions:
+    """Everything one replay run needs (built by the CLI; the node parameters are
+    ``pipeline`` plus the sync and points options, under the node's names).
+
+    Attributes:
+        bag: Input bag (folder, ``.mcap`` or ``.db3``).
+        out: Output bag folder to create.
+        report: Report folder.
+        pipeline: The node's processing settings.
+        topics: Topic names.
+        gt_required: The ground-truth topic was asked for explicitly, so it must exist.
+        mode: ``offline`` or ``live``.
+        storage: Output storage, ``mcap`` or ``sqlite3``.
+        approximate_sync: Pair by approximate stamps (within ``sync_tolerance_s``).
+        sync_tolerance_s: Largest stamp spread of one pair in approximate mode, seconds.
+        queue_size: Messages held per input while waiting for a match.
+        max_pixels: Score a random subset of this many ground-truth pixels per frame.
+        seed: Seed of that subset.
+        max_plots: Frames that get a confidence-map and ROC PNG.
+        publish_points: Write ``points2``.
+        points_organized: Organised (H×W, NaN for dropped points) or dense cloud.
+        overwrite: Replace an existing output bag.
+        rate_scale: Live mode: play at this multiple of the recorded speed.
+        start_node: Live mode: start ``cva-node`` (else connect to a running one).
+        startup_timeout_s: Live mode: wait this long for the node's topics to connect.
+        drain_timeout_s: Live mode: after the last input, wait this long without any output
+            before giving up on the frames not answered yet.
+    """
+
+    bag: Path
+    out: Path
+    report: Path
+    pipeline: PipelineConfig = field(default_factory=PipelineConfig)
+    topics: TopicNames = field(default_factory=TopicNames)
+    gt_required: bool = False
+    mode: str = 'offline'
+    storage: str = 'mcap'
+    approximate_sync: bool = False
+    sync_tolerance_s: float = 0.0
+    queue_size: int = 10
+    max_pixels: int | None = None
+    seed: int = 0
+    max_plots: int = 10
+    publish_points: bool = True
+    points_organized: bool = True
+    overwrite: bool = False
+    rate_scale: float = 1.0
+    start_node: bool = True
+    startup_timeout_s: float = 60.0
+    drain_timeout_s: float = 30.0
+
+    def __post_init__(self) -> None:
+        if self.mode not in ('offline', 'live'):
+            raise ConfigError(f"mode must be 'offline' or 'live'; got {self.mode!r}")
+        if self.storage not in STORAGES:
+            raise ConfigError(f'storage must be one of {STORAGES}; got {self.storage!r}')
+        if self.queue_size < 1:
+            raise ConfigError(f'queue_size must be >= 1; got {self.queue_size}')
+        if self.sync_tolerance_s < 0:
+            raise ConfigError(f'sync tolerance must be >= 0 s; got {self.sync_tolerance_s}')
+        if self.max_pixels is not None and self.max_pixels < 1:
+            raise ConfigError(f'max_pixels must be >= 1; got {self.max_pixels}')
+        if self.max_plots < 0:
+            raise ConfigError(f'max_plots must be >= 0; got {self.max_plots}')
+        if not self.rate_scale > 0:
+            raise ConfigError(f'rate_scale must be > 0; got {self.rate_scale}')
+        if self.startup_timeout_s <= 0 or self.drain_timeout_s <= 0:
+            raise ConfigError(
+                f'timeouts must be > 0 s; got startup {self.startup_timeout_s}, '
+                f'drain {self.drain_timeout_s}'
+            )
+        if Path(self.out).resolve() == Path(self.bag).resolve():
+            raise ConfigError(f'the output bag must differ from the input bag {self.bag}')
+
+    def config_record(self) -> dict[str, Any]:
+        """The ``config`` block of ``report.json``."""
+        record: dict[str, Any] = {
+            'bag': str(self.bag),
+            'out': str(self.out),
+            'mode': self.mode,
+            **asdict(self.pipeline),
+            'gt_topic': self.topics.resolve('ground_truth'),
+            'topics': {**self.topics.inputs(), **self.topics.outputs()},
+            'approximate_sync': self.approximate_sync,
+            'sync_tolerance_s': self.sync_tolerance_s,
+            'queue_size': self.queue_size,
+            'max_pixels': self.max_pixels,
+            'seed': self.seed,
+        }
+        if self.mode == 'live':
+            record.update(rate_scale=self.rate_scale, start_node=self.start_node)
+        return record
+
+
+@dataclass(frozen=True)
+class TopicPlan:
+    """What the input bag offers for the replay.
+
+    Attributes:
+        inputs: Synchroniser key → absolute topic.
+        input_types: Absolute topic → message type, for the four inputs.
+        ground_truth: Ground-truth topic, or None when the bag has none.
+        ground_truth_type: Its message type ('' without one).
+        pairs_expected: Number of left images in the bag (for the progress line).
+    """
+
+    inputs: dict[str, str]
+    input_types: dict[str, str]
+    ground_truth: str | None
+    ground_truth_type: str
+    pairs_expected: int
+
+    @property
+    def key_of(self) -> dict[str, str]:
+        """Absolute input topic → synchroniser key."""
+        return {topic: key for key, topic in self.inputs.items()}
+
+    @property
+    def topics(self) -> list[str]:
+        """Every topic the replay reads."""
+        return [*self.inputs.values(), *([self.ground_truth] if self.ground_truth else [])]
+
+
+def plan_topics(bag: InputBag, options: ReplayOptions, log: Logger = log_stderr) -> TopicPlan:
+    """Check that the bag has the input topics (and the ground truth if asked for).
+
+    Raises:
+        BagError: A missing input topic, one of the wrong type, or a missing ground-truth
+            topic that was asked for explicitly.
+    """
+    inputs = options.topics.inputs()
+    types = {}
+    for key, topic in inputs.items():
+        types[topic] = bag.require(topic, (_INPUT_TYPES[key],), key.replace('_', ' '))
+    gt_topic = options.topics.resolve('ground_truth')
+    gt_type = ''
+    if gt_topic in bag.topics or options.gt_required:
+        gt_type = bag.require(gt_topic, GT_TYPES, 'ground-truth')
+    else:
+        log(f'no ground-truth topic {gt_topic} in the bag: frames are processed, not scored')
+        gt_topic = None
+    return TopicPlan(
+        inputs=inputs,
+        input_types=types,
+        ground_truth=gt_topic,
+        ground_truth_type=gt_type,
+        pairs_expected=bag.message_counts.get(inputs['left'], 0),
+    )
+
+
+def stereo_inputs(
+    items: dict[str, Any],
+) -> tuple[np.ndarray, np.ndarray, StereoGeometry]:
+    """Decode one matched set of messages into the pipeline's inputs, as the node does.
+
+    The node's own decoders are used (``ros.convert.image_to_array``, ``pair_to_uint8``,
+    ``camera_info_to_geometry``; they read the message fields only, so ``rosbags`` messages
+    work), with the node's checks in the node's order, so a frame the node would drop is
+    skipped here for the same reason.
+
+    Args:
+        items: Synchroniser key → message, keys :data:`INPUT_KEYS`.
+
+    Returns:
+        ``(left, right, geometry)``: uint8 images (RGB or gray) and the stereo geometry at
+        their resolution.
+
+    Raises:
+        InputError: Unknown encoding, camera infos that do not fit, or size mismatches.
+    """
+    from cva_confidence_ros.ros.convert import (
+        camera_info_to_geometry,
+        image_to_array,
+        pair_to_uint8,
+    )
+
+    left, right = image_to_array(items['left']), image_to_array(items['right'])
+    if left.shape[:2] != right.shape[:2]:
+        raise InputError(
+            f'left and right images must have the same size; got '
+            f'{left.shape[1]}×{left.shape[0]} and {right.shape[1]}×{right.shape[0]}'
+        )
+    left, right = pair_to_uint8(left, right)
+    height, width = left.shape[:2]
+    geometry = camera_info_to_geometry(items['left_info'], items['right_info'], width, height)
+    return left, right, geometry
+
+
+@dataclass
+class NodeOutputs:
+    """What the node publishes for one frame: serialised messages and the arrays behind them.
+
+    Attributes:
+        messages: ``(output name, message type, CDR bytes)`` for ``disparity``,
+            ``confidence``, ``disparity_filtered`` and (optionally) ``points``.
+        confidence: (h, w) float32 published confidence in [0, 1].
+        kept: (h, w) bool, pixels kept by the threshold (finite in ``disparity_filtered``).
+        geometry: Stereo geometry at the processed resolution.
+    """
+
+    messages: list[tuple[str, str, bytes]]
+    confidence: np.ndarray
+    kept: np.ndarray
+    geometry: StereoGeometry
+
+
+def node_outputs(
+    result: PipelineResult,
+    geometry: StereoGeometry,
+    input_shape: tuple[int, int],
+    header: Any,
+    config: PipelineConfig,
+    *,
+    publish_points: bool = True,
+    points_organized: bool = True,
+) -> NodeOutputs:
+    """The messages the node publishes for one processed pair, built by the node's own code.
+
+    Mirrors ``ConfidenceNode._publish``: geometry scaled to the processed size, confidence
+    mapped to [0, 1] (``node.to_unit_interval``), kept = finite disparity and confidence ≥
+    threshold, messages from ``ros.convert`` serialised by rclpy, so the bytes are those the
+    node would send.
+
+    Args:
+        result: The pipeline's output at the processed resolution.
+        geometry: Stereo geometry of the input camera infos (input resolution).
+        input_shape: Input ``(height, width)``.
+        header: Header of the left image (``rosbags`` or rclpy; stamp and frame id are used).
+        config: The pipeline settings.
+        publish_points: Include ``points2``.
+        points_organized: Organised cloud (H×W, NaN points) or only the kept points.
+
+    Returns:
+        The :class:`NodeOutputs`.
+    """
+    from builtin_interfaces.msg import Time
+    from rclpy.serialization import serialize_message
+    from std_msgs.msg import Header
+
+    from cva_confidence_ros.node import to_unit_interval
+    from cva_confidence_ros.pointcloud import disparity_to_points, make_cloud, pack_rgb
+    from cva_confidence_ros.ros.convert import (
+        array_to_image,
+        cloud_to_message,
+        disparity_to_message,
+    )
+
+    ros_header = Header(
+        stamp=Time(sec=int(header.stamp.sec), nanosec=int(header.stamp.nanosec)),
+        frame_id=str(header.frame_id),
+    )
+    disparity = result.disparity
+    out_h, out_w = disparity.shape
+    if (out_h, out_w) != tuple(input_shape):
+        geometry = geometry.scaled(out_w / input_shape[1], out_h / input_shape[0])
+    confidence = to_unit_interval(result.confidence)
+    kept = np.isfinite(disparity) & (confidence >= config.confidence_threshold)
+    filtered = np.where(kept, disparity, np.float32(np.nan)).astype(np.float32)
+    messages = [
+        ('disparity', DISPARITY_IMAGE,
+         disparity_to_message(disparity, ros_header, geometry, config.max_disparity)),
+        ('confidence', IMAGE, array_to_image(confidence, ros_header)),
+        ('disparity_filtered', DISPARITY_IMAGE,
+         disparity_to_message(filtered, ros_header, geometry, config.max_disparity)),
+    ]
+    if publish_points:
+        points = disparity_to_points(disparity, geometry, kept)
+        cloud = make_cloud(points, pack_rgb(result.left), points_organized)
+        messages.append(('points', POINT_CLOUD2, cloud_to_message(cloud, ros_header)))
+    return NodeOutputs(
+        messages=[(name, kind, serialize_message(msg)) for name, kind, msg in messages],
+        confidence=confidence,
+        kept=kept,
+        geometry=geometry,
+    )
+
+
+@dataclass
+class FrameResult:
+    """A processed frame waiting for (or scored against) its ground truth.
+
+    Attributes:
+        frame: Index of the pair in the bag. stamp_ns: Its stamp.
+        disparity: (h, w) float32 raw disparity (x_left − x_right), NaN invalid.
+        confidence: (h, w) float32 published confidence.
+        kept: (h, w) bool, pixels the node keeps.
+        offset: Δ = cx_right − cx_left at the input resolution, to read a ground-truth
+            ``DisparityImage`` (which holds d + Δ).
+        processing_ms: Pipeline time (offline). latency_ms: Live round-trip time.
+    """
+
+    frame: int
+    stamp_ns: int
+    disparity: np.ndarray
+    confidence: np.ndarray
+    kept: np.ndarray
+    offset: float = 0.0
+    processing_ms: float | None = None
+    latency_ms: float | None = None
+
+
+@dataclass
+class ReplayOutcome:
+    """How a run ended: the report, where the outputs are, and the exit code."""
+
+    report: ReplayReport
+    paths: dict[str, Path]
+    exit_code: int
+    message: str
+
+
+class ReplaySession:
+    """Output bag, ground-truth pairing, scoring and report, shared by both modes.
+
+    Use as a context manager: leaving it (normally, on a bag fault, or on Ctrl-C) finalises
+    the output bag and writes the report with the frames done so far; the two expected ways
+    to stop early (``KeyboardInterrupt``, ``BagError``) are recorded in the report and not
+    raised further, see :meth:`outcome`.
+
+    Ground truth and results meet by stamp: whichever comes first waits; a result whose
+    ground truth never comes is reported unscored.
+
+    Args:
+        options: The run's options.
+        plan: The topic plan of the input bag.
+        log: Receives one-line messages.
+        truth_window: Most ground-truth messages held while waiting for their frame (the
+            oldest goes first); None = unbounded, the caller evicts with
+            :meth:`drop_ground_truth_before` (live mode, where outputs lag the inputs).
+    """
+
+    def __init__(
+        self,
+        options: ReplayOptions,
+        plan: TopicPlan,
+        log: Logger = log_stderr,
+        truth_window: int | None = 0,
+    ) -> None:
+        self.options = options
+        self.plan = plan
+        self.log = log
+        self.report = ReplayReport(config=options.config_record())
+        self.report.counts.update(
+            total=plan.pairs_expected, pairs=0, processed=0, skipped=0, unpaired=0, dropped=0
+        )
+        self.interrupts = GracefulInterrupt()
+        self.out: OutputBag | None = None
+        self.writer: ReportWriter | None = None
+        self.paths: dict[str, Path] = {}
+        # Offline, ground truth and images of one stamp lie close together in the bag.
+        self.window = max(options.queue_size, 2)
+        self.truth_window = self.window if truth_window == 0 else truth_window
+        self._pending: OrderedDict[int, FrameResult] = OrderedDict()
+        self._truth: OrderedDict[int, Any] = OrderedDict()
+        self._skip_logs = 0
+
+    def __enter__(self) -> ReplaySession:
+        if self.options.overwrite:
+            remove_bag(self.options.out)
+        self.interrupts.__enter__()
+        try:
+            self.writer = ReportWriter(self.options.report, self.options.max_plots)
+            self.out = OutputBag(self.options.out, self.options.storage)
+            self.out.open()
+        except BaseException:
+            self.interrupts.__exit__()
+            raise
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: object
+    ) -> bool:
+        self.interrupts.closing()
+        try:
+            if exc_type is not None and issubclass(exc_type, KeyboardInterrupt):
+                self.report.interrupted = True
+            elif isinstance(exc, BagError):
+                self.report.error = str(exc)
+            self.finish()
+        finally:
+            self.interrupts.__exit__()
+        return isinstance(exc, (KeyboardInterrupt, BagError))
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Frame counters of the report (``pairs``, ``processed``, ``skipped``, ...)."""
+        return self.report.counts
+
+    def skip(self, what: str, reason: object) -> None:
+        """Count a bad frame and log it (the first few times)."""
+        self.counts['skipped'] += 1
+        self._skip_logs += 1
+        if self._skip_logs <= _MAX_SKIP_LOGS:
+            self.log(f'skipped {what}: {reason}')
+        elif self._skip_logs == _MAX_SKIP_LOGS + 1:
+            self.log('more frames skipped; only counting them from now on')
+
+    def write(self, topic: str, msgtype: str, message: Any, timestamp_ns: int) -> None:
+        """Write one output message; a signal waits until it is written."""
+        if self.out is None:
+            raise BagError('the output bag is not open')
+        with self.interrupts.critical():
+            self.out.write(topic, msgtype, message, timestamp_ns)
+
+    def add_ground_truth(self, stamp_ns: int, msg: Any) -> None:
+        """Offer a ground-truth message; scores the frame that waits for it, if any."""
+        result = self._pending.pop(stamp_ns, None)
+        if result is not None:
+            self._score(result, msg)
+            return
+        self._truth[stamp_ns] = msg
+        while self.truth_window is not None and len(self._truth) > self.truth_window:
+            self._truth.popitem(last=False)
+
+    def drop_ground_truth_before(self, stamp_ns: int) -> None:
+        """Forget ground truth older than ``stamp_ns`` (frames that will never come)."""
+        for stamp in [s for s in self._truth if s < stamp_ns]:
+            del self._truth[stamp]
+
+    def add_result(self, result: FrameResult) -> None:
+        """Offer a processed frame; scored now if its ground truth is known or the bag has
+        none, else held until it comes."""
+        self.counts['processed'] += 1
+        if self.plan.ground_truth is None:
+            self._score(result, None)
+            return
+        msg = self._truth.pop(result.stamp_ns, None)
+        if msg is not None:
+            self._score(result, msg)
+            return
+        self._pending[result.stamp_ns] = result
+        while len(self._pending) > self.window:
+            _, oldest = self._pending.popitem(last=False)
+            self._score(oldest, None, note='no ground truth with this stamp')
+
+    def _ground_truth(self, result: FrameResult, msg: Any) -> tuple[np.ndarray | None, str]:
+        """The frame's ground truth at the processed resolution, or None and why."""
+        try:
+            gt = disparity_from_msg(msg, result.offset, self.plan.ground_truth or 'ground truth')
+        except InputError as err:
+            return None, f'bad ground truth: {err}'
+        shape = result.disparity.shape
+        if gt.shape == shape:
+            return gt, ''
+        factor = self.options.pipeline.downsample
+        if (gt.shape[0] // factor, gt.shape[1] // factor) == shape:
+            # The data sets' NaN-aware block mean, values divided by the factor too.
+            from cva_confidence_ros.datasets import resize_disparity
+
+            return resize_disparity(gt, factor), ''
+        return None, (
+            f'ground truth is {gt.shape[1]}×{gt.shape[0]} but the output is '
+            f'{shape[1]}×{shape[0]} (downsample {factor})'
+        )
+
+    def _score(self, result: FrameResult, msg: Any | None, note: str = '') -> None:
+        gt = None
+        if msg is not None:
+            gt, note = self._ground_truth(result, msg)
+        try:
+            score = score_frame(
+                result.frame, result.stamp_ns, result.disparity, result.confidence,
+                result.kept, gt, max_pixels=self.options.max_pixels, seed=self.options.seed,
+            )
+        except InputError as err:
+            score = FrameScore(frame=result.frame, stamp_ns=result.stamp_ns)
+            note = f'not scored: {err}'
+        if note:
+            score.note = note
+        score.processing_ms = result.processing_ms
+        score.latency_ms = result.latency_ms
+        self.report.frames.append(score)
+        if self.writer is not None and score.auc is not None:
+            self.writer.frame_plots(
+                score, result.confidence, self.options.pipeline.confidence_method
+            )
+
+    def finish(self) -> None:
+        """Score what still waits, close the output bag, write the report."""
+        for result in list(self._pending.values()):
+            self._score(result, None, note='no ground truth with this stamp')
+        self._pending.clear()
+        if self.out is not None:
+            self.out.close()
+            self.paths['bag'] = Path(self.options.out)
+        if self.writer is not None:
+            self.paths.update(self.writer.write(self.report))
+
+    def outcome(self) -> ReplayOutcome:
+        """Exit code and closing message of the run (call after leaving the context)."""
+        counts = self.counts
+        done = counts['processed']
+        where = (
+            f'output bag {self.options.out}, report '
+            f'{self.paths.get("json", self.options.report)}'
+        )
+        if self.report.interrupted:
+            return ReplayOutcome(
+                self.report, self.paths, 130,
+                f'interrupted after {done} frames; {where} hold them',
+            )
+        if self.report.error:
+            return ReplayOutcome(
+                self.report, self.paths, 2,
+                f'{self.report.error}; {done} frames were done before ({where})',
+            )
+        if done == 0:
+            if counts['pairs'] == 0:
+                reason = (
+                    'no stereo pair matched by stamp: left/right images and camera infos '
+                    'must share header stamps (or use --approximate-sync with '
+                    f'--sync-tolerance); {counts["unpaired"]} messages stayed unpaired'
+                )
+            else:
+                reason = (
+                    f'none of the {counts["pairs"]} stereo pairs could be processed '
+                    f'({counts["skipped"]} skipped, see the messages above)'
+                )
+            return ReplayOutcome(self.report, self.paths, 2, f'{reason} ({where})')
+        summary = self.report.summary()
+        text = (
+            f'{done} of {counts["pairs"]} frames processed, {counts["skipped"]} skipped, '
+            f'{counts["dropped"]} dropped, {counts["unpaired"]} unpaired messages'
+        )
+        if summary['auc'] is not None:
+            text += (
+                f"; mean AUC {100 * summary['auc']:.2f} (opt {100 * summary['auc_opt']:.2f}), "
+                f"error rate {100 * summary['error_rate']:.2f} %"
+            )
+        return ReplayOutcome(self.report, self.paths, 0, f'{text}; {where}')
+
+
+def make_synchronizer(options: ReplayOptions) -> Any:
+    """The node's stamp synchroniser with the run's sync options."""
+    from cva_confidence_ros.sync import StampSynchronizer
+
+    return StampSynchronizer(
+        keys=INPUT_KEYS,
+        queue_size=options.queue_size,
+        approximate=options.approximate_sync,
+        tolerance_ns=int(round(options.sync_tolerance_s * 1e9)),
+    )
+
+
+def run_offline(options: ReplayOptions, log: Logger = log_stderr) -> ReplayOutcome:
+    """Replay a bag through the pipeline as fast as possible (deterministic).
+
+    Args:
+        options: The run's options (``mode`` is not looked at).
+        log: Receives one-line messages (skips, notes).
+
+    Returns:
+        The :class:`ReplayOutcome`; faults after the start (corrupt data part-way, Ctrl-C,
+        every frame bad) end the run with the outputs closed and a non-zero exit code.
+
+    Raises:
+        BagError: The bag cannot be opened or lacks an input topic (nothing is written).
+        ConfigError, ModelError: The pipeline cannot be built (nothing is written).
+    """
+    from rosbags.serde import SerdeError
+
+    from cva_confidence_ros.pipeline import StereoPipeline
+
+    store = jazzy_typestore()
+    with InputBag(options.bag) as bag:
+        plan = plan_topics(bag, options, log)
+        pipeline = StereoPipeline(options.pipeline)
+        sync = make_synchronizer(options)
+        key_of = plan.key_of
+        progress = Progress(plan.pairs_expected, prefix='[cva-bag-replay] offline: ')
+        session = ReplaySession(options, plan, log)
+        with session:
+            try:
+                for topic, msgtype, timestamp, raw in bag.messages(plan.topics):
+                    try:
+                        msg = store.deserialize_cdr(raw, msgtype)
+                    except SerdeError as err:
+                        session.skip(f'a message on {topic} at {timestamp} ns', err)
+                        continue
+                    stamp = stamp_to_ns(msg.header.stamp)
+                    if topic == plan.ground_truth:
+                        session.add_ground_truth(stamp, msg)
+                        continue
+                    for matched in sync.add(key_of[topic], stamp, (msg, timestamp)):
+                        frame = session.counts['pairs']
+                        session.counts['pairs'] += 1
+                        _process_pair(session, pipeline, matched, frame)
+                        progress.update()
+            finally:
+                session.counts['unpaired'] = sync.dropped + sum(sync.pending().values())
+        progress.finish()
+    return session.outcome()
+
+
+def _process_pair(session: ReplaySession, pipeline: Any, matched: Any, frame: int) -> None:
+    options = session.options
+    items = {key: value[0] for key, value in matched.items.items()}
+    timestamp = int(matched.items['left'][1])
+    try:
+        left, right, geometry = stereo_inputs(items)
+        result = pipeline.process(left, right)
+    except InputError as err:
+        session.skip(f'frame {frame} (stamp {matched.stamp_ns} ns)', err)
+        return
+    outputs = node_outputs(
+        result, geometry, left.shape[:2], items['left'].header, options.pipeline,
+        publish_points=options.publish_points, points_organized=options.points_organized,
+    )
+    topics = options.topics.outputs()
+    for name, msgtype, data in outputs.messages:
+        session.write(topics[name], msgtype, data, timestamp)
+    session.add_result(
+        FrameResult(
+            frame=frame,
+            stamp_ns=matched.stamp_ns,
+            disparity=result.disparity,
+            confidence=outputs.confidence,
+            kept=outputs.kept,
+            offset=geometry.disparity_offset,
+            processing_ms=float(result.timings_ms.get('total', 0.0)),
+        )
+    )

@@ -1,0 +1,351 @@
+"""Per-frame confidence metrics of a replay and its report (JSON, CSV, Markdown, PNGs).
+
+Scoring reuses the evaluation module (``evaluation.select_pixels``,
+``evaluation.score_confidence``, ``metrics.kitti_error``), so a frame's AUC is exactly what
+``cva-evaluate`` reports for the same images, ground truth and pixel subset.
+
+Per frame, on the pixels with ground truth (or a fixed random subset of ``max_pixels`` of them):
+
+* ``error_rate``: fraction of wrong disparities (KITTI criterion: |d − d_gt| ≥ 3 px and
+  ≥ 5 % of d_gt; a NaN disparity is wrong);
+* ``auc`` / ``auc_opt``: area under the ROC curve of the confidence map and its optimum;
+* ``kept_density``: fraction of those pixels the node keeps (finite disparity and confidence
+  ≥ threshold, i.e. finite in ``disparity_filtered``);
+* ``kept_error_rate``: fraction of wrong disparities among the kept pixels (None if none).
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import asdict, dataclass, field
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cva_confidence_ros.errors import InputError
+
+__all__ = [
+    'FrameScore',
+    'METRIC_KEYS',
+    'REPORT_KEYS',
+    'ReplayReport',
+    'ReportWriter',
+    'score_frame',
+]
+
+METRIC_KEYS = ('error_rate', 'auc', 'auc_opt', 'kept_density', 'kept_error_rate')
+REPORT_KEYS = ('frame', 'stamp_ns', *METRIC_KEYS)
+_EXTRA_KEYS = ('n_pixels', 'width', 'height', 'processing_ms', 'latency_ms', 'note')
+
+
+@dataclass
+class FrameScore:
+    """One frame of the report; metric fields are None when the frame has no ground truth.
+
+    Attributes:
+        frame: Index of the stereo pair in the input bag (0-based, in stamp order).
+        stamp_ns: Header stamp of the left image (ns).
+        error_rate: Fraction of wrong disparities among the scored pixels.
+        auc: Area under the ROC curve; lower = better.
+        auc_opt: Optimal AUC for ``error_rate``.
+        kept_density: Fraction of the scored pixels kept by the confidence threshold.
+        kept_error_rate: Error rate among the kept pixels; None if none is kept.
+        n_pixels: Number of scored pixels (0 without ground truth).
+        width: Processed width. height: Processed height.
+        processing_ms: Pipeline time (offline) for this frame.
+        latency_ms: Live mode: wall time from publishing the pair to receiving the output.
+        note: Why a frame has no metrics, if it has none.
+        density: (K,) ROC densities (not written to JSON/CSV). roc_error: (K,) ROC errors.
+    """
+
+    frame: int
+    stamp_ns: int
+    error_rate: float | None = None
+    auc: float | None = None
+    auc_opt: float | None = None
+    kept_density: float | None = None
+    kept_error_rate: float | None = None
+    n_pixels: int = 0
+    width: int = 0
+    height: int = 0
+    processing_ms: float | None = None
+    latency_ms: float | None = None
+    note: str = ''
+    density: np.ndarray | None = field(default=None, repr=False)
+    roc_error: np.ndarray | None = field(default=None, repr=False)
+
+    def as_dict(self) -> dict[str, Any]:
+        """The JSON record: :data:`REPORT_KEYS` first, then the extras; NaN → None."""
+        values = asdict(self)
+        keys = (*REPORT_KEYS, *_EXTRA_KEYS)
+        return {key: _clean(values[key]) for key in keys}
+
+
+def _clean(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, np.generic):
+        return _clean(value.item())
+    return value
+
+
+def score_frame(
+    frame: int,
+    stamp_ns: int,
+    disparity: np.ndarray,
+    confidence: np.ndarray,
+    kept: np.ndarray,
+    gt: np.ndarray | None,
+    *,
+    max_pixels: int | None = None,
+    seed: int = 0,
+) -> FrameScore:
+    """Score one processed frame against its ground truth.
+
+    Args:
+        frame: Frame index. stamp_ns: Its stamp.
+        disparity: (h, w) float32 disparity at the processed resolution, NaN = invalid.
+        confidence: (h, w) float32 confidence, higher = more confident.
+        kept: (h, w) bool, True where the node keeps the pixel (finite filtered disparity).
+        gt: (h, w) float32 ground truth at the processed resolution (NaN unknown), or None.
+        max_pixels: Score a fixed random subset of this many ground-truth pixels.
+        seed: Seed of the subset (same pixels as ``cva-evaluate --max-pixels N --seed S``).
+
+    Returns:
+        The :class:`FrameScore`; metrics None when ``gt`` is None or has no known pixel.
+
+    Raises:
+        InputError: Shapes that differ.
+    """
+    from cva_confidence_ros.evaluation import score_confidence, select_pixels
+    from cva_confidence_ros.metrics import kitti_error
+
+    height, width = disparity.shape
+    score = FrameScore(frame=frame, stamp_ns=stamp_ns, width=width, height=height)
+    if gt is None:
+        score.note = 'no ground truth'
+        return score
+    for name, array in (('confidence', confidence), ('kept', kept), ('ground truth', gt)):
+        if np.shape(array) != disparity.shape:
+            raise InputError(
+                f'{name} must have the disparity shape {disparity.shape}; got {np.shape(array)}'
+            )
+    ys, xs = select_pixels(np.isfinite(gt), max_pixels, seed)
+    if ys.size == 0:
+        score.note = 'ground truth has no known pixel'
+        return score
+    error = np.asarray(kitti_error(disparity, gt), dtype=bool)[ys, xs]
+    scored = score_confidence(np.asarray(confidence, dtype=np.float32)[ys, xs], error)
+    kept_here = np.asarray(kept, dtype=bool)[ys, xs]
+    score.error_rate = scored.error_rate
+    score.auc = scored.auc
+    score.auc_opt = scored.auc_opt
+    score.n_pixels = scored.n_pixels
+    score.kept_density = float(kept_here.mean())
+    score.kept_error_rate = float(error[kept_here].mean()) if kept_here.any() else None
+    score.density = scored.density
+    score.roc_error = scored.roc_error
+    return score
+
+
+@dataclass
+class ReplayReport:
+    """Everything ``report.json`` holds.
+
+    Attributes:
+        frames: Per-frame scores, sorted by frame index when written.
+        config: Replay settings (bag, mode, pipeline options, topics).
+        counts: Counters: ``total`` (left images in the bag), ``pairs`` (stereo pairs matched
+            by stamp), ``processed``, ``skipped`` (bad frames or messages), ``unpaired``
+            (input messages that matched no pair), ``dropped`` (live mode: pairs the node
+            did not answer).
+        interrupted: The run was stopped (Ctrl-C) before the end of the bag.
+        error: The fault that ended the run early, if any.
+    """
+
+    frames: list[FrameScore] = field(default_factory=list)
+    config: dict[str, Any] = field(default_factory=dict)
+    counts: dict[str, int] = field(default_factory=dict)
+    interrupted: bool = False
+    error: str = ''
+
+    def summary(self) -> dict[str, Any]:
+        """Means of the metrics over the frames that have them, plus the counters."""
+        out: dict[str, Any] = {}
+        for key in METRIC_KEYS:
+            values = [getattr(f, key) for f in self.frames if getattr(f, key) is not None]
+            out[key] = float(np.mean(values)) if values else None
+        latencies = [f.latency_ms for f in self.frames if f.latency_ms is not None]
+        timings = [f.processing_ms for f in self.frames if f.processing_ms is not None]
+        out['mean_processing_ms'] = float(np.mean(timings)) if timings else None
+        out['mean_latency_ms'] = float(np.mean(latencies)) if latencies else None
+        out['frames'] = len(self.frames)
+        out['frames_scored'] = sum(1 for f in self.frames if f.auc is not None)
+        out.update({key: int(value) for key, value in self.counts.items()})
+        out['interrupted'] = self.interrupted
+        out['error'] = self.error or None
+        return {key: _clean(value) for key, value in out.items()}
+
+    def as_dict(self) -> dict[str, Any]:
+        """The JSON document: ``config``, ``frames`` (records), ``summary``."""
+        frames = sorted(self.frames, key=lambda f: (f.frame, f.stamp_ns))
+        return {
+            'config': self.config,
+            'frames': [f.as_dict() for f in frames],
+            'summary': self.summary(),
+        }
+
+
+def _fmt(value: Any, percent: bool = False) -> str:
+    if value is None:
+        return '–'
+    if isinstance(value, float):
+        return f'{100 * value:.2f}' if percent else f'{value:.1f}'
+    return str(value)
+
+
+class ReportWriter:
+    """Writes the report folder: ``report.json``, ``report.csv``, ``summary.md`` and PNGs.
+
+    PNGs: ``confidence_<frame>.png`` and ``roc_<frame>.png`` for the first ``max_plots`` scored
+    frames (written as frames come, while their arrays exist), and ``auc_over_time.png``.
+
+    Args:
+        folder: Report folder (created).
+        max_plots: Number of frames that get per-frame PNGs (0 = none).
+    """
+
+    def __init__(self, folder: str | Path, max_plots: int = 10) -> None:
+        self.folder = Path(folder)
+        self.max_plots = max_plots
+        self._plotted = 0
+        self.folder.mkdir(parents=True, exist_ok=True)
+
+    def frame_plots(
+        self, score: FrameScore, confidence: np.ndarray, label: str
+    ) -> list[Path]:
+        """Write the confidence map and the ROC curve of one frame (while under the budget)."""
+        from cva_confidence_ros.plots import save_confidence_map, save_roc_curves
+
+        if self._plotted >= self.max_plots:
+            return []
+        self._plotted += 1
+        finite = confidence[np.isfinite(confidence)]
+        if finite.size and finite.min() >= 0.0 and finite.max() <= 1.0:
+            vmin, vmax = 0.0, 1.0
+        elif finite.size:
+            # Hand-crafted ratios have long tails that would leave the map black.
+            vmin, vmax = (float(v) for v in np.percentile(finite, [1.0, 99.0]))
+        else:
+            vmin = vmax = None
+        paths = [
+            save_confidence_map(
+                confidence, self.folder / f'confidence_{score.frame:05d}.png', vmin, vmax
+            )
+        ]
+        if score.density is not None and score.roc_error is not None:
+            paths.append(
+                save_roc_curves(
+                    {label: (score.density, score.roc_error)},
+                    self.folder / f'roc_{score.frame:05d}.png',
+                    error_rate=score.error_rate,
+                    title=f'frame {score.frame}  AUC {100 * (score.auc or 0):.2f} '
+                    f'(opt {100 * (score.auc_opt or 0):.2f})',
+                )
+            )
+        return paths
+
+    def write(self, report: ReplayReport) -> dict[str, Path]:
+        """Write JSON, CSV, Markdown and the AUC-over-time plot; return their paths."""
+        document = report.as_dict()
+        paths = {
+            'json': self.folder / 'report.json',
+            'csv': self.folder / 'report.csv',
+            'markdown': self.folder / 'summary.md',
+        }
+        tmp = paths['json'].with_suffix('.json.tmp')
+        tmp.write_text(json.dumps(document, indent=2) + '\n', encoding='utf-8')
+        tmp.replace(paths['json'])
+        with paths['csv'].open('w', newline='', encoding='utf-8') as stream:
+            writer = csv.writer(stream)
+            keys = (*REPORT_KEYS, *_EXTRA_KEYS)
+            writer.writerow(keys)
+            for record in document['frames']:
+                writer.writerow(['' if record[k] is None else record[k] for k in keys])
+        paths['markdown'].write_text(format_summary(document), encoding='utf-8')
+        plot = self._auc_plot(report)
+        if plot is not None:
+            paths['auc_over_time'] = plot
+        return paths
+
+    def _auc_plot(self, report: ReplayReport) -> Path | None:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+
+        frames = sorted((f for f in report.frames if f.auc is not None), key=lambda f: f.frame)
+        if not frames:
+            return None
+        index = [f.frame for f in frames]
+        figure = Figure(figsize=(6.0, 3.5), dpi=100)
+        FigureCanvasAgg(figure)
+        axes = figure.add_subplot(1, 1, 1)
+        axes.plot(index, [100 * f.auc for f in frames], 'o-', label='AUC', markersize=3)
+        axes.plot(index, [100 * f.auc_opt for f in frames], 'k--', label='AUC opt', linewidth=1)
+        axes.plot(
+            index, [100 * f.error_rate for f in frames], ':', label='error rate', linewidth=1
+        )
+        axes.set_xlabel('frame')
+        axes.set_ylabel('× 100')
+        axes.set_ylim(bottom=0.0)
+        axes.grid(True, alpha=0.3)
+        axes.legend(fontsize=8)
+        figure.tight_layout()
+        path = self.folder / 'auc_over_time.png'
+        figure.savefig(path, format='png')
+        return path
+
+
+def format_summary(document: dict[str, Any], max_rows: int = 200) -> str:
+    """The ``summary.md`` text of a report document (see :meth:`ReplayReport.as_dict`)."""
+    summary = document['summary']
+    config = document['config']
+    lines = ['# Bag replay report', '']
+    for key in ('bag', 'mode', 'matcher', 'confidence_method', 'max_disparity', 'downsample',
+                'confidence_threshold', 'gt_topic', 'max_pixels'):
+        if key in config:
+            lines.append(f'- {key}: {config[key]}')
+    lines += [
+        '',
+        '| frames | scored | skipped | dropped | error rate % | AUC ×100 | AUC opt ×100 '
+        '| kept density % | kept error % |',
+        '|---|---|---|---|---|---|---|---|---|',
+        f"| {summary['frames']} | {summary['frames_scored']} | {summary.get('skipped', 0)} "
+        f"| {summary.get('dropped', 0)} | {_fmt(summary['error_rate'], True)} "
+        f"| {_fmt(summary['auc'], True)} | {_fmt(summary['auc_opt'], True)} "
+        f"| {_fmt(summary['kept_density'], True)} | {_fmt(summary['kept_error_rate'], True)} |",
+        '',
+    ]
+    if summary.get('interrupted'):
+        lines += ['**Interrupted**: the report holds the frames done before the stop.', '']
+    if summary.get('error'):
+        lines += [f"**Stopped by an error**: {summary['error']}", '']
+    frames = document['frames']
+    if frames:
+        lines += [
+            '| frame | stamp (ns) | error rate % | AUC ×100 | AUC opt ×100 | kept density % '
+            '| kept error % | note |',
+            '|---|---|---|---|---|---|---|---|',
+        ]
+        for record in frames[:max_rows]:
+            lines.append(
+                f"| {record['frame']} | {record['stamp_ns']} "
+                f"| {_fmt(record['error_rate'], True)} | {_fmt(record['auc'], True)} "
+                f"| {_fmt(record['auc_opt'], True)} | {_fmt(record['kept_density'], True)} "
+                f"| {_fmt(record['kept_error_rate'], True)} | {record['note']} |"
+            )
+        if len(frames) > max_rows:
+            lines.append(f'\n({len(frames) - max_rows} more frames in report.csv)')
+    return '\n'.join(lines) + '\n'
