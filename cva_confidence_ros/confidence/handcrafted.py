@@ -121,23 +121,26 @@ class MaximumLikelihood(ConfidenceMethod):
     """Maximum likelihood measure (MLM): ``exp(-c1 / 2σ²) / Σ_d exp(-c(d) / 2σ²)``.
 
     Attributes:
-        sigma: Spread of the cost likelihood. The default suits costs normalised to [0, 1]:
-            a cost 0.1 above the minimum weighs ``exp(-1.25) ≈ 0.29`` of the minimum.
+        sigma: Spread of the cost likelihood, for costs normalised to [0, 1]: a cost 0.05
+            above the minimum weighs ``exp(-2.5) ≈ 0.08`` of it. Of 0.05, 0.1, 0.2 and 0.3,
+            0.1 gave the lowest AUC for census block matching on KITTI 2012 training pairs.
     """
 
-    sigma: float = 0.2
+    sigma: float = 0.1
 
     def __post_init__(self) -> None:
         _check_positive('sigma', self.sigma)
 
     def __call__(self, inputs: ConfidenceInputs) -> np.ndarray:
         """Return (H, W) float32 in (0, 1]; 1/D for a flat cost curve."""
-        scale = 1.0 / (2.0 * self.sigma**2)
+        scale = np.float32(-1.0 / (2.0 * self.sigma**2))
 
         def block_mlm(block: np.ndarray) -> np.ndarray:
             # Shifting by the minimum keeps every exponent ≤ 0: no overflow, and the sum ≥ 1.
-            shifted = (block - block.min(axis=0)).astype(np.float64)
-            return 1.0 / np.exp(-scale * shifted).sum(axis=0)
+            weights = block - block.min(axis=0)
+            weights *= scale
+            np.exp(weights, out=weights)
+            return 1.0 / weights.sum(axis=0, dtype=np.float64)
 
         return _map_rows(inputs.cost_volume, block_mlm).astype(np.float32)
 
