@@ -231,7 +231,9 @@ def predict_confidence(
     rounding, < 1e-5).
 
     Args:
-        net: A trained :class:`CVANet` (its train/eval mode is left as it was).
+        net: A trained :class:`CVANet` (its train/eval mode is left as it was), or a
+            :class:`FoldedCVANet` from :func:`fold_batchnorm` (used as it is; fold once and
+            reuse it when processing many frames).
         cost_volume: (D, H, W) float normalised cost volume, values in [0, 1], with
             D = ``net.max_disparity``.
         device: ``'cpu'``, ``'cuda'`` or ``'auto'``.
@@ -268,6 +270,8 @@ def predict_confidence(
 def _inference_model(
     net: nn.Module, device: torch.device, fold_bn: bool, stack: contextlib.ExitStack
 ) -> nn.Module:
+    if isinstance(net, FoldedCVANet):
+        return net.to(device)
     if fold_bn:
         return fold_batchnorm(net).to(device)
     if next(net.parameters()).device != device:
@@ -293,7 +297,7 @@ def predict_confidence_at(
     :func:`predict_confidence`), so this pays off for sparse subsets only.
 
     Args:
-        net: A trained :class:`CVANet`.
+        net: A trained :class:`CVANet` or a :class:`FoldedCVANet`.
         cost_volume: (D, H, W) float normalised cost volume in [0, 1], D = ``net.max_disparity``.
         ys: (N,) integer rows in [0, H).
         xs: (N,) integer columns in [0, W).
