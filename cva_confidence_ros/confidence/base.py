@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, is_dataclass
 from typing import Any, ClassVar
 
 import numpy as np
@@ -127,7 +127,7 @@ class ConfidenceMethod(ABC):
         Raises:
             ConfigError: An option that is neither generic nor a field of the method.
         """
-        own = {f.name for f in fields(cls)} if hasattr(cls, '__dataclass_fields__') else set()
+        own: set[str] = {f.name for f in fields(cls)} if is_dataclass(cls) else set()
         unknown = set(options) - own - GENERIC_OPTIONS
         if unknown:
             raise ConfigError(

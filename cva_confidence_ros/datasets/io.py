@@ -149,7 +149,7 @@ def read_image(path: str | Path) -> np.ndarray:
     if image is None:
         raise DataError(f'cannot read image {path}; expected a PNG/JPEG/PPM/PGM file')
     if image.dtype == np.uint16:
-        image = (image >> 8).astype(np.uint8)
+        image = np.right_shift(image, 8).astype(np.uint8)
     elif image.dtype != np.uint8:
         raise DataError(f'{path}: expected an 8- or 16-bit image; got dtype {image.dtype}')
     if image.ndim == 3:

@@ -471,7 +471,7 @@ class Middlebury2005(_FolderPerScene):
     )
     splits = ('ThirdSize', 'HalfSize', 'FullSize')
     size_scales = {'ThirdSize': 3.0, 'HalfSize': 2.0, 'FullSize': 1.0}
-    patterns = (
+    patterns: tuple[_Pattern, ...] = (
         _Pattern(('view1.png',), ('view5.png',), ('disp1.png',), None),
         _Pattern(('img0.png',), ('img1.png',), ('disp1.png',), None),
     )
@@ -490,7 +490,7 @@ class Middlebury2006(Middlebury2005):
         '<root>[/<FullSize|HalfSize|ThirdSize>]/<scene>/ with view1.png + view5.png + disp1.png '
         'or <scene>L.(png|jpg) + <scene>R.(png|jpg) + <scene>GT.png, 8 bit, 0 = unknown'
     )
-    patterns = Middlebury2005.patterns + (
+    patterns: tuple[_Pattern, ...] = Middlebury2005.patterns + (
         _Pattern(
             ('{scene}L.png', '{scene}L.jpg'),
             ('{scene}R.png', '{scene}R.jpg'),

@@ -109,9 +109,9 @@ def resize_sample(sample: StereoSample, factor: int) -> StereoSample:
         raise DataError(
             f'{sample.dataset}/{sample.scene}: cannot shrink a {height}×{width} pair by {factor}'
         )
-    nonocc = None
+    nonocc: np.ndarray | None = None
     if sample.nonocc is not None:
-        nonocc = _blocks(sample.nonocc, factor).all(axis=2)
+        nonocc = np.asarray(_blocks(sample.nonocc, factor).all(axis=2))
     return dataclasses.replace(
         sample,
         left=_resize_image(sample.left, factor),
