@@ -46,7 +46,7 @@ def _as_disparity(name: str, disparity: Any, shape: tuple[int, int]) -> np.ndarr
     return np.asarray(disparity, dtype=np.float32)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class ConfidenceInputs:
     """Everything a confidence method may look at for one stereo pair.
 
