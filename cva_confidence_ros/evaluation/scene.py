@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 import time
 from typing import Any
+import weakref
 
 import numpy as np
 
@@ -146,13 +147,35 @@ def overlay_threshold(confidence: np.ndarray, error_rate: float) -> float:
     return float(np.quantile(values, min(max(error_rate, 0.0), 1.0)))
 
 
+_PATCH_NETS: weakref.WeakKeyDictionary[Any, Any] = weakref.WeakKeyDictionary()
+
+
+def _patch_net(method: Any) -> Any:
+    """The CVA-Net of a ``cva_net`` method for patch mode, loaded once per method object."""
+    from cva_confidence_ros.model import load_weights
+
+    net = _PATCH_NETS.get(method)
+    if net is None:
+        # The method keeps its (BN-folded) network private; its public weights path and
+        # checks give the same network, at the cost of one more load per run.
+        net, _ = load_weights(
+            method.weights_path,
+            matcher=method.matcher,
+            max_disparity=method.max_disparity,
+            device=method.device,
+        )
+        _PATCH_NETS[method] = net
+    return net
+
+
 def confidence_at(
     method: Any, inputs: Any, ys: np.ndarray, xs: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Confidence of ``method`` at pixels ``(ys, xs)``, computed only there if it can.
 
-    A method that offers ``confidence_at(inputs, ys, xs)`` (or exposes its network as ``net``,
-    as CVA-Net does) is run in patch mode; any other method is run densely and read there.
+    Patch mode is used for a method that offers ``confidence_at(inputs, ys, xs)`` and for
+    CVA-Net (``model.predict_confidence_at`` on 13×13×D extracts); any other method is run
+    densely and read at the pixels.
 
     Args:
         method: A confidence method from ``confidence.CONFIDENCE_METHODS``.
@@ -163,16 +186,26 @@ def confidence_at(
     Returns:
         ``(values, dense)``: (N,) float32 confidences and the (H, W) float32 map if the method
         was run densely, else None.
+
+    Raises:
+        InputError: The cost volume does not fit the network (depth) or matcher.
     """
+    from cva_confidence_ros.confidence.cva_net import CVANetConfidence
+
     point_fn = getattr(method, 'confidence_at', None)
     if callable(point_fn):
         return np.asarray(point_fn(inputs, ys, xs), dtype=np.float32).ravel(), None
-    net = getattr(method, 'net', None)
-    if net is not None:
+    if isinstance(method, CVANetConfidence):
         from cva_confidence_ros.model import predict_confidence_at
 
-        device = getattr(method, 'device', 'cpu')
-        values = predict_confidence_at(net, inputs.cost_volume, ys, xs, device=device)
+        if inputs.matcher and inputs.matcher != method.matcher:
+            raise InputError(
+                f'cva_net weights are for matcher {method.matcher!r}; got a cost volume of '
+                f'{inputs.matcher!r}'
+            )
+        values = predict_confidence_at(
+            _patch_net(method), inputs.cost_volume, ys, xs, device=method.device
+        )
         return np.asarray(values, dtype=np.float32).ravel(), None
     dense = np.asarray(method(inputs), dtype=np.float32)
     return dense[ys, xs], dense
@@ -273,7 +306,9 @@ def evaluate_scene(
 
     names = list(method_order) if method_order is not None else list(methods)
     emit = log if log is not None else (lambda _message: None)
-    sample, _ = fit_disparity_range(sample, max_disparity)
+    sample, factor = fit_disparity_range(sample, max_disparity)
+    if factor > 1:
+        emit(f'ground truth exceeds D = {max_disparity}: evaluating at 1/{factor} resolution')
     gt = np.asarray(sample.disparity, dtype=np.float32)
     ys, xs = select_pixels(np.isfinite(gt), max_pixels, seed)
     if ys.size == 0:
