@@ -183,7 +183,10 @@ def test_ros2_run_executable_comes_up_and_stops_on_sigint(workspace: Path) -> No
     reader = threading.Thread(target=read, daemon=True)
     reader.start()
     try:
-        assert ready.wait(90), 'no ready line; output:\n' + ''.join(lines)
+        deadline = time.monotonic() + 90
+        while not ready.wait(0.2):
+            if process.poll() is not None or time.monotonic() > deadline:
+                pytest.fail('no ready line; output:\n' + ''.join(lines))
         time.sleep(0.5)
         process.send_signal(signal.SIGINT)
         code = process.wait(30)

@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 
 from node_test_utils import Spinner, StereoClient, domain_id, textured_pair
 import numpy as np
@@ -95,10 +96,12 @@ def client() -> Iterator[StereoClient]:
             os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = previous
 
 
-def _started(node: NodeProcess) -> None:
-    if not node.ready.wait(90):
-        node.stop(signal.SIGKILL)
-        pytest.fail('cva-node printed no ready line; output:\n' + node.output)
+def _started(node: NodeProcess, timeout: float = 90.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not node.ready.wait(0.2):
+        if node.process.poll() is not None or time.monotonic() > deadline:
+            node.stop(signal.SIGKILL)
+            pytest.fail('cva-node printed no ready line; output:\n' + node.output)
 
 
 def test_cva_node_serves_over_dds_and_stops_on_sigint(client: StereoClient) -> None:
