@@ -1,0 +1,89 @@
+"""Dense stereo matching: cost volumes, winner-takes-all disparity, left–right check.
+
+One cost-volume layout everywhere (see docs/ARCHITECTURE.md): (D, H, W) float32 in [0, 1],
+0 = perfect match, entry [d, y, x] = cost of left (y, x) with right (y, x − d), 1.0 where
+x − d < 0. The right-reference volume (``view='right'``) pairs right (y, x) with left
+(y, x + d), 1.0 where x + d ≥ W.
+
+Matchers live in :data:`MATCHERS`; adding one is one module with a :class:`Matcher` subclass
+and one ``MATCHERS.add`` line below.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from cva_confidence_ros.matching.base import (
+    VIEWS,
+    Matcher,
+    check_image_pair,
+    check_max_disparity,
+    check_view,
+)
+from cva_confidence_ros.matching.census_bm import CensusBlockMatcher, CensusBMConfig
+from cva_confidence_ros.matching.census_sgm import CensusSGMConfig, CensusSGMMatcher
+from cva_confidence_ros.matching.disparity import left_right_check, wta_disparity
+from cva_confidence_ros.matching.mccnn_fast import MCCNNFastConfig, MCCNNFastMatcher
+from cva_confidence_ros.registry import Registry
+
+__all__ = [
+    'MATCHERS',
+    'VIEWS',
+    'CensusBMConfig',
+    'CensusBlockMatcher',
+    'CensusSGMConfig',
+    'CensusSGMMatcher',
+    'MCCNNFastConfig',
+    'MCCNNFastMatcher',
+    'Matcher',
+    'compute_cost_volume',
+    'left_right_check',
+    'wta_disparity',
+]
+
+#: Matcher classes by name.
+MATCHERS: Registry[type[Matcher]] = Registry('matcher')
+MATCHERS.add('census_bm', CensusBlockMatcher)
+MATCHERS.add('census_sgm', CensusSGMMatcher)
+MATCHERS.add('mccnn_fast', MCCNNFastMatcher)
+
+
+def compute_cost_volume(
+    left: np.ndarray,
+    right: np.ndarray,
+    matcher: str,
+    max_disparity: int,
+    view: str = 'left',
+    **params: Any,
+) -> np.ndarray:
+    """Matching-cost volume of a rectified stereo pair.
+
+    Args:
+        left: (H, W) gray or (H, W, 3) RGB uint8 left image (float arrays with finite values in
+            [0, 255] are rounded to uint8).
+        right: Right image, same shape as ``left``.
+        matcher: Registered name: ``census_bm``, ``census_sgm`` or ``mccnn_fast``.
+        max_disparity: D, the number of disparities 0 … D − 1; 1 ≤ D < W.
+        view: ``'left'``: entry [d, y, x] is the cost of left (y, x) with right (y, x − d), 1.0
+            where x − d < 0. ``'right'``: cost of right (y, x) with left (y, x + d), 1.0 where
+            x + d ≥ W.
+        **params: Fields of the matcher's config dataclass (``window`` for census_bm; ``p1``,
+            ``p2`` for census_sgm; ``device``, ``weights`` for mccnn_fast).
+
+    Returns:
+        (D, H, W) float32 C-contiguous costs in [0, 1], 0 = perfect match.
+
+    Raises:
+        InputError: Images that are not arrays, of different shapes, empty, of another dtype,
+            or with NaN/inf or out-of-range float values.
+        ConfigError: Unknown matcher, view or parameter, bad parameter values, or
+            max_disparity not an integer in [1, W).
+    """
+    matcher_class = MATCHERS.get(matcher)
+    view = check_view(view)
+    instance = matcher_class.from_params(**params)
+    left_u8, right_u8 = check_image_pair(left, right)
+    depth = check_max_disparity(max_disparity, left_u8.shape[1])
+    return instance.compute(left_u8, right_u8, depth, view)

@@ -1,0 +1,152 @@
+"""5×5 census transform and per-pixel Hamming matching costs (numba kernels).
+
+The census code of a pixel has one bit per neighbour of its 5×5 window (24 bits): the bit is 1
+where the neighbour is darker than the centre. Neighbours are taken in raster order (row by row,
+left to right, the centre skipped) and the first neighbour is the most significant bit (bit 23).
+Pixels outside the image take the value of the nearest border pixel (replicate padding).
+"""
+
+from __future__ import annotations
+
+from numba import njit, prange
+import numpy as np
+
+from cva_confidence_ros.errors import InputError
+
+__all__ = [
+    'CENSUS_BITS',
+    'census_transform',
+    'hamming_cost_volume',
+    'hamming_distance',
+]
+
+CENSUS_RADIUS = 2
+#: Bits of a 5×5 census code (the centre is not compared with itself).
+CENSUS_BITS = (2 * CENSUS_RADIUS + 1) ** 2 - 1
+
+
+_M1 = np.uint32(0x55555555)
+_M2 = np.uint32(0x33333333)
+_M4 = np.uint32(0x0F0F0F0F)
+_H01 = np.uint32(0x01010101)
+_BYTE = np.uint32(0xFF)
+_S1 = np.uint32(1)
+_S2 = np.uint32(2)
+_S4 = np.uint32(4)
+_S24 = np.uint32(24)
+
+
+@njit(cache=True, inline='always')
+def popcount(value: np.uint32) -> np.uint32:
+    """Number of set bits of a uint32 (SWAR; all-uint32 so that loops vectorise 8-wide)."""
+    value = value - ((value >> _S1) & _M1)
+    value = (value & _M2) + ((value >> _S2) & _M2)
+    value = (value + (value >> _S4)) & _M4
+    return ((value * _H01) >> _S24) & _BYTE
+
+
+@njit(cache=True, parallel=True)
+def _census_kernel(gray: np.ndarray) -> np.ndarray:
+    height, width = gray.shape
+    codes = np.empty((height, width), np.uint32)
+    for y in prange(height):
+        for x in range(width):
+            centre = gray[y, x]
+            code = 0
+            for dy in range(-CENSUS_RADIUS, CENSUS_RADIUS + 1):
+                yy = min(max(y + dy, 0), height - 1)
+                for dx in range(-CENSUS_RADIUS, CENSUS_RADIUS + 1):
+                    if dy == 0 and dx == 0:
+                        continue
+                    xx = min(max(x + dx, 0), width - 1)
+                    code = (code << 1) | (1 if gray[yy, xx] < centre else 0)
+            codes[y, x] = code
+    return codes
+
+
+def census_transform(gray: np.ndarray) -> np.ndarray:
+    """5×5 census transform of a gray image.
+
+    Args:
+        gray: (H, W) uint8 image.
+
+    Returns:
+        (H, W) uint32 codes in [0, 2**24): bit 23 − k is 1 where the k-th neighbour (raster
+        order, centre skipped) is strictly darker than the centre; replicate padding at borders.
+
+    Raises:
+        InputError: Not a non-empty 2-D uint8 array.
+    """
+    if not isinstance(gray, np.ndarray) or gray.ndim != 2 or gray.dtype != np.uint8:
+        got = (gray.shape, gray.dtype) if isinstance(gray, np.ndarray) else type(gray).__name__
+        raise InputError(f'census_transform expects an (H, W) uint8 array; got {got}')
+    if gray.size == 0:
+        raise InputError(f'census_transform expects a non-empty image; got shape {gray.shape}')
+    return _census_kernel(np.ascontiguousarray(gray))
+
+
+def hamming_distance(code_a: np.ndarray, code_b: np.ndarray) -> np.ndarray:
+    """Number of differing bits of two census code arrays (same shape), as uint8."""
+    xor = np.bitwise_xor(np.asarray(code_a, np.uint32), np.asarray(code_b, np.uint32))
+    return _popcount_array(xor.ravel()).reshape(xor.shape)
+
+
+@njit(cache=True)
+def _popcount_array(values: np.ndarray) -> np.ndarray:
+    out = np.empty(values.shape[0], np.uint8)
+    for i in range(values.shape[0]):
+        out[i] = popcount(values[i])
+    return out
+
+
+@njit(cache=True, inline='always')
+def valid_range(width: int, disparity: int, step: int) -> tuple[int, int]:
+    """[lo, hi) of the x whose partner x + step·d lies inside [0, width)."""
+    if step < 0:
+        return min(disparity, width), width
+    return 0, max(width - disparity, 0)
+
+
+@njit(cache=True, parallel=True, fastmath=True)
+def _hamming_hwd_kernel(
+    codes_ref: np.ndarray, codes_other: np.ndarray, depth: int, step: int
+) -> np.ndarray:
+    height, width = codes_ref.shape
+    costs = np.empty((height, width, depth), np.uint8)
+    for y in prange(height):
+        for x in range(width):
+            ref = codes_ref[y, x]
+            for d in range(depth):
+                xo = x + step * d
+                if 0 <= xo < width:
+                    costs[y, x, d] = popcount(ref ^ codes_other[y, xo])
+                else:
+                    costs[y, x, d] = CENSUS_BITS
+    return costs
+
+
+def hamming_cost_volume(
+    codes_ref: np.ndarray, codes_other: np.ndarray, depth: int, step: int, layout: str = 'dhw'
+) -> np.ndarray:
+    """Per-pixel Hamming costs between reference codes and shifted partner codes.
+
+    Args:
+        codes_ref: (H, W) uint32 census codes of the reference view.
+        codes_other: (H, W) uint32 census codes of the other view.
+        depth: D, number of disparities.
+        step: −1 when the partner of x is x − d (left reference), +1 when it is x + d (right).
+        layout: ``'dhw'`` for a (D, H, W) result, ``'hwd'`` for (H, W, D) (what SGM uses).
+
+    Returns:
+        uint8 Hamming distances in [0, 24]; 24 (:data:`CENSUS_BITS`) where the partner is
+        outside the image.
+    """
+    costs = _hamming_hwd_kernel(
+        np.ascontiguousarray(codes_ref, np.uint32),
+        np.ascontiguousarray(codes_other, np.uint32),
+        int(depth),
+        int(step),
+    )
+    if layout == 'hwd':
+        return costs
+    return np.ascontiguousarray(costs.transpose(2, 0, 1))

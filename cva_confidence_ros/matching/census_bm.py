@@ -1,0 +1,143 @@
+"""Census block matching: 5×5 census, Hamming distance, summed over a square support window."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from numba import njit, prange
+import numpy as np
+
+from cva_confidence_ros.errors import ConfigError
+from cva_confidence_ros.matching.base import Matcher, to_gray
+from cva_confidence_ros.matching.census import (
+    CENSUS_BITS,
+    census_transform,
+    popcount,
+    valid_range,
+)
+
+__all__ = ['CensusBMConfig', 'CensusBlockMatcher']
+
+
+@dataclass(frozen=True)
+class CensusBMConfig:
+    """Parameters of :class:`CensusBlockMatcher`.
+
+    Attributes:
+        window: Side of the square support region the Hamming costs are summed over (odd, 1…15).
+    """
+
+    window: int = 5
+
+    def __post_init__(self) -> None:
+        if (
+            isinstance(self.window, bool)
+            or not isinstance(self.window, (int, np.integer))
+            or not 1 <= self.window <= 15
+            or self.window % 2 == 0
+        ):
+            raise ConfigError(f'window must be an odd integer in [1, 15]; got {self.window!r}')
+
+
+@njit(cache=True, fastmath=True)
+def _window_row(
+    ref: np.ndarray,
+    other: np.ndarray,
+    shift: int,
+    lo: int,
+    hi: int,
+    radius: int,
+    hamming: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """Horizontal window sums of one row of Hamming costs (partner of x is x + shift)."""
+    width = hamming.shape[0]
+    # Cells whose partner lies outside the image count as the worst cost, so a support region
+    # cut by the border is not mistaken for a good match.
+    hamming[:lo] = CENSUS_BITS
+    hamming[hi:] = CENSUS_BITS
+    inside = hamming[lo:hi]
+    ref_in = ref[lo:hi]
+    other_in = other[lo + shift:hi + shift]
+    for x in range(hi - lo):
+        inside[x] = popcount(ref_in[x] ^ other_in[x])
+    out[:] = 0
+    for i in range(-radius, radius + 1):
+        # Interior without clamping (vectorises), then the cells that repeat the border.
+        start = max(0, -i)
+        stop = min(width, width - i)
+        target = out[start:stop]
+        source = hamming[start + i:stop + i]
+        for x in range(stop - start):
+            target[x] += source[x]
+        out[:start] += hamming[0]
+        out[stop:] += hamming[width - 1]
+
+
+@njit(cache=True, parallel=True, fastmath=True)
+def _block_kernel(
+    codes_ref: np.ndarray, codes_other: np.ndarray, step: int, radius: int, volume: np.ndarray
+) -> None:
+    depth, height, width = volume.shape
+    size = 2 * radius + 1
+    scale = np.float32(1.0 / (CENSUS_BITS * size * size))
+    for d in prange(depth):
+        lo, hi = valid_range(width, d, step)
+        shift = step * d
+        hamming = np.empty(width, np.int32)
+        # Ring of the last `size` horizontal window sums; the vertical sum slides over it.
+        ring = np.empty((size, width), np.int32)
+        column = np.zeros(width, np.int32)
+        for yy in range(-radius, radius):
+            src = min(max(yy, 0), height - 1)
+            slot = ring[(yy + size) % size]
+            _window_row(codes_ref[src], codes_other[src], shift, lo, hi, radius, hamming, slot)
+            for x in range(width):
+                column[x] += slot[x]
+        for y in range(height):
+            src = min(y + radius, height - 1)
+            slot = ring[(y + radius) % size]
+            _window_row(codes_ref[src], codes_other[src], shift, lo, hi, radius, hamming, slot)
+            row = volume[d, y]
+            for x in range(width):
+                column[x] += slot[x]
+                row[x] = column[x] * scale
+            for x in range(lo):
+                row[x] = 1.0
+            for x in range(hi, width):
+                row[x] = 1.0
+            oldest = ring[(y - radius + size) % size]
+            for x in range(width):
+                column[x] -= oldest[x]
+
+
+class CensusBlockMatcher(Matcher):
+    """5×5 census transform + Hamming distance + box aggregation (block matching).
+
+    Cost of a pixel pair = sum of the per-pixel Hamming distances over a ``window``×``window``
+    support region around it, divided by its largest possible value, 24 bits × window² (600 for
+    the default 5×5). Window cells outside the image repeat the nearest border cell; cells whose
+    partner pixel is outside the image count 24 bits.
+    """
+
+    Config = CensusBMConfig
+
+    def compute(
+        self, left: np.ndarray, right: np.ndarray, max_disparity: int, view: str
+    ) -> np.ndarray:
+        """(D, H, W) float32 costs in [0, 1]; 1.0 where the partner pixel is outside the image.
+
+        See :meth:`Matcher.compute` for the arguments.
+        """
+        codes_left = census_transform(to_gray(left))
+        codes_right = census_transform(to_gray(right))
+        if view == 'left':
+            ref, other, step = codes_left, codes_right, -1
+        else:
+            ref, other, step = codes_right, codes_left, 1
+        height, width = ref.shape
+        # Allocated by numpy, not inside the kernel: numpy asks the kernel for huge pages on
+        # large arrays, which makes first-touch page faults of the volume several times cheaper.
+        volume = np.empty((int(max_disparity), height, width), np.float32)
+        _block_kernel(ref, other, step, self.config.window // 2, volume)
+        return volume

@@ -1,0 +1,122 @@
+"""Disparity from a cost volume (winner-takes-all) and the left–right consistency check."""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit, prange
+import numpy as np
+
+from cva_confidence_ros.errors import ConfigError, InputError
+
+__all__ = ['left_right_check', 'wta_disparity']
+
+
+# No fastmath: the NaN test below must survive optimisation.
+@njit(cache=True, parallel=True)
+def _argmin_depth(volume: np.ndarray, out: np.ndarray) -> int:
+    depth, height, width = volume.shape
+    nans = 0
+    for y in prange(height):
+        best = volume[0, y].copy()
+        index = np.zeros(width, np.float32)
+        bad = 0
+        for x in range(width):
+            bad += best[x] != best[x]
+        for d in range(1, depth):
+            row = volume[d, y]
+            for x in range(width):
+                value = row[x]
+                bad += value != value
+                # strict '<' keeps the smallest disparity among equal costs, like np.argmin
+                if value < best[x]:
+                    best[x] = value
+                    index[x] = d
+        out[y] = index
+        nans += bad
+    return nans
+
+
+def wta_disparity(cost_volume: np.ndarray) -> np.ndarray:
+    """Winner-takes-all disparity: the d of the lowest cost of every pixel.
+
+    Args:
+        cost_volume: (D, H, W) float cost volume (float32 is used without a copy), lower =
+            better. Ties go to the smallest d.
+
+    Returns:
+        (H, W) float32 disparities, integers in [0, D − 1].
+
+    Raises:
+        InputError: Not a non-empty 3-D float array, or NaN costs.
+    """
+    if not isinstance(cost_volume, np.ndarray):
+        raise InputError(
+            f'cost_volume must be a (D, H, W) numpy array; got {type(cost_volume).__name__}'
+        )
+    if cost_volume.ndim != 3 or 0 in cost_volume.shape:
+        raise InputError(
+            f'cost_volume must be a non-empty (D, H, W) array; got shape {cost_volume.shape}'
+        )
+    if cost_volume.dtype.kind != 'f':
+        raise InputError(f'cost_volume must be float (float32); got dtype {cost_volume.dtype}')
+    volume = np.ascontiguousarray(cost_volume, dtype=np.float32)
+    disparity = np.empty(volume.shape[1:], np.float32)
+    nans = _argmin_depth(volume, disparity)
+    if nans:
+        raise InputError(f'cost_volume must not contain NaN; got {nans} NaN entries')
+    return disparity
+
+
+def _check_disparity(name: str, disparity: object) -> np.ndarray:
+    if not isinstance(disparity, np.ndarray):
+        raise InputError(f'{name} must be an (H, W) numpy array; got {type(disparity).__name__}')
+    if disparity.ndim != 2 or disparity.size == 0:
+        raise InputError(f'{name} must be a non-empty (H, W) array; got shape {disparity.shape}')
+    if disparity.dtype.kind not in 'fiu':
+        raise InputError(f'{name} must be a float (or integer) array; got dtype {disparity.dtype}')
+    return disparity.astype(np.float32, copy=False)
+
+
+def left_right_check(
+    disp_left: np.ndarray, disp_right: np.ndarray, max_diff: float = 1.0
+) -> np.ndarray:
+    """Left–right consistency of two disparity maps.
+
+    A left pixel (y, x) with disparity d is consistent when its partner column
+    x_r = x − round(d) lies in the image and |d − disp_right[y, x_r]| ≤ ``max_diff``.
+
+    Args:
+        disp_left: (H, W) float disparity of the left view (NaN = unknown).
+        disp_right: (H, W) float disparity of the right view (``view='right'`` volume).
+        max_diff: Largest accepted difference in pixels (finite, ≥ 0).
+
+    Returns:
+        (H, W) bool, True = consistent; False where either disparity is NaN/inf or the partner
+        column is outside the image.
+
+    Raises:
+        InputError: Not 2-D numeric arrays, or different shapes.
+        ConfigError: ``max_diff`` negative or not finite.
+    """
+    left = _check_disparity('disp_left', disp_left)
+    right = _check_disparity('disp_right', disp_right)
+    if left.shape != right.shape:
+        raise InputError(
+            f'disp_left and disp_right must have the same shape; got {left.shape} and '
+            f'{right.shape}'
+        )
+    if isinstance(max_diff, bool) or not isinstance(max_diff, (int, float, np.number)):
+        raise ConfigError(f'max_diff must be a number; got {type(max_diff).__name__}')
+    if not math.isfinite(float(max_diff)) or max_diff < 0:
+        raise ConfigError(f'max_diff must be finite and ≥ 0; got {max_diff}')
+    height, width = left.shape
+    finite = np.isfinite(left)
+    columns = np.arange(width, dtype=np.float64)[None, :] - np.rint(np.where(finite, left, 0.0))
+    inside = finite & (columns >= 0) & (columns < width)
+    partner = np.clip(columns, 0, width - 1).astype(np.intp)
+    rows = np.arange(height)[:, None]
+    matched = right[rows, partner]
+    with np.errstate(invalid='ignore'):
+        close = np.abs(left - matched) <= float(max_diff)
+    return inside & np.isfinite(matched) & close

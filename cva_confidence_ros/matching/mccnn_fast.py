@@ -1,0 +1,176 @@
+"""MC-CNN fast matcher: learned 64-d features, cost = (1 − cos) / 2 between left and right.
+
+Features are computed over the whole image by :mod:`cva_confidence_ros.matching.mccnn_net`
+(imported lazily, it pulls in torch); the matching-cost volume is the cosine distance of the
+unit-length feature vectors, mapped to [0, 1].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import hashlib
+import threading
+from typing import TYPE_CHECKING
+
+from numba import njit, prange
+import numpy as np
+
+from cva_confidence_ros.errors import ConfigError
+from cva_confidence_ros.matching.base import Matcher
+from cva_confidence_ros.matching.census import valid_range
+
+if TYPE_CHECKING:
+    import torch
+
+__all__ = ['MCCNNFastConfig', 'MCCNNFastMatcher', 'cosine_cost_volume']
+
+
+@dataclass(frozen=True)
+class MCCNNFastConfig:
+    """Parameters of :class:`MCCNNFastMatcher`.
+
+    Attributes:
+        device: ``'cpu'``, ``'cuda'``, ``'cuda:N'`` or ``'auto'`` (CUDA when available).
+        weights: State-dict file of MC-CNN fast; empty = the Middlebury weights shipped with
+            the ``mccnn`` pip package.
+    """
+
+    device: str = 'cpu'
+    weights: str = ''
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.device, str) or not (
+            self.device in ('cpu', 'cuda', 'auto') or self.device.startswith('cuda:')
+        ):
+            raise ConfigError(
+                f"device must be 'cpu', 'cuda', 'cuda:N' or 'auto'; got {self.device!r}"
+            )
+        if not isinstance(self.weights, str):
+            raise ConfigError(f'weights must be a path string; got {type(self.weights).__name__}')
+
+
+@njit(cache=True, parallel=True, fastmath=True)
+def _cosine_kernel(
+    features_ref: np.ndarray, features_other: np.ndarray, step: int, volume: np.ndarray
+) -> None:
+    depth, height, width = volume.shape
+    channels = features_ref.shape[2]
+    for y in prange(height):
+        ref_row = features_ref[y]
+        other_row = features_other[y]
+        for d in range(depth):
+            lo, hi = valid_range(width, d, step)
+            row = volume[d, y]
+            for x in range(lo):
+                row[x] = 1.0
+            for x in range(hi, width):
+                row[x] = 1.0
+            for x in range(lo, hi):
+                a = ref_row[x]
+                b = other_row[x + step * d]
+                dot = np.float32(0.0)
+                for c in range(channels):
+                    dot += a[c] * b[c]
+                # rounding can push |cos| a hair above 1
+                row[x] = min(max((np.float32(1.0) - dot) * np.float32(0.5), 0.0), 1.0)
+
+
+def cosine_cost_volume(
+    features_ref: torch.Tensor, features_other: torch.Tensor, depth: int, step: int
+) -> np.ndarray:
+    """(1 − cos) / 2 between reference features and shifted partner features.
+
+    Args:
+        features_ref: (C, H, W) unit-length float32 features of the reference view.
+        features_other: (C, H, W) features of the other view.
+        depth: D.
+        step: −1 when the partner of x is x − d (left reference), +1 when it is x + d.
+
+    Returns:
+        (D, H, W) float32 in [0, 1], 1.0 where the partner is outside the image. On CPU a numba
+        kernel over (H, W, C) copies of the features; on CUDA a loop over d on the device.
+    """
+    channels, height, width = features_ref.shape
+    volume = np.empty((depth, height, width), np.float32)
+    if features_ref.device.type == 'cpu':
+        ref = np.ascontiguousarray(features_ref.permute(1, 2, 0).numpy())
+        other = np.ascontiguousarray(features_other.permute(1, 2, 0).numpy())
+        _cosine_kernel(ref, other, int(step), volume)
+        return volume
+    import torch
+
+    with torch.inference_mode():
+        result = torch.ones((depth, height, width), device=features_ref.device)
+        for d in range(depth):
+            lo, hi = (d, width) if step < 0 else (0, width - d)
+            if hi <= lo:
+                continue
+            dot = (
+                features_ref[:, :, lo:hi] * features_other[:, :, lo + step * d:hi + step * d]
+            ).sum(0)
+            result[d, :, lo:hi] = ((1.0 - dot) * 0.5).clamp_(0.0, 1.0)
+        volume[...] = result.cpu().numpy()
+    return volume
+
+
+class _FeatureCache:
+    """The features of the last image pair, so that the left and the right volume of one pair
+    (``view='left'`` then ``'right'``) run the network once."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._key: tuple[object, ...] | None = None
+        self._value: tuple[torch.Tensor, torch.Tensor] | None = None
+
+    @staticmethod
+    def key(left: np.ndarray, right: np.ndarray, *extra: object) -> tuple[object, ...]:
+        digest = hashlib.blake2b(digest_size=16)
+        digest.update(np.ascontiguousarray(left).data)
+        digest.update(np.ascontiguousarray(right).data)
+        return (left.shape, digest.hexdigest(), *extra)
+
+    def get(self, key: tuple[object, ...]) -> tuple[torch.Tensor, torch.Tensor] | None:
+        with self._lock:
+            return self._value if key == self._key else None
+
+    def put(self, key: tuple[object, ...], value: tuple[torch.Tensor, torch.Tensor]) -> None:
+        with self._lock:
+            self._key, self._value = key, value
+
+
+_FEATURES = _FeatureCache()
+
+
+class MCCNNFastMatcher(Matcher):
+    """MC-CNN fast (Žbontar & LeCun) with the pretrained Middlebury weights of ``mccnn``.
+
+    Each image is converted to gray (ITU-R 601 weights), standardised to zero mean and unit
+    variance, padded by 5 pixels (reflection) and passed through the network, which keeps the
+    image size. Cost of a pixel pair = (1 − cos(f_left, f_right)) / 2 ∈ [0, 1]. The weights
+    are loaded once per process; the features of the last pair are kept, so asking for the
+    right view after the left one costs only the correlation.
+    """
+
+    Config = MCCNNFastConfig
+
+    def compute(
+        self, left: np.ndarray, right: np.ndarray, max_disparity: int, view: str
+    ) -> np.ndarray:
+        """(D, H, W) float32 costs in [0, 1]; 1.0 where the partner pixel is outside the image.
+
+        See :meth:`Matcher.compute` for the arguments.
+        """
+        from cva_confidence_ros.matching import mccnn_net
+
+        device = mccnn_net.resolve_device(self.config.device)
+        network = mccnn_net.load_network(self.config.weights, str(device))
+        key = _FEATURES.key(left, right, str(device), self.config.weights)
+        features = _FEATURES.get(key)
+        if features is None:
+            batch = mccnn_net.extract_features(network, [left, right], device)
+            features = (batch[0], batch[1])
+            _FEATURES.put(key, features)
+        features_left, features_right = features
+        if view == 'left':
+            return cosine_cost_volume(features_left, features_right, int(max_disparity), -1)
+        return cosine_cost_volume(features_right, features_left, int(max_disparity), 1)

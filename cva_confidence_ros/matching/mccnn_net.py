@@ -1,0 +1,179 @@
+"""The MC-CNN fast feature network (Žbontar & LeCun, JMLR 2016) and its pretrained weights.
+
+Five 3×3 convolutions with 64 channels, ReLU between them (not after the last), and L2
+normalisation of the 64-channel feature vector of every pixel. Its receptive field is 11×11, so
+a valid convolution of an image padded by 5 pixels on each side keeps the image size.
+
+The weights are the Middlebury-trained ones that the ``mccnn`` pip package (CNES Pandora MC-CNN)
+ships in ``mc_cnn/weights/mc_cnn_fast_mb_weights.pt``. This module imports torch; the matcher
+imports it only when MC-CNN is used.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from importlib.util import find_spec
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from cva_confidence_ros.errors import ConfigError, ModelError
+
+__all__ = [
+    'FEATURES',
+    'PADDING',
+    'McCnnFastFeatures',
+    'default_weights_path',
+    'extract_features',
+    'load_network',
+    'normalise_image',
+]
+
+#: Channels of a feature vector.
+FEATURES = 64
+#: Pixels lost on each side by the five valid 3×3 convolutions.
+PADDING = 5
+_LAYERS = 5
+_WEIGHTS_FILE = 'mc_cnn_fast_mb_weights.pt'
+# ITU-R 601 luma weights, as the mccnn package converts colour images for training.
+_LUMA = np.array([0.299, 0.587, 0.114], np.float32)
+
+
+class McCnnFastFeatures(nn.Module):
+    """MC-CNN fast feature extractor: (B, 1, H + 10, W + 10) → (B, 64, H, W), unit length.
+
+    The layer names (``conv_blocks.0`` … ``conv_blocks.8``) are those of the pretrained state
+    dict, so it loads without renaming.
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+        layers: list[nn.Module] = []
+        for index in range(_LAYERS):
+            layers.append(nn.Conv2d(1 if index == 0 else FEATURES, FEATURES, kernel_size=3))
+            if index < _LAYERS - 1:
+                layers.append(nn.ReLU(inplace=True))
+        self.conv_blocks = nn.Sequential(*layers)
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        """Unit-length features of padded, normalised images.
+
+        Args:
+            images: (B, 1, H + 10, W + 10) float tensor.
+
+        Returns:
+            (B, 64, H, W) float tensor, L2-normalised over the channel axis.
+        """
+        if images.ndim != 4 or images.shape[1] != 1:
+            raise ModelError(f'expected (B, 1, H, W) images; got {tuple(images.shape)}')
+        return nn.functional.normalize(self.conv_blocks(images), p=2.0, dim=1)
+
+
+def default_weights_path() -> Path:
+    """Path of the Middlebury MC-CNN fast weights inside the installed ``mccnn`` package.
+
+    Raises:
+        ModelError: The ``mccnn`` package (module ``mc_cnn``) is not installed.
+    """
+    # find_spec locates the package without importing it (and its optional dependencies).
+    spec = find_spec('mc_cnn')
+    if spec is None or not spec.submodule_search_locations:
+        raise ModelError(
+            'the MC-CNN weights come from the mccnn pip package (module mc_cnn); '
+            'it is not installed: pip install mccnn'
+        )
+    return Path(next(iter(spec.submodule_search_locations))) / 'weights' / _WEIGHTS_FILE
+
+
+def resolve_device(device: str) -> torch.device:
+    """torch device for ``'cpu'``, ``'cuda'``, ``'cuda:N'`` or ``'auto'`` (CUDA if available).
+
+    Raises:
+        ConfigError: CUDA requested but not available, or an unknown name.
+    """
+    if device == 'auto':
+        return torch.device('cuda' if torch.cuda.is_available() else 'cpu')
+    if device == 'cpu':
+        return torch.device('cpu')
+    if device == 'cuda' or device.startswith('cuda:'):
+        if not torch.cuda.is_available():
+            raise ConfigError(f'device {device!r} requested but CUDA is not available')
+        return torch.device(device)
+    raise ConfigError(f"device must be 'cpu', 'cuda', 'cuda:N' or 'auto'; got {device!r}")
+
+
+@lru_cache(maxsize=4)
+def _cached_network(path: str, device: str) -> McCnnFastFeatures:
+    try:
+        state = torch.load(path, map_location='cpu', weights_only=True)
+    except FileNotFoundError:
+        raise ModelError(f'MC-CNN weights file not found: {path}') from None
+    except (RuntimeError, OSError, ValueError) as error:
+        raise ModelError(f'cannot read MC-CNN weights {path}: {error}') from error
+    # The package saves a training checkpoint; the network weights sit under 'model'.
+    if isinstance(state, dict) and 'model' in state:
+        state = state['model']
+    if not isinstance(state, dict):
+        raise ModelError(f'expected a state dict in {path}; got {type(state).__name__}')
+    state = {key.removeprefix('module.'): value for key, value in state.items()}
+    network = McCnnFastFeatures()
+    try:
+        network.load_state_dict(state, strict=True)
+    except RuntimeError as error:
+        raise ModelError(f'{path} does not hold MC-CNN fast weights: {error}') from error
+    network.eval()
+    for parameter in network.parameters():
+        parameter.requires_grad_(False)
+    return network.to(torch.device(device))
+
+
+def load_network(weights: str | Path | None = None, device: str = 'cpu') -> McCnnFastFeatures:
+    """The pretrained network on ``device``, loaded once per process and (path, device).
+
+    Args:
+        weights: State-dict file; ``None`` or ``''`` = :func:`default_weights_path`.
+        device: ``'cpu'``, ``'cuda'``, ``'cuda:N'`` or ``'auto'``.
+
+    Raises:
+        ModelError: Missing or unreadable file, or weights of another architecture.
+        ConfigError: Unusable device.
+    """
+    path = Path(weights) if weights else default_weights_path()
+    return _cached_network(str(path.resolve()), str(resolve_device(device)))
+
+
+def normalise_image(image: np.ndarray) -> np.ndarray:
+    """Gray, zero-mean, unit-variance float image, as the network was trained on.
+
+    Args:
+        image: (H, W) or (H, W, 3) RGB uint8 image.
+
+    Returns:
+        (H, W) float32, (gray − mean) / std (std 1 for a constant image).
+    """
+    gray = image.astype(np.float32) @ _LUMA if image.ndim == 3 else image.astype(np.float32)
+    std = float(gray.std())
+    return ((gray - gray.mean()) / (std if std > 0.0 else 1.0)).astype(np.float32)
+
+
+def extract_features(
+    network: McCnnFastFeatures, images: list[np.ndarray], device: torch.device
+) -> torch.Tensor:
+    """Unit-length features of images of equal size, one batch through the network.
+
+    Args:
+        network: From :func:`load_network`.
+        images: (H, W) or (H, W, 3) uint8 images, all the same shape.
+        device: Where to run.
+
+    Returns:
+        (B, 64, H, W) float32 tensor on ``device``.
+    """
+    # Reflection padding rather than zeros: the border features then see image-like texture.
+    batch = np.stack(
+        [np.pad(normalise_image(image), PADDING, mode='reflect') for image in images]
+    )[:, None]
+    with torch.inference_mode():
+        return network(torch.from_numpy(batch).to(device))
