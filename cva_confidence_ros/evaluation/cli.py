@@ -8,8 +8,16 @@ Sec. 4.1), then writes
   ``auc``, ``auc_opt``, ``error_rate``, ``n_pixels``;
 * a Markdown table in the layout of the paper's Table 1 (AUC × 10², mean over scenes, best
   method per row in bold) to stdout and, with ``--out DIR``, to ``DIR/table.md``;
-* with ``--out DIR``: PNGs under ``DIR/<dataset>/<scene>/<matcher>/`` (disparity, confidence
-  map and green/red correctness overlay per method, ROC curves with the optimal curve).
+* with ``--out DIR``: PNGs under ``DIR/<dataset>/<scene>/<matcher>/``: ``disparity.png``;
+  per method ``confidence_<method>.png`` (black = low, white = high) and
+  ``correct_<method>.png``; ``roc.png`` (all methods and the optimal curve).
+
+The correctness overlay follows the paper's Fig. 4: a scored pixel is green if its disparity is
+correct and its confidence > τ, or wrong and confidence ≤ τ; red otherwise. τ = 0.5 for
+confidences in [0, 1]; for hand-crafted measures on other scales τ is the ε-quantile of their
+values (as many "confident" pixels as correct ones). With ``--max-pixels`` only the sampled
+pixels are coloured, and CVA-Net's confidence map (computed only there) shows its values at
+those pixels, the rest in ``plots.UNKNOWN_RGB``; the hand-crafted maps stay dense.
 
 Progress goes to stderr. Bad input (unknown names, empty data root, weights for another
 matcher or depth) ends with a one-line message and exit code 2.

@@ -58,7 +58,7 @@ def test_cva_net_patch_mode_with_random_weights(tmp_path, capsys) -> None:
 
     torch.manual_seed(0)
     weights = tmp_path / 'random.pt'
-    save_weights(CVANet(16), weights, matcher='census_bm', max_disparity=16)
+    save_weights(CVANet(16), weights, {'matcher': 'census_bm'})
     json_path = tmp_path / 'r.json'
     code = main([*_SMALL, '--matchers', 'census_bm', '--methods', 'cva_net,score',
                  '--weights', f'census_bm={weights}', '--max-pixels', '200', '--seed', '3',
@@ -110,7 +110,7 @@ def test_weights_for_another_depth_exit_2(tmp_path, capsys) -> None:
     from cva_confidence_ros.model import CVANet, save_weights
 
     weights = tmp_path / 'd32.pt'
-    save_weights(CVANet(32), weights, matcher='census_bm', max_disparity=32)
+    save_weights(CVANet(32), weights, {'matcher': 'census_bm'})
     code = main([*_SMALL, '--matchers', 'census_bm', '--methods', 'cva_net',
                  '--weights', str(weights), '--json', str(tmp_path / 'r.json')])
     err = capsys.readouterr().err

@@ -1,0 +1,113 @@
+"""Tests of the per-scene evaluation pieces on tiny hand-made arrays."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cva_confidence_ros.datasets import StereoSample
+from cva_confidence_ros.errors import InputError
+from cva_confidence_ros.evaluation import (
+    evaluate_scene,
+    overlay_threshold,
+    score_confidence,
+    select_pixels,
+)
+from cva_confidence_ros.metrics import optimal_auc
+
+
+def test_select_pixels_all_and_subset() -> None:
+    known = np.zeros((4, 5), dtype=bool)
+    known[1, 1] = known[2, 3] = known[3, 0] = True
+    ys, xs = select_pixels(known)
+    assert ys.tolist() == [1, 2, 3] and xs.tolist() == [1, 3, 0]
+    assert select_pixels(known, max_pixels=10)[0].size == 3
+    ys, xs = select_pixels(known, max_pixels=2, seed=7)
+    assert ys.size == 2 and known[ys, xs].all() and np.all(np.diff(ys * 5 + xs) > 0)
+    again = select_pixels(known, max_pixels=2, seed=7)
+    assert again[0].tolist() == ys.tolist() and again[1].tolist() == xs.tolist()
+    with pytest.raises(InputError, match='max_pixels'):
+        select_pixels(known, max_pixels=0)
+
+
+def test_score_of_a_perfect_ranking_by_hand() -> None:
+    # 20 pixels, the 4 wrong ones least confident: ROC samples k/20 carry 0 up to 16/20,
+    # then 1/17, 2/18, 3/19, 4/20.
+    confidence = np.arange(20, 0, -1, dtype=np.float32)
+    error = np.zeros(20, dtype=bool)
+    error[16:] = True
+    score = score_confidence(confidence, error)
+    rates = [0.0, 1 / 17, 2 / 18, 3 / 19, 4 / 20]
+    expected = sum(0.05 * (a + b) / 2 for a, b in zip(rates[:-1], rates[1:], strict=True))
+    assert score.auc == pytest.approx(expected)
+    assert score.error_rate == pytest.approx(0.2)
+    assert score.auc_opt == pytest.approx(optimal_auc(0.2))
+    assert score.n_pixels == 20
+    assert score.density[-1] == 1.0 and score.roc_error[-1] == pytest.approx(0.2)
+
+
+def test_score_rejects_nan_and_empty() -> None:
+    with pytest.raises(InputError, match='NaN'):
+        score_confidence(np.array([0.5, np.nan]), np.array([False, True]))
+    with pytest.raises(InputError, match='no pixels'):
+        score_confidence(np.zeros(0), np.zeros(0, dtype=bool))
+
+
+def test_overlay_threshold() -> None:
+    assert overlay_threshold(np.array([0.0, 0.3, 1.0]), 0.4) == 0.5
+    values = np.arange(1.0, 11.0)  # 1 … 10, not in [0, 1]: the ε-quantile
+    assert overlay_threshold(values, 0.2) == pytest.approx(np.quantile(values, 0.2))
+
+
+class _PatchOnly:
+    """A stand-in learned method that only supports patch mode, recording its calls."""
+
+    needs_right = False
+
+    def __init__(self) -> None:
+        self.calls: list[int] = []
+
+    def __call__(self, inputs):  # pragma: no cover - must not be reached
+        raise AssertionError('dense call in a pixel-subset run')
+
+    def confidence_at(self, inputs, ys, xs):
+        self.calls.append(len(ys))
+        return np.where(np.abs(inputs.disparity[ys, xs] - 4.0) < 1.0, 0.9, 0.1)
+
+
+def _shifted_sample(width: int = 48, height: int = 24, shift: int = 4) -> StereoSample:
+    rng = np.random.default_rng(0)
+    right = rng.integers(0, 256, (height, width + shift), dtype=np.uint8)
+    left = np.ascontiguousarray(right[:, :width])
+    right = np.ascontiguousarray(right[:, shift:])
+    gt = np.full((height, width), float(shift), dtype=np.float32)
+    gt[:, :shift] = np.nan  # no right pixel there
+    return StereoSample('synthetic', 'shift4', left, right, gt)
+
+
+def test_evaluate_scene_subset_uses_patch_mode_and_plots(tmp_path) -> None:
+    from cva_confidence_ros.confidence import CONFIDENCE_METHODS
+
+    patch = _PatchOnly()
+    methods = {'learned': patch, 'score': CONFIDENCE_METHODS.get('score')()}
+    records = evaluate_scene(
+        _shifted_sample(), 'census_bm', methods, max_disparity=8, max_pixels=50, seed=1,
+        plot_dir=tmp_path / 'plots',
+    )
+    assert patch.calls == [50]
+    assert [r.method for r in records] == ['learned', 'score']
+    assert all(r.n_pixels == 50 and r.scene == 'shift4' for r in records)
+    # Random texture with a constant shift: the matcher gets (nearly) everything right.
+    assert records[0].error_rate < 0.2
+    assert sorted(p.name for p in (tmp_path / 'plots').iterdir()) == sorted([
+        'disparity.png', 'roc.png', 'confidence_learned.png', 'confidence_score.png',
+        'correct_learned.png', 'correct_score.png',
+    ])
+
+
+def test_evaluate_scene_rejects_wrong_map_shape() -> None:
+    def bad(inputs):
+        return np.zeros((2, 2), dtype=np.float32)
+
+    with pytest.raises(InputError, match="'bad'"):
+        evaluate_scene(_shifted_sample(), 'census_bm', {'bad': bad}, max_disparity=8)
