@@ -111,3 +111,23 @@ def test_evaluate_scene_rejects_wrong_map_shape() -> None:
 
     with pytest.raises(InputError, match="'bad'"):
         evaluate_scene(_shifted_sample(), 'census_bm', {'bad': bad}, max_disparity=8)
+
+
+def test_cva_net_patch_mode_equals_dense_mode(tmp_path) -> None:
+    torch = pytest.importorskip('torch')
+    from cva_confidence_ros.confidence import CONFIDENCE_METHODS
+    from cva_confidence_ros.model import CVANet, save_weights
+
+    torch.manual_seed(1)
+    weights = save_weights(CVANet(16), tmp_path / 'w.pt', {'matcher': 'census_bm'})
+    method = CONFIDENCE_METHODS.get('cva_net')(
+        matcher='census_bm', max_disparity=16, weights=weights
+    )
+    sample = _shifted_sample()
+    dense = evaluate_scene(sample, 'census_bm', {'cva_net': method}, max_disparity=16)
+    # A subset at least as large as the known pixels is all of them, scored in patch mode.
+    patch = evaluate_scene(
+        sample, 'census_bm', {'cva_net': method}, max_disparity=16, max_pixels=10**6
+    )
+    assert patch[0].n_pixels == dense[0].n_pixels == 24 * 44
+    assert patch[0].auc == pytest.approx(dense[0].auc, abs=1e-6)
