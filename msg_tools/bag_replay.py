@@ -187,12 +187,13 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print('cva-bag-replay: interrupted before any output was written', file=sys.stderr)
         return 130
-    stream = sys.stdout if outcome.exit_code == 0 else sys.stderr
-    prefix = '' if outcome.exit_code == 0 else 'cva-bag-replay: '
-    print(f'{prefix}{outcome.message}', file=stream)
-    if outcome.paths:
-        print('outputs: ' + ', '.join(f'{k} {v}' for k, v in sorted(outcome.paths.items())),
-              file=stream)
+    if outcome.exit_code == 0:
+        print(outcome.message)
+        print('outputs: ' + ', '.join(f'{k} {v}' for k, v in sorted(outcome.paths.items())))
+    elif outcome.exit_code == 130:
+        print(f'cva-bag-replay: {outcome.message}', file=sys.stderr)
+    else:
+        print(f'cva-bag-replay: error: {outcome.message}', file=sys.stderr)
     return outcome.exit_code
 
 

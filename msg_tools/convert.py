@@ -223,12 +223,11 @@ def disparity_from_msg(msg: Any, offset: float = 0.0, what: str = 'disparity') -
     is_disparity_image = inner is not None and hasattr(inner, 'encoding')
     image = inner if is_disparity_image else msg
     values = _pixels(image, _FLOAT_ENCODINGS, what).astype(np.float32)
+    lowest = np.float32(msg.min_disparity) if is_disparity_image else np.float32(0.0)
     with np.errstate(invalid='ignore'):
-        if is_disparity_image:
-            invalid = ~(values >= np.float32(msg.min_disparity))
-            values -= np.float32(offset)
-        else:
-            invalid = ~(values >= 0)
+        invalid = ~np.isfinite(values) | ~(values >= lowest)
+    if is_disparity_image:
+        values -= np.float32(offset)
     values[invalid] = np.nan
     return values
 

@@ -40,6 +40,7 @@ from msg_tools.replay import (
     log_stderr,
     make_synchronizer,
     plan_topics,
+    preload,
 )
 
 __all__ = ['NodeProcess', 'node_arguments', 'run_live']
@@ -108,14 +109,23 @@ def node_arguments(options: ReplayOptions, node_name: str) -> list[str]:
     return args
 
 
-def _node_command() -> list[str]:
+def _node_command() -> tuple[list[str], dict[str, str]]:
+    """The node's command line and extra environment.
+
+    The ``cva-node`` script of this Python's environment comes first; without one (a source
+    checkout that is not installed) the module runs with the package's folder on the path.
+    """
     beside = Path(sys.executable).with_name('cva-node')
     if beside.exists():
-        return [str(beside)]
+        return [str(beside)], {}
     found = shutil.which('cva-node')
     if found:
-        return [found]
-    return [sys.executable, '-m', 'cva_confidence_ros.node']
+        return [found], {}
+    import cva_confidence_ros
+
+    source = str(Path(cva_confidence_ros.__file__).resolve().parents[1])
+    path = os.pathsep.join(p for p in (source, os.environ.get('PYTHONPATH', '')) if p)
+    return [sys.executable, '-m', 'cva_confidence_ros.node'], {'PYTHONPATH': path}
 
 
 class NodeProcess:
@@ -128,14 +138,15 @@ class NodeProcess:
 
     def __init__(self, options: ReplayOptions, log_path: Path) -> None:
         self.name = f'cva_confidence_replay_{os.getpid()}'
-        self.command = _node_command() + node_arguments(options, self.name)
+        command, self.env = _node_command()
+        self.command = command + node_arguments(options, self.name)
         self.log_path = log_path
         self.process: subprocess.Popen[bytes] | None = None
 
     def start(self) -> NodeProcess:
         """Start the node (returns at once; it is ready when its topics connect)."""
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
-        env = dict(os.environ, PYTHONUNBUFFERED='1')
+        env = dict(os.environ, PYTHONUNBUFFERED='1', **self.env)
         with self.log_path.open('wb') as log:
             self.process = subprocess.Popen(
                 self.command, stdout=log, stderr=subprocess.STDOUT, env=env,
@@ -282,6 +293,7 @@ def run_live(options: ReplayOptions, log: Logger = log_stderr) -> ReplayOutcome:
         BagError: The bag cannot be opened or lacks an input topic.
         ConfigError: The node exits or does not connect within ``startup_timeout_s``.
     """
+    preload()
     with InputBag(options.bag) as bag:
         plan = plan_topics(bag, options, log)
         node = None
@@ -458,7 +470,7 @@ class _Recorder:
         stamp = stamp_to_ns(msg.header.stamp)
         pending = self.frames.get(stamp)
         timestamp = pending.timestamp_ns if pending is not None else stamp
-        self.session.write(self.topics[name], _OUTPUT_TYPES[name], raw, timestamp)
+        self.session.write([(self.topics[name], _OUTPUT_TYPES[name], raw)], timestamp)
         if pending is None or name not in _SCORED:
             return
         parts = self.parts.setdefault(stamp, {})

@@ -44,6 +44,7 @@ class Progress:
         self.done = 0
         self._start = clock()
         self._last = -float('inf')
+        self._printed = -1
         self._tty = bool(getattr(self.stream, 'isatty', lambda: False)())
 
     def line(self) -> str:
@@ -64,14 +65,15 @@ class Progress:
             self.stream.flush()
         elif force or now - self._last >= self.interval:
             self._last = now
+            self._printed = self.done
             self.stream.write(self.line() + '\n')
             self.stream.flush()
 
     def finish(self) -> None:
-        """Print the final line."""
+        """Print the final line (unless the last line printed says the same)."""
         if self._tty:
             self.stream.write('\r' + self.line() + '\x1b[K\n')
-        else:
+        elif self._printed != self.done:
             self.stream.write(self.line() + '\n')
         self.stream.flush()
 

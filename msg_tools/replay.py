@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
+import importlib
 from pathlib import Path
 import sys
 from typing import Any
@@ -48,6 +49,7 @@ __all__ = [
     'make_synchronizer',
     'node_outputs',
     'plan_topics',
+    'preload',
     'run_offline',
     'stereo_inputs',
 ]
@@ -388,8 +390,15 @@ def node_outputs(
         points = disparity_to_points(disparity, geometry, kept)
         cloud = make_cloud(points, pack_rgb(result.left), points_organized)
         messages.append(('points', POINT_CLOUD2, cloud_to_message(cloud, ros_header)))
+    store = jazzy_typestore()
+    # rclpy leaves CDR alignment padding uninitialised; a pass through rosbags zeroes it, so
+    # that the same input always gives the same output bag, byte for byte.
     return NodeOutputs(
-        messages=[(name, kind, serialize_message(msg)) for name, kind, msg in messages],
+        messages=[
+            (name, kind, bytes(store.serialize_cdr(
+                store.deserialize_cdr(serialize_message(msg), kind), kind)))
+            for name, kind, msg in messages
+        ],
         confidence=confidence,
         kept=kept,
         geometry=geometry,
@@ -516,12 +525,14 @@ class ReplaySession:
         elif self._skip_logs == _MAX_SKIP_LOGS + 1:
             self.log('more frames skipped; only counting them from now on')
 
-    def write(self, topic: str, msgtype: str, message: Any, timestamp_ns: int) -> None:
-        """Write one output message; a signal waits until it is written."""
+    def write(self, messages: list[tuple[str, str, Any]], timestamp_ns: int) -> None:
+        """Write ``(topic, type, message or CDR bytes)`` triples at one bag time; a signal
+        waits until all are written, so a frame is in the bag whole or not at all."""
         if self.out is None:
             raise BagError('the output bag is not open')
         with self.interrupts.critical():
-            self.out.write(topic, msgtype, message, timestamp_ns)
+            for topic, msgtype, message in messages:
+                self.out.write(topic, msgtype, message, timestamp_ns)
 
     def add_ground_truth(self, stamp_ns: int, msg: Any) -> None:
         """Offer a ground-truth message; scores the frame that waits for it, if any."""
@@ -575,6 +586,12 @@ class ReplaySession:
         )
 
     def _score(self, result: FrameResult, msg: Any | None, note: str = '') -> None:
+        # Scoring and the frame's PNGs are quick; keeping a signal out of them means a report
+        # never lists a frame whose plots were cut off.
+        with self.interrupts.critical():
+            self._score_now(result, msg, note)
+
+    def _score_now(self, result: FrameResult, msg: Any | None, note: str) -> None:
         gt = None
         if msg is not None:
             gt, note = self._ground_truth(result, msg)
@@ -651,6 +668,29 @@ class ReplaySession:
         return ReplayOutcome(self.report, self.paths, 0, f'{text}; {where}')
 
 
+# Modules the frames need later, imported before the first frame: a Ctrl-C that lands inside
+# an import leaves a half-initialised module behind, which would break the report written after.
+_PRELOAD = (
+    'matplotlib.backends.backend_agg',
+    'matplotlib.figure',
+    'cva_confidence_ros.plots',
+    'cva_confidence_ros.metrics',
+    'cva_confidence_ros.evaluation',
+    'cva_confidence_ros.datasets',
+    'cva_confidence_ros.pointcloud',
+    'cva_confidence_ros.ros.convert',
+    'cva_confidence_ros.node',
+    'rclpy.serialization',
+    'rosbags.serde',
+)
+
+
+def preload() -> None:
+    """Import every module a replay uses lazily (see ``_PRELOAD``)."""
+    for name in _PRELOAD:
+        importlib.import_module(name)
+
+
 def make_synchronizer(options: ReplayOptions) -> Any:
     """The node's stamp synchroniser with the run's sync options."""
     from cva_confidence_ros.sync import StampSynchronizer
@@ -683,6 +723,7 @@ def run_offline(options: ReplayOptions, log: Logger = log_stderr) -> ReplayOutco
     from cva_confidence_ros.pipeline import StereoPipeline
 
     store = jazzy_typestore()
+    preload()
     with InputBag(options.bag) as bag:
         plan = plan_topics(bag, options, log)
         pipeline = StereoPipeline(options.pipeline)
@@ -728,8 +769,7 @@ def _process_pair(session: ReplaySession, pipeline: Any, matched: Any, frame: in
         publish_points=options.publish_points, points_organized=options.points_organized,
     )
     topics = options.topics.outputs()
-    for name, msgtype, data in outputs.messages:
-        session.write(topics[name], msgtype, data, timestamp)
+    session.write([(topics[name], kind, data) for name, kind, data in outputs.messages], timestamp)
     session.add_result(
         FrameResult(
             frame=frame,

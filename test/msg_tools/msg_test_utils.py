@@ -1,0 +1,159 @@
+"""Shared helpers of the msg_tools tests: tiny data sets on disk, hand-made bags, bag reading."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+import os
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from cva_confidence_ros.datasets.io import write_pfm
+from cva_confidence_ros.pointcloud import StereoGeometry
+from msg_tools.bagio import OutputBag
+from msg_tools.convert import (
+    CAMERA_INFO,
+    DISPARITY_IMAGE,
+    IMAGE,
+    camera_info_msgs,
+    disparity_to_msg,
+    image_to_msg,
+    jazzy_typestore,
+)
+
+MAX_DISPARITY = 16
+START_NS = 1_700_000_000 * 10**9
+# Two sizes, so a bag holds frames of different sizes as the tool must allow.
+SIZES = ((40, 56), (36, 48), (40, 56))
+DOFFS = 1.5
+
+
+def domain_id() -> int:
+    """A ROS domain for the live tests, from the pid; apart from the node tests' 101–220."""
+    return 1 + os.getpid() % 90
+
+
+def synthetic_samples(count: int = 2, first_seed: int = 3) -> list[Any]:
+    """Tiny synthetic pairs (``datasets.synthetic``) with exact, dense ground truth."""
+    from cva_confidence_ros.datasets.synthetic import synthetic_pair
+
+    return [
+        synthetic_pair(first_seed + i, *SIZES[i % len(SIZES)], max_disparity=MAX_DISPARITY)
+        for i in range(count)
+    ]
+
+
+def write_middlebury_root(
+    root: Path, samples: Sequence[Any], doffs: float = DOFFS, calib: bool = True
+) -> Path:
+    """Write samples in the MiddEval3 layout (``trainingQ/<Scene>/im0.png, im1.png,
+    disp0GT.pfm, calib.txt``) so that they come back through the data set loader."""
+    for index, sample in enumerate(samples):
+        folder = root / 'trainingQ' / f'Scene{index}'
+        folder.mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(folder / 'im0.png'), cv2.cvtColor(sample.left, cv2.COLOR_RGB2BGR))
+        cv2.imwrite(str(folder / 'im1.png'), cv2.cvtColor(sample.right, cv2.COLOR_RGB2BGR))
+        gt = np.where(np.isfinite(sample.disparity), sample.disparity, np.inf)
+        write_pfm(folder / 'disp0GT.pfm', gt.astype(np.float32))
+        if calib:
+            c = sample.calib
+            height, width = sample.disparity.shape
+            (folder / 'calib.txt').write_text(
+                f'cam0=[{c.fx} 0 {c.cx}; 0 {c.fy} {c.cy}; 0 0 1]\n'
+                f'cam1=[{c.fx} 0 {c.cx + doffs}; 0 {c.fy} {c.cy}; 0 0 1]\n'
+                f'doffs={doffs}\nbaseline={1000 * c.baseline}\nwidth={width}\n'
+                f'height={height}\nndisp={MAX_DISPARITY}\n'
+            )
+    return root
+
+
+def dataset_bag(tmp_path: Path, storage: str = 'mcap', count: int = 2, *extra: str) -> Path:
+    """A bag written by ``cva-bag-from-dataset`` from tiny Middlebury-layout scenes."""
+    from msg_tools.bag_from_dataset import main
+
+    root = write_middlebury_root(tmp_path / 'data', synthetic_samples(count))
+    bag = tmp_path / f'input_{storage}'
+    code = main([
+        '--data-root', str(root), '--dataset', 'middlebury2014', '--out', str(bag),
+        '--storage', storage, *extra,
+    ])
+    assert code == 0
+    return bag
+
+
+def read_bag(path: Path) -> dict[str, list[tuple[int, Any]]]:
+    """Topic → [(bag timestamp, deserialised message)] of every message, with ``rosbags``."""
+    from rosbags.rosbag2 import Reader
+
+    store = jazzy_typestore()
+    out: dict[str, list[tuple[int, Any]]] = {}
+    with Reader(path) as reader:
+        for conn, timestamp, data in reader.messages():
+            out.setdefault(conn.topic, []).append(
+                (timestamp, store.deserialize_cdr(data, conn.msgtype))
+            )
+    return out
+
+
+def textured_pair(height: int, width: int, shift: int, seed: int) -> tuple[np.ndarray, ...]:
+    """Random texture seen with a constant disparity: left[y, x] = right[y, x − shift]."""
+    rng = np.random.default_rng(seed)
+    texture = rng.integers(0, 256, size=(height, width + shift), dtype=np.uint8)
+    return texture[:, :width].copy(), texture[:, shift : shift + width].copy()
+
+
+def write_stereo_bag(
+    path: Path,
+    frames: Sequence[dict[str, Any]],
+    *,
+    prefix: str = '',
+    ground_truth: bool = True,
+    storage: str = 'mcap',
+    skip_topics: Sequence[str] = (),
+) -> Path:
+    """A hand-made stereo bag for fault cases.
+
+    Each frame dict may hold ``left``/``right`` (uint8 arrays), ``shift`` (true disparity),
+    ``stamp_right`` (ns, default the left stamp), ``encoding`` (forced on both images),
+    ``info_size`` ((width, height) written into the camera infos).
+    """
+    store = jazzy_typestore()
+    geometry = StereoGeometry(fx=50.0, fy=50.0, cx=20.0, cy=15.0, cx_right=20.0, baseline=0.1)
+    with OutputBag(path, storage, store) as bag:
+        for index, frame in enumerate(frames):
+            stamp = START_NS + index * 100_000_000
+            stamp_right = frame.get('stamp_right', stamp)
+            shift = frame.get('shift', 4)
+            left, right = frame.get('left'), frame.get('right')
+            if left is None:
+                left, right = textured_pair(30, 40, shift, index)
+            height, width = left.shape[:2]
+            info_w, info_h = frame.get('info_size', (width, height))
+            left_info, _ = camera_info_msgs(geometry, info_w, info_h, stamp, ('l', 'r'), store)
+            _, right_info = camera_info_msgs(
+                geometry, info_w, info_h, stamp_right, ('l', 'r'), store
+            )
+            left_msg = image_to_msg(left, stamp, 'l', store)
+            right_msg = image_to_msg(right, stamp_right, 'r', store)
+            if 'encoding' in frame:
+                left_msg.encoding = right_msg.encoding = frame['encoding']
+            gt = np.full((height, width), float(shift), np.float32)
+            gt[:, :shift] = np.nan
+            messages = [
+                ('left/camera_info', CAMERA_INFO, left_info),
+                ('right/camera_info', CAMERA_INFO, right_info),
+                ('left/image_rect', IMAGE, left_msg),
+                ('right/image_rect', IMAGE, right_msg),
+            ]
+            if ground_truth:
+                messages.append((
+                    'ground_truth/disparity', DISPARITY_IMAGE,
+                    disparity_to_msg(gt, stamp, 'l', geometry, typestore=store),
+                ))
+            for topic, msgtype, message in messages:
+                if topic in skip_topics:
+                    continue
+                bag.write(f'{prefix}/{topic}', msgtype, message, stamp)
+    return path

@@ -1,0 +1,150 @@
+"""``cva-bag-replay`` offline: data set → bag → replay → output bag and report."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+from msg_test_utils import (
+    DOFFS,
+    MAX_DISPARITY,
+    dataset_bag,
+    read_bag,
+    write_stereo_bag,
+)
+import numpy as np
+import pytest
+
+from cva_confidence_ros.confidence import CONFIDENCE_METHODS
+from cva_confidence_ros.datasets import load_dataset, resize_disparity
+from cva_confidence_ros.evaluation import evaluate_scene
+from cva_confidence_ros.ros.convert import disparity_from_message, float_image_to_array
+from msg_tools.bag_replay import main
+from msg_tools.convert import stamp_to_ns
+from msg_tools.scoring import REPORT_KEYS
+
+OUTPUTS = {'/disparity', '/confidence', '/disparity_filtered', '/points2'}
+
+
+def _replay(bag: Path, tmp_path: Path, *extra: str, name: str = 'run') -> tuple[int, dict]:
+    code = main([
+        str(bag), '--out', str(tmp_path / f'{name}_bag'), '--report', str(tmp_path / name),
+        '--matcher', 'census_bm', '--max-disparity', str(MAX_DISPARITY),
+        '--confidence-method', 'mlm', *extra,
+    ])
+    report_file = tmp_path / name / 'report.json'
+    report = json.loads(report_file.read_text()) if report_file.exists() else {}
+    return code, report
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_round_trip(tmp_path: Path, storage: str, capsys: pytest.CaptureFixture[str]) -> None:
+    bag = dataset_bag(tmp_path, storage, 2)
+    code, report = _replay(bag, tmp_path, '--storage', storage)
+    assert code == 0
+    captured = capsys.readouterr()
+    assert f'report {tmp_path / "run" / "report.json"}' in captured.out
+    assert 'offline: 2/2 frames' in captured.err  # progress with frames and rate
+
+    frames = report['frames']
+    assert [f['frame'] for f in frames] == [0, 1]
+    assert all(list(f)[: len(REPORT_KEYS)] == list(REPORT_KEYS) for f in frames)
+    summary = report['summary']
+    for key in ('error_rate', 'auc', 'auc_opt', 'kept_density'):
+        assert summary[key] == pytest.approx(np.mean([f[key] for f in frames]))
+        assert all(0.0 <= f[key] <= 1.0 for f in frames)
+    assert all(f['auc'] >= f['auc_opt'] - 1e-12 for f in frames)
+    assert (summary['pairs'], summary['processed'], summary['skipped']) == (2, 2, 0)
+    assert summary['interrupted'] is False and summary['error'] is None
+
+    with (tmp_path / 'run' / 'report.csv').open() as stream:
+        rows = list(csv.DictReader(stream))
+    assert [float(r['auc']) for r in rows] == [f['auc'] for f in frames]
+    assert '| frames | scored |' in (tmp_path / 'run' / 'summary.md').read_text()
+    for png in ('auc_over_time.png', 'confidence_00000.png', 'roc_00001.png'):
+        assert (tmp_path / 'run' / png).read_bytes()[:4] == b'\x89PNG'
+
+    inputs = read_bag(bag)
+    outputs = read_bag(tmp_path / 'run_bag')
+    assert set(outputs) == OUTPUTS
+    assert f'storage_identifier: {storage}' in (tmp_path / 'run_bag' / 'metadata.yaml').read_text()
+    for topic in OUTPUTS:
+        # Stamped like the input: same header stamps, frame ids and bag timestamps.
+        assert [(t, stamp_to_ns(m.header.stamp), m.header.frame_id) for t, m in outputs[topic]] \
+            == [(t, stamp_to_ns(m.header.stamp), m.header.frame_id)
+                for t, m in inputs['/left/image_rect']]
+    for index, (_, msg) in enumerate(outputs['/disparity']):
+        width = inputs['/left/image_rect'][index][1].width
+        assert msg.image.width == width and msg.min_disparity == pytest.approx(DOFFS)
+        confidence = float_image_to_array(outputs['/confidence'][index][1])
+        kept = np.isfinite(disparity_from_message(outputs['/disparity_filtered'][index][1]))
+        assert confidence.min() >= 0.0 and confidence.max() <= 1.0
+        assert kept.mean() == pytest.approx(frames[index]['kept_density'])
+        assert outputs['/points2'][index][1].width == width  # organised cloud
+
+
+def test_auc_equals_cva_evaluate(tmp_path: Path) -> None:
+    bag = dataset_bag(tmp_path, 'mcap', 2)
+    code, report = _replay(bag, tmp_path)
+    assert code == 0
+    code, subset = _replay(bag, tmp_path, '--max-pixels', '300', '--seed', '7', name='subset')
+    assert code == 0
+    method = CONFIDENCE_METHODS.get('mlm')(matcher='census_bm', max_disparity=MAX_DISPARITY)
+    samples = list(load_dataset('middlebury2014', tmp_path / 'data'))
+    for frame, sub, sample in zip(report['frames'], subset['frames'], samples, strict=True):
+        for record, pixels in ((frame, None), (sub, 300)):
+            [expected] = evaluate_scene(
+                sample, 'census_bm', {'mlm': method}, max_disparity=MAX_DISPARITY,
+                max_pixels=pixels, seed=7,
+            )
+            assert record['auc'] == pytest.approx(expected.auc, abs=1e-9)
+            assert record['auc_opt'] == pytest.approx(expected.auc_opt, abs=1e-9)
+            assert record['error_rate'] == pytest.approx(expected.error_rate, abs=1e-9)
+            assert record['n_pixels'] == expected.n_pixels
+    assert {f['n_pixels'] for f in subset['frames']} == {300}
+
+
+def test_downsample_scales_ground_truth(tmp_path: Path) -> None:
+    bag = dataset_bag(tmp_path, 'mcap', 2)
+    code, report = _replay(bag, tmp_path, '--downsample', '2')
+    assert code == 0
+    samples = list(load_dataset('middlebury2014', tmp_path / 'data'))
+    for record, sample in zip(report['frames'], samples, strict=True):
+        height, width = sample.disparity.shape
+        assert (record['width'], record['height']) == (width // 2, height // 2)
+        # Every pixel the data sets' NaN-aware halving keeps is scored.
+        assert record['n_pixels'] == int(np.isfinite(resize_disparity(sample.disparity, 2)).sum())
+        assert record['auc'] is not None
+
+
+def test_topic_prefix_and_bag_without_ground_truth(tmp_path: Path) -> None:
+    bag = write_stereo_bag(tmp_path / 'in', [{}, {}], prefix='/stereo', ground_truth=False)
+    code, report = _replay(bag, tmp_path, '--topic-prefix', '/stereo', '--no-points')
+    assert code == 0
+    assert [f['auc'] for f in report['frames']] == [None, None]
+    assert report['frames'][0]['note'] == 'no ground truth'
+    assert set(read_bag(tmp_path / 'run_bag')) == {
+        '/stereo/disparity', '/stereo/confidence', '/stereo/disparity_filtered'
+    }
+    # Asking for a ground truth the bag does not have is an error.
+    code, _ = _replay(bag, tmp_path, '--topic-prefix', '/stereo', '--gt-topic', 'gt', name='b')
+    assert code == 2
+
+
+def _raw_messages(path: Path) -> list[tuple[str, int, bytes]]:
+    from rosbags.rosbag2 import Reader
+
+    with Reader(path) as reader:
+        return [(c.topic, t, bytes(d)) for c, t, d in reader.messages()]
+
+
+def test_offline_is_deterministic(tmp_path: Path) -> None:
+    bag = write_stereo_bag(tmp_path / 'in', [{'shift': 3}, {'shift': 5}])
+    assert _replay(bag, tmp_path, name='a')[0] == 0
+    assert _replay(bag, tmp_path, name='b')[0] == 0
+    assert _raw_messages(tmp_path / 'a_bag') == _raw_messages(tmp_path / 'b_bag')
+    first = read_bag(tmp_path / 'a_bag')
+    # A constant shift on random texture is found exactly where the texture is visible.
+    disparity = disparity_from_message(first['/disparity'][1][1])
+    assert np.all(disparity[4:-4, 5 + 4 : -4] == 5)

@@ -1,0 +1,83 @@
+"""``cva-bag-replay --mode live``: the bag played over real DDS to a real ``cva-node`` process."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from msg_test_utils import MAX_DISPARITY, dataset_bag, domain_id, read_bag
+import numpy as np
+import pytest
+
+from cva_confidence_ros.ros.convert import (
+    cloud_to_array,
+    disparity_from_message,
+    float_image_to_array,
+)
+from msg_tools.bag_replay import main
+from msg_tools.convert import stamp_to_ns
+
+METRICS = ('error_rate', 'auc', 'auc_opt', 'kept_density', 'kept_error_rate', 'n_pixels')
+
+
+@pytest.fixture(autouse=True)
+def _own_domain(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(domain_id()))
+
+
+def _replay(bag: Path, tmp_path: Path, mode: str, *extra: str) -> tuple[int, dict]:
+    code = main([
+        str(bag), '--mode', mode, '--out', str(tmp_path / f'{mode}_bag'),
+        '--report', str(tmp_path / mode), '--matcher', 'census_bm',
+        '--max-disparity', str(MAX_DISPARITY), '--confidence-method', 'pkrn',
+        '--downsample', '2', '--confidence-threshold', '0.3', *extra,
+    ])
+    report = tmp_path / mode / 'report.json'
+    return code, json.loads(report.read_text()) if report.exists() else {}
+
+
+@pytest.mark.timeout(180)
+def test_live_gives_the_offline_results(tmp_path: Path) -> None:
+    # Three tiny frames at 2 Hz: slow enough that the node drops nothing.
+    bag = dataset_bag(tmp_path, 'mcap', 3, '--rate', '2')
+    code, offline = _replay(bag, tmp_path, 'offline')
+    assert code == 0
+    code, live = _replay(bag, tmp_path, 'live', '--startup-timeout', '90')
+    assert code == 0, (tmp_path / 'live' / 'node.log').read_text()
+    assert live['summary']['dropped'] == 0 and live['summary']['processed'] == 3
+    assert live['config']['mode'] == 'live'
+    for a, b in zip(offline['frames'], live['frames'], strict=True):
+        assert (a['frame'], a['stamp_ns']) == (b['frame'], b['stamp_ns'])
+        for key in METRICS:
+            assert a[key] == b[key], key
+        assert b['latency_ms'] > 0
+    # The node's messages are the offline ones: same stamps, arrays and clouds.
+    first, second = read_bag(tmp_path / 'offline_bag'), read_bag(tmp_path / 'live_bag')
+    assert first.keys() == second.keys() == {
+        '/disparity', '/confidence', '/disparity_filtered', '/points2'
+    }
+    for topic, read in (
+        ('/disparity', disparity_from_message),
+        ('/disparity_filtered', disparity_from_message),
+        ('/confidence', float_image_to_array),
+        ('/points2', cloud_to_array),
+    ):
+        assert [t for t, _ in first[topic]] == [t for t, _ in second[topic]]
+        for (_, a), (_, b) in zip(first[topic], second[topic], strict=True):
+            assert stamp_to_ns(a.header.stamp) == stamp_to_ns(b.header.stamp)
+            assert a.header.frame_id == b.header.frame_id
+            left, right = read(a), read(b)
+            if left.dtype.names:
+                left = np.stack([left[n] for n in left.dtype.names])
+                right = np.stack([right[n] for n in right.dtype.names])
+            np.testing.assert_array_equal(left, right)
+
+
+def test_no_node_to_connect_to(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bag = dataset_bag(tmp_path, 'mcap', 1)
+    code, _ = _replay(bag, tmp_path, 'live', '--no-start-node', '--startup-timeout', '1')
+    assert code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith('cva-bag-replay: error: no node connected to /left/image_rect')
+    assert 'drop --no-start-node' in err
+    assert not (tmp_path / 'live_bag').exists()
