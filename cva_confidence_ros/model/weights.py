@@ -8,6 +8,7 @@ Shipped weights are named ``cvanet_<matcher>_d<D>.pt``.
 from __future__ import annotations
 
 from collections.abc import Mapping
+import json
 import os
 from pathlib import Path
 import sys
@@ -46,7 +47,7 @@ def save_weights(net: nn.Module, path: str | os.PathLike[str], meta: Mapping[str
         net: A :class:`CVANet` (or a DistributedDataParallel wrapper of one).
         path: Target ``.pt`` file; written to a temporary name first, then renamed.
         meta: At least ``matcher``; ``max_disparity`` and ``arch`` are filled in from ``net``.
-            Values must be plain Python (str, int, float, bool, lists, dicts, None).
+            Stored as JSON-like plain values (tuples become lists, other objects strings).
 
     Returns:
         The written path.
@@ -68,6 +69,9 @@ def save_weights(net: nn.Module, path: str | os.PathLike[str], meta: Mapping[str
             f'D = {model.max_disparity}'
         )
     meta['arch'] = ARCH
+    # Only plain values load back with torch.load(weights_only=True); a JSON round trip turns
+    # tuples into lists and anything exotic (versions, paths) into strings.
+    meta = json.loads(json.dumps(meta, default=str))
     state = {k: v.detach().cpu() for k, v in model.state_dict().items()}
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -1,0 +1,141 @@
+"""Model cards: the facts of a training run, beside the weights, as Markdown and JSON."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+import json
+import os
+from pathlib import Path
+import platform
+from typing import Any
+
+import torch
+
+__all__ = ['card_paths', 'hardware_facts', 'write_model_card']
+
+
+def card_paths(weights_path: str | os.PathLike[str]) -> tuple[Path, Path]:
+    """(``PATH.md``, ``PATH.json``) for weights ``PATH.pt``."""
+    path = Path(weights_path)
+    return path.with_suffix('.md'), path.with_suffix('.json')
+
+
+def _cpu_model() -> str:
+    try:
+        with open('/proc/cpuinfo', encoding='utf-8') as handle:
+            for line in handle:
+                if line.startswith('model name'):
+                    return line.split(':', 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def hardware_facts(device: torch.device, world_size: int = 1) -> dict[str, Any]:
+    """CPU model, cores, torch threads, GPU name (if used), processes, torch version."""
+    facts: dict[str, Any] = {
+        'cpu': _cpu_model(),
+        'cpu_cores': os.cpu_count(),
+        'torch_threads': torch.get_num_threads(),
+        'device': str(device),
+        'gpu': torch.cuda.get_device_name(device) if device.type == 'cuda' else None,
+        'processes': world_size,
+        'torch': str(torch.__version__),
+        'python': platform.python_version(),
+    }
+    return facts
+
+
+def _fmt(value: Any) -> str:
+    if value is None:
+        return '—'
+    if isinstance(value, float):
+        return f'{value:.4g}'
+    if isinstance(value, (list, tuple)):
+        return ', '.join(_fmt(v) for v in value) or '—'
+    return str(value)
+
+
+def write_model_card(
+    weights_path: str | os.PathLike[str], facts: Mapping[str, Any]
+) -> tuple[Path, Path]:
+    """Write ``PATH.md`` and ``PATH.json`` describing the weights ``PATH.pt``.
+
+    Args:
+        weights_path: The weights file the card belongs to.
+        facts: The training summary (see :func:`cva_confidence_ros.training.train`): matcher,
+            max_disparity, data sets and scenes, samples, epochs, batch size, learning rates,
+            hardware, wall time, command line, final loss and validation AUC, history.
+
+    Returns:
+        The two written paths.
+    """
+    md_path, json_path = card_paths(weights_path)
+    json_path.write_text(
+        json.dumps(dict(facts), indent=2, sort_keys=True) + '\n', encoding='utf-8'
+    )
+    hardware = facts.get('hardware', {})
+    lines = [
+        f'# CVA-Net weights `{Path(weights_path).name}`',
+        '',
+        'CVA-Net (Mehltretter & Heipke, ICCVW 2019): per-pixel confidence of the winner-takes-all '
+        'disparity, learned from 13×13×D extracts of the normalised cost volume.',
+        '',
+        '## Use',
+        '',
+        f'- matcher: `{facts.get("matcher")}`',
+        f'- cost-volume depth D: {facts.get("max_disparity")} (images are halved until the '
+        'disparity range fits D)',
+        '',
+        '## Training data',
+        '',
+        f'- data sets: {_fmt(facts.get("datasets"))}',
+        f'- synthetic pairs: {_fmt(facts.get("synthetic"))}',
+        f'- training scenes ({len(facts.get("scenes", []))}): '
+        f'{_fmt([s["name"] for s in facts.get("scenes", [])])}',
+        f'- labelled pixels: {_fmt(facts.get("labelled_pixels"))}, '
+        f'wrong-label fraction: {_fmt(facts.get("fraction_wrong"))}',
+        f'- validation scenes: {_fmt([s["name"] for s in facts.get("val_scenes", [])])} '
+        f'({_fmt(facts.get("val_pixels"))} pixels)',
+        '',
+        '## Procedure',
+        '',
+        f'- mode: {facts.get("mode")}'
+        + (
+            f' (crops of {facts.get("crop_size")}² outputs)'
+            if facts.get('mode') == 'dense'
+            else ''
+        ),
+        f'- epochs: {facts.get("epochs")} at lr {_fmt(facts.get("lr"))} + '
+        f'{facts.get("epochs_low_lr")} at lr {_fmt(facts.get("lr_low"))}',
+        f'- batch size: {facts.get("batch_size")}, samples per epoch: '
+        f'{_fmt(facts.get("samples_per_epoch"))}, samples seen: {_fmt(facts.get("samples_seen"))}',
+        '- loss: binary cross-entropy; optimiser: Adam (β1 0.9, β2 0.999); dropout 0.5',
+        f'- seed: {facts.get("seed")}',
+        '',
+        '## Hardware and time',
+        '',
+        f'- CPU: {_fmt(hardware.get("cpu"))} ({_fmt(hardware.get("cpu_cores"))} cores, '
+        f'{_fmt(hardware.get("torch_threads"))} torch threads)',
+        f'- GPU: {_fmt(hardware.get("gpu"))}; processes: {_fmt(hardware.get("processes"))}',
+        f'- wall time: {_fmt(facts.get("wall_time_s"))} s',
+        f'- command: `{facts.get("command")}`',
+        '',
+        '## Results',
+        '',
+        f'- final train loss: {_fmt(facts.get("final_train_loss"))}',
+        f'- validation AUC: {_fmt(facts.get("final_val_auc"))} '
+        f'(optimal {_fmt(facts.get("final_val_auc_opt"))}, error rate '
+        f'{_fmt(facts.get("final_val_error_rate"))})',
+        '',
+        '| epoch | lr | train loss | samples/s | val AUC |',
+        '|---|---|---|---|---|',
+    ]
+    for record in facts.get('history', []):
+        lines.append(
+            f'| {record["epoch"]} | {_fmt(record["lr"])} | {_fmt(record["train_loss"])} | '
+            f'{_fmt(record["samples_per_s"])} | {_fmt(record.get("val_auc"))} |'
+        )
+    lines += ['', '## Evaluation on the develop split', '', '(to be added)', '']
+    md_path.write_text('\n'.join(lines), encoding='utf-8')
+    return md_path, json_path

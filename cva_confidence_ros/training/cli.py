@@ -1,0 +1,172 @@
+"""``cva-train``: train CVA-Net on cost volumes of a chosen matcher.
+
+Example (the paper's protocol at D = 64 on the KITTI 2012 pairs plus synthetic data)::
+
+    cva-train --matcher census_bm --max-disparity 64 \\
+        --data-root DATA --datasets kitti2012 --synthetic 200 \\
+        --val-datasets eth3d --epochs 10 --epochs-low-lr 3 --batch-size 256 --lr 1e-4 \\
+        --out out/train_census_bm_d64 --weights-out models/cvanet_census_bm_d64.pt
+
+Multi-GPU: ``torchrun --nproc_per_node=N -m cva_confidence_ros.training.cli --device cuda ...``
+(or the ``cva-train`` script under torchrun). Bad input ends with a one-line message and exit
+code 2; an interrupted run continues with ``--resume`` from its last finished epoch.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+import shlex
+import sys
+
+from cva_confidence_ros.errors import CVAError
+from cva_confidence_ros.training.config import MODES, TrainConfig
+
+__all__ = ['build_parser', 'config_from_args', 'main']
+
+PROG = 'cva-train'
+
+
+def _size(text: str) -> tuple[int, int]:
+    height, sep, width = text.lower().partition('x')
+    try:
+        if not sep:
+            raise ValueError(text)
+        return int(height), int(width)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected HxW, e.g. 128x256; got {text!r}') from None
+
+
+def _names(text: str) -> tuple[str, ...]:
+    return tuple(dict.fromkeys(item.strip() for item in text.split(',') if item.strip()))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``cva-train``."""
+    defaults = TrainConfig.__dataclass_fields__
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description='Train CVA-Net (confidence from cost volumes) for one matcher and depth D.',
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    data = parser.add_argument_group('data')
+    data.add_argument('--matcher', default=defaults['matcher'].default, help='matcher name')
+    data.add_argument(
+        '--max-disparity',
+        type=int,
+        default=defaults['max_disparity'].default,
+        help='cost-volume depth D; images are halved until the ground truth fits',
+    )
+    data.add_argument('--data-root', default=None, help='folder holding the data sets')
+    data.add_argument(
+        '--datasets',
+        type=_names,
+        default=(),
+        help="training data sets, comma-separated, each 'name' or 'name:split'",
+    )
+    data.add_argument('--max-scenes', type=int, default=None, help='scenes per data set')
+    data.add_argument('--synthetic', type=int, default=0, help='synthetic training pairs')
+    data.add_argument(
+        '--synthetic-size',
+        type=_size,
+        default=None,
+        help='HxW of synthetic pairs (default: max(128, D) x max(256, 2D))',
+    )
+    data.add_argument('--synthetic-seed', type=int, default=0, help='seed of the first pair')
+    data.add_argument('--val-datasets', type=_names, default=(), help='held-apart data sets')
+    data.add_argument('--val-synthetic', type=int, default=0, help='synthetic validation pairs')
+    data.add_argument(
+        '--val-pixels',
+        type=int,
+        default=defaults['val_pixels'].default,
+        help='fixed pixel subset for the validation AUC',
+    )
+    run = parser.add_argument_group('procedure')
+    run.add_argument('--mode', choices=MODES, default='sparse', help='sample extracts or crops')
+    run.add_argument(
+        '--crop-size',
+        type=int,
+        default=defaults['crop_size'].default,
+        help='dense mode: outputs per crop side',
+    )
+    run.add_argument('--epochs', type=int, default=defaults['epochs'].default)
+    run.add_argument('--epochs-low-lr', type=int, default=defaults['epochs_low_lr'].default)
+    run.add_argument('--batch-size', type=int, default=defaults['batch_size'].default)
+    run.add_argument('--lr', type=float, default=defaults['lr'].default)
+    run.add_argument(
+        '--low-lr-factor',
+        type=float,
+        default=defaults['low_lr_factor'].default,
+        help='learning-rate factor of the last epochs',
+    )
+    run.add_argument(
+        '--samples-per-epoch',
+        type=int,
+        default=None,
+        help='labelled samples per epoch (default: every labelled pixel once)',
+    )
+    run.add_argument('--seed', type=int, default=0)
+    run.add_argument('--device', default='cpu', help="'cpu', 'cuda', 'cuda:N' or 'auto'")
+    run.add_argument('--threads', type=int, default=None, help='torch and numba CPU threads')
+    output = parser.add_argument_group('output')
+    output.add_argument('--out', default=defaults['out'].default, help='checkpoints and log')
+    output.add_argument(
+        '--weights-out', default=None, help='final weights PATH.pt (+ PATH.md, PATH.json)'
+    )
+    output.add_argument('--resume', action='store_true', help='continue from OUT/checkpoint.pt')
+    output.add_argument('--no-progress', action='store_true', help='no progress bar')
+    return parser
+
+
+def config_from_args(args: argparse.Namespace) -> TrainConfig:
+    """Translate parsed arguments into a validated :class:`TrainConfig`."""
+    return TrainConfig(
+        matcher=args.matcher,
+        max_disparity=args.max_disparity,
+        data_root=args.data_root,
+        datasets=args.datasets,
+        max_scenes=args.max_scenes,
+        synthetic=args.synthetic,
+        synthetic_size=args.synthetic_size,
+        synthetic_seed=args.synthetic_seed,
+        val_datasets=args.val_datasets,
+        val_synthetic=args.val_synthetic,
+        val_pixels=args.val_pixels,
+        mode=args.mode,
+        crop_size=args.crop_size,
+        epochs=args.epochs,
+        epochs_low_lr=args.epochs_low_lr,
+        batch_size=args.batch_size,
+        lr=args.lr,
+        low_lr_factor=args.low_lr_factor,
+        samples_per_epoch=args.samples_per_epoch,
+        seed=args.seed,
+        device=args.device,
+        threads=args.threads,
+        out=args.out,
+        weights_out=args.weights_out,
+        resume=args.resume,
+        progress=not args.no_progress,
+    )
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``cva-train``; returns the exit code (0 = done, 2 = bad input)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = build_parser().parse_args(argv)
+    try:
+        config = config_from_args(args)
+        from cva_confidence_ros.training.trainer import train
+
+        train(config, command=shlex.join([PROG, *argv]))
+    except CVAError as exc:
+        print(f'{PROG}: error: {exc}', file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f'{PROG}: interrupted; continue with --resume', file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

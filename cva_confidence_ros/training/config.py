@@ -1,0 +1,188 @@
+"""The training configuration: one frozen dataclass, validated on construction."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+from cva_confidence_ros.errors import ConfigError
+
+__all__ = ['MODES', 'TrainConfig', 'default_synthetic_size', 'parse_dataset_spec']
+
+#: ``sparse``: one 13×13×D extract per sample (the paper); ``dense``: crops with a masked loss.
+MODES = ('sparse', 'dense')
+_DEVICES = ('cpu', 'cuda', 'auto')
+
+
+def default_synthetic_size(max_disparity: int) -> tuple[int, int]:
+    """(H, W) of synthetic pairs for depth D: at least 128×256, and W ≥ 2·D."""
+    return max(128, int(max_disparity)), max(256, 2 * int(max_disparity))
+
+
+def parse_dataset_spec(spec: str) -> tuple[str, str | None]:
+    """Split ``'name'`` or ``'name:split'`` into (name, split or None)."""
+    name, _, split = spec.partition(':')
+    name = name.strip()
+    if not name:
+        raise ConfigError(f"expected a data set as 'name' or 'name:split'; got {spec!r}")
+    return name, split.strip() or None
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything that decides what ``cva-train`` does.
+
+    Attributes:
+        matcher: Registered matcher whose cost volumes the network learns from.
+        max_disparity: Cost-volume depth D (paper: 256).
+        data_root: Folder holding the data sets (each under its registered name, or itself one).
+        datasets: Training data sets as ``name`` or ``name:split``.
+        max_scenes: Use at most this many scenes per data set (None = all).
+        synthetic: Number of synthetic training pairs.
+        synthetic_size: (H, W) of the synthetic pairs; None = :func:`default_synthetic_size`.
+        synthetic_seed: Seed of the first synthetic training pair (pair i has seed + i).
+        val_datasets: Held-apart validation data sets (``name`` or ``name:split``).
+        val_synthetic: Number of synthetic validation pairs (seeds disjoint from training).
+        val_pixels: Size of the fixed pixel subset the validation AUC is computed on.
+        mode: ``sparse`` or ``dense`` (see :data:`MODES`).
+        crop_size: Output side of a dense-mode crop (input is crop + 12).
+        epochs: Epochs at learning rate ``lr`` (paper: 10).
+        epochs_low_lr: Further epochs at ``lr × low_lr_factor`` (paper: 3).
+        batch_size: Samples per step (paper: 256). Dense mode uses ceil(batch / crop²) crops.
+        lr: Learning rate of Adam (paper: 1e-4).
+        low_lr_factor: Factor of the last epochs' learning rate (paper: 0.1).
+        samples_per_epoch: Labelled samples per epoch; None = every labelled pixel once.
+        seed: Seed of initialisation, sampling and dropout.
+        device: ``cpu``, ``cuda`` or ``auto``.
+        threads: torch CPU threads; None = torch's default.
+        out: Folder for checkpoints, the log and the history.
+        weights_out: Final weights file (+ model card beside it); None = only checkpoints.
+        resume: Continue from ``out/checkpoint.pt`` if it exists.
+        progress: Show a progress bar.
+    """
+
+    matcher: str = 'census_bm'
+    max_disparity: int = 64
+    data_root: str | None = None
+    datasets: tuple[str, ...] = ()
+    max_scenes: int | None = None
+    synthetic: int = 0
+    synthetic_size: tuple[int, int] | None = None
+    synthetic_seed: int = 0
+    val_datasets: tuple[str, ...] = ()
+    val_synthetic: int = 0
+    val_pixels: int = 2000
+    mode: str = 'sparse'
+    crop_size: int = 32
+    epochs: int = 10
+    epochs_low_lr: int = 3
+    batch_size: int = 256
+    lr: float = 1e-4
+    low_lr_factor: float = 0.1
+    samples_per_epoch: int | None = None
+    seed: int = 0
+    device: str = 'cpu'
+    threads: int | None = None
+    out: str = 'out/train'
+    weights_out: str | None = None
+    resume: bool = False
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        from cva_confidence_ros.datasets import DATASETS, DEVELOP_DATASETS
+
+        object.__setattr__(self, 'datasets', tuple(self.datasets))
+        object.__setattr__(self, 'val_datasets', tuple(self.val_datasets))
+        if self.synthetic_size is not None:
+            object.__setattr__(self, 'synthetic_size', tuple(int(v) for v in self.synthetic_size))
+        _at_least('max_disparity', self.max_disparity, 13)
+        _at_least('synthetic', self.synthetic, 0)
+        _at_least('val_synthetic', self.val_synthetic, 0)
+        _at_least('val_pixels', self.val_pixels, 1)
+        _at_least('crop_size', self.crop_size, 1)
+        _at_least('epochs', self.epochs, 0)
+        _at_least('epochs_low_lr', self.epochs_low_lr, 0)
+        _at_least('batch_size', self.batch_size, 1)
+        _at_least('synthetic_seed', self.synthetic_seed, 0)
+        _at_least('seed', self.seed, 0)
+        if self.epochs + self.epochs_low_lr < 1:
+            raise ConfigError('epochs + epochs_low_lr must be >= 1; got 0')
+        if self.max_scenes is not None:
+            _at_least('max_scenes', self.max_scenes, 1)
+        if self.samples_per_epoch is not None:
+            _at_least('samples_per_epoch', self.samples_per_epoch, 1)
+        if self.threads is not None:
+            _at_least('threads', self.threads, 1)
+        if self.mode not in MODES:
+            raise ConfigError(f'mode must be one of {MODES}; got {self.mode!r}')
+        if self.device not in _DEVICES and not str(self.device).startswith('cuda:'):
+            raise ConfigError(f'device must be one of {_DEVICES} or cuda:N; got {self.device!r}')
+        if not (self.lr > 0 and 0 < self.low_lr_factor <= 1):
+            raise ConfigError(
+                f'lr must be > 0 and low_lr_factor in (0, 1]; got {self.lr}, {self.low_lr_factor}'
+            )
+        if not self.datasets and self.synthetic == 0:
+            raise ConfigError('no training data: give --datasets and/or --synthetic N (N > 0)')
+        if (self.datasets or self.val_datasets) and not self.data_root:
+            raise ConfigError('--datasets / --val-datasets need --data-root')
+        train = [parse_dataset_spec(s) for s in self.datasets]
+        val = [parse_dataset_spec(s) for s in self.val_datasets]
+        for name, _ in train + val:
+            if name not in DATASETS:
+                raise ConfigError(f'unknown data set {name!r}; expected one of {DATASETS.names()}')
+        for name, _ in train:
+            if name in DEVELOP_DATASETS:
+                raise ConfigError(
+                    f'{name} is a develop data set ({", ".join(DEVELOP_DATASETS)}): never train '
+                    'on it, or the reported numbers mean nothing'
+                )
+        overlap = set(train) & set(val)
+        if overlap:
+            raise ConfigError(
+                f'validation data must be held apart from the training data; both use '
+                f'{sorted(overlap)}'
+            )
+        height, width = self.synthetic_hw
+        if self.synthetic or self.val_synthetic:
+            if height < 16 or width < 2 * self.max_disparity:
+                raise ConfigError(
+                    f'synthetic pairs must be at least 16 px high and 2·D = '
+                    f'{2 * self.max_disparity} px wide; got {height}×{width}'
+                )
+
+    @property
+    def synthetic_hw(self) -> tuple[int, int]:
+        """(H, W) of the synthetic pairs."""
+        return self.synthetic_size or default_synthetic_size(self.max_disparity)
+
+    @property
+    def total_epochs(self) -> int:
+        """``epochs + epochs_low_lr``."""
+        return self.epochs + self.epochs_low_lr
+
+    def lr_at(self, epoch: int) -> float:
+        """Learning rate of (0-based) ``epoch``."""
+        return self.lr if epoch < self.epochs else self.lr * self.low_lr_factor
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-Python dict of the fields (for checkpoints and model cards)."""
+        data = asdict(self)
+        for key, value in data.items():
+            if isinstance(value, tuple):
+                data[key] = list(value)
+        return data
+
+    def replace(self, **changes: Any) -> TrainConfig:
+        """A validated copy with ``changes`` applied."""
+        names = {f.name for f in fields(self)}
+        unknown = set(changes) - names
+        if unknown:
+            raise ConfigError(f'unknown training options {sorted(unknown)}')
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        values.update(changes)
+        return TrainConfig(**values)
+
+
+def _at_least(name: str, value: Any, low: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise ConfigError(f'{name} must be an integer >= {low}; got {value!r}')

@@ -1,0 +1,315 @@
+"""Training data: cost volumes and labels per scene, and the samples drawn from them.
+
+Every scene is matched once; its cost volume is kept zero-padded by 6 px in float16 (half the
+memory of float32, and costs in [0, 1] lose nothing that matters at 1e-3), and every pixel with
+ground truth is labelled correct or wrong by the KITTI criterion against the matcher's
+winner-takes-all disparity. Samples are then sliced out of the padded volumes:
+
+* sparse mode: a 13×13×D extract centred on a labelled pixel (the paper's training samples);
+* dense mode: a (c + 12)×(c + 12)×D crop whose c×c outputs are trained with a masked loss, so
+  that neighbouring samples share one forward pass. A "sample" is a labelled output pixel.
+
+All draws are seeded by (seed, epoch), so a resumed run sees exactly the samples of an
+uninterrupted one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+import math
+
+import numpy as np
+import torch
+
+from cva_confidence_ros.datasets import StereoSample, fit_disparity_range
+from cva_confidence_ros.errors import DataError
+from cva_confidence_ros.model import PAD, PATCH_SIZE, pad_cost_volume
+
+__all__ = [
+    'CropBatch',
+    'PreparedScene',
+    'SampleIndex',
+    'dense_crops',
+    'epoch_order',
+    'gather_crops',
+    'gather_extracts',
+    'prepare_scene',
+    'sample_index',
+    'validation_subset',
+]
+
+
+@dataclass(eq=False)
+class PreparedScene:
+    """One matched scene at the training resolution.
+
+    Attributes:
+        name: ``dataset/scene``.
+        factor: Downscaling factor applied by ``fit_disparity_range`` (1, 2, 4, ...).
+        volume: (D, H + 12, W + 12) float16 cost volume, zero-padded by 6 px on each side.
+        labelled: (H, W) bool, True where ground truth is known.
+        correct: (H, W) bool, True where the WTA disparity is correct (KITTI criterion);
+            meaningful only where ``labelled``.
+    """
+
+    name: str
+    factor: int
+    volume: torch.Tensor
+    labelled: np.ndarray
+    correct: np.ndarray
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(H, W) of the scene's outputs."""
+        return int(self.labelled.shape[0]), int(self.labelled.shape[1])
+
+    @property
+    def n_labelled(self) -> int:
+        """Pixels with ground truth."""
+        return int(self.labelled.sum())
+
+    @property
+    def n_wrong(self) -> int:
+        """Labelled pixels whose WTA disparity is wrong."""
+        return int((self.labelled & ~self.correct).sum())
+
+    def unpadded_volume(self) -> np.ndarray:
+        """(D, H, W) float32 cost volume."""
+        height, width = self.shape
+        return self.volume[:, PAD : PAD + height, PAD : PAD + width].float().numpy()
+
+
+def prepare_scene(sample: StereoSample, matcher: str, max_disparity: int) -> PreparedScene:
+    """Shrink a sample until its ground truth fits D, match it and label its pixels.
+
+    Args:
+        sample: A stereo pair with ground truth (NaN = unknown).
+        matcher: Registered matcher name.
+        max_disparity: Cost-volume depth D.
+
+    Returns:
+        The :class:`PreparedScene`.
+
+    Raises:
+        DataError: No pixel with ground truth after shrinking.
+    """
+    from cva_confidence_ros.matching import compute_cost_volume, wta_disparity
+    from cva_confidence_ros.metrics import kitti_error
+
+    fitted, factor = fit_disparity_range(sample, max_disparity)
+    volume = compute_cost_volume(fitted.left, fitted.right, matcher, max_disparity)
+    estimate = wta_disparity(volume)
+    truth = fitted.disparity
+    labelled = np.isfinite(truth)
+    name = f'{sample.dataset}/{sample.scene}'
+    if not labelled.any():
+        raise DataError(f'{name}: no pixel with ground truth at factor {factor}')
+    correct = ~kitti_error(estimate, truth) & labelled
+    padded = torch.from_numpy(pad_cost_volume(volume, np.float16))
+    return PreparedScene(name, factor, padded, labelled, correct)
+
+
+@dataclass(frozen=True)
+class SampleIndex:
+    """Every labelled pixel of a list of scenes.
+
+    Attributes:
+        scene: (N,) int32 scene number.
+        ys: (N,) int32 rows.
+        xs: (N,) int32 columns.
+        target: (N,) float32, 1 = correct disparity, 0 = wrong.
+    """
+
+    scene: np.ndarray
+    ys: np.ndarray
+    xs: np.ndarray
+    target: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.scene.size)
+
+    @property
+    def fraction_wrong(self) -> float:
+        """Share of samples labelled wrong (class balance)."""
+        return float(1.0 - self.target.mean()) if len(self) else 0.0
+
+
+def sample_index(scenes: Sequence[PreparedScene]) -> SampleIndex:
+    """The :class:`SampleIndex` of all labelled pixels, scene by scene in row-major order."""
+    parts = []
+    for number, scene in enumerate(scenes):
+        ys, xs = np.nonzero(scene.labelled)
+        target = scene.correct[ys, xs].astype(np.float32)
+        parts.append(
+            (np.full(ys.size, number, np.int32), ys.astype(np.int32), xs.astype(np.int32), target)
+        )
+    if not parts:
+        empty = np.zeros(0, np.int32)
+        return SampleIndex(empty, empty, empty, np.zeros(0, np.float32))
+    return SampleIndex(*(np.concatenate(column) for column in zip(*parts, strict=True)))
+
+
+def epoch_order(n_total: int, n_samples: int, seed: int, epoch: int) -> np.ndarray:
+    """Indices of the samples of one epoch: shuffled, each used once before any repeats.
+
+    Args:
+        n_total: Number of available samples.
+        n_samples: Samples wanted this epoch.
+        seed: Run seed.
+        epoch: 0-based epoch (each epoch gets its own order).
+
+    Returns:
+        (n_samples,) int64 indices into [0, n_total).
+    """
+    if n_total < 1:
+        raise DataError('no labelled training samples')
+    rng = np.random.default_rng([seed, epoch, 1])
+    rounds = math.ceil(n_samples / n_total)
+    order = np.concatenate([rng.permutation(n_total) for _ in range(rounds)])
+    return order[:n_samples]
+
+
+def gather_extracts(
+    scenes: Sequence[PreparedScene], index: SampleIndex, chosen: np.ndarray
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """13×13×D extracts centred on the chosen samples.
+
+    Args:
+        scenes: The prepared scenes.
+        index: Their :class:`SampleIndex`.
+        chosen: (B,) indices into ``index``.
+
+    Returns:
+        ``(volumes, targets)``: (B, 1, D, 13, 13) float32 and (B,) float32.
+    """
+    depth = scenes[0].volume.shape[0]
+    out = torch.empty((len(chosen), 1, depth, PATCH_SIZE, PATCH_SIZE), dtype=torch.float32)
+    scene_ids = index.scene[chosen]
+    for number in np.unique(scene_ids):
+        rows = np.nonzero(scene_ids == number)[0]
+        picked = chosen[rows]
+        # (D, H, W, 13, 13) view; advanced indexing copies only the chosen windows.
+        windows = scenes[number].volume.unfold(1, PATCH_SIZE, 1).unfold(2, PATCH_SIZE, 1)
+        patch = windows[:, torch.from_numpy(index.ys[picked]), torch.from_numpy(index.xs[picked])]
+        out[torch.from_numpy(rows), 0] = patch.permute(1, 0, 2, 3).float()
+    return out, torch.from_numpy(index.target[chosen])
+
+
+@dataclass(frozen=True)
+class CropBatch:
+    """Dense-mode crops: top-left output corners and labelled-pixel counts.
+
+    Attributes:
+        scene: (N,) int32 scene numbers.
+        y0: (N,) int32 first output row.
+        x0: (N,) int32 first output column.
+        n_labelled: (N,) int32 labelled outputs in each crop.
+    """
+
+    scene: np.ndarray
+    y0: np.ndarray
+    x0: np.ndarray
+    n_labelled: np.ndarray
+
+
+def _crop_side(scenes: Sequence[PreparedScene], crop_size: int) -> int:
+    return min([crop_size] + [min(s.shape) for s in scenes])
+
+
+def dense_crops(
+    scenes: Sequence[PreparedScene],
+    index: SampleIndex,
+    n_samples: int,
+    crop_size: int,
+    seed: int,
+    epoch: int,
+) -> CropBatch:
+    """Crops of one epoch, each placed around a random labelled pixel, until they hold at least
+    ``n_samples`` labelled outputs in total.
+
+    The crop side is ``crop_size`` or the smallest scene side if that is smaller.
+    """
+    side = _crop_side(scenes, crop_size)
+    rng = np.random.default_rng([seed, epoch, 2])
+    counts = [
+        np.pad(s.labelled.astype(np.int32).cumsum(0).cumsum(1), ((1, 0), (1, 0))) for s in scenes
+    ]
+    chosen: list[tuple[int, int, int, int]] = []
+    total = 0
+    while total < n_samples:
+        for centre in rng.permutation(len(index))[: max(1, min(len(index), 4096))]:
+            number = int(index.scene[centre])
+            height, width = scenes[number].shape
+            y = int(index.ys[centre]) - int(rng.integers(0, side))
+            x = int(index.xs[centre]) - int(rng.integers(0, side))
+            y0, x0 = min(max(0, y), height - side), min(max(0, x), width - side)
+            table = counts[number]
+            n = int(
+                table[y0 + side, x0 + side]
+                - table[y0, x0 + side]
+                - table[y0 + side, x0]
+                + table[y0, x0]
+            )
+            chosen.append((number, y0, x0, n))
+            total += n
+            if total >= n_samples:
+                break
+    scene, y0, x0, n = (np.array(column, dtype=np.int32) for column in zip(*chosen, strict=True))
+    return CropBatch(scene, y0, x0, n)
+
+
+def gather_crops(
+    scenes: Sequence[PreparedScene], crops: CropBatch, rows: np.ndarray, crop_size: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Input crops, targets and loss masks of the chosen dense-mode crops.
+
+    Args:
+        scenes: The prepared scenes.
+        crops: All crops of the epoch.
+        rows: (B,) indices into ``crops``.
+        crop_size: Requested output side (clipped as in :func:`dense_crops`).
+
+    Returns:
+        ``(volumes, targets, mask)``: (B, 1, D, c + 12, c + 12) float32, (B, c, c) float32
+        (1 = correct) and (B, c, c) bool (True = labelled).
+    """
+    side = _crop_side(scenes, crop_size)
+    depth = scenes[0].volume.shape[0]
+    span = side + 2 * PAD
+    volumes = torch.empty((len(rows), 1, depth, span, span), dtype=torch.float32)
+    targets = np.empty((len(rows), side, side), dtype=np.float32)
+    mask = np.empty((len(rows), side, side), dtype=bool)
+    for out_row, row in enumerate(rows):
+        scene = scenes[int(crops.scene[row])]
+        y0, x0 = int(crops.y0[row]), int(crops.x0[row])
+        volumes[out_row, 0] = scene.volume[:, y0 : y0 + span, x0 : x0 + span].float()
+        targets[out_row] = scene.correct[y0 : y0 + side, x0 : x0 + side]
+        mask[out_row] = scene.labelled[y0 : y0 + side, x0 : x0 + side]
+    return volumes, torch.from_numpy(targets), torch.from_numpy(mask)
+
+
+def batches(order: np.ndarray, batch_size: int) -> Iterator[np.ndarray]:
+    """Consecutive slices of ``order`` of at most ``batch_size`` entries."""
+    for start in range(0, len(order), batch_size):
+        yield order[start : start + batch_size]
+
+
+def validation_subset(
+    scenes: Sequence[PreparedScene], n_pixels: int, seed: int
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """A fixed random subset of labelled pixels per validation scene, ``n_pixels`` in all.
+
+    Pixels are drawn uniformly over all labelled pixels of all scenes (so larger scenes get more).
+
+    Returns:
+        Per scene, (ys, xs) int arrays (possibly empty).
+    """
+    index = sample_index(scenes)
+    rng = np.random.default_rng([seed, 7])
+    take = rng.permutation(len(index))[: min(n_pixels, len(index))]
+    take.sort()
+    return [
+        (index.ys[take][index.scene[take] == n], index.xs[take][index.scene[take] == n])
+        for n in range(len(scenes))
+    ]

@@ -1,0 +1,477 @@
+"""The training loop of CVA-Net (paper section 3.3), with checkpoints, resume and DDP.
+
+One process trains on CPU or one GPU. Launched by ``torchrun`` (``WORLD_SIZE`` > 1 in the
+environment), every process trains a disjoint share of each epoch's samples and PyTorch's
+DistributedDataParallel averages the gradients; rank 0 validates and writes every file.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+import datetime
+import json
+import math
+import os
+from pathlib import Path
+import sys
+import time
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+import torch.nn.functional as F
+
+from cva_confidence_ros.datasets import StereoSample, list_scenes, load_scene
+from cva_confidence_ros.datasets.synthetic import synthetic_pair
+from cva_confidence_ros.errors import ConfigError, ModelError
+from cva_confidence_ros.model import CVANet, predict_confidence_at, resolve_device, save_weights
+from cva_confidence_ros.training.card import hardware_facts, write_model_card
+from cva_confidence_ros.training.config import TrainConfig, parse_dataset_spec
+from cva_confidence_ros.training.data import (
+    PreparedScene,
+    SampleIndex,
+    batches,
+    dense_crops,
+    epoch_order,
+    gather_crops,
+    gather_extracts,
+    prepare_scene,
+    sample_index,
+    validation_subset,
+)
+
+__all__ = ['CHECKPOINT_NAME', 'VAL_SEED_OFFSET', 'train']
+
+CHECKPOINT_NAME = 'checkpoint.pt'
+#: Synthetic validation pairs use seeds from here on, disjoint from the training seeds.
+VAL_SEED_OFFSET = 1_000_000
+# Fields that must not change between a run and its resume: they decide the samples.
+_RESUME_KEYS = (
+    'matcher',
+    'max_disparity',
+    'datasets',
+    'max_scenes',
+    'synthetic',
+    'synthetic_size',
+    'synthetic_seed',
+    'mode',
+    'crop_size',
+    'batch_size',
+    'samples_per_epoch',
+    'seed',
+)
+
+
+@dataclass(frozen=True)
+class _Dist:
+    rank: int
+    world: int
+    device: torch.device
+
+    @property
+    def main(self) -> bool:
+        return self.rank == 0
+
+    def barrier(self) -> None:
+        if self.world > 1:
+            torch.distributed.barrier()
+
+    def sum(self, values: list[float]) -> list[float]:
+        """Element-wise sum of ``values`` over all processes."""
+        if self.world == 1:
+            return values
+        tensor = torch.tensor(values, dtype=torch.float64, device=self.device)
+        torch.distributed.all_reduce(tensor)
+        return tensor.tolist()
+
+
+def _setup_distributed(device: str) -> _Dist:
+    world = int(os.environ.get('WORLD_SIZE', '1'))
+    resolved = resolve_device(device)
+    if world <= 1:
+        return _Dist(0, 1, resolved)
+    rank = int(os.environ['RANK'])
+    local_rank = int(os.environ.get('LOCAL_RANK', '0'))
+    if resolved.type == 'cuda':
+        resolved = torch.device('cuda', local_rank)
+        torch.cuda.set_device(resolved)
+    backend = 'nccl' if resolved.type == 'cuda' else 'gloo'
+    if not torch.distributed.is_initialized():
+        torch.distributed.init_process_group(backend)
+    return _Dist(rank, world, resolved)
+
+
+class _Logits(nn.Module):
+    """Forward = logits, so that DistributedDataParallel wraps the call the loss uses."""
+
+    def __init__(self, net: CVANet) -> None:
+        super().__init__()
+        self.net = net
+
+    def forward(self, volume: torch.Tensor) -> torch.Tensor:
+        return self.net.forward_logits(volume)
+
+
+class _Log:
+    """Messages to stderr and ``out/train.log`` (main process only)."""
+
+    def __init__(self, path: Path, enabled: bool) -> None:
+        self.path = path
+        self.enabled = enabled
+
+    def __call__(self, message: str) -> None:
+        if not self.enabled:
+            return
+        stamp = datetime.datetime.now().isoformat(timespec='seconds')
+        print(message, file=sys.stderr, flush=True)
+        with self.path.open('a', encoding='utf-8') as handle:
+            handle.write(f'{stamp} {message}\n')
+
+
+def _load_samples(
+    config: TrainConfig, validation: bool
+) -> list[tuple[str, Callable[[], StereoSample]]]:
+    """(label, loader) per scene, loaded lazily so that only one pair is in memory at a time."""
+    specs = config.val_datasets if validation else config.datasets
+    loaders: list[tuple[str, Callable[[], StereoSample]]] = []
+    root = config.data_root
+    for spec in specs:
+        name, split = parse_dataset_spec(spec)
+        for scene in list_scenes(name, root, split)[: config.max_scenes]:
+            loaders.append(
+                (
+                    f'{name}/{scene}',
+                    lambda n=name, c=scene, s=split: load_scene(n, root, c, s),
+                )
+            )
+    count = config.val_synthetic if validation else config.synthetic
+    first = config.synthetic_seed + (VAL_SEED_OFFSET if validation else 0)
+    height, width = config.synthetic_hw
+    for seed in range(first, first + count):
+        loaders.append(
+            (
+                f'synthetic/seed{seed}',
+                lambda s=seed: synthetic_pair(s, height, width, config.max_disparity),
+            )
+        )
+    return loaders
+
+
+def _prepare(config: TrainConfig, validation: bool, log: _Log) -> list[PreparedScene]:
+    scenes = []
+    for label, loader in _load_samples(config, validation):
+        tic = time.perf_counter()
+        scene = prepare_scene(loader(), config.matcher, config.max_disparity)
+        scenes.append(scene)
+        log(
+            f'{"val " if validation else ""}scene {label}: {scene.shape[0]}×{scene.shape[1]} '
+            f'(factor {scene.factor}), {scene.n_labelled} labelled, '
+            f'{scene.n_wrong / max(1, scene.n_labelled):.1%} wrong, '
+            f'{time.perf_counter() - tic:.1f} s'
+        )
+    return scenes
+
+
+def _scene_facts(scenes: list[PreparedScene]) -> list[dict[str, Any]]:
+    return [
+        {
+            'name': s.name,
+            'factor': s.factor,
+            'height': s.shape[0],
+            'width': s.shape[1],
+            'labelled': s.n_labelled,
+            'wrong': s.n_wrong,
+        }
+        for s in scenes
+    ]
+
+
+def _save_checkpoint(path: Path, state: dict[str, Any]) -> None:
+    tmp = path.with_name(path.name + '.tmp')
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+
+
+def _load_checkpoint(path: Path, config: TrainConfig) -> dict[str, Any]:
+    try:
+        state = torch.load(path, map_location='cpu', weights_only=True)
+    except Exception as exc:  # torch raises many unrelated types for a damaged file
+        raise ModelError(f'cannot read checkpoint {path} ({type(exc).__name__}: {exc})') from exc
+    saved = state.get('config', {})
+    current = config.to_dict()
+    changed = [k for k in _RESUME_KEYS if saved.get(k) != current.get(k)]
+    if changed:
+        detail = ', '.join(f'{k}: {saved.get(k)!r} → {current.get(k)!r}' for k in changed)
+        raise ConfigError(
+            f'cannot resume from {path}: the run was started with other settings ({detail}); '
+            'use another --out folder or the original settings'
+        )
+    return state
+
+
+def _validate(
+    net: CVANet,
+    scenes: list[PreparedScene],
+    subsets: list[tuple[np.ndarray, np.ndarray]],
+    device: torch.device,
+) -> dict[str, float | None]:
+    from cva_confidence_ros.metrics import optimal_auc, roc_auc
+
+    confidences, wrongs = [], []
+    for scene, (ys, xs) in zip(scenes, subsets, strict=True):
+        if ys.size == 0:
+            continue
+        confidences.append(predict_confidence_at(net, scene.unpadded_volume(), ys, xs, device))
+        wrongs.append(~scene.correct[ys, xs])
+    if not confidences:
+        return {'val_auc': None, 'val_auc_opt': None, 'val_error_rate': None}
+    confidence, wrong = np.concatenate(confidences), np.concatenate(wrongs)
+    rate = float(wrong.mean())
+    return {
+        'val_auc': float(roc_auc(confidence, wrong)),
+        'val_auc_opt': float(optimal_auc(rate)),
+        'val_error_rate': rate,
+    }
+
+
+def _progress(total: int, description: str, enabled: bool) -> Any:
+    from tqdm import tqdm
+
+    return tqdm(
+        total=total,
+        desc=description,
+        unit='sample',
+        unit_scale=True,
+        disable=not enabled,
+        dynamic_ncols=True,
+        leave=False,
+    )
+
+
+def _run_epoch(
+    config: TrainConfig,
+    model: nn.Module,
+    optimiser: torch.optim.Optimizer,
+    scenes: list[PreparedScene],
+    index: SampleIndex,
+    n_samples: int,
+    epoch: int,
+    dist: _Dist,
+) -> tuple[float, int, float]:
+    """One epoch; returns (mean loss over all processes, samples seen in all, seconds)."""
+    model.train()
+    device = dist.device
+    tic = time.perf_counter()
+    loss_sum = 0.0
+    seen = 0
+    if config.mode == 'sparse':
+        order = epoch_order(len(index), n_samples, config.seed, epoch)
+        share = len(order) // dist.world if dist.world > 1 else len(order)
+        order = order[dist.rank * share : (dist.rank + 1) * share]
+        steps = list(batches(order, config.batch_size))
+        total = len(order)
+    else:
+        crops = dense_crops(scenes, index, n_samples, config.crop_size, config.seed, epoch)
+        rows = np.arange(len(crops.scene))
+        share = len(rows) // dist.world if dist.world > 1 else len(rows)
+        rows = rows[dist.rank * share : (dist.rank + 1) * share]
+        side = min([config.crop_size] + [min(s.shape) for s in scenes])
+        steps = list(batches(rows, max(1, math.ceil(config.batch_size / side**2))))
+        total = int(crops.n_labelled[rows].sum())
+    description = f'epoch {epoch + 1}/{config.total_epochs}'
+    with _progress(total, description, config.progress and dist.main) as bar:
+        for step in steps:
+            if config.mode == 'sparse':
+                volumes, targets = gather_extracts(scenes, index, step)
+                volumes, targets = volumes.to(device), targets.to(device)
+                logits = model(volumes)[:, 0, 0]
+                loss = F.binary_cross_entropy_with_logits(logits, targets)
+                count = len(step)
+            else:
+                volumes, targets, mask = gather_crops(scenes, crops, step, config.crop_size)
+                volumes, targets, mask = volumes.to(device), targets.to(device), mask.to(device)
+                logits = model(volumes)
+                count = int(mask.sum())
+                if count:
+                    loss = F.binary_cross_entropy_with_logits(logits[mask], targets[mask])
+                else:  # keep the graph (and DDP's gradient exchange) alive
+                    loss = logits.sum() * 0.0
+            optimiser.zero_grad(set_to_none=True)
+            loss.backward()
+            optimiser.step()
+            loss_sum += float(loss.detach()) * count
+            seen += count
+            bar.update(count)
+            elapsed = time.perf_counter() - tic
+            bar.set_postfix(loss=f'{loss_sum / max(1, seen):.4f}', sps=f'{seen / elapsed:.0f}')
+    loss_total, seen_total = dist.sum([loss_sum, float(seen)])
+    return loss_total / max(1.0, seen_total), int(seen_total), time.perf_counter() - tic
+
+
+def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
+    """Train CVA-Net as configured; write checkpoints, log, weights and model card.
+
+    Args:
+        config: What to train on and how.
+        command: The command line, recorded in the model card.
+
+    Returns:
+        The training summary (the ``meta`` stored in the weights and the model card's facts).
+
+    Raises:
+        ConfigError: Bad configuration, or ``resume`` with a checkpoint of other settings.
+        DataError: Unreadable data or no labelled pixel.
+        ModelError: Unreadable checkpoint.
+    """
+    from cva_confidence_ros.matching import MATCHERS
+
+    if config.matcher not in MATCHERS:
+        raise ConfigError(
+            f'unknown matcher {config.matcher!r}; expected one of {MATCHERS.names()}'
+        )
+    if config.threads:
+        # numba's OpenMP layer resets the OpenMP thread count that torch also uses: numba first.
+        _limit_numba_threads(config.threads)
+        torch.set_num_threads(config.threads)
+    dist = _setup_distributed(config.device)
+    out = Path(config.out)
+    if dist.main:
+        out.mkdir(parents=True, exist_ok=True)
+    dist.barrier()
+    log = _Log(out / 'train.log', dist.main)
+    log(f'cva-train: {command or config.to_dict()}')
+    started = time.perf_counter()
+
+    scenes = _prepare(config, False, log)
+    index = sample_index(scenes)
+    val_scenes = _prepare(config, True, log) if dist.main else []
+    val_subsets = validation_subset(val_scenes, config.val_pixels, config.seed)
+    n_samples = config.samples_per_epoch or len(index)
+    log(
+        f'{len(scenes)} training scenes, {len(index)} labelled pixels, '
+        f'{index.fraction_wrong:.1%} labelled wrong; {n_samples} samples per epoch '
+        f'({config.mode} mode); {len(val_scenes)} validation scenes'
+    )
+
+    torch.manual_seed(config.seed)
+    net = CVANet(config.max_disparity).to(dist.device)
+    optimiser = torch.optim.Adam(net.parameters(), lr=config.lr, betas=(0.9, 0.999))
+    history: list[dict[str, Any]] = []
+    start_epoch = 0
+    previous_wall = 0.0
+    checkpoint = out / CHECKPOINT_NAME
+    if config.resume and checkpoint.is_file():
+        state = _load_checkpoint(checkpoint, config)
+        net.load_state_dict(state['model'])
+        optimiser.load_state_dict(state['optimizer'])
+        history = list(state['history'])
+        start_epoch = int(state['epoch'])
+        previous_wall = float(state.get('wall_time_s', 0.0))
+        log(f'resumed from {checkpoint} after epoch {start_epoch}')
+    elif config.resume:
+        log(f'--resume: no checkpoint in {out}, starting from scratch')
+    model: nn.Module = _Logits(net)
+    if dist.world > 1:
+        device_ids = [dist.device.index] if dist.device.type == 'cuda' else None
+        model = nn.parallel.DistributedDataParallel(model, device_ids=device_ids)
+
+    for epoch in range(start_epoch, config.total_epochs):
+        lr = config.lr_at(epoch)
+        for group in optimiser.param_groups:
+            group['lr'] = lr
+        # Dropout draws depend on (seed, epoch, rank) only: a resumed epoch repeats exactly.
+        torch.manual_seed(config.seed * 1_000_003 + epoch * 7919 + dist.rank + 1)
+        loss, seen, seconds = _run_epoch(
+            config, model, optimiser, scenes, index, n_samples, epoch, dist
+        )
+        record: dict[str, Any] = {
+            'epoch': epoch + 1,
+            'lr': lr,
+            'train_loss': loss,
+            'samples': seen,
+            'seconds': seconds,
+            'samples_per_s': seen / max(seconds, 1e-9),
+        }
+        if dist.main:
+            record.update(_validate(net, val_scenes, val_subsets, dist.device))
+            history.append(record)
+            wall = previous_wall + time.perf_counter() - started
+            _save_checkpoint(
+                checkpoint,
+                {
+                    'format': 1,
+                    'epoch': epoch + 1,
+                    'model': {k: v.detach().cpu() for k, v in net.state_dict().items()},
+                    'optimizer': optimiser.state_dict(),
+                    'history': history,
+                    'config': config.to_dict(),
+                    'wall_time_s': wall,
+                },
+            )
+            (out / 'history.json').write_text(json.dumps(history, indent=2) + '\n', 'utf-8')
+            val = record.get('val_auc')
+            log(
+                f'epoch {epoch + 1}/{config.total_epochs}: lr {lr:.1e}, loss {loss:.4f}, '
+                f'{seen} samples in {seconds:.1f} s ({record["samples_per_s"]:.1f}/s)'
+                + (
+                    f', val AUC {val:.4f} (optimal {record["val_auc_opt"]:.4f})'
+                    if val is not None
+                    else ''
+                )
+            )
+        dist.barrier()
+
+    wall = previous_wall + time.perf_counter() - started
+    last = history[-1] if history else {}
+    summary: dict[str, Any] = {
+        'arch': 'cvanet',
+        'matcher': config.matcher,
+        'max_disparity': config.max_disparity,
+        'mode': config.mode,
+        'crop_size': config.crop_size,
+        'datasets': list(config.datasets),
+        'synthetic': config.synthetic,
+        'synthetic_size': list(config.synthetic_hw),
+        'scenes': _scene_facts(scenes),
+        'labelled_pixels': len(index),
+        'fraction_wrong': index.fraction_wrong,
+        'val_datasets': list(config.val_datasets),
+        'val_synthetic': config.val_synthetic,
+        'val_scenes': _scene_facts(val_scenes),
+        'val_pixels': int(sum(ys.size for ys, _ in val_subsets)),
+        'samples_per_epoch': n_samples,
+        'samples_seen': int(sum(r['samples'] for r in history)),
+        'epochs': config.epochs,
+        'epochs_low_lr': config.epochs_low_lr,
+        'batch_size': config.batch_size,
+        'lr': config.lr,
+        'lr_low': config.lr * config.low_lr_factor,
+        'seed': config.seed,
+        'hardware': hardware_facts(dist.device, dist.world),
+        'wall_time_s': wall,
+        'command': command,
+        'final_train_loss': last.get('train_loss'),
+        'final_val_auc': last.get('val_auc'),
+        'final_val_auc_opt': last.get('val_auc_opt'),
+        'final_val_error_rate': last.get('val_error_rate'),
+        'history': history,
+        'date': datetime.date.today().isoformat(),
+    }
+    if config.weights_out and dist.main:
+        path = save_weights(net, config.weights_out, summary)
+        md_path, json_path = write_model_card(path, summary)
+        log(f'wrote {path}, {md_path} and {json_path}')
+    dist.barrier()
+    if dist.world > 1:
+        torch.distributed.destroy_process_group()
+    return summary
+
+
+def _limit_numba_threads(threads: int) -> None:
+    try:
+        import numba
+    except ImportError:
+        return
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))

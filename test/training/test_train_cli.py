@@ -1,0 +1,127 @@
+"""``cva-train`` end to end on tiny synthetic pairs: weights, card, checkpoints, resume."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+
+from cva_confidence_ros.errors import ConfigError
+from cva_confidence_ros.model import load_weights
+from cva_confidence_ros.training import TrainConfig
+from cva_confidence_ros.training.cli import main
+
+TINY = [
+    '--matcher', 'census_bm',
+    '--max-disparity', '16',
+    '--synthetic', '2',
+    '--synthetic-size', '24x40',
+    '--val-synthetic', '1',
+    '--val-pixels', '40',
+    '--batch-size', '16',
+    '--samples-per-epoch', '32',
+    '--seed', '7',
+    '--threads', '1',
+    '--no-progress',
+]  # fmt: skip
+
+
+@pytest.fixture(autouse=True)
+def _restore_threads():
+    """``--threads 1`` changes process-wide settings; give the other tests theirs back."""
+    import numba
+
+    threads, numba_threads = torch.get_num_threads(), numba.get_num_threads()
+    yield
+    numba.set_num_threads(numba_threads)
+    torch.set_num_threads(threads)
+
+
+def _history(out: Path) -> list[dict]:
+    return json.loads((out / 'history.json').read_text())
+
+
+def test_train_writes_weights_and_card_then_resumes(tmp_path):
+    out, weights = tmp_path / 'run', tmp_path / 'models' / 'cvanet_census_bm_d16.pt'
+    args = [*TINY, '--out', str(out), '--weights-out', str(weights)]
+    assert main([*args, '--epochs', '1', '--epochs-low-lr', '1']) == 0
+
+    net, meta = load_weights(weights, matcher='census_bm', max_disparity=16)
+    assert net.max_disparity == 16
+    assert meta['epochs'] == 1 and meta['epochs_low_lr'] == 1 and meta['batch_size'] == 16
+    assert [s['name'] for s in meta['scenes']] == ['synthetic/seed0', 'synthetic/seed1']
+    assert [s['name'] for s in meta['val_scenes']] == ['synthetic/seed1000000']
+    assert meta['samples_seen'] == 64 and meta['val_pixels'] == 40
+    assert 0.0 <= meta['fraction_wrong'] <= 1.0
+    assert 0.0 <= meta['final_val_auc'] <= 1.0 and meta['final_train_loss'] > 0
+    assert meta['command'].startswith('cva-train --matcher census_bm')
+    assert meta['hardware']['torch_threads'] == 1
+    card = json.loads(weights.with_suffix('.json').read_text())
+    assert card['final_val_auc'] == meta['final_val_auc']
+    markdown = weights.with_suffix('.md').read_text()
+    for fact in ('census_bm', 'synthetic/seed1', 'wall time', 'Adam', 'validation AUC'):
+        assert fact in markdown
+    history = _history(out)
+    assert [h['lr'] for h in history] == pytest.approx([1e-4, 1e-5])
+    assert (out / 'checkpoint.pt').is_file() and (out / 'train.log').is_file()
+
+    # One more low-lr epoch: only epoch 3 runs, epochs 1-2 are kept as they were.
+    assert main([*args, '--epochs', '1', '--epochs-low-lr', '2', '--resume']) == 0
+    resumed = _history(out)
+    assert [h['epoch'] for h in resumed] == [1, 2, 3]
+    assert resumed[:2] == history
+    assert 'resumed from' in (out / 'train.log').read_text()
+    assert load_weights(weights)[1]['samples_seen'] == 96
+
+
+def test_resume_reproduces_an_uninterrupted_run(tmp_path):
+    straight, split = tmp_path / 'straight', tmp_path / 'split'
+    assert main([*TINY, '--out', str(straight), '--epochs', '2', '--epochs-low-lr', '0']) == 0
+    assert main([*TINY, '--out', str(split), '--epochs', '1', '--epochs-low-lr', '0']) == 0
+    args = [*TINY, '--out', str(split), '--epochs', '2', '--epochs-low-lr', '0', '--resume']
+    assert main(args) == 0
+    a = torch.load(straight / 'checkpoint.pt', weights_only=True)['model']
+    b = torch.load(split / 'checkpoint.pt', weights_only=True)['model']
+    for key in a:
+        torch.testing.assert_close(a[key], b[key], atol=1e-6, rtol=1e-5)
+
+
+def test_dense_mode_counts_labelled_outputs(tmp_path):
+    out = tmp_path / 'dense'
+    args = [*TINY, '--out', str(out), '--mode', 'dense', '--crop-size', '8']
+    assert (
+        main([*args, '--epochs', '1', '--epochs-low-lr', '0', '--samples-per-epoch', '100']) == 0
+    )
+    (record,) = _history(out)
+    assert record['samples'] >= 100 and record['train_loss'] > 0
+
+
+def test_bad_settings_exit_2(tmp_path, capsys):
+    assert main(['--max-disparity', '16', '--out', str(tmp_path)]) == 2
+    assert 'no training data' in capsys.readouterr().err
+    args = ['--data-root', str(tmp_path), '--datasets', 'kitti2015', '--out', str(tmp_path)]
+    assert main(args) == 2
+    assert 'develop data set' in capsys.readouterr().err
+    args = ['--data-root', str(tmp_path), '--datasets', 'eth3d', '--val-datasets', 'eth3d']
+    assert main(args) == 2
+    assert 'held apart' in capsys.readouterr().err
+
+
+def test_resume_with_other_settings_is_refused(tmp_path, capsys):
+    out = tmp_path / 'run'
+    assert main([*TINY, '--out', str(out), '--epochs', '1', '--epochs-low-lr', '0']) == 0
+    args = [*TINY, '--out', str(out), '--epochs', '2', '--resume', '--seed', '8']
+    assert main(args) == 2
+    assert 'seed: 7' in capsys.readouterr().err
+
+
+def test_config_validation():
+    with pytest.raises(ConfigError, match='mode'):
+        TrainConfig(synthetic=1, mode='fancy')
+    with pytest.raises(ConfigError, match='2·D'):
+        TrainConfig(synthetic=1, max_disparity=64, synthetic_size=(64, 100))
+    config = TrainConfig(synthetic=1, epochs=2, epochs_low_lr=1, lr=1e-3)
+    assert [config.lr_at(e) for e in range(3)] == pytest.approx([1e-3, 1e-3, 1e-4])
+    assert config.synthetic_hw == (128, 256)
