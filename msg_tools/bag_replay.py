@@ -185,7 +185,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f'cva-bag-replay: error: {err}', file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print('cva-bag-replay: interrupted before any output was written', file=sys.stderr)
+        # Only reached outside the replay proper (start-up, final clean-up): the output bag,
+        # if one was begun, was finalised by the replay session.
+        print('cva-bag-replay: interrupted', file=sys.stderr)
         return 130
     if outcome.exit_code == 0:
         print(outcome.message)

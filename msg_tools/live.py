@@ -14,6 +14,8 @@ replay's names), or, with ``start_node=False``, an already running one is used.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 import os
 from pathlib import Path
@@ -306,12 +308,27 @@ def run_live(options: ReplayOptions, log: Logger = log_stderr) -> ReplayOutcome:
             _wait_for_node(player, node, options, log)
             return _play(bag, plan, player, node, options, log)
         finally:
-            if player is not None:
-                player.close()
-            if node is not None:
-                code = node.stop()
-                if code not in (0, None):
-                    log(f'cva-node exited with code {code}: {node.last_lines()}')
+            # A second Ctrl-C must not cut the clean-up short (and leave the node running).
+            with _signals_ignored():
+                if player is not None:
+                    player.close()
+                if node is not None:
+                    code = node.stop()
+                    if code not in (0, None):
+                        log(f'cva-node exited with code {code}: {node.last_lines()}')
+
+
+@contextmanager
+def _signals_ignored() -> Iterator[None]:
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {sig: signal.signal(sig, signal.SIG_IGN) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 def _wait_for_node(
@@ -350,7 +367,9 @@ def _play(
     sync = make_synchronizer(options)
     key_of = plan.key_of
     progress = Progress(plan.pairs_expected, prefix='[cva-bag-replay] live: ')
-    session = ReplaySession(options, plan, log, truth_window=None)
+    # Outputs lag the inputs, so ground truth waits until its frame is answered (or a newer
+    # one is); the cap only guards against a node that answers nothing at all.
+    session = ReplaySession(options, plan, log, truth_window=max(50, 4 * options.queue_size))
     recorder = _Recorder(session, store, options, player.received)
     with session:
         try:

@@ -234,13 +234,12 @@ class ReportWriter:
             return []
         self._plotted += 1
         finite = confidence[np.isfinite(confidence)]
-        if finite.size and finite.min() >= 0.0 and finite.max() <= 1.0:
-            vmin, vmax = 0.0, 1.0
-        elif finite.size:
-            # Hand-crafted ratios have long tails that would leave the map black.
-            vmin, vmax = (float(v) for v in np.percentile(finite, [1.0, 99.0]))
-        else:
-            vmin = vmax = None
+        vmin = vmax = None
+        if finite.size:
+            low, high = (float(v) for v in np.percentile(finite, [1.0, 99.0]))
+            # A map that uses most of [0, 1] (learned) is drawn on that fixed scale; one with a
+            # long tail (hand-crafted ratios, even min–max scaled) is stretched, or it is black.
+            vmin, vmax = (0.0, 1.0) if low <= 0.25 and high >= 0.75 else (low, high)
         paths = [
             save_confidence_map(
                 confidence, self.folder / f'confidence_{score.frame:05d}.png', vmin, vmax
