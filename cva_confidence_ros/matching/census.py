@@ -8,7 +8,7 @@ Pixels outside the image take the value of the nearest border pixel (replicate p
 
 from __future__ import annotations
 
-from numba import njit, prange
+from numba import njit
 import numpy as np
 
 from cva_confidence_ros.errors import InputError
@@ -45,11 +45,12 @@ def popcount(value: np.uint32) -> np.uint32:
     return ((value * _H01) >> _S24) & _BYTE
 
 
-@njit(cache=True, parallel=True)
+# Serial: a 640×480 census takes a few milliseconds, and parallel kernels compile far slower.
+@njit(cache=True)
 def _census_kernel(gray: np.ndarray) -> np.ndarray:
     height, width = gray.shape
     codes = np.empty((height, width), np.uint32)
-    for y in prange(height):
+    for y in range(height):
         for x in range(width):
             centre = gray[y, x]
             code = 0
@@ -107,13 +108,13 @@ def valid_range(width: int, disparity: int, step: int) -> tuple[int, int]:
     return 0, max(width - disparity, 0)
 
 
-@njit(cache=True, parallel=True, fastmath=True)
+@njit(cache=True, fastmath=True)
 def _hamming_hwd_kernel(
     codes_ref: np.ndarray, codes_other: np.ndarray, depth: int, step: int
 ) -> np.ndarray:
     height, width = codes_ref.shape
     costs = np.empty((height, width, depth), np.uint8)
-    for y in prange(height):
+    for y in range(height):
         for x in range(width):
             ref = codes_ref[y, x]
             for d in range(depth):

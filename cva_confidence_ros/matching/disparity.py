@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from numba import njit, prange
+from numba import njit
 import numpy as np
 
 from cva_confidence_ros.errors import ConfigError, InputError
@@ -12,28 +12,29 @@ from cva_confidence_ros.errors import ConfigError, InputError
 __all__ = ['left_right_check', 'wta_disparity']
 
 
-# No fastmath: the NaN test below must survive optimisation.
-@njit(cache=True, parallel=True)
+# Serial (the scan is memory-bound, and parallel kernels compile far slower); no fastmath, so
+# that the NaN test survives optimisation.
+@njit(cache=True)
 def _argmin_depth(volume: np.ndarray, out: np.ndarray) -> int:
     depth, height, width = volume.shape
+    best = np.empty(width, np.float32)
     nans = 0
-    for y in prange(height):
-        best = volume[0, y].copy()
-        index = np.zeros(width, np.float32)
-        bad = 0
+    for y in range(height):
+        index = out[y]
+        first = volume[0, y]
         for x in range(width):
-            bad += best[x] != best[x]
+            best[x] = first[x]
+            index[x] = 0.0
+            nans += first[x] != first[x]
         for d in range(1, depth):
             row = volume[d, y]
             for x in range(width):
                 value = row[x]
-                bad += value != value
+                nans += value != value
                 # strict '<' keeps the smallest disparity among equal costs, like np.argmin
                 if value < best[x]:
                     best[x] = value
                     index[x] = d
-        out[y] = index
-        nans += bad
     return nans
 
 

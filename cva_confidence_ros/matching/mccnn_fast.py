@@ -22,7 +22,12 @@ from cva_confidence_ros.matching.census import valid_range
 if TYPE_CHECKING:
     import torch
 
-__all__ = ['MCCNNFastConfig', 'MCCNNFastMatcher', 'cosine_cost_volume']
+__all__ = [
+    'MCCNNFastConfig',
+    'MCCNNFastMatcher',
+    'cosine_cost_volume',
+    'cosine_cost_volume_torch',
+]
 
 
 @dataclass(frozen=True)
@@ -82,35 +87,42 @@ def cosine_cost_volume(
 
     Args:
         features_ref: (C, H, W) unit-length float32 features of the reference view.
-        features_other: (C, H, W) features of the other view.
+        features_other: (C, H, W) features of the other view, same device.
         depth: D.
         step: −1 when the partner of x is x − d (left reference), +1 when it is x + d.
 
     Returns:
-        (D, H, W) float32 in [0, 1], 1.0 where the partner is outside the image. On CPU a numba
-        kernel over (H, W, C) copies of the features; on CUDA a loop over d on the device.
+        (D, H, W) float32 in [0, 1], 1.0 where the partner is outside the image. Computed by a
+        numba kernel for CPU tensors and by :func:`cosine_cost_volume_torch` on the GPU.
     """
+    if features_ref.device.type != 'cpu':
+        return cosine_cost_volume_torch(features_ref, features_other, depth, step)
     channels, height, width = features_ref.shape
     volume = np.empty((depth, height, width), np.float32)
-    if features_ref.device.type == 'cpu':
-        ref = np.ascontiguousarray(features_ref.permute(1, 2, 0).numpy())
-        other = np.ascontiguousarray(features_other.permute(1, 2, 0).numpy())
-        _cosine_kernel(ref, other, int(step), volume)
-        return volume
+    ref = np.ascontiguousarray(features_ref.permute(1, 2, 0).numpy())
+    other = np.ascontiguousarray(features_other.permute(1, 2, 0).numpy())
+    _cosine_kernel(ref, other, int(step), volume)
+    return volume
+
+
+def cosine_cost_volume_torch(
+    features_ref: torch.Tensor, features_other: torch.Tensor, depth: int, step: int
+) -> np.ndarray:
+    """Same as :func:`cosine_cost_volume`, as a loop over d of torch operations on the
+    features' device (what CUDA uses)."""
     import torch
 
+    channels, height, width = features_ref.shape
     with torch.inference_mode():
         result = torch.ones((depth, height, width), device=features_ref.device)
         for d in range(depth):
             lo, hi = (d, width) if step < 0 else (0, width - d)
             if hi <= lo:
                 continue
-            dot = (
-                features_ref[:, :, lo:hi] * features_other[:, :, lo + step * d:hi + step * d]
-            ).sum(0)
+            partner = features_other[:, :, lo + step * d:hi + step * d]
+            dot = (features_ref[:, :, lo:hi] * partner).sum(0)
             result[d, :, lo:hi] = ((1.0 - dot) * 0.5).clamp_(0.0, 1.0)
-        volume[...] = result.cpu().numpy()
-    return volume
+        return np.ascontiguousarray(result.cpu().numpy(), dtype=np.float32)
 
 
 class _FeatureCache:

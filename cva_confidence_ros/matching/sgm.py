@@ -10,9 +10,13 @@ S(p, d) = Σ_r L_r(p, d) over the 8 directions (horizontal, vertical and both di
 ways). Since the middle term is at most min_k L_r(p − r, k) + P2, every L_r ≤ Cmax + P2 and
 S ≤ 8·(Cmax + P2).
 
-Internally costs are (H, W, D) so that the recursion runs along contiguous disparities. Three
-passes: horizontal paths (rows in parallel), then the three downward paths row by row (pixels of
-a row in parallel), then the three upward ones, which also write the final volume.
+Internally costs are (H, W, D), so that the recursion runs along contiguous disparities, and
+path costs are int16 (p2 is bounded so that they fit), so that it runs 16 disparities per AVX2
+instruction. Like OpenCV's SGBM the 8 paths are run as two sweeps over the image: top-down and
+left-to-right for the 4 paths arriving from the left and from above, bottom-up and right-to-left
+for the other 4. The two sweeps run in parallel into separate uint16 accumulators, which a
+final pass adds, transposes to (D, H, W) and scales. Census costs can be computed on the fly
+inside the sweeps instead of being read from a volume.
 """
 
 from __future__ import annotations
