@@ -4,11 +4,17 @@ Everything here reads and writes rosbag2 files (MCAP or sqlite3) through ``rosba
 ROS installation; only the ``live`` replay mode talks DDS through rclpy.
 
 Modules:
-    bagio: opening input bags and writing output bags, with :class:`BagError` for every fault.
+    bagio: opening input bags and writing output bags, with ``BagError`` for every fault.
     convert: ``rosbags`` message types (ROS 2 Jazzy typestore) ⇄ numpy arrays.
     scoring: per-frame confidence metrics and the JSON / CSV / Markdown / PNG report.
-    replay: the offline replay engine, :mod:`live`: the live one (over DDS, against the node).
+    replay: options, topic names, the node's outputs, the shared session, the offline mode.
+    live: the live mode (the bag played over DDS to a real ``cva-node``).
+    progress: progress lines on stderr and Ctrl-C that never cuts a bag write in half.
     bag_from_dataset, bag_replay: the two command-line tools.
+
+The replay decodes inputs and builds outputs with the node's own code
+(``cva_confidence_ros.ros.convert``, ``node.to_unit_interval``), so its output bag holds what
+the node publishes.
 """
 
 from __future__ import annotations

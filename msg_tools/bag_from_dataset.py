@@ -33,7 +33,7 @@ import numpy as np
 
 from cva_confidence_ros.errors import ConfigError, CVAError
 from cva_confidence_ros.pointcloud import StereoGeometry
-from msg_tools.bagio import BAG_VERSION, STORAGES, OutputBag, remove_bag
+from msg_tools.bagio import BAG_VERSION, COMPRESSIONS, STORAGES, OutputBag, remove_bag
 from msg_tools.convert import (
     CAMERA_INFO,
     DISPARITY_IMAGE,
@@ -64,6 +64,7 @@ class BagSpec:
 
     Attributes:
         storage: ``mcap`` or ``sqlite3``.
+        compression: ``none``, ``file`` or ``message`` (zstd, as ``ros2 bag record`` does).
         rate_hz: Frames per second of the stamps (> 0).
         start_time_s: Stamp of the first frame, seconds since the epoch (≥ 0).
         focal: Focal length in pixels overriding the data set's calibration (None = keep).
@@ -75,6 +76,7 @@ class BagSpec:
     """
 
     storage: str = 'mcap'
+    compression: str = 'none'
     rate_hz: float = 1.0
     start_time_s: float = DEFAULT_START_TIME_S
     focal: float | None = None
@@ -87,6 +89,10 @@ class BagSpec:
     def __post_init__(self) -> None:
         if self.storage not in STORAGES:
             raise ConfigError(f'storage must be one of {STORAGES}; got {self.storage!r}')
+        if self.compression not in COMPRESSIONS:
+            raise ConfigError(
+                f'compression must be one of {COMPRESSIONS}; got {self.compression!r}'
+            )
         if not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
             raise ConfigError(f'rate must be a positive number of Hz; got {self.rate_hz}')
         if not (math.isfinite(self.start_time_s) and self.start_time_s >= 0):
@@ -190,7 +196,7 @@ def write_dataset_bag(
         'gt': spec.topic(spec.gt_topic.strip('/')),
     }
     interrupts = GracefulInterrupt()
-    bag = OutputBag(out, spec.storage, store)
+    bag = OutputBag(out, spec.storage, store, spec.compression)
     with interrupts:
         bag.open()
         try:
@@ -260,6 +266,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--out', type=Path, required=True, help='bag folder to create')
     parser.add_argument('--storage', choices=STORAGES, default='mcap',
                         help='storage plugin (default mcap)')
+    parser.add_argument('--compression', choices=COMPRESSIONS, default='none',
+                        help='zstd compression mode (default none)')
     parser.add_argument('--rate', type=float, default=1.0, help='frames per second (default 1)')
     parser.add_argument('--max-frames', type=int, default=None, help='write at most N scenes')
     parser.add_argument('--focal', type=float, default=None,
@@ -285,6 +293,7 @@ def main(argv: list[str] | None = None) -> int:
             raise ConfigError(f'--max-frames must be >= 1; got {args.max_frames}')
         spec = BagSpec(
             storage=args.storage,
+            compression=args.compression,
             rate_hz=args.rate,
             start_time_s=args.start_time,
             focal=args.focal,

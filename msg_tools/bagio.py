@@ -17,10 +17,12 @@ from typing import Any
 from cva_confidence_ros.errors import BagError
 from msg_tools.convert import jazzy_typestore
 
-__all__ = ['BAG_VERSION', 'STORAGES', 'InputBag', 'OutputBag', 'remove_bag']
+__all__ = ['BAG_VERSION', 'COMPRESSIONS', 'STORAGES', 'InputBag', 'OutputBag', 'remove_bag']
 
 BAG_VERSION = 8
 STORAGES = ('mcap', 'sqlite3')
+#: rosbag2 compression modes (zstd), as ``ros2 bag record --compression-mode`` names them.
+COMPRESSIONS = ('none', 'file', 'message')
 
 # Low-level failures a damaged file raises from inside rosbags' storage plugins.
 _STORAGE_FAULTS = (
@@ -199,18 +201,26 @@ class OutputBag:
         path: Bag folder to create; must not exist.
         storage: ``mcap`` (default) or ``sqlite3``.
         typestore: ``rosbags`` typestore; the Jazzy one by default.
+        compression: ``none`` (default), ``file`` or ``message`` (zstd).
 
     Raises:
-        BagError: Unknown storage, or ``path`` exists already.
+        BagError: Unknown storage or compression, or ``path`` exists already.
     """
 
     def __init__(
-        self, path: str | Path, storage: str = 'mcap', typestore: Any | None = None
+        self,
+        path: str | Path,
+        storage: str = 'mcap',
+        typestore: Any | None = None,
+        compression: str = 'none',
     ) -> None:
         if storage not in STORAGES:
             raise BagError(f'storage must be one of {STORAGES}; got {storage!r}')
+        if compression not in COMPRESSIONS:
+            raise BagError(f'compression must be one of {COMPRESSIONS}; got {compression!r}')
         self.path = Path(path)
         self.storage = storage
+        self.compression = compression
         self.typestore = typestore or jazzy_typestore()
         self.counts: dict[str, int] = {}
         self._writer: Any = None
@@ -230,14 +240,24 @@ class OutputBag:
         Raises:
             BagError: The folder exists or cannot be created.
         """
-        from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
+        from rosbags.rosbag2 import (
+            CompressionFormat,
+            CompressionMode,
+            StoragePlugin,
+            Writer,
+            WriterError,
+        )
 
         if self.path.exists():
             raise BagError(f'output bag {self.path} exists already; remove it or pick another')
         plugin = StoragePlugin.MCAP if self.storage == 'mcap' else StoragePlugin.SQLITE3
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            writer = Writer(self.path, version=BAG_VERSION, storage_plugin=plugin)  # type: ignore[arg-type]
+            writer = Writer(self.path, version=BAG_VERSION, storage_plugin=plugin)
+            if self.compression != 'none':
+                writer.set_compression(
+                    CompressionMode[self.compression.upper()], CompressionFormat.ZSTD
+                )
             writer.open()
         except (WriterError, OSError) as err:
             raise BagError(f'cannot create output bag {self.path}: {err}') from None

@@ -23,6 +23,7 @@ import numpy as np
 from cva_confidence_ros.errors import BagError, ConfigError, InputError
 from cva_confidence_ros.pipeline import PipelineConfig, PipelineResult
 from cva_confidence_ros.pointcloud import StereoGeometry
+from cva_confidence_ros.sync import DEFAULT_KEYS
 from msg_tools.bagio import STORAGES, InputBag, OutputBag, remove_bag
 from msg_tools.convert import (
     CAMERA_INFO,
@@ -56,7 +57,7 @@ __all__ = [
 
 Logger = Callable[[str], None]
 
-INPUT_KEYS = ('left', 'right', 'left_info', 'right_info')
+INPUT_KEYS = DEFAULT_KEYS
 _INPUT_TYPES = {'left': IMAGE, 'right': IMAGE, 'left_info': CAMERA_INFO, 'right_info': CAMERA_INFO}
 GT_TYPES = (DISPARITY_IMAGE, IMAGE)
 # Skips are counted always but logged only this often, so a bag of bad frames stays readable.

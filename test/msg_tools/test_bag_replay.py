@@ -148,3 +148,14 @@ def test_offline_is_deterministic(tmp_path: Path) -> None:
     # A constant shift on random texture is found exactly where the texture is visible.
     disparity = disparity_from_message(first['/disparity'][1][1])
     assert np.all(disparity[4:-4, 5 + 4 : -4] == 5)
+
+
+@pytest.mark.parametrize(('storage', 'compression'), [('sqlite3', 'message'), ('mcap', 'file')])
+def test_compressed_bags(tmp_path: Path, storage: str, compression: str) -> None:
+    bag = dataset_bag(tmp_path, storage, 2, '--compression', compression)
+    metadata = (bag / 'metadata.yaml').read_text()
+    assert f'compression_mode: {compression}' in metadata
+    assert 'compression_format: zstd' in metadata
+    code, report = _replay(bag, tmp_path)
+    assert code == 0
+    assert report['summary']['processed'] == 2 and report['summary']['frames_scored'] == 2
