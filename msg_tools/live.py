@@ -222,7 +222,7 @@ class _Player:
         # A best-effort reader accepts any writer: the only safe choice for a node we did not
         # configure; a node we started writes reliably, so we read reliably.
         receive_qos = QoSProfile(
-            history=HistoryPolicy.KEEP_LAST, depth=100,
+            history=HistoryPolicy.KEEP_LAST, depth=30,
             reliability=(ReliabilityPolicy.RELIABLE if reliable_outputs
                          else ReliabilityPolicy.BEST_EFFORT),
         )
@@ -348,8 +348,9 @@ def _wait_for_node(
                 f'{options.startup_timeout_s:.0f} s{hint}'
             )
         time.sleep(0.05)
-    # Matching is seen from our side first; give the node's side a moment to match too.
-    time.sleep(0.5)
+    # This is our side of the matching; a message sent before the node's side has matched
+    # our writers too would be lost (volatile QoS), so give discovery a moment to settle.
+    time.sleep(1.0)
     log('node connected; playing the bag')
 
 
