@@ -47,31 +47,34 @@ def _window_row(
     lo: int,
     hi: int,
     radius: int,
-    hamming: np.ndarray,
+    padded: np.ndarray,
     out: np.ndarray,
 ) -> None:
-    """Horizontal window sums of one row of Hamming costs (partner of x is x + shift)."""
-    width = hamming.shape[0]
+    """Horizontal window sums of one row of Hamming costs (partner of x is x + shift).
+
+    ``padded`` (W + 2·radius + 1 cells) receives the costs with the border cells repeated, then
+    their running sum, so that each window sum is one difference.
+    """
+    width = out.shape[0]
     # Cells whose partner lies outside the image count as the worst cost, so a support region
     # cut by the border is not mistaken for a good match.
-    hamming[:lo] = CENSUS_BITS
-    hamming[hi:] = CENSUS_BITS
-    inside = hamming[lo:hi]
+    costs = padded[radius + 1:radius + 1 + width]
+    costs[:lo] = CENSUS_BITS
+    costs[hi:] = CENSUS_BITS
+    inside = costs[lo:hi]
     ref_in = ref[lo:hi]
     other_in = other[lo + shift:hi + shift]
     for x in range(hi - lo):
         inside[x] = popcount(ref_in[x] ^ other_in[x])
-    out[:] = 0
-    for i in range(-radius, radius + 1):
-        # Interior without clamping (vectorises), then the cells that repeat the border.
-        start = max(0, -i)
-        stop = min(width, width - i)
-        target = out[start:stop]
-        source = hamming[start + i:stop + i]
-        for x in range(stop - start):
-            target[x] += source[x]
-        out[:start] += hamming[0]
-        out[stop:] += hamming[width - 1]
+    padded[0] = 0
+    padded[1:radius + 1] = costs[0]
+    padded[radius + 1 + width:] = costs[width - 1]
+    for i in range(1, padded.shape[0]):
+        padded[i] += padded[i - 1]
+    upper = padded[2 * radius + 1:2 * radius + 1 + width]
+    lower = padded[0:width]
+    for x in range(width):
+        out[x] = upper[x] - lower[x]
 
 
 @njit(cache=True, parallel=True, fastmath=True)
@@ -84,20 +87,20 @@ def _block_kernel(
     for d in prange(depth):
         lo, hi = valid_range(width, d, step)
         shift = step * d
-        hamming = np.empty(width, np.int32)
+        padded = np.empty(width + 2 * radius + 1, np.int32)
         # Ring of the last `size` horizontal window sums; the vertical sum slides over it.
         ring = np.empty((size, width), np.int32)
         column = np.zeros(width, np.int32)
         for yy in range(-radius, radius):
             src = min(max(yy, 0), height - 1)
             slot = ring[(yy + size) % size]
-            _window_row(codes_ref[src], codes_other[src], shift, lo, hi, radius, hamming, slot)
+            _window_row(codes_ref[src], codes_other[src], shift, lo, hi, radius, padded, slot)
             for x in range(width):
                 column[x] += slot[x]
         for y in range(height):
             src = min(y + radius, height - 1)
             slot = ring[(y + radius) % size]
-            _window_row(codes_ref[src], codes_other[src], shift, lo, hi, radius, hamming, slot)
+            _window_row(codes_ref[src], codes_other[src], shift, lo, hi, radius, padded, slot)
             row = volume[d, y]
             for x in range(width):
                 column[x] += slot[x]

@@ -12,30 +12,33 @@ from cva_confidence_ros.errors import ConfigError, InputError
 __all__ = ['left_right_check', 'wta_disparity']
 
 
-# Serial (the scan is memory-bound, and parallel kernels compile far slower); no fastmath, so
-# that the NaN test survives optimisation.
+# Serial: the scan is memory-bound, and parallel kernels compile far slower. No fastmath, so
+# that the NaN test survives optimisation. The planes are visited in memory order, with the
+# running minimum of the whole image kept, so that the volume streams through once.
 @njit(cache=True)
-def _argmin_depth(volume: np.ndarray, out: np.ndarray) -> int:
+def _argmin_depth(volume: np.ndarray, out: np.ndarray) -> bool:
     depth, height, width = volume.shape
-    best = np.empty(width, np.float32)
-    nans = 0
+    best = volume[0].copy()
+    out[:, :] = 0.0
+    nan_seen = np.zeros(width, np.uint8)
     for y in range(height):
-        index = out[y]
-        first = volume[0, y]
+        row = best[y]
         for x in range(width):
-            best[x] = first[x]
-            index[x] = 0.0
-            nans += first[x] != first[x]
-        for d in range(1, depth):
+            nan_seen[x] |= row[x] != row[x]
+    for d in range(1, depth):
+        value_d = np.float32(d)
+        for y in range(height):
             row = volume[d, y]
+            low = best[y]
+            index = out[y]
             for x in range(width):
                 value = row[x]
-                nans += value != value
+                nan_seen[x] |= value != value
                 # strict '<' keeps the smallest disparity among equal costs, like np.argmin
-                if value < best[x]:
-                    best[x] = value
-                    index[x] = d
-    return nans
+                smaller = value < low[x]
+                low[x] = value if smaller else low[x]
+                index[x] = value_d if smaller else index[x]
+    return nan_seen.any()
 
 
 def wta_disparity(cost_volume: np.ndarray) -> np.ndarray:
@@ -63,8 +66,8 @@ def wta_disparity(cost_volume: np.ndarray) -> np.ndarray:
         raise InputError(f'cost_volume must be float (float32); got dtype {cost_volume.dtype}')
     volume = np.ascontiguousarray(cost_volume, dtype=np.float32)
     disparity = np.empty(volume.shape[1:], np.float32)
-    nans = _argmin_depth(volume, disparity)
-    if nans:
+    if _argmin_depth(volume, disparity):
+        nans = int(np.count_nonzero(np.isnan(volume)))
         raise InputError(f'cost_volume must not contain NaN; got {nans} NaN entries')
     return disparity
 

@@ -15,8 +15,7 @@ path costs are int16 (p2 is bounded so that they fit), so that it runs 16 dispar
 instruction. Like OpenCV's SGBM the 8 paths are run as two sweeps over the image: top-down and
 left-to-right for the 4 paths arriving from the left and from above, bottom-up and right-to-left
 for the other 4. The two sweeps run in parallel into separate uint16 accumulators, which a
-final pass adds, transposes to (D, H, W) and scales. Census costs can be computed on the fly
-inside the sweeps instead of being read from a volume.
+final pass adds, transposes to (D, H, W) and scales.
 """
 
 from __future__ import annotations
@@ -25,19 +24,19 @@ from numba import njit, prange
 import numpy as np
 
 from cva_confidence_ros.errors import InputError
-from cva_confidence_ros.matching.census import CENSUS_BITS, popcount
+from cva_confidence_ros.matching.census import CENSUS_BITS, hamming_cost_volume
 
 __all__ = ['SGM_PATHS', 'sgm_aggregate']
 
 #: Number of path directions that are summed.
 SGM_PATHS = 8
 
-# Stands in for L at d = −1 and d = D so the recursion needs no bounds tests. With
-# p2 ≤ MAX_P2 every L_r fits int16 and so does _OUTSIDE + p1.
+# Stands in for L at d = −1 and d = D so the recursion needs no bounds tests. Since
+# 8·(Cmax + p2) ≤ 65535 (so Cmax + 2·p2 < 16384), every L_r, L_r + p2 and _OUTSIDE + p1 fits
+# int16.
 _OUTSIDE = np.int16(1 << 14)
 # S ≤ 8·(Cmax + P2) must fit the uint16 accumulators (their sum is taken in float32).
 MAX_ACCUMULATED = np.iinfo(np.uint16).max
-_NO_VOLUME = np.empty((0, 0, 0), np.float32)
 
 
 @njit(cache=True, fastmath=True, inline='always')
@@ -78,39 +77,13 @@ def _step(
     return best
 
 
-@njit(cache=True, fastmath=True, inline='always')
-def _census_costs(ref: np.uint32, partners: np.ndarray, inside: int, out: np.ndarray) -> None:
-    """out[d] = Hamming(ref, partners[d]) for d < inside, :data:`CENSUS_BITS` beyond."""
-    depth = out.shape[0]
-    for d in range(inside):
-        out[d] = popcount(ref ^ partners[d])
-    for d in range(inside, depth):
-        out[d] = CENSUS_BITS
-
-
 @njit(cache=True, fastmath=True)
 def _sweep(
-    costs: np.ndarray,
-    codes_ref: np.ndarray,
-    codes_other: np.ndarray,
-    step: int,
-    p1: np.int16,
-    p2: np.int16,
-    backward: bool,
-    acc: np.ndarray,
+    costs: np.ndarray, p1: np.int16, p2: np.int16, backward: bool, acc: np.ndarray
 ) -> None:
     """acc = sum of 4 paths: those arriving from the left and from the row above (forward
-    sweep: top-down, left to right) or from the right and the row below (backward sweep).
-
-    Costs come from ``costs`` (H, W, D), or, when that is empty, are computed on the fly as
-    census Hamming distances, which saves writing and reading a whole uint8 volume.
-    """
-    height, width, depth = acc.shape
-    from_codes = costs.shape[0] == 0
-    census_row = np.empty(depth, np.uint8)
-    # The other view's codes of the current row in the order the disparities visit them, so
-    # that the partners of x for d = 0, 1, … are contiguous: reversed for a left reference.
-    partner_row = np.empty(width, np.uint32)
+    sweep: top-down, left to right) or from the right and the row below (backward sweep)."""
+    height, width, depth = costs.shape
     sign = -1 if backward else 1
     # lines[parity, path, x]: L of the previous / current row for the paths arriving from
     # (y ∓ 1, x), (y ∓ 1, x ∓ 1) and (y ∓ 1, x ± 1); along[parity]: the in-row path.
@@ -122,20 +95,9 @@ def _sweep(
         cur = i & 1
         prev = 1 - cur
         along_min = 0
-        if from_codes:
-            for k in range(width):
-                partner_row[k] = codes_other[y, width - 1 - k if step < 0 else k]
         for j in range(width):
             x = width - 1 - j if backward else j
-            if from_codes:
-                if step < 0:
-                    first, inside = width - 1 - x, min(depth, x + 1)
-                else:
-                    first, inside = x, min(depth, width - x)
-                _census_costs(codes_ref[y, x], partner_row[first:], inside, census_row)
-                cost = census_row
-            else:
-                cost = costs[y, x]
+            cost = costs[y, x]
             # the in-row path alternates its two buffers per pixel, the others per row
             here = j & 1
             if j == 0:
@@ -176,18 +138,10 @@ def _sweep(
 
 
 @njit(cache=True, parallel=True, fastmath=True)
-def _both_sweeps(
-    costs: np.ndarray,
-    codes_ref: np.ndarray,
-    codes_other: np.ndarray,
-    step: int,
-    p1: np.int16,
-    p2: np.int16,
-    acc: np.ndarray,
-) -> None:
+def _both_sweeps(costs: np.ndarray, p1: np.int16, p2: np.int16, acc: np.ndarray) -> None:
     # The two sweeps are independent; each writes its own accumulator.
     for task in prange(2):
-        _sweep(costs, codes_ref, codes_other, step, p1, p2, task == 1, acc[task])
+        _sweep(costs, p1, p2, task == 1, acc[task])
 
 
 @njit(cache=True, parallel=True, fastmath=True)
@@ -209,17 +163,20 @@ def _combine(acc: np.ndarray, scale: np.float32, step: int, volume: np.ndarray) 
                     row[x] = 1.0
 
 
-def _aggregate(
-    costs: np.ndarray,
-    codes: tuple[np.ndarray, np.ndarray],
-    shape: tuple[int, int, int],
-    p1: int,
-    p2: int,
-    step: int,
-) -> np.ndarray:
-    height, width, depth = shape
+def aggregate_hwd(costs: np.ndarray, p1: int, p2: int) -> np.ndarray:
+    """The two sweeps over (H, W, D) uint8 costs.
+
+    Args:
+        costs: (H, W, D) uint8 matching costs C, C-contiguous.
+        p1: Penalty of a disparity change of 1 (0 ≤ p1 ≤ p2).
+        p2: Penalty of a larger change; 8·(max C + p2) ≤ 65535.
+
+    Returns:
+        (2, H, W, D) uint16 partial sums (forward sweep, backward sweep); S is their sum.
+    """
+    height, width, depth = costs.shape
     acc = np.empty((2, height, width, depth), np.uint16)
-    _both_sweeps(costs, codes[0], codes[1], int(step), np.int16(p1), np.int16(p2), acc)
+    _both_sweeps(costs, np.int16(p1), np.int16(p2), acc)
     return acc
 
 
@@ -239,9 +196,10 @@ def census_sgm_volume(
     Returns:
         (D, H, W) float32 S / (8·(24 + p2)), 1.0 where the partner pixel is outside the image.
     """
+    costs = hamming_cost_volume(codes_ref, codes_other, depth, step, layout='hwd')
+    acc = aggregate_hwd(costs, p1, p2)
+    del costs
     height, width = codes_ref.shape
-    empty = np.empty((0, 0, 0), np.uint8)
-    acc = _aggregate(empty, (codes_ref, codes_other), (height, width, depth), p1, p2, step)
     # numpy (not the kernel) allocates the volume: it requests huge pages for large arrays,
     # which makes the first-touch page faults several times cheaper.
     volume = np.empty((depth, height, width), np.float32)
@@ -283,7 +241,6 @@ def sgm_aggregate(costs: np.ndarray, p1: int, p2: int) -> np.ndarray:
             f'8·(max cost + p2) must be ≤ {MAX_ACCUMULATED}; got {bound} (p2={p2})'
         )
     hwd = np.ascontiguousarray(costs.transpose(1, 2, 0), dtype=np.uint8)
-    no_codes = np.empty((0, 0), np.uint32)
-    acc = _aggregate(hwd, (no_codes, no_codes), hwd.shape, int(p1), int(p2), -1)
+    acc = aggregate_hwd(hwd, int(p1), int(p2))
     total = acc[0].astype(np.int32) + acc[1]
     return np.ascontiguousarray(total.transpose(2, 0, 1))

@@ -89,7 +89,7 @@ def test_no_smoothness_penalty_sums_eight_copies_of_the_costs() -> None:
 
 
 @pytest.mark.parametrize('step', [-1, 1])
-def test_census_costs_computed_inside_the_sweeps_equal_a_precomputed_volume(step: int) -> None:
+def test_census_sgm_volume_is_the_normalised_textbook_sum(step: int) -> None:
     rng = np.random.default_rng(7 + step)
     codes_a = census_transform(rng.integers(0, 256, (9, 13), dtype=np.uint8))
     codes_b = census_transform(rng.integers(0, 256, (9, 13), dtype=np.uint8))

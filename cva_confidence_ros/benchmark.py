@@ -1,0 +1,401 @@
+"""Speed and memory of the matchers, side by side with OpenCV's StereoSGBM (``cva-benchmark``).
+
+Every configuration runs in a fresh subprocess, so that its peak memory is its own and no
+earlier configuration's caches or heap help it. Inside the subprocess:
+
+1. the two pairs are built: the scikit-image Motorcycle pair (Middlebury 2014) resized and
+   centre-cropped to the requested size, and a fixed synthetic pair (seeded random texture,
+   horizontal bands of known disparity);
+2. one untimed frame per pair (numba loads or compiles its kernels, torch loads weights);
+3. the peak-RSS mark is reset (``/proc/self/clear_refs``), then ``--repeat`` frames per pair
+   are timed with ``time.perf_counter``.
+
+A frame goes from the image pair to a disparity map: for a matcher the cost volume plus the
+winner-takes-all disparity, for OpenCV ``StereoSGBM.compute`` (MODE_HH, 8 paths) on the gray
+pair. ``ms_per_frame`` is the median over all timed frames; ``peak_mem_mb`` is the peak
+resident memory during the timed frames minus the resident memory before them, i.e. what a
+frame needs on top of the loaded process: freed heap is returned to the OS first
+(``malloc_trim``), then VmHWM − VmRSS from ``/proc/self/status``; where the peak mark cannot
+be reset, ``ru_maxrss`` − VmRSS, which may include the warm-up.
+
+Configurations are entries of :data:`CASES`; the matchers of
+:data:`cva_confidence_ros.matching.MATCHERS` and ``opencv_sgbm`` are registered here. A later
+configuration (e.g. the confidence network) registers a factory returning a :class:`Case` whose
+``extras`` fill ``network_gflops``, ``gemm_gflops`` or ``auc_rel``.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable, Sequence
+import ctypes
+import ctypes.util
+from dataclasses import dataclass, field
+import json
+import os
+from pathlib import Path
+import resource
+import statistics
+import subprocess
+import sys
+import time
+from typing import Any
+
+import cv2
+import numpy as np
+
+from cva_confidence_ros.errors import ConfigError
+from cva_confidence_ros.registry import Registry
+
+__all__ = [
+    'CASES',
+    'RECORD_KEYS',
+    'BenchSettings',
+    'Case',
+    'main',
+    'make_pairs',
+    'run_case',
+]
+
+#: Keys of every record written by ``--json``.
+RECORD_KEYS = (
+    'config',
+    'device',
+    'width',
+    'height',
+    'max_disparity',
+    'ms_per_frame',
+    'peak_mem_mb',
+    'network_gflops',
+    'gemm_gflops',
+    'auc_rel',
+)
+_BASELINE = 'opencv_sgbm'
+_WORKER_FLAG = '--worker'
+_RECORD_PREFIX = 'BENCH-RECORD '
+
+
+@dataclass(frozen=True)
+class BenchSettings:
+    """What every configuration is measured on.
+
+    Attributes:
+        width: Image width in pixels (> max_disparity).
+        height: Image height in pixels (≥ 8).
+        max_disparity: Cost-volume depth D (≥ 1).
+        repeat: Timed frames per pair (≥ 1).
+    """
+
+    width: int = 640
+    height: int = 480
+    max_disparity: int = 128
+    repeat: int = 5
+
+    def __post_init__(self) -> None:
+        if self.height < 8 or self.width < 16:
+            raise ConfigError(f'images must be at least 16×8; got {self.width}×{self.height}')
+        if not 1 <= self.max_disparity < self.width:
+            raise ConfigError(
+                f'max_disparity must be in [1, width); got {self.max_disparity} for width '
+                f'{self.width}'
+            )
+        if self.repeat < 1:
+            raise ConfigError(f'repeat must be ≥ 1; got {self.repeat}')
+
+
+@dataclass
+class Case:
+    """One benchmarked configuration, ready to run frames.
+
+    Attributes:
+        frame: Processes one (left, right) uint8 RGB pair; returns stage timings in ms (may be
+            empty) — the frame itself is timed by the caller.
+        device: Where it runs (``cpu``, ``cuda``…).
+        extras: Values of ``network_gflops``, ``gemm_gflops``, ``auc_rel`` (None if absent).
+    """
+
+    frame: Callable[[np.ndarray, np.ndarray], dict[str, float]]
+    device: str = 'cpu'
+    extras: dict[str, float | None] = field(default_factory=dict)
+
+
+#: Configuration name → factory ``(settings) -> Case``.
+CASES: Registry[Callable[[BenchSettings], Case]] = Registry('benchmark configuration')
+
+
+def _matcher_case(name: str) -> Callable[[BenchSettings], Case]:
+    def factory(settings: BenchSettings) -> Case:
+        from cva_confidence_ros.matching import compute_cost_volume, wta_disparity
+
+        def frame(left: np.ndarray, right: np.ndarray) -> dict[str, float]:
+            start = time.perf_counter()
+            volume = compute_cost_volume(left, right, name, settings.max_disparity)
+            middle = time.perf_counter()
+            wta_disparity(volume)
+            end = time.perf_counter()
+            return {'volume': (middle - start) * 1e3, 'wta': (end - middle) * 1e3}
+
+        return Case(frame=frame)
+
+    return factory
+
+
+def _sgbm_case(settings: BenchSettings) -> Case:
+    block = 5
+    # numDisparities must be a multiple of 16 in OpenCV.
+    disparities = -(-settings.max_disparity // 16) * 16
+    sgbm = cv2.StereoSGBM_create(
+        minDisparity=0,
+        numDisparities=disparities,
+        blockSize=block,
+        P1=8 * block * block,
+        P2=32 * block * block,
+        mode=cv2.STEREO_SGBM_MODE_HH,
+    )
+
+    def frame(left: np.ndarray, right: np.ndarray) -> dict[str, float]:
+        gray_left = cv2.cvtColor(left, cv2.COLOR_RGB2GRAY)
+        gray_right = cv2.cvtColor(right, cv2.COLOR_RGB2GRAY)
+        sgbm.compute(gray_left, gray_right)
+        return {}
+
+    return Case(frame=frame)
+
+
+def _register_defaults() -> None:
+    from cva_confidence_ros.matching import MATCHERS
+
+    for name in MATCHERS.names():
+        CASES.add(name, _matcher_case(name))
+    CASES.add(_BASELINE, _sgbm_case)
+
+
+_register_defaults()
+
+
+def _fit(image: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Resize so that the image covers width×height, then crop the centre."""
+    rows, cols = image.shape[:2]
+    scale = max(width / cols, height / rows)
+    size = (max(width, round(cols * scale)), max(height, round(rows * scale)))
+    interpolation = cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR
+    resized = cv2.resize(image, size, interpolation=interpolation)
+    top = (size[1] - height) // 2
+    left = (size[0] - width) // 2
+    return np.ascontiguousarray(resized[top:top + height, left:left + width])
+
+
+def _synthetic_pair(width: int, height: int, max_disparity: int) -> tuple[np.ndarray, np.ndarray]:
+    """Seeded smooth random texture in horizontal bands, each band at its own disparity."""
+    rng = np.random.default_rng(2019)
+    texture = rng.integers(0, 256, (height, width + max_disparity, 3), dtype=np.uint8)
+    texture = cv2.GaussianBlur(texture, (3, 3), 0.8)
+    bands = 6
+    left = np.ascontiguousarray(texture[:, :width])
+    right = np.empty_like(left)
+    for band in range(bands):
+        rows = slice(band * height // bands, (band + 1) * height // bands)
+        disparity = (band + 1) * (max_disparity - 1) // (bands + 1)
+        # right(y, x) = left(y, x + d): the scene point of left x appears at x − d on the right
+        right[rows] = texture[rows, disparity:disparity + width]
+    return left, right
+
+
+def make_pairs(settings: BenchSettings) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The benchmark pairs: ``real`` (Motorcycle, resized and cropped) and ``synthetic``.
+
+    Returns:
+        Name → (left, right) (H, W, 3) uint8 RGB images of the requested size.
+    """
+    from skimage import data
+
+    left, right, _ = data.stereo_motorcycle()
+    width, height = settings.width, settings.height
+    return {
+        'real': (_fit(left, width, height), _fit(right, width, height)),
+        'synthetic': _synthetic_pair(width, height, settings.max_disparity),
+    }
+
+
+def _memory_kb(field_name: str) -> int | None:
+    try:
+        with open('/proc/self/status', encoding='ascii') as status:
+            for line in status:
+                if line.startswith(field_name + ':'):
+                    return int(line.split()[1])
+    except OSError:
+        return None
+    return None
+
+
+def _release_free_heap() -> None:
+    """Hand freed heap pages back to the OS (glibc), so that the resident memory before the
+    timed frames is what is live, and the peak shows what a frame really allocates."""
+    try:
+        ctypes.CDLL(ctypes.util.find_library('c') or 'libc.so.6').malloc_trim(0)
+    except (OSError, AttributeError):
+        pass  # not glibc: the peak can only be lower than the truth, never inflated
+
+
+def _reset_peak() -> bool:
+    try:
+        with open('/proc/self/clear_refs', 'w', encoding='ascii') as clear:
+            clear.write('5')  # resets VmHWM to the current RSS (Linux ≥ 4.0)
+        return True
+    except OSError:
+        return False
+
+
+def run_case(name: str, settings: BenchSettings) -> dict[str, Any]:
+    """Measure one configuration in this process.
+
+    Returns:
+        A record with :data:`RECORD_KEYS` plus ``per_pair_ms`` (median per pair) and
+        ``stages_ms`` (median of each stage the case reports), used for the printed table.
+    """
+    case = CASES.get(name)(settings)
+    pairs = make_pairs(settings)
+    for left, right in pairs.values():
+        case.frame(left, right)
+    _release_free_heap()
+    have_hwm = _reset_peak()
+    rss_before = _memory_kb('VmRSS') or 0
+    times: dict[str, list[float]] = {pair: [] for pair in pairs}
+    stages: dict[str, list[float]] = {}
+    for _ in range(settings.repeat):
+        for pair, (left, right) in pairs.items():
+            start = time.perf_counter()
+            stage_times = case.frame(left, right)
+            times[pair].append((time.perf_counter() - start) * 1e3)
+            for stage, value in stage_times.items():
+                stages.setdefault(stage, []).append(value)
+    peak = _memory_kb('VmHWM') if have_hwm else None
+    if peak is None:
+        # ru_maxrss is in kB on Linux; it also covers the untimed warm-up frames.
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    record: dict[str, Any] = {
+        'config': name,
+        'device': case.device,
+        'width': settings.width,
+        'height': settings.height,
+        'max_disparity': settings.max_disparity,
+        'ms_per_frame': statistics.median([t for pair in times.values() for t in pair]),
+        'peak_mem_mb': max(peak - rss_before, 0) / 1024.0,
+        'network_gflops': case.extras.get('network_gflops'),
+        'gemm_gflops': case.extras.get('gemm_gflops'),
+        'auc_rel': case.extras.get('auc_rel'),
+        'per_pair_ms': {pair: statistics.median(values) for pair, values in times.items()},
+        'stages_ms': {stage: statistics.median(values) for stage, values in stages.items()},
+    }
+    return record
+
+
+def _settings_args(settings: BenchSettings) -> list[str]:
+    return [
+        '--width', str(settings.width),
+        '--height', str(settings.height),
+        '--max-disparity', str(settings.max_disparity),
+        '--repeat', str(settings.repeat),
+    ]
+
+
+def _run_in_subprocess(name: str, settings: BenchSettings) -> dict[str, Any]:
+    env = dict(os.environ)
+    # The child must import this very package, also when it is run from a source checkout.
+    package_root = str(Path(__file__).resolve().parents[1])
+    env['PYTHONPATH'] = os.pathsep.join(
+        [package_root] + ([env['PYTHONPATH']] if env.get('PYTHONPATH') else [])
+    )
+    command = [sys.executable, '-m', 'cva_confidence_ros.benchmark', _WORKER_FLAG, name]
+    result = subprocess.run(
+        command + _settings_args(settings), capture_output=True, text=True, env=env, check=False
+    )
+    for line in reversed(result.stdout.splitlines()):
+        if line.startswith(_RECORD_PREFIX):
+            return json.loads(line[len(_RECORD_PREFIX):])
+    raise ConfigError(
+        f'benchmark of {name!r} failed (exit code {result.returncode}); expected a record, '
+        f'got stderr:\n{result.stderr[-2000:]}'
+    )
+
+
+def format_table(records: Sequence[dict[str, Any]], threads: int) -> str:
+    """Human-readable table of the records with the ratio to OpenCV SGBM."""
+    baseline = next((r['ms_per_frame'] for r in records if r['config'] == _BASELINE), None)
+    first = records[0]
+    lines = [
+        f"{first['width']}×{first['height']}, D = {first['max_disparity']}, "
+        f'{threads} CPU cores; frame = image pair → disparity; median ms per frame',
+        f"{'config':<14}{'device':<8}{'ms/frame':>10}{'real':>9}{'synth':>9}{'volume':>9}"
+        f"{'× SGBM':>9}{'peak MB':>10}",
+    ]
+    for record in records:
+        per_pair = record.get('per_pair_ms', {})
+        volume = record.get('stages_ms', {}).get('volume')
+        ratio = record['ms_per_frame'] / baseline if baseline else float('nan')
+        lines.append(
+            f"{record['config']:<14}{record['device']:<8}{record['ms_per_frame']:>10.1f}"
+            f"{per_pair.get('real', float('nan')):>9.1f}"
+            f"{per_pair.get('synthetic', float('nan')):>9.1f}"
+            f"{volume if volume is not None else float('nan'):>9.1f}"
+            f'{ratio:>9.2f}{record["peak_mem_mb"]:>10.1f}'
+        )
+    lines.append(
+        'volume = cost-volume part of a matcher frame (the rest is WTA); real = Motorcycle, '
+        'synth = banded synthetic pair; peak MB = resident memory a frame adds at its peak'
+    )
+    return '\n'.join(lines)
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog='cva-benchmark',
+        description='Milliseconds per frame and peak memory of the stereo matchers, next to '
+        'OpenCV StereoSGBM (MODE_HH) on the same pairs.',
+    )
+    defaults = BenchSettings()
+    parser.add_argument('--width', type=int, default=defaults.width)
+    parser.add_argument('--height', type=int, default=defaults.height)
+    parser.add_argument('--max-disparity', type=int, default=defaults.max_disparity)
+    parser.add_argument('--repeat', type=int, default=defaults.repeat,
+                        help='timed frames per pair (after one untimed warm-up frame)')
+    parser.add_argument('--matchers', nargs='+', default=None, metavar='NAME',
+                        help=f'configurations to run (default: all of {CASES.names()}); '
+                        f'{_BASELINE} is always added as the reference')
+    parser.add_argument('--json', type=Path, default=None, metavar='PATH',
+                        help='write the records as a JSON list to PATH')
+    parser.add_argument(_WORKER_FLAG, default=None, help=argparse.SUPPRESS)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``cva-benchmark``; returns the process exit code."""
+    parser = _parser()
+    args = parser.parse_args(argv)
+    try:
+        settings = BenchSettings(args.width, args.height, args.max_disparity, args.repeat)
+        if args.worker is not None:
+            record = run_case(args.worker, settings)
+            print(_RECORD_PREFIX + json.dumps(record), flush=True)
+            return 0
+        names = list(args.matchers) if args.matchers else CASES.names()
+        for name in names:
+            CASES.get(name)
+        names = [name for name in names if name != _BASELINE] + [_BASELINE]
+        records = []
+        for name in names:
+            print(f'measuring {name} …', file=sys.stderr, flush=True)
+            records.append(_run_in_subprocess(name, settings))
+    except ConfigError as error:
+        parser.exit(2, f'cva-benchmark: error: {error}\n')
+    print(format_table(records, os.cpu_count() or 1))
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        rows = [{key: record[key] for key in RECORD_KEYS} for record in records]
+        args.json.write_text(json.dumps(rows, indent=2) + '\n', encoding='utf-8')
+        print(f'wrote {args.json}', file=sys.stderr)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
