@@ -1,0 +1,83 @@
+"""cva-benchmark: pairs, records, table, and one tiny real run through subprocesses."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cva_confidence_ros import benchmark
+from cva_confidence_ros.errors import ConfigError
+
+
+def test_settings_are_validated() -> None:
+    with pytest.raises(ConfigError, match='max_disparity'):
+        benchmark.BenchSettings(width=64, height=48, max_disparity=64)
+    with pytest.raises(ConfigError, match='repeat'):
+        benchmark.BenchSettings(repeat=0)
+    with pytest.raises(ConfigError, match='at least'):
+        benchmark.BenchSettings(width=8, height=8, max_disparity=2)
+
+
+def test_pairs_have_the_requested_size_and_the_synthetic_one_its_disparities() -> None:
+    settings = benchmark.BenchSettings(width=96, height=60, max_disparity=24, repeat=1)
+    pairs = benchmark.make_pairs(settings)
+    assert set(pairs) == {'real', 'synthetic'}
+    for left, right in pairs.values():
+        assert left.shape == right.shape == (60, 96, 3) and left.dtype == np.uint8
+    left, right = pairs['synthetic']
+    # band b (10 rows each) has disparity (b + 1)·23 // 7: left(y, x) = right(y, x − d)
+    for band in range(6):
+        disparity = (band + 1) * 23 // 7
+        rows = slice(band * 10, band * 10 + 10)
+        np.testing.assert_array_equal(left[rows, disparity:], right[rows, :96 - disparity])
+    # the real pair is not a shifted copy: the Motorcycle scene has depth
+    assert not np.array_equal(pairs['real'][0], pairs['real'][1])
+
+
+def test_table_shows_the_ratio_to_sgbm() -> None:
+    common = {'device': 'cpu', 'width': 64, 'height': 48, 'max_disparity': 16}
+    records = [
+        {**common, 'config': 'census_bm', 'ms_per_frame': 5.0, 'peak_mem_mb': 1.0,
+         'per_pair_ms': {'real': 4.0, 'synthetic': 6.0}, 'stages_ms': {'volume': 3.0}},
+        {**common, 'config': 'opencv_sgbm', 'ms_per_frame': 10.0, 'peak_mem_mb': 2.0},
+    ]
+    table = benchmark.format_table(records, threads=2)
+    bm_line = next(line for line in table.splitlines() if line.startswith('census_bm'))
+    assert bm_line.split()[-2] == '0.50'
+    assert '64×48, D = 16' in table
+
+
+def test_tiny_run_writes_the_records(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / 'bench' / 'out.json'
+    code = benchmark.main(
+        ['--width', '64', '--height', '48', '--max-disparity', '16', '--repeat', '1',
+         '--matchers', 'census_bm', '--json', str(out)]
+    )
+    assert code == 0
+    records = json.loads(out.read_text())
+    assert [r['config'] for r in records] == ['census_bm', 'opencv_sgbm']
+    for record in records:
+        assert tuple(record) == benchmark.RECORD_KEYS
+        assert (record['width'], record['height'], record['max_disparity']) == (64, 48, 16)
+        assert record['device'] == 'cpu'
+        assert record['ms_per_frame'] > 0 and record['peak_mem_mb'] >= 0
+        assert record['network_gflops'] is None and record['auc_rel'] is None
+    assert 'opencv_sgbm' in capsys.readouterr().out
+
+
+def test_unknown_configuration_exits_with_a_usage_error(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        benchmark.main(['--matchers', 'sad'])
+    assert exit_info.value.code == 2
+    assert "unknown benchmark configuration 'sad'" in capsys.readouterr().err
+
+
+def test_every_matcher_is_a_configuration() -> None:
+    from cva_confidence_ros.matching import MATCHERS
+
+    assert set(MATCHERS.names()) | {'opencv_sgbm'} == set(benchmark.CASES.names())
