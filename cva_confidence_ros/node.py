@@ -503,6 +503,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (CVAError, ParameterException) as error:
         rclpy.logging.get_logger(NODE_NAME).fatal(f'cannot start: {error}')
         code = 2
+    except Exception:
+        # A signal during start-up shuts the context down under the constructor; the error
+        # that follows is that interruption, not a fault worth a traceback.
+        if rclpy.ok():
+            raise
     finally:
         # A second Ctrl-C while the worker finishes its frame must not print a traceback.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
