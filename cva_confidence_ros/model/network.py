@@ -11,15 +11,15 @@ The network has three stages, one module each:
 
 Every convolution is followed by batch normalisation and ReLU, except in the classification.
 
-A 1×1×k 3D convolution sees one pixel at a time, so it equals a 1D convolution along the
-disparity axis applied to every pixel. The depth and classification stages are therefore written
-with ``Conv1d`` over a (B·H·W, C, D − 12) view of the fused curves: same weights and parameter
-count as the 3D form, about three times faster on CPU.
+A 1×1×k 3D convolution sees one pixel at a time, so it equals a convolution along the disparity
+axis applied to every pixel. The depth and classification stages are therefore written as
+``Conv2d`` with a (k, 1) kernel over the fused curves laid out as (1, 32, D − 12, B·H·W):
+the same weights and parameter count as the 3D form, and on CPU two to three times faster than
+``Conv3d`` with a (k, 1, 1) kernel (forward) or ``Conv1d`` (backward).
 
 Padding of the even depth kernels: ``k/2 − 1`` zeros before and ``k/2`` after on the disparity
 axis, which is what both Keras ``padding='same'`` and PyTorch ``padding='same'`` do for an even
-kernel. It is applied with an explicit ``F.pad`` so that no copy warning is raised and the choice
-is visible.
+kernel. It is applied with an explicit ``F.pad`` (:func:`pad_depth`) so that the choice is visible.
 """
 
 from __future__ import annotations
@@ -85,26 +85,41 @@ class NeighbourhoodFusion(nn.Module):
 class DepthProcessing(nn.Module):
     """Ten 1×1×k convolutions along the disparity axis with depth-keeping zero padding.
 
-    Works on cost curves laid out as (N, 32, D') with N = B·H·W; keeps the shape.
+    Works on cost curves laid out as (1, 32, D', N) with N = B·H·W (disparity on the third
+    axis, one column per pixel); keeps the shape.
     """
 
     def __init__(self) -> None:
         super().__init__()
-        self.convs = nn.ModuleList(nn.Conv1d(FILTERS, FILTERS, k) for k in DEPTH_KERNELS)
-        self.norms = nn.ModuleList(nn.BatchNorm1d(FILTERS) for _ in DEPTH_KERNELS)
+        self.convs = nn.ModuleList(nn.Conv2d(FILTERS, FILTERS, (k, 1)) for k in DEPTH_KERNELS)
+        self.norms = nn.ModuleList(nn.BatchNorm2d(FILTERS) for _ in DEPTH_KERNELS)
 
     def forward(self, curves: torch.Tensor) -> torch.Tensor:
         x = curves
         for conv, norm in zip(self.convs, self.norms, strict=True):
-            k = conv.kernel_size[0]
-            x = F.relu(norm(conv(F.pad(x, (k // 2 - 1, k // 2)))))
+            x = F.relu(norm(conv(pad_depth(x, conv.kernel_size[0]))))
         return x
+
+
+def pad_depth(curves: torch.Tensor, kernel: int) -> torch.Tensor:
+    """Zero-pad (…, D', N) curves on the disparity axis so that a depth-k kernel keeps D'.
+
+    ``k // 2 − 1`` zeros before and ``k // 2`` after for even k (Keras and PyTorch 'same').
+    """
+    before = (kernel - 1) // 2
+    return F.pad(curves, (0, 0, before, kernel - 1 - before))
+
+
+def to_curves(fused: torch.Tensor) -> torch.Tensor:
+    """(B, C, D', H, W) → (1, C, D', B·H·W), pixel-major in (b, y, x) order."""
+    batch, channels, depth, height, width = fused.shape
+    return fused.permute(1, 2, 0, 3, 4).reshape(1, channels, depth, batch * height * width)
 
 
 class Classification(nn.Module):
     """Fully-connected 16 nodes (ReLU, dropout 0.5) and 1 node, as convolutions.
 
-    Maps (N, 32, D') to logits of shape (N,).
+    Maps curves (1, 32, D', N) to logits of shape (N,).
 
     Args:
         depth: D' = D − 12, the depth of the fused cost curves; the first layer spans all of it.
@@ -113,9 +128,9 @@ class Classification(nn.Module):
 
     def __init__(self, depth: int, dropout: float = 0.5) -> None:
         super().__init__()
-        self.fc1 = nn.Conv1d(FILTERS, FC_NODES, depth)
+        self.fc1 = nn.Conv2d(FILTERS, FC_NODES, (depth, 1))
         self.dropout = nn.Dropout(dropout)
-        self.fc2 = nn.Conv1d(FC_NODES, 1, 1)
+        self.fc2 = nn.Conv2d(FC_NODES, 1, 1)
 
     def forward(self, curves: torch.Tensor) -> torch.Tensor:
         x = self.dropout(F.relu(self.fc1(curves)))
@@ -166,7 +181,7 @@ class CVANet(nn.Module):
         # fan-out = the number of nodes (PyTorch's xavier_ would multiply the fan-out by the
         # kernel depth of the convolution form).
         for module in (self.classification.fc1, self.classification.fc2):
-            fan_in = module.in_channels * module.kernel_size[0]
+            fan_in = module.weight[0].numel()
             limit = glorot_limit(fan_in, module.out_channels)
             nn.init.uniform_(module.weight, -limit, limit)
             nn.init.zeros_(module.bias)
@@ -200,9 +215,8 @@ class CVANet(nn.Module):
         """
         self.check_input(volume)
         fused = self.fusion(volume)
-        batch, channels, depth, height, width = fused.shape
-        curves = fused.permute(0, 3, 4, 1, 2).reshape(batch * height * width, channels, depth)
-        logits = self.classification(self.depth(curves))
+        batch, _, _, height, width = fused.shape
+        logits = self.classification(self.depth(to_curves(fused)))
         return logits.reshape(batch, height, width)
 
     def forward(self, volume: torch.Tensor) -> torch.Tensor:

@@ -11,7 +11,7 @@ import torch.nn.functional as F
 
 from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.model import CVANet, expected_parameter_count, keras_parameter_count
-from cva_confidence_ros.model.network import CONV_INIT_STD, DEPTH_KERNELS
+from cva_confidence_ros.model.network import CONV_INIT_STD, DEPTH_KERNELS, pad_depth
 
 
 @pytest.fixture(autouse=True)
@@ -41,7 +41,7 @@ def test_layers_as_table_2():
     assert [c.out_channels for c in net.fusion.convs] == [32] * 6
     assert [c.kernel_size[0] for c in net.depth.convs] == list(DEPTH_KERNELS)
     assert list(DEPTH_KERNELS) == [8, 16, 32] + [64] * 7
-    assert net.classification.fc1.kernel_size == (52,)
+    assert net.classification.fc1.kernel_size == (52, 1)
     assert net.classification.fc1.out_channels == 16
     assert net.classification.fc2.out_channels == 1
     assert net.classification.dropout.p == 0.5
@@ -71,12 +71,15 @@ def test_depth_padding_keeps_depth_and_matches_same_padding():
     # ours must do the same so that weights port to and from 'same' convolutions.
     net = CVANet(20).eval()
     conv, norm = net.depth.convs[0], net.depth.norms[0]
-    x = torch.randn(5, 32, 8)
+    assert conv.kernel_size == (8, 1)
+    x = torch.randn(1, 32, 8, 5)
     with torch.no_grad():
-        ours = net.depth.convs[0](F.pad(x, (3, 4)))
-        same = F.conv1d(x, conv.weight, conv.bias, padding='same')
+        ours = conv(pad_depth(x, 8))
+        same = F.conv2d(x, conv.weight, conv.bias, padding='same')
         torch.testing.assert_close(ours, same)
         assert net.depth(x).shape == x.shape
+    assert pad_depth(x, 8).shape == (1, 32, 15, 5)
+    assert torch.all(pad_depth(x, 8)[:, :, :3] == 0) and torch.all(pad_depth(x, 8)[:, :, -4:] == 0)
     assert norm.num_features == 32
 
 
