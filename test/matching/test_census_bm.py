@@ -74,3 +74,22 @@ def test_right_view_pairs_the_same_pixels_as_the_left_view() -> None:
 def test_bad_window(window: object) -> None:
     with pytest.raises(ConfigError, match='window'):
         CensusBMConfig(window=window)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(('window', 'shape'), [(3, (9, 14)), (5, (4, 7)), (15, (6, 11))])
+def test_border_rule_matches_a_padded_box_sum(window: int, shape: tuple[int, int]) -> None:
+    # The documented rule, written with numpy: per-pixel Hamming costs (24 where the partner
+    # is outside), the border cells repeated outwards, a plain window sum.
+    left, right = shifted_pair(*shape, 1, seed=window)
+    depth = 3
+    volume = compute_cost_volume(left, right, 'census_bm', depth, window=window)
+    hamming = hamming_cost_volume(census_transform(left), census_transform(right), depth, -1)
+    radius = window // 2
+    for d in range(depth):
+        padded = np.pad(hamming[d].astype(np.int64), radius, mode='edge')
+        sums = np.zeros(shape, np.int64)
+        for dy in range(window):
+            for dx in range(window):
+                sums += padded[dy:dy + shape[0], dx:dx + shape[1]]
+        expected = np.where(np.arange(shape[1]) < d, 1.0, sums / (24 * window * window))
+        np.testing.assert_allclose(volume[d], expected, atol=1e-6)
