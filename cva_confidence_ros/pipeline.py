@@ -9,7 +9,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 import time
 
-import cv2
 import numpy as np
 
 from cva_confidence_ros.errors import ConfigError, InputError
@@ -86,7 +85,11 @@ class PipelineResult:
 
     Attributes:
         disparity: (H, W) float32 winner-takes-all disparity; NaN where the LR check failed.
-        confidence: (H, W) float32 confidence, higher = more trustworthy.
+        confidence: (H, W) float32 in [0, 1], higher = more trustworthy: the method's output
+            through its fixed increasing map ``to_unit_interval`` (the identity for
+            ``cva_net``), so the threshold means the same on every frame.
+        raw_confidence: (H, W) float32, the method's own values (what the AUC is computed on;
+            same order as ``confidence``, without the ties a squashing map can create).
         valid: (H, W) bool, True where the disparity is finite and confidence ≥ threshold.
         left: (H, W) or (H, W, 3) uint8 left image at the processed resolution.
         scale: Processed size / input size (1 / downsample).
@@ -95,6 +98,7 @@ class PipelineResult:
 
     disparity: np.ndarray
     confidence: np.ndarray
+    raw_confidence: np.ndarray
     valid: np.ndarray
     left: np.ndarray
     scale: float
@@ -118,13 +122,6 @@ def _check_pair(left: np.ndarray, right: np.ndarray) -> None:
         raise InputError(
             f'left and right images must have the same shape; got {left.shape} and {right.shape}'
         )
-
-
-def _shrink(image: np.ndarray, factor: int) -> np.ndarray:
-    if factor == 1:
-        return image
-    height, width = image.shape[:2]
-    return cv2.resize(image, (width // factor, height // factor), interpolation=cv2.INTER_AREA)
 
 
 class StereoPipeline:
@@ -161,13 +158,17 @@ class StereoPipeline:
             InputError: Shapes, dtypes or values that the matcher cannot use.
         """
         from cva_confidence_ros.confidence import ConfidenceInputs
+        from cva_confidence_ros.datasets.resize import resize_image
         from cva_confidence_ros.matching import compute_cost_volume, left_right_check, wta_disparity
 
         _check_pair(left, right)
         cfg = self.config
         timings: dict[str, float] = {}
         start = time.perf_counter()
-        left_s, right_s = _shrink(left, cfg.downsample), _shrink(right, cfg.downsample)
+        # Crop to a multiple of the factor first, so that images and a ground truth shrunk with
+        # datasets.resize_disparity stay pixel-aligned.
+        left_s = resize_image(left, cfg.downsample)
+        right_s = resize_image(right, cfg.downsample)
         timings['resize'] = (time.perf_counter() - start) * 1e3
 
         tic = time.perf_counter()
@@ -191,7 +192,8 @@ class StereoPipeline:
             disparity_right=disparity_right,
             matcher=cfg.matcher,
         )
-        confidence = np.asarray(self._method(inputs), dtype=np.float32)
+        raw_confidence = np.asarray(self._method(inputs), dtype=np.float32)
+        confidence = self._method.to_unit_interval(raw_confidence)
         timings['confidence'] = (time.perf_counter() - tic) * 1e3
 
         if cfg.lr_check and disparity_right is not None:
@@ -203,6 +205,7 @@ class StereoPipeline:
         return PipelineResult(
             disparity=disparity,
             confidence=confidence,
+            raw_confidence=raw_confidence,
             valid=valid,
             left=left_s,
             scale=1.0 / cfg.downsample,

@@ -107,6 +107,13 @@ class ConfidenceInputs:
         return int(self.cost_volume.shape[0])
 
 
+def _finite_clip(values: np.ndarray) -> np.ndarray:
+    values = np.asarray(values, dtype=np.float32)
+    return np.where(np.isfinite(values), np.clip(values, 0.0, 1.0), np.float32(0.0)).astype(
+        np.float32
+    )
+
+
 class ConfidenceMethod(ABC):
     """A confidence measure: ``method(inputs) -> (H, W) float32``, higher = more confident.
 
@@ -119,6 +126,23 @@ class ConfidenceMethod(ABC):
     @abstractmethod
     def __call__(self, inputs: ConfidenceInputs) -> np.ndarray:
         """Compute the (H, W) float32 confidence map of ``inputs``."""
+
+    def to_unit_interval(self, confidence: np.ndarray) -> np.ndarray:
+        """Map this method's confidence into [0, 1] by a fixed, increasing function.
+
+        The published confidence image and ``confidence_threshold`` live in [0, 1]. The map is
+        the same for every frame (no per-frame scaling), so a threshold means the same thing on
+        every frame, and it keeps the order of the values. The default clips, which is exact for
+        methods that already give probabilities (``cva_net``, ``mlm``); methods with other
+        ranges override it.
+
+        Args:
+            confidence: (H, W) float32 as returned by :meth:`__call__`.
+
+        Returns:
+            (H, W) float32 in [0, 1]; non-finite values become 0.
+        """
+        return _finite_clip(confidence)
 
     @classmethod
     def from_options(cls, **options: Any) -> ConfidenceMethod:

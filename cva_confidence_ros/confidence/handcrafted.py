@@ -95,6 +95,10 @@ class MatchingScore(ConfidenceMethod):
         """Return (H, W) float32 in [-1, 0] for costs in [0, 1]."""
         return (-inputs.cost_volume.min(axis=0)).astype(np.float32)
 
+    def to_unit_interval(self, confidence: np.ndarray) -> np.ndarray:
+        """``1 - c1`` in [0, 1]."""
+        return super().to_unit_interval(1.0 + confidence)
+
 
 @dataclass(frozen=True)
 class PeakRatioNaive(ConfidenceMethod):
@@ -114,6 +118,10 @@ class PeakRatioNaive(ConfidenceMethod):
         c1, _, c2 = two_smallest(inputs.cost_volume)
         eps = np.float32(self.eps)
         return ((c2 + eps) / (c1 + eps)).astype(np.float32)
+
+    def to_unit_interval(self, confidence: np.ndarray) -> np.ndarray:
+        """``1 - 1 / PKRN`` in [0, 1): 0 for two equal minima."""
+        return super().to_unit_interval(1.0 - 1.0 / np.maximum(confidence, 1.0))
 
 
 @dataclass(frozen=True)
@@ -187,6 +195,11 @@ class LeftRightDifference(ConfidenceMethod):
         volume_right = self._require_right(inputs)
         return left_right_difference_map(inputs.cost_volume, volume_right, self.eps)
 
+    def to_unit_interval(self, confidence: np.ndarray) -> np.ndarray:
+        """``LRD / (1 + LRD)`` in [0, 1)."""
+        positive = np.maximum(confidence, 0.0)
+        return super().to_unit_interval(positive / (1.0 + positive))
+
 
 @dataclass(frozen=True)
 class LeftRightConsistency(ConfidenceMethod):
@@ -214,6 +227,10 @@ class LeftRightConsistency(ConfidenceMethod):
         matched = disparity_right[rows, np.clip(cols, 0, width - 1)]
         diff = -np.abs(disparity - matched)
         return np.where(inside & np.isfinite(diff), diff, worst).astype(np.float32)
+
+    def to_unit_interval(self, confidence: np.ndarray) -> np.ndarray:
+        """``1 / (1 + |d_L - d_R|)`` in (0, 1]: 1 for consistent pixels."""
+        return super().to_unit_interval(1.0 / (1.0 - np.minimum(confidence, 0.0)))
 
 
 CONFIDENCE_METHODS.add('score', MatchingScore.from_options)

@@ -21,7 +21,7 @@ from cva_confidence_ros.datasets.io import Calibration
 from cva_confidence_ros.datasets.loaders import StereoSample
 from cva_confidence_ros.errors import ConfigError, DataError
 
-__all__ = ['fit_disparity_range', 'resize_disparity', 'resize_sample']
+__all__ = ['fit_disparity_range', 'resize_disparity', 'resize_image', 'resize_sample']
 
 
 def _check_factor(factor: int) -> int:
@@ -64,7 +64,19 @@ def resize_disparity(disparity: np.ndarray, factor: int) -> np.ndarray:
     return np.where(keep, mean / factor, np.nan).astype(np.float32)
 
 
-def _resize_image(image: np.ndarray, factor: int) -> np.ndarray:
+def resize_image(image: np.ndarray, factor: int) -> np.ndarray:
+    """Shrink an image by an integer factor: crop to a multiple of it, then block-average.
+
+    Args:
+        image: (H, W) or (H, W, C) uint8 or float.
+        factor: ≥ 1.
+
+    Returns:
+        (H // factor, W // factor[, C]) of the same dtype, aligned with
+        :func:`resize_disparity` of the same factor.
+    """
+    if factor == 1:
+        return image
     height, width = image.shape[0] // factor, image.shape[1] // factor
     cropped = np.ascontiguousarray(image[: height * factor, : width * factor])
     # On an exact multiple INTER_AREA is the plain f × f block mean, like the disparity.
@@ -114,8 +126,8 @@ def resize_sample(sample: StereoSample, factor: int) -> StereoSample:
         nonocc = np.asarray(_blocks(sample.nonocc, factor).all(axis=2))
     return dataclasses.replace(
         sample,
-        left=_resize_image(sample.left, factor),
-        right=_resize_image(sample.right, factor),
+        left=resize_image(sample.left, factor),
+        right=resize_image(sample.right, factor),
         disparity=resize_disparity(sample.disparity, factor),
         nonocc=nonocc,
         calib=_resize_calibration(sample.calib, factor) if sample.calib is not None else None,
