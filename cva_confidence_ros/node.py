@@ -67,38 +67,11 @@ from cva_confidence_ros.ros.params import (
 )
 from cva_confidence_ros.sync import MatchedSet, StampSynchronizer
 
-__all__ = ['NODE_NAME', 'ConfidenceNode', 'main', 'to_unit_interval']
+__all__ = ['NODE_NAME', 'ConfidenceNode', 'main']
 
 NODE_NAME = 'cva_confidence'
 _LOG_THROTTLE_S = 5.0
 _READY = 'ready'
-
-
-def to_unit_interval(confidence: np.ndarray) -> np.ndarray:
-    """Map a confidence map into [0, 1] for publishing, keeping its order.
-
-    Learned methods (and ``mlm``) already give [0, 1] and pass unchanged. Hand-crafted measures
-    with other ranges (``pkrn`` ≥ 1, ``score`` ≤ 0, …) are min–max scaled per frame, so that
-    the published image and ``confidence_threshold`` stay in [0, 1]. Non-finite values become 0.
-
-    Args:
-        confidence: (H, W) float32, any real values, higher = more confident.
-
-    Returns:
-        (H, W) float32 in [0, 1].
-    """
-    values = np.asarray(confidence, dtype=np.float32)
-    finite = np.isfinite(values)
-    if not finite.any():
-        return np.zeros(values.shape, np.float32)
-    low, high = float(values[finite].min()), float(values[finite].max())
-    if low >= 0.0 and high <= 1.0:
-        out = values
-    elif high > low:
-        out = (values - np.float32(low)) / np.float32(high - low)
-    else:
-        out = np.ones(values.shape, np.float32)
-    return np.where(finite, np.clip(out, 0.0, 1.0), np.float32(0.0)).astype(np.float32)
 
 
 def _qos(name: str) -> QoSProfile:
@@ -352,7 +325,7 @@ class ConfidenceNode(Node):
         result = pipeline.process(left, right)
 
         tic = time.perf_counter()
-        self._publish(result, left_msg.header, geometry, config, node_config, (height, width))
+        self._publish(result, left_msg.header, geometry, config, node_config)
         timings = dict(result.timings_ms)
         timings['convert'] = convert_ms
         timings['publish'] = (time.perf_counter() - tic) * 1e3
@@ -369,14 +342,14 @@ class ConfidenceNode(Node):
         geometry: StereoGeometry,
         config: PipelineConfig,
         node_config: NodeConfig,
-        input_shape: tuple[int, int],
     ) -> None:
         disparity = result.disparity
-        out_h, out_w = disparity.shape
-        if (out_h, out_w) != input_shape:
-            geometry = geometry.scaled(out_w / input_shape[1], out_h / input_shape[0])
-        confidence = to_unit_interval(result.confidence)
-        keep = np.isfinite(disparity) & (confidence >= config.confidence_threshold)
+        if result.scale != 1.0:
+            # The pipeline crops the bottom/right rest and shrinks by exactly 1/downsample.
+            geometry = geometry.scaled(result.scale)
+        # Already in [0, 1] by the method's fixed map; NaN (none expected) would break that.
+        confidence = np.clip(np.nan_to_num(result.confidence, nan=0.0), 0.0, 1.0)
+        keep = result.valid
         if self._pub_disparity.get_subscription_count():
             self._pub_disparity.publish(
                 disparity_to_message(disparity, header, geometry, config.max_disparity)

@@ -151,6 +151,7 @@ def test_ros2_run_executable_comes_up_and_stops_on_sigint(workspace: Path) -> No
     where = subprocess.run(
         [sys.executable, '-c', 'import cva_confidence_ros.node as m; print(m.__file__)'],
         env=env,
+        cwd=workspace,
         capture_output=True,
         text=True,
         timeout=60,
@@ -168,7 +169,12 @@ def test_ros2_run_executable_comes_up_and_stops_on_sigint(workspace: Path) -> No
         'max_disparity:=16',
     ]
     process = subprocess.Popen(
-        command, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+        command,
+        env=env,
+        cwd=workspace,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
     )
     lines: list[str] = []
     ready = threading.Event()

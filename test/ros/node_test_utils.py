@@ -189,24 +189,33 @@ class StereoClient:
         stamp_ns: int,
         topics: tuple[str, ...] = ('disparity', 'confidence', 'points2', 'disparity_filtered'),
         timeout: float = 30.0,
+        resend: float = 2.0,
     ) -> dict[str, Any]:
-        """Publish the frame (again, with fresh stamps after ``stamp_ns``) until every topic
-        answers; discovery of the node's subscribers may lag behind ours.
+        """Publish the frame until every topic has answered one of the published stamps.
+
+        Discovery of the node's subscribers may lag behind ours, so the frame is sent again
+        (with a stamp 1 ms later) every ``resend`` seconds without an answer.
 
         Returns:
-            topic → the output message, all stamped with the same (last published) stamp.
+            topic → the output message, all for the same published stamp.
         """
         deadline = time.monotonic() + timeout
-        stamp = stamp_ns
+        sent: list[int] = []
+
+        def answered() -> int | None:
+            for stamp in sent:
+                if all(self.by_stamp(t, stamp) is not None for t in topics):
+                    return stamp
+            return None
+
         while time.monotonic() < deadline:
-            self.publish_frame(left, right, stamp)
-            got = self.wait_for(
-                lambda s=stamp: all(self.by_stamp(t, s) is not None for t in topics),
-                timeout=min(2.0, max(deadline - time.monotonic(), 0.0)),
-            )
-            if got:
+            sent.append(stamp_ns + len(sent) * 1_000_000)
+            self.publish_frame(left, right, sent[-1])
+            wait = min(resend, max(deadline - time.monotonic(), 0.0))
+            if self.wait_for(lambda: answered() is not None, timeout=wait):
+                stamp = answered()
+                assert stamp is not None
                 return {t: self.by_stamp(t, stamp) for t in topics}
-            stamp += 1_000_000
         raise TimeoutError(f'no output on {topics} within {timeout} s')
 
 
