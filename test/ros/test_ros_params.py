@@ -1,0 +1,106 @@
+"""Tests of the node's parameter declarations, configs, parameter file and launch file."""
+
+from __future__ import annotations
+
+import ast
+from dataclasses import fields
+from pathlib import Path
+
+import pytest
+from rcl_interfaces.msg import ParameterType
+from rclpy.parameter import Parameter
+import yaml
+
+from cva_confidence_ros.errors import ConfigError
+from cva_confidence_ros.pipeline import PipelineConfig
+from cva_confidence_ros.ros.params import (
+    NODE_PARAMETERS,
+    PARAMETERS,
+    PIPELINE_PARAMETERS,
+    NodeConfig,
+    build_configs,
+)
+
+ROOT = Path(__file__).resolve().parents[2]
+DEFAULTS = {spec.name: spec.default for spec in PARAMETERS}
+
+
+def test_parameters_map_one_to_one_onto_the_configs() -> None:
+    assert [s.name for s in PIPELINE_PARAMETERS] == [f.name for f in fields(PipelineConfig)]
+    assert [s.name for s in NODE_PARAMETERS] == [f.name for f in fields(NodeConfig)]
+    assert len(set(DEFAULTS)) == len(PARAMETERS)
+    pipeline, node = build_configs(DEFAULTS)
+    assert pipeline == PipelineConfig()
+    assert node == NodeConfig()
+
+
+def test_descriptors_have_types_descriptions_and_ranges() -> None:
+    by_name = {spec.name: spec.descriptor() for spec in PARAMETERS}
+    assert all(d.description for d in by_name.values())
+    assert by_name['matcher'].type == ParameterType.PARAMETER_STRING
+    assert by_name['publish_points'].type == ParameterType.PARAMETER_BOOL
+    assert by_name['max_disparity'].type == ParameterType.PARAMETER_INTEGER
+    (ints,) = by_name['max_disparity'].integer_range
+    assert (ints.from_value, ints.to_value, ints.step) == (1, 1024, 1)
+    assert by_name['confidence_threshold'].type == ParameterType.PARAMETER_DOUBLE
+    (floats,) = by_name['confidence_threshold'].floating_point_range
+    assert (floats.from_value, floats.to_value) == (0.0, 1.0)
+    assert not by_name['lr_check'].integer_range and not by_name['lr_check'].floating_point_range
+    assert by_name['input_qos'].read_only and by_name['output_qos'].read_only
+    assert not by_name['matcher'].read_only
+    assert 'census_sgm' in by_name['matcher'].additional_constraints
+
+
+def test_build_configs_applies_changes() -> None:
+    changes = [Parameter('max_disparity', value=128), Parameter('approximate_sync', value=True)]
+    pipeline, node = build_configs(DEFAULTS, changes)
+    assert pipeline.max_disparity == 128
+    assert node.approximate_sync is True
+    assert node.tolerance_ns == 10_000_000
+
+
+@pytest.mark.parametrize(
+    ('name', 'value', 'match'),
+    [
+        ('matcher', 'sad', 'unknown matcher'),
+        ('confidence_method', 'magic', 'confidence_method'),
+        ('downsample', 3, 'downsample'),
+        ('device', 'tpu', 'device'),
+        ('input_qos', 'fast', 'input_qos'),
+        ('queue_size', 0, 'queue_size'),
+        ('approximate_sync_tolerance_seconds', -0.1, 'tolerance'),
+        ('no_such_parameter', 1, 'unknown parameter'),
+    ],
+)
+def test_build_configs_rejects(name: str, value: object, match: str) -> None:
+    with pytest.raises(ConfigError, match=match):
+        build_configs(DEFAULTS, [Parameter(name, value=value)])
+
+
+def test_parameter_file_lists_exactly_the_declared_parameters() -> None:
+    document = yaml.safe_load((ROOT / 'config' / 'cva_confidence.yaml').read_text())
+    (node_key,) = document
+    values = document[node_key]['ros__parameters']
+    assert set(values) == set(DEFAULTS)
+    for name, value in values.items():
+        # The file documents the defaults, with the declared types (rclpy rejects 1 for 1.0).
+        assert type(value) is type(DEFAULTS[name]), name
+        assert value == DEFAULTS[name], name
+
+
+def test_launch_file_overrides_declared_parameters() -> None:
+    source = (ROOT / 'launch' / 'cva_confidence.launch.py').read_text()
+    tree = ast.parse(source)
+    compile(tree, 'cva_confidence.launch.py', 'exec')
+    (overrides,) = [
+        node.value
+        for node in ast.walk(tree)
+        if isinstance(node, ast.AnnAssign) and getattr(node.target, 'id', '') == 'OVERRIDES'
+    ]
+    names = [key.value for key in overrides.keys]
+    assert names and set(names) <= set(DEFAULTS)
+    kinds = {
+        key.value: value.id for key, value in zip(overrides.keys, overrides.values, strict=True)
+    }
+    for name, kind in kinds.items():
+        assert kind == type(DEFAULTS[name]).__name__, name
