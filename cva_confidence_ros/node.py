@@ -10,7 +10,8 @@ are matched by stamp (:mod:`cva_confidence_ros.sync`).
 Publishes: ``disparity`` and ``disparity_filtered`` (``stereo_msgs/DisparityImage``; the
 filtered one is invalid wherever confidence < ``confidence_threshold``), ``confidence``
 (``sensor_msgs/Image`` 32FC1 in [0, 1]), ``points2`` (``sensor_msgs/PointCloud2`` x, y, z, rgb
-of the pixels with confidence ≥ threshold) and ``/diagnostics``. Everything is stamped with the
+of the pixels with confidence ≥ threshold), ``camera_info`` (the left camera info at the output
+resolution, for consumers of ``confidence``) and ``/diagnostics``. Everything is stamped with the
 left image's header and published at the processed resolution (1/``downsample``).
 
 Threads: subscription callbacks only synchronise and drop the newest complete set into a
@@ -57,6 +58,7 @@ from cva_confidence_ros.ros.convert import (
     disparity_to_message,
     image_to_array,
     pair_to_uint8,
+    scale_camera_info,
     stamp_to_ns,
 )
 from cva_confidence_ros.ros.params import (
@@ -191,6 +193,7 @@ class ConfidenceNode(Node):
         self._pub_filtered = self.create_publisher(DisparityImage, 'disparity_filtered', out_qos)
         self._pub_confidence = self.create_publisher(Image, 'confidence', out_qos)
         self._pub_points = self.create_publisher(PointCloud2, 'points2', out_qos)
+        self._pub_info = self.create_publisher(CameraInfo, 'camera_info', out_qos)
         self._pub_diagnostics = self.create_publisher(
             DiagnosticArray, '/diagnostics', QoSProfile(depth=10)
         )
@@ -326,6 +329,9 @@ class ConfidenceNode(Node):
 
         tic = time.perf_counter()
         self._publish(result, left_msg.header, geometry, config, node_config)
+        if self._pub_info.get_subscription_count():
+            info = item.items['left_info']
+            self._pub_info.publish(scale_camera_info(info, config.downsample, left_msg.header))
         timings = dict(result.timings_ms)
         timings['convert'] = convert_ms
         timings['publish'] = (time.perf_counter() - tic) * 1e3

@@ -32,6 +32,7 @@ __all__ = [
     'image_to_array',
     'ns_to_stamp',
     'pair_to_uint8',
+    'scale_camera_info',
     'stamp_to_ns',
 ]
 
@@ -201,6 +202,52 @@ def camera_info_to_geometry(
                 f'got {info.width}×{info.height}'
             )
     return StereoGeometry.from_projections(left_info.p, right_info.p)
+
+
+def scale_camera_info(info: CameraInfo, factor: int, header: Header) -> CameraInfo:
+    """The camera info of images shrunk by an integer factor (crop to a multiple, then shrink).
+
+    Matches :class:`~cva_confidence_ros.pipeline.StereoPipeline`'s downsampling: rows and
+    columns beyond a multiple of ``factor`` are cropped at the bottom and right, then blocks of
+    ``factor``×``factor`` are averaged, so a pixel coordinate ``x`` becomes
+    ``(x + 0.5) / factor − 0.5``. Focal lengths and ``P[0, 3]`` (= −fx·B) scale by 1/factor.
+
+    Args:
+        info: Camera info of the full-resolution images.
+        factor: 1, 2 or 4 (≥ 1).
+        header: Header of the output (the left image's).
+
+    Returns:
+        A new ``CameraInfo`` for ``(width // factor) × (height // factor)`` images.
+    """
+    scale = 1.0 / factor
+    out = CameraInfo(
+        header=header,
+        height=int(info.height) // factor,
+        width=int(info.width) // factor,
+        distortion_model=info.distortion_model,
+        d=list(info.d),
+        binning_x=info.binning_x,
+        binning_y=info.binning_y,
+    )
+    k = np.array(info.k, dtype=np.float64).reshape(3, 3)
+    p = np.array(info.p, dtype=np.float64).reshape(3, 4)
+    for matrix in (k, p):
+        # Rows 0 and 1 of K and P are pixel coordinates (times the third row).
+        matrix[:2] *= scale
+        matrix[:2, 2] += (scale - 1.0) * 0.5
+    out.k = k.ravel().tolist()
+    out.r = list(info.r)
+    out.p = p.ravel().tolist()
+    roi = info.roi
+    out.roi = RegionOfInterest(
+        x_offset=roi.x_offset // factor,
+        y_offset=roi.y_offset // factor,
+        height=roi.height // factor,
+        width=roi.width // factor,
+        do_rectify=roi.do_rectify,
+    )
+    return out
 
 
 def disparity_to_message(

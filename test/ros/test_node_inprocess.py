@@ -25,6 +25,7 @@ from rcl_interfaces.srv import SetParameters
 import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
+from sensor_msgs.msg import CameraInfo
 
 from cva_confidence_ros.node import ConfidenceNode
 from cva_confidence_ros.ros.convert import (
@@ -52,6 +53,7 @@ class _Running:
         self.node = ConfidenceNode(context=context, parameter_overrides=list(OVERRIDES))
         self.client = StereoClient(context)
         self.client.subscribe('/diagnostics', DiagnosticArray)
+        self.client.subscribe('camera_info', CameraInfo)
         self.spinner = Spinner(context, self.node, self.client.node)
         self.stamp = 1_000_000_000
         assert self.client.wait_connected(), 'the node and the client did not discover'
@@ -264,9 +266,14 @@ def test_downsample_publishes_at_lower_resolution(running: _Running) -> None:
     assert result.successful
     try:
         left, right = textured_pair(height=64, width=96, disparity=6, seed=4)
-        out = running.client.send_until_output(left, right, running.next_stamp())
+        topics = ('disparity', 'confidence', 'points2', 'camera_info')
+        out = running.client.send_until_output(left, right, running.next_stamp(), topics=topics)
         disparity_msg = out['disparity']
         assert (disparity_msg.image.height, disparity_msg.image.width) == (32, 48)
+        info = out['camera_info']
+        assert (info.width, info.height) == (48, 32)
+        # cx = 48 → (48 + 0.5)/2 − 0.5 = 23.75; cy = 32 → 15.75.
+        np.testing.assert_allclose(info.k, [50, 0, 23.75, 0, 50, 15.75, 0, 0, 1])
         assert disparity_msg.f == pytest.approx(FX / 2)
         assert disparity_msg.t == pytest.approx(BASELINE)
         disparity = disparity_from_message(disparity_msg)

@@ -22,6 +22,7 @@ from cva_confidence_ros.ros.convert import (
     image_to_array,
     ns_to_stamp,
     pair_to_uint8,
+    scale_camera_info,
     stamp_to_ns,
 )
 
@@ -179,3 +180,23 @@ def test_cloud_message_round_trip() -> None:
     assert len(dense.data) == 5 * 16
     with pytest.raises(InputError, match='dtype'):
         cloud_to_message(np.zeros(3, np.float32), header)
+
+
+def test_scale_camera_info() -> None:
+    left_info, right_info = info_msgs(7, height=65, width=97, fx=100.0, baseline=0.1)
+    left_info.roi.x_offset, left_info.roi.width = 10, 80
+    header = Header(frame_id='out', stamp=ns_to_stamp(7))
+    half = scale_camera_info(left_info, 2, header)
+    assert (half.width, half.height) == (48, 32)  # 97 → 96 → 48 and 65 → 64 → 32
+    assert half.header.frame_id == 'out'
+    # cx = 48.5 → (48.5 + 0.5)/2 − 0.5 = 24; cy = 32.5 → 16.
+    np.testing.assert_allclose(half.k, [50, 0, 24, 0, 50, 16, 0, 0, 1])
+    np.testing.assert_allclose(half.p, [50, 0, 24, 0, 0, 50, 16, 0, 0, 0, 1, 0])
+    assert (half.roi.x_offset, half.roi.width) == (5, 40)
+    right_half = scale_camera_info(right_info, 2, header)
+    assert right_half.p[3] == pytest.approx(-5.0)  # −fx·B at half size
+    geometry = camera_info_to_geometry(half, right_half, 48, 32)
+    assert geometry.baseline == pytest.approx(0.1)
+    unchanged = scale_camera_info(left_info, 1, header)
+    np.testing.assert_allclose(unchanged.k, left_info.k)
+    assert (unchanged.width, unchanged.height) == (97, 65)
