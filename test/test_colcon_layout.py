@@ -138,7 +138,8 @@ def _ros2_run_env(prefix: Path) -> dict[str, str]:
     env['AMENT_PREFIX_PATH'] = os.pathsep.join(
         p for p in (str(prefix), env.get('AMENT_PREFIX_PATH', '')) if p
     )
-    env['ROS_DOMAIN_ID'] = str(180 + os.getpid() % 50)
+    # The node tests' scheme (test/ros/node_test_utils.domain_id) with offset 3.
+    env['ROS_DOMAIN_ID'] = str(101 + (os.getpid() % 30) * 4 + 3)
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     env['PYTHONUNBUFFERED'] = '1'
     return env

@@ -27,8 +27,14 @@ FRAME = 'left_optical'
 
 
 def domain_id(offset: int) -> int:
-    """A ROS domain for one test module: from the pid, so parallel runs do not cross-talk."""
+    """A ROS domain (101–220) for one test module (offset 0–3): from the pid, so that parallel
+    runs do not cross-talk; ``test_colcon_layout`` uses offset 3 with the same formula."""
     return 101 + (os.getpid() % 30) * 4 + offset
+
+
+def first_stamp() -> int:
+    """A per-process start stamp (ns): should two runs meet in one domain, their frames differ."""
+    return (1 + os.getpid() % 1000) * 10**15
 
 
 def textured_pair(

@@ -9,6 +9,7 @@ from node_test_utils import (
     Spinner,
     StereoClient,
     domain_id,
+    first_stamp,
     image_msg,
     info_msgs,
     rss_mb,
@@ -41,7 +42,7 @@ class _Running:
         )
         self.client = StereoClient(context)
         self.spinner = Spinner(context, self.node, self.client.node)
-        self.stamp = 1_000_000_000
+        self.stamp = first_stamp()
         assert self.client.wait_connected(), 'the node and the client did not discover'
 
     def next_stamp(self) -> int:

@@ -14,6 +14,7 @@ from node_test_utils import (
     Spinner,
     StereoClient,
     domain_id,
+    first_stamp,
     image_msg,
     info_msgs,
     textured_pair,
@@ -55,7 +56,7 @@ class _Running:
         self.client.subscribe('/diagnostics', DiagnosticArray)
         self.client.subscribe('camera_info', CameraInfo)
         self.spinner = Spinner(context, self.node, self.client.node)
-        self.stamp = 1_000_000_000
+        self.stamp = first_stamp()
         assert self.client.wait_connected(), 'the node and the client did not discover'
 
     def next_stamp(self) -> int:

@@ -11,7 +11,7 @@ import sys
 import threading
 import time
 
-from node_test_utils import Spinner, StereoClient, domain_id, textured_pair
+from node_test_utils import Spinner, StereoClient, domain_id, first_stamp, textured_pair
 import numpy as np
 import pytest
 import rclpy
@@ -114,7 +114,7 @@ def test_cva_node_serves_over_dds_and_stops_on_sigint(client: StereoClient) -> N
         _started(node)
         assert client.wait_connected(30), node.output
         left, right = textured_pair(seed=11)
-        out = client.send_until_output(left, right, 5_000_000_000, timeout=40)
+        out = client.send_until_output(left, right, first_stamp(), timeout=40)
     finally:
         code = node.stop(signal.SIGINT)
     disparity = disparity_from_message(out['disparity'])
@@ -145,7 +145,7 @@ def test_cva_net_with_given_weights_and_sigterm(client: StereoClient, tmp_path: 
         _started(node)
         assert client.wait_connected(30), node.output
         left, right = textured_pair(seed=12)
-        out = client.send_until_output(left, right, 9_000_000_000, timeout=60)
+        out = client.send_until_output(left, right, first_stamp() + 10**12, timeout=60)
     finally:
         code = node.stop(signal.SIGTERM)
     confidence = float_image_to_array(out['confidence'])
