@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import partial
 import signal
 import sys
 import threading
@@ -186,9 +187,7 @@ class ConfidenceNode(Node):
             ('left_info', CameraInfo, 'left/camera_info'),
             ('right_info', CameraInfo, 'right/camera_info'),
         ):
-            self.create_subscription(
-                msg_type, topic, lambda msg, key=key: self._on_message(key, msg), in_qos
-            )
+            self.create_subscription(msg_type, topic, partial(self._on_message, key), in_qos)
         self._pub_disparity = self.create_publisher(DisparityImage, 'disparity', out_qos)
         self._pub_filtered = self.create_publisher(DisparityImage, 'disparity_filtered', out_qos)
         self._pub_confidence = self.create_publisher(Image, 'confidence', out_qos)

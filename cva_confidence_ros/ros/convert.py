@@ -299,9 +299,10 @@ def disparity_from_message(msg: DisparityImage) -> np.ndarray:
     return values
 
 
+# x, y, z, rgb: four float32 in a row, as CLOUD_DTYPE lays them out.
 _CLOUD_FIELDS = [
-    PointField(name=name, offset=CLOUD_DTYPE.fields[name][1], datatype=PointField.FLOAT32, count=1)
-    for name in CLOUD_DTYPE.names
+    PointField(name=name, offset=4 * index, datatype=PointField.FLOAT32, count=1)
+    for index, name in enumerate(('x', 'y', 'z', 'rgb'))
 ]
 
 
