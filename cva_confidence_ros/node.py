@@ -128,6 +128,7 @@ class _Stats:
     pairs: int = 0
     processed: int = 0
     dropped: int = 0
+    unmatched: int = 0
     invalid: int = 0
     failed: int = 0
     last_error: str = ''
@@ -249,7 +250,7 @@ class ConfidenceNode(Node):
             self._node_config = node_config
             sync_keys = ('queue_size', 'approximate_sync', 'approximate_sync_tolerance_seconds')
             if any(getattr(old, key) != getattr(node_config, key) for key in sync_keys):
-                self._stats.dropped += sum(self._sync.pending().values())
+                self._stats.unmatched += sum(self._sync.pending().values())
                 self._sync = self._make_sync(node_config)
         self.get_logger().info(
             'parameters set: ' + ', '.join(f'{p.name}={p.value!r}' for p in params)
@@ -266,7 +267,7 @@ class ConfidenceNode(Node):
             sync = self._sync
             before = sync.dropped
             matched = sync.add(key, stamp, msg)
-            self._stats.dropped += sync.dropped - before
+            self._stats.unmatched += sync.dropped - before
             for item in matched:
                 self._stats.pairs += 1
                 self._stats.window_pairs += 1
@@ -394,6 +395,7 @@ class ConfidenceNode(Node):
                 'frames_received': stats.pairs,
                 'frames_processed': stats.processed,
                 'frames_dropped': stats.dropped,
+                'messages_unmatched': stats.unmatched,
                 'frames_invalid': stats.invalid,
                 'frames_failed': stats.failed,
                 'processing_rate_hz': f'{rate:.3f}',
@@ -431,7 +433,12 @@ class ConfidenceNode(Node):
         )
 
     def stats(self) -> dict[str, int]:
-        """Counters since start: messages, frames received/processed/dropped/invalid/failed."""
+        """Counters since start.
+
+        ``frames_received`` counts synchronised sets; each is then processed, dropped (replaced
+        by a newer one before the worker took it), invalid (bad input) or failed.
+        ``messages_unmatched`` counts single messages the synchroniser evicted unpaired.
+        """
         with self._lock:
             s = self._stats
             return {
@@ -439,6 +446,7 @@ class ConfidenceNode(Node):
                 'frames_received': s.pairs,
                 'frames_processed': s.processed,
                 'frames_dropped': s.dropped,
+                'messages_unmatched': s.unmatched,
                 'frames_invalid': s.invalid,
                 'frames_failed': s.failed,
             }

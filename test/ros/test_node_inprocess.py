@@ -203,7 +203,7 @@ def test_diagnostics(running: _Running) -> None:
     assert entry.hardware_id.endswith('cva_confidence')
     assert int(values['frames_processed']) >= 1
     assert int(values['frames_received']) >= int(values['frames_processed'])
-    for key in ('frames_dropped', 'frames_invalid', 'messages_received'):
+    for key in ('frames_dropped', 'frames_invalid', 'messages_received', 'messages_unmatched'):
         assert int(values[key]) >= 0
     for stage in ('resize', 'matching', 'confidence', 'total', 'convert', 'publish', 'frame'):
         assert float(values[f'mean_{stage}_ms']) >= 0.0
