@@ -7,13 +7,16 @@ earlier configuration's caches or heap help it. Inside the subprocess:
    centre-cropped to the requested size, and a fixed synthetic pair (seeded random texture,
    horizontal bands of known disparity);
 2. one untimed frame per pair (numba loads or compiles its kernels, torch loads weights);
-3. the peak-RSS mark is reset (``/proc/self/clear_refs``), then ``--repeat`` frames per pair
-   are timed with ``time.perf_counter``.
+3. the peak-RSS mark is reset (``/proc/self/clear_refs``), then ``--repeat`` rounds of one
+   frame per pair are timed with ``time.perf_counter``; the peak is read after the first
+   round. Each round of a matcher is followed by a round of OpenCV SGBM frames, the reference
+   of its ratio: interleaving keeps the ratio fair on a machine whose load drifts (the SGBM
+   row itself still comes from its own subprocess, for its memory).
 
 A frame goes from the image pair to a disparity map: for a matcher the cost volume plus the
 winner-takes-all disparity, for OpenCV ``StereoSGBM.compute`` (MODE_HH, 8 paths) on the gray
 pair. ``ms_per_frame`` is the median over all timed frames; ``peak_mem_mb`` is the peak
-resident memory during the timed frames minus the resident memory before them, i.e. what a
+resident memory during the first round minus the resident memory before it, i.e. what a
 frame needs on top of the loaded process: freed heap is returned to the OS first
 (``malloc_trim``), then VmHWM − VmRSS from ``/proc/self/status``; where the peak mark cannot
 be reset, ``ru_maxrss`` − VmRSS, which may include the warm-up.
@@ -246,33 +249,53 @@ def _reset_peak() -> bool:
         return False
 
 
+def _timed(case: Case, left: np.ndarray, right: np.ndarray) -> tuple[float, dict[str, float]]:
+    start = time.perf_counter()
+    stage_times = case.frame(left, right)
+    return (time.perf_counter() - start) * 1e3, stage_times
+
+
 def run_case(name: str, settings: BenchSettings) -> dict[str, Any]:
     """Measure one configuration in this process.
 
+    The first timed round also gives the peak memory (nothing else runs in it). For any
+    configuration other than the baseline, every timed round is followed by a round of
+    OpenCV SGBM frames on the same pairs, so that the ratio to SGBM compares frames run
+    seconds, not minutes, apart on a machine whose load may drift.
+
     Returns:
-        A record with :data:`RECORD_KEYS` plus ``per_pair_ms`` (median per pair) and
-        ``stages_ms`` (median of each stage the case reports), used for the printed table.
+        A record with :data:`RECORD_KEYS` plus ``per_pair_ms`` (median per pair),
+        ``stages_ms`` (median of each stage the case reports) and ``paired_sgbm_ms`` (median
+        of the interleaved SGBM frames, None for the baseline), used for the printed table.
     """
     case = CASES.get(name)(settings)
+    baseline = CASES.get(_BASELINE)(settings) if name != _BASELINE else None
     pairs = make_pairs(settings)
     for left, right in pairs.values():
         case.frame(left, right)
+        if baseline is not None:
+            baseline.frame(left, right)
     _release_free_heap()
     have_hwm = _reset_peak()
     rss_before = _memory_kb('VmRSS') or 0
+    peak: int | None = None
     times: dict[str, list[float]] = {pair: [] for pair in pairs}
     stages: dict[str, list[float]] = {}
-    for _ in range(settings.repeat):
+    paired: list[float] = []
+    for round_index in range(settings.repeat):
         for pair, (left, right) in pairs.items():
-            start = time.perf_counter()
-            stage_times = case.frame(left, right)
-            times[pair].append((time.perf_counter() - start) * 1e3)
+            elapsed, stage_times = _timed(case, left, right)
+            times[pair].append(elapsed)
             for stage, value in stage_times.items():
                 stages.setdefault(stage, []).append(value)
-    peak = _memory_kb('VmHWM') if have_hwm else None
-    if peak is None:
-        # ru_maxrss is in kB on Linux; it also covers the untimed warm-up frames.
-        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        if round_index == 0:
+            peak = _memory_kb('VmHWM') if have_hwm else None
+            if peak is None:
+                # ru_maxrss is in kB on Linux; it also covers the untimed warm-up frames.
+                peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        if baseline is not None:
+            for left, right in pairs.values():
+                paired.append(_timed(baseline, left, right)[0])
     record: dict[str, Any] = {
         'config': name,
         'device': case.device,
@@ -280,12 +303,13 @@ def run_case(name: str, settings: BenchSettings) -> dict[str, Any]:
         'height': settings.height,
         'max_disparity': settings.max_disparity,
         'ms_per_frame': statistics.median([t for pair in times.values() for t in pair]),
-        'peak_mem_mb': max(peak - rss_before, 0) / 1024.0,
+        'peak_mem_mb': max((peak or 0) - rss_before, 0) / 1024.0,
         'network_gflops': case.extras.get('network_gflops'),
         'gemm_gflops': case.extras.get('gemm_gflops'),
         'auc_rel': case.extras.get('auc_rel'),
         'per_pair_ms': {pair: statistics.median(values) for pair, values in times.items()},
         'stages_ms': {stage: statistics.median(values) for stage, values in stages.items()},
+        'paired_sgbm_ms': statistics.median(paired) if paired else None,
     }
     return record
 
@@ -323,26 +347,30 @@ def format_table(records: Sequence[dict[str, Any]], threads: int) -> str:
     """Human-readable table of the records with the ratio to OpenCV SGBM."""
     baseline = next((r['ms_per_frame'] for r in records if r['config'] == _BASELINE), None)
     first = records[0]
+    nan = float('nan')
     lines = [
         f"{first['width']}×{first['height']}, D = {first['max_disparity']}, "
         f'{threads} CPU cores; frame = image pair → disparity; median ms per frame',
         f"{'config':<14}{'device':<8}{'ms/frame':>10}{'real':>9}{'synth':>9}{'volume':>9}"
-        f"{'× SGBM':>9}{'peak MB':>10}",
+        f"{'SGBM*':>9}{'× SGBM':>9}{'peak MB':>10}",
     ]
     for record in records:
         per_pair = record.get('per_pair_ms', {})
         volume = record.get('stages_ms', {}).get('volume')
-        ratio = record['ms_per_frame'] / baseline if baseline else float('nan')
+        reference = record.get('paired_sgbm_ms') or baseline
+        ratio = record['ms_per_frame'] / reference if reference else nan
         lines.append(
             f"{record['config']:<14}{record['device']:<8}{record['ms_per_frame']:>10.1f}"
-            f"{per_pair.get('real', float('nan')):>9.1f}"
-            f"{per_pair.get('synthetic', float('nan')):>9.1f}"
-            f"{volume if volume is not None else float('nan'):>9.1f}"
+            f"{per_pair.get('real', nan):>9.1f}{per_pair.get('synthetic', nan):>9.1f}"
+            f'{volume if volume is not None else nan:>9.1f}'
+            f'{reference if reference else nan:>9.1f}'
             f'{ratio:>9.2f}{record["peak_mem_mb"]:>10.1f}'
         )
     lines.append(
         'volume = cost-volume part of a matcher frame (the rest is WTA); real = Motorcycle, '
-        'synth = banded synthetic pair; peak MB = resident memory a frame adds at its peak'
+        'synth = banded synthetic pair;\nSGBM* = OpenCV SGBM frames interleaved with that '
+        "row's frames in the same process (the ratio's reference); peak MB = resident "
+        'memory a frame adds at its peak'
     )
     return '\n'.join(lines)
 

@@ -105,10 +105,9 @@ def valid_range(width: int, disparity: int, step: int) -> tuple[int, int]:
 
 @njit(cache=True, fastmath=True)
 def _hamming_hwd_kernel(
-    codes_ref: np.ndarray, codes_other: np.ndarray, depth: int, step: int
-) -> np.ndarray:
-    height, width = codes_ref.shape
-    costs = np.empty((height, width, depth), np.uint8)
+    codes_ref: np.ndarray, codes_other: np.ndarray, step: int, costs: np.ndarray
+) -> None:
+    height, width, depth = costs.shape
     # The other view's codes of a row in the order the disparities visit them (reversed for
     # a left reference), so that the partners of x for d = 0, 1, … are contiguous.
     partners = np.empty(width, np.uint32)
@@ -127,11 +126,15 @@ def _hamming_hwd_kernel(
                 target[d] = popcount(ref ^ row[d])
             for d in range(inside, depth):
                 target[d] = CENSUS_BITS
-    return costs
 
 
 def hamming_cost_volume(
-    codes_ref: np.ndarray, codes_other: np.ndarray, depth: int, step: int, layout: str = 'dhw'
+    codes_ref: np.ndarray,
+    codes_other: np.ndarray,
+    depth: int,
+    step: int,
+    layout: str = 'dhw',
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
     """Per-pixel Hamming costs between reference codes and shifted partner codes.
 
@@ -141,16 +144,30 @@ def hamming_cost_volume(
         depth: D, number of disparities.
         step: −1 when the partner of x is x − d (left reference), +1 when it is x + d (right).
         layout: ``'dhw'`` for a (D, H, W) result, ``'hwd'`` for (H, W, D) (what SGM uses).
+        out: Optional C-contiguous (H, W, D) uint8 array to fill (``'hwd'`` layout only).
 
     Returns:
         uint8 Hamming distances in [0, 24]; 24 (:data:`CENSUS_BITS`) where the partner is
         outside the image.
     """
-    costs = _hamming_hwd_kernel(
+    if layout not in ('dhw', 'hwd'):
+        raise InputError(f"layout must be 'dhw' or 'hwd'; got {layout!r}")
+    height, width = codes_ref.shape
+    shape = (height, width, int(depth))
+    if out is not None and (
+        layout != 'hwd' or out.shape != shape or out.dtype != np.uint8
+        or not out.flags['C_CONTIGUOUS']
+    ):
+        raise InputError(
+            f'out must be a C-contiguous {shape} uint8 array with layout hwd; got '
+            f'{out.shape} {out.dtype} with layout {layout}'
+        )
+    costs = np.empty(shape, np.uint8) if out is None else out
+    _hamming_hwd_kernel(
         np.ascontiguousarray(codes_ref, np.uint32),
         np.ascontiguousarray(codes_other, np.uint32),
-        int(depth),
         int(step),
+        costs,
     )
     if layout == 'hwd':
         return costs

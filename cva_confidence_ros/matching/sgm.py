@@ -14,11 +14,14 @@ Internally costs are (H, W, D), so that the recursion runs along contiguous disp
 path costs are int16 (p2 is bounded so that they fit), so that it runs 16 disparities per AVX2
 instruction. Like OpenCV's SGBM the 8 paths are run as two sweeps over the image: top-down and
 left-to-right for the 4 paths arriving from the left and from above, bottom-up and right-to-left
-for the other 4. The two sweeps run in parallel into separate uint16 accumulators, which a
-final pass adds, transposes to (D, H, W) and scales.
+for the other 4. The two sweeps run in parallel in two phases: first each covers its half of
+the rows and stores the row sums (uint16), then each goes on into the other's half and adds,
+transposes to (D, H, W) and scales finished rows while they are still in cache.
 """
 
 from __future__ import annotations
+
+import threading
 
 from numba import njit, prange
 import numpy as np
@@ -78,23 +81,43 @@ def _step(
 
 
 @njit(cache=True, fastmath=True)
-def _sweep(
-    costs: np.ndarray, p1: np.int16, p2: np.int16, backward: bool, acc: np.ndarray
+def _sweep_rows(
+    costs: np.ndarray,
+    p1: np.int16,
+    p2: np.int16,
+    backward: bool,
+    first: int,
+    stop: int,
+    lines: np.ndarray,
+    minima: np.ndarray,
+    acc: np.ndarray,
+    combine: bool,
+    volume: np.ndarray,
+    scale: np.float32,
+    step: int,
 ) -> None:
-    """acc = sum of 4 paths: those arriving from the left and from the row above (forward
-    sweep: top-down, left to right) or from the right and the row below (backward sweep)."""
+    """Rows ``first`` ≤ i < ``stop`` of one sweep: the 4 paths arriving from the left and from
+    the row above (forward: y = i, left to right) or from the right and the row below
+    (backward: y = H − 1 − i, right to left).
+
+    The sum of the 4 paths of row y goes to ``acc[y]``, or, with ``combine``, is added to
+    ``acc[y]`` (the other sweep's sum there) and written as ``volume[:, y, :]`` scaled by
+    ``scale``, with 1.0 where the partner x + step·d is outside the image (step 0: nowhere).
+    ``lines`` (2, 3, W, D + 2) int16 and ``minima`` (2, 3, W) carry the path costs of the
+    last row from one call to the next.
+    """
     height, width, depth = costs.shape
     sign = -1 if backward else 1
     # lines[parity, path, x]: L of the previous / current row for the paths arriving from
     # (y ∓ 1, x), (y ∓ 1, x ∓ 1) and (y ∓ 1, x ± 1); along[parity]: the in-row path.
-    lines = np.full((2, 3, width, depth + 2), _OUTSIDE, np.int16)
-    minima = np.empty((2, 3, width), np.int32)
     along = np.full((2, depth + 2), _OUTSIDE, np.int16)
-    for i in range(height):
+    row_sum = np.empty((width if combine else 0, depth), np.uint16)
+    for i in range(first, stop):
         y = height - 1 - i if backward else i
         cur = i & 1
         prev = 1 - cur
         along_min = 0
+        sums = row_sum if combine else acc[y]
         for j in range(width):
             x = width - 1 - j if backward else j
             cost = costs[y, x]
@@ -126,7 +149,7 @@ def _sweep(
                     cost, lines[prev, 2, source], minima[prev, 2, source], p1, p2,
                     lines[cur, 2, x],
                 )
-            target = acc[y, x]
+            target = sums[x]
             path_a = along[here, 1:depth + 1]
             path_b = lines[cur, 0, x, 1:depth + 1]
             path_c = lines[cur, 1, x, 1:depth + 1]
@@ -135,49 +158,112 @@ def _sweep(
                 target[d] = np.uint16(path_a[d]) + np.uint16(path_b[d]) + np.uint16(
                     path_c[d]
                 ) + np.uint16(path_d[d])
+        if combine:
+            other = acc[y]
+            for d in range(depth):
+                plane_row = volume[d, y]
+                for x in range(width):
+                    total = np.int32(row_sum[x, d]) + np.int32(other[x, d])
+                    plane_row[x] = np.float32(total) * scale
+                if step < 0:
+                    for x in range(min(d, width)):
+                        plane_row[x] = 1.0
+                elif step > 0:
+                    for x in range(max(width - d, 0), width):
+                        plane_row[x] = 1.0
 
 
 @njit(cache=True, parallel=True, fastmath=True)
-def _both_sweeps(costs: np.ndarray, p1: np.int16, p2: np.int16, acc: np.ndarray) -> None:
-    # The two sweeps are independent; each writes its own accumulator.
+def _sweep_phase(
+    costs: np.ndarray,
+    p1: np.int16,
+    p2: np.int16,
+    second: bool,
+    lines: np.ndarray,
+    minima: np.ndarray,
+    acc: np.ndarray,
+    volume: np.ndarray,
+    scale: np.float32,
+    step: int,
+) -> None:
+    """One of the two phases in which the forward and the backward sweep run side by side.
+
+    Phase 1: the forward sweep covers the top half of the rows and the backward sweep the
+    bottom half, each storing its row sums in ``acc``. Phase 2: each sweep goes on into the
+    half the other has done, adds that half's stored sums to its own fresh ones and writes the
+    finished rows of ``volume``, so no separate pass over a second accumulator is needed.
+    """
+    height = costs.shape[0]
+    half = (height + 1) // 2
     for task in prange(2):
-        _sweep(costs, p1, p2, task == 1, acc[task])
+        backward = task == 1
+        own = height - half if backward else half
+        first, stop = (own, height) if second else (0, own)
+        _sweep_rows(
+            costs, p1, p2, backward, first, stop, lines[task], minima[task], acc, second,
+            volume, scale, step,
+        )
 
 
-@njit(cache=True, parallel=True, fastmath=True)
-def _combine(acc: np.ndarray, scale: np.float32, step: int, volume: np.ndarray) -> None:
-    """volume[d, y, x] = (acc[0] + acc[1])[y, x, d] · scale, 1.0 where x + step·d is outside."""
-    _, height, width, depth = acc.shape
-    for y in prange(height):
-        forward = acc[0, y]
-        backward = acc[1, y]
-        for d in range(depth):
-            row = volume[d, y]
-            for x in range(width):
-                row[x] = np.float32(np.int32(forward[x, d]) + np.int32(backward[x, d])) * scale
-            if step < 0:
-                for x in range(min(d, width)):
-                    row[x] = 1.0
-            else:
-                for x in range(max(width - d, 0), width):
-                    row[x] = 1.0
+class _Scratch(threading.local):
+    """Per-thread work arrays of the last image size, reused from frame to frame.
+
+    A stream of same-sized frames then allocates (and page-faults) only the returned volume,
+    not the Hamming costs, the accumulator and the path buffers (≈ 120 MB at 640×480,
+    D = 128), which stay resident between frames of the same thread.
+    """
+
+    def __init__(self) -> None:
+        self.arrays: dict[str, np.ndarray] = {}
+
+    def get(
+        self, name: str, shape: tuple[int, ...], dtype: type, fill: int | None = None
+    ) -> np.ndarray:
+        """An array of this shape and dtype; ``fill`` only applies when it is new."""
+        array = self.arrays.get(name)
+        if array is None or array.shape != shape or array.dtype != dtype:
+            self.arrays.pop(name, None)  # free the old one before allocating the new one
+            array = np.empty(shape, dtype) if fill is None else np.full(shape, fill, dtype)
+            self.arrays[name] = array
+        return array
 
 
-def aggregate_hwd(costs: np.ndarray, p1: int, p2: int) -> np.ndarray:
-    """The two sweeps over (H, W, D) uint8 costs.
+_SCRATCH = _Scratch()
+
+
+def aggregate_hwd(
+    costs: np.ndarray,
+    p1: int,
+    p2: int,
+    volume: np.ndarray,
+    scale: float = 1.0,
+    step: int = 0,
+) -> np.ndarray:
+    """8-path SGM of (H, W, D) uint8 costs, written to a (D, H, W) float32 volume.
 
     Args:
         costs: (H, W, D) uint8 matching costs C, C-contiguous.
         p1: Penalty of a disparity change of 1 (0 ≤ p1 ≤ p2).
         p2: Penalty of a larger change; 8·(max C + p2) ≤ 65535.
+        volume: C-contiguous (D, H, W) float32 array that receives S · ``scale``.
+        scale: Factor applied to S.
+        step: −1 (left reference) or +1 (right reference): entries whose partner x + step·d
+            is outside the image are set to 1.0; 0 leaves every entry S · ``scale``.
 
     Returns:
-        (2, H, W, D) uint16 partial sums (forward sweep, backward sweep); S is their sum.
+        ``volume``.
     """
     height, width, depth = costs.shape
-    acc = np.empty((2, height, width, depth), np.uint16)
-    _both_sweeps(costs, np.int16(p1), np.int16(p2), acc)
-    return acc
+    # The padding cells (d = −1 and d = D) of the path buffers are never written, so a
+    # reused buffer keeps them at _OUTSIDE.
+    lines = _SCRATCH.get('lines', (2, 2, 3, width, depth + 2), np.int16, fill=int(_OUTSIDE))
+    minima = _SCRATCH.get('minima', (2, 2, 3, width), np.int32)
+    acc = _SCRATCH.get('acc', (height, width, depth), np.uint16)
+    args = (np.int16(p1), np.int16(p2))
+    tail = (lines, minima, acc, volume, np.float32(scale), int(step))
+    _sweep_phase(costs, *args, False, *tail)
+    _sweep_phase(costs, *args, True, *tail)
+    return volume
 
 
 def census_sgm_volume(
@@ -196,16 +282,14 @@ def census_sgm_volume(
     Returns:
         (D, H, W) float32 S / (8·(24 + p2)), 1.0 where the partner pixel is outside the image.
     """
-    costs = hamming_cost_volume(codes_ref, codes_other, depth, step, layout='hwd')
-    acc = aggregate_hwd(costs, p1, p2)
-    del costs
     height, width = codes_ref.shape
+    costs = _SCRATCH.get('costs', (height, width, depth), np.uint8)
+    hamming_cost_volume(codes_ref, codes_other, depth, step, layout='hwd', out=costs)
     # numpy (not the kernel) allocates the volume: it requests huge pages for large arrays,
     # which makes the first-touch page faults several times cheaper.
     volume = np.empty((depth, height, width), np.float32)
-    scale = np.float32(1.0 / (SGM_PATHS * (CENSUS_BITS + p2)))
-    _combine(acc, scale, int(step), volume)
-    return volume
+    scale = 1.0 / (SGM_PATHS * (CENSUS_BITS + p2))
+    return aggregate_hwd(costs, p1, p2, volume, scale, step)
 
 
 def sgm_aggregate(costs: np.ndarray, p1: int, p2: int) -> np.ndarray:
@@ -241,6 +325,7 @@ def sgm_aggregate(costs: np.ndarray, p1: int, p2: int) -> np.ndarray:
             f'8·(max cost + p2) must be ≤ {MAX_ACCUMULATED}; got {bound} (p2={p2})'
         )
     hwd = np.ascontiguousarray(costs.transpose(1, 2, 0), dtype=np.uint8)
-    acc = aggregate_hwd(hwd, int(p1), int(p2))
-    total = acc[0].astype(np.int32) + acc[1]
-    return np.ascontiguousarray(total.transpose(2, 0, 1))
+    total = np.empty(costs.shape, np.float32)
+    # S < 2**24, so float32 holds it exactly
+    aggregate_hwd(hwd, int(p1), int(p2), total)
+    return total.astype(np.int32)
