@@ -46,9 +46,7 @@ PHOTOS = (
     'coins',
     'grass',
     'gravel',
-    'moon',
     'rocket',
-    'clock',
     'hubble_deep_field',
     'immunohistochemistry',
     'page',
@@ -58,8 +56,9 @@ PHOTOS = (
 # Texture kinds and their probabilities: mostly photographs, plus the hard cases.
 _TEXTURES = ('photo', 'flat', 'stripes', 'checker', 'low_contrast')
 _TEXTURE_P = (0.55, 0.12, 0.13, 0.08, 0.12)
-# The background fills most of the image: mostly a photograph, so that scenes stay natural.
-_BACKGROUND_P = (0.75, 0.05, 0.07, 0.05, 0.08)
+# The background fills most of the image: a photograph, so that scenes stay natural; the
+# hard textures go on objects, where they cover a part of the image as in real scenes.
+_BACKGROUND_P = (0.95, 0.0, 0.0, 0.0, 0.05)
 _SHAPES = ('rectangle', 'ellipse', 'polygon', 'pole')
 # Largest horizontal slant |gx|: keeps 1 − gx well away from 0 (no fold-over in the right view).
 _MAX_SLANT_X = 0.25
@@ -208,20 +207,23 @@ def _texture(
         other = rng.uniform(30, 225, size=3).astype(np.float32)
         return colour[None, None] * board + other[None, None] * (1 - board)
     photo, grey = _photo(PHOTOS[int(rng.integers(len(PHOTOS)))])
-    scale = rng.uniform(0.5, 1.5)
-    # Scale so that the crop fits, then crop at a random place.
-    scale = max(scale, height / photo.shape[0], width / photo.shape[1])
-    size = (int(np.ceil(photo.shape[1] * scale)), int(np.ceil(photo.shape[0] * scale)))
+    # Mostly shrunk: fine natural texture, as in real scenes at a distance.
+    scale = rng.uniform(0.35, 1.2)
+    size = (max(1, round(photo.shape[1] * scale)), max(1, round(photo.shape[0] * scale)))
     resized = cv2.resize(
         photo, size, interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR
     )
+    # Mirror-tile when the photograph is smaller than the texture.
+    pad_y, pad_x = max(0, height - resized.shape[0]), max(0, width - resized.shape[1])
+    if pad_y or pad_x:
+        resized = np.pad(resized, ((0, pad_y), (0, pad_x), (0, 0)), mode='symmetric')
     y0 = int(rng.integers(0, resized.shape[0] - height + 1))
     x0 = int(rng.integers(0, resized.shape[1] - width + 1))
     crop = resized[y0 : y0 + height, x0 : x0 + width]
     if rng.random() < 0.5:
         crop = crop[:, ::-1]
     if grey:
-        crop = crop * (colour / colour.max())[None, None]  # tint grey photographs
+        crop = crop * (0.6 + 0.4 * colour / 255.0)[None, None]  # tint grey photographs
     if kind == 'low_contrast':
         # Weakly textured: a photograph at 5-15 % contrast.
         mean = crop.mean(axis=(0, 1), keepdims=True)
