@@ -15,11 +15,13 @@ earlier configuration's caches or heap help it. Inside the subprocess:
 
 A frame goes from the image pair to a disparity map: for a matcher the cost volume plus the
 winner-takes-all disparity, for OpenCV ``StereoSGBM.compute`` (MODE_HH, 8 paths) on the gray
-pair. ``ms_per_frame`` is the median over all timed frames; ``peak_mem_mb`` is the peak
-resident memory during the first round minus the resident memory before it, i.e. what a
-frame needs on top of the loaded process: freed heap is returned to the OS first
-(``malloc_trim``), then VmHWM − VmRSS from ``/proc/self/status``; where the peak mark cannot
-be reset, ``ru_maxrss`` − VmRSS, which may include the warm-up.
+pair. ``ms_per_frame`` is the median over all timed frames. ``peak_mem_mb`` is the peak
+resident memory during the first timed round minus the resident memory before the warm-up
+(after imports and the pairs), i.e. what the configuration needs at its peak, work buffers it
+keeps between frames and loaded weights included: after the warm-up, freed heap is returned
+to the OS (``malloc_trim``) and the peak mark reset, so that one-off costs such as JIT
+compilation do not count; the peak is VmHWM from ``/proc/self/status`` (``ru_maxrss`` where
+the mark cannot be reset, which then includes the warm-up).
 
 Configurations are entries of :data:`CASES`; the matchers of
 :data:`cva_confidence_ros.matching.MATCHERS` and ``opencv_sgbm`` are registered here. A later
@@ -271,13 +273,13 @@ def run_case(name: str, settings: BenchSettings) -> dict[str, Any]:
     case = CASES.get(name)(settings)
     baseline = CASES.get(_BASELINE)(settings) if name != _BASELINE else None
     pairs = make_pairs(settings)
+    rss_before = _memory_kb('VmRSS') or 0
     for left, right in pairs.values():
         case.frame(left, right)
         if baseline is not None:
             baseline.frame(left, right)
     _release_free_heap()
     have_hwm = _reset_peak()
-    rss_before = _memory_kb('VmRSS') or 0
     peak: int | None = None
     times: dict[str, list[float]] = {pair: [] for pair in pairs}
     stages: dict[str, list[float]] = {}
@@ -369,8 +371,8 @@ def format_table(records: Sequence[dict[str, Any]], threads: int) -> str:
     lines.append(
         'volume = cost-volume part of a matcher frame (the rest is WTA); real = Motorcycle, '
         'synth = banded synthetic pair;\nSGBM* = OpenCV SGBM frames interleaved with that '
-        "row's frames in the same process (the ratio's reference); peak MB = resident "
-        'memory a frame adds at its peak'
+        "row's frames in the same process (the ratio's reference); peak MB = peak resident "
+        'memory over the loaded process (work buffers and weights included)'
     )
     return '\n'.join(lines)
 

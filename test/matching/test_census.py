@@ -79,3 +79,15 @@ def test_hamming_volume_layouts_and_outside_cost() -> None:
 def test_census_rejects_bad_input(bad: np.ndarray) -> None:
     with pytest.raises(InputError, match='census_transform expects'):
         census_transform(bad)
+
+
+def test_hamming_volume_fills_a_given_array_and_checks_it() -> None:
+    codes = census_transform(np.random.default_rng(9).integers(0, 256, (5, 6), dtype=np.uint8))
+    out = np.full((5, 6, 3), 99, np.uint8)
+    result = hamming_cost_volume(codes, codes, 3, -1, layout='hwd', out=out)
+    assert result is out
+    np.testing.assert_array_equal(out[:, :, 0], 0)  # a view matched with itself at d = 0
+    with pytest.raises(InputError, match='C-contiguous'):
+        hamming_cost_volume(codes, codes, 3, -1, layout='hwd', out=np.empty((5, 6, 4), np.uint8))
+    with pytest.raises(InputError, match='layout'):
+        hamming_cost_volume(codes, codes, 3, -1, layout='whd')
