@@ -250,6 +250,15 @@ def _progress(total: int, description: str, enabled: bool) -> Any:
     )
 
 
+def _share(items: np.ndarray, dist: _Dist) -> np.ndarray:
+    """This process's share of ``items``: equal lengths on every process (DDP steps in lock
+    step), the list wrapped around so that no item is left out."""
+    if dist.world == 1:
+        return items
+    padded = np.resize(items, len(items) + (-len(items) % dist.world))  # np.resize cycles
+    return padded[dist.rank :: dist.world]
+
+
 def _run_epoch(
     config: TrainConfig,
     model: nn.Module,
@@ -267,16 +276,12 @@ def _run_epoch(
     loss_sum = 0.0
     seen = 0
     if config.mode == 'sparse':
-        order = epoch_order(len(index), n_samples, config.seed, epoch)
-        share = len(order) // dist.world if dist.world > 1 else len(order)
-        order = order[dist.rank * share : (dist.rank + 1) * share]
+        order = _share(epoch_order(len(index), n_samples, config.seed, epoch), dist)
         steps = list(batches(order, config.batch_size))
         total = len(order)
     else:
         crops = dense_crops(scenes, index, n_samples, config.crop_size, config.seed, epoch)
-        rows = np.arange(len(crops.scene))
-        share = len(rows) // dist.world if dist.world > 1 else len(rows)
-        rows = rows[dist.rank * share : (dist.rank + 1) * share]
+        rows = _share(np.arange(len(crops.scene)), dist)
         side = min([config.crop_size] + [min(s.shape) for s in scenes])
         steps = list(batches(rows, max(1, math.ceil(config.batch_size / side**2))))
         total = int(crops.n_labelled[rows].sum())

@@ -130,3 +130,12 @@ def test_prepare_scene_labels_by_kitti_criterion():
     np.testing.assert_array_equal(scene.correct, expected)
     assert not scene.correct[0, 10]
     np.testing.assert_allclose(scene.unpadded_volume(), volume, atol=1e-3)
+
+
+@pytest.mark.parametrize(('items', 'world'), [(1, 4), (5, 4), (8, 4), (7, 1)])
+def test_process_shares_are_equal_and_complete(items, world):
+    from cva_confidence_ros.training.trainer import _Dist, _share
+
+    shares = [_share(np.arange(items), _Dist(r, world, torch.device('cpu'))) for r in range(world)]
+    assert len({len(s) for s in shares}) == 1  # DDP needs the same number of steps everywhere
+    assert set(np.concatenate(shares)) == set(range(items))
