@@ -38,7 +38,7 @@ SGM_PATHS = 8
 # 8·(Cmax + p2) ≤ 65535 (so Cmax + 2·p2 < 16384), every L_r, L_r + p2 and _OUTSIDE + p1 fits
 # int16.
 _OUTSIDE = np.int16(1 << 14)
-# S ≤ 8·(Cmax + P2) must fit the uint16 accumulators (their sum is taken in float32).
+# The bound S ≤ 8·(Cmax + P2) is kept within uint16 (the stored 4-path sums are half of it).
 MAX_ACCUMULATED = np.iinfo(np.uint16).max
 
 
