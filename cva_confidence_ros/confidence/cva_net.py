@@ -15,10 +15,12 @@ from cva_confidence_ros.confidence.base import (
 )
 from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.model import (
+    FoldedCVANet,
     default_weights_path,
     fold_batchnorm,
     load_weights,
     predict_confidence,
+    predict_confidence_at,
     resolve_device,
 )
 
@@ -68,13 +70,12 @@ class CVANetConfidence(ConfidenceMethod):
         # Folding once here saves it on every frame.
         self._net = fold_batchnorm(net)
 
-    def __call__(self, inputs: ConfidenceInputs) -> np.ndarray:
-        """Return (H, W) float32 confidence in (0, 1) for the left-reference cost volume.
+    @property
+    def net(self) -> FoldedCVANet:
+        """The loaded network, batch normalisations folded in (inference only)."""
+        return self._net
 
-        Raises:
-            InputError: The volume's depth differs from the weights' D, or it comes from
-                another matcher than the weights were trained for.
-        """
+    def _check(self, inputs: ConfidenceInputs) -> None:
         if inputs.max_disparity != self.max_disparity:
             raise InputError(
                 f'cva_net weights {self.weights_path.name} take cost volumes of depth '
@@ -85,9 +86,37 @@ class CVANetConfidence(ConfidenceMethod):
                 f'cva_net weights {self.weights_path.name} are for matcher {self.matcher!r}; '
                 f'got a cost volume of {inputs.matcher!r}'
             )
+
+    def __call__(self, inputs: ConfidenceInputs) -> np.ndarray:
+        """Return (H, W) float32 confidence in (0, 1) for the left-reference cost volume.
+
+        Raises:
+            InputError: The volume's depth differs from the weights' D, or it comes from
+                another matcher than the weights were trained for.
+        """
+        self._check(inputs)
         return predict_confidence(
             self._net, inputs.cost_volume, device=self.device, tile_budget_mb=self.tile_budget_mb
         )
+
+    def confidence_at(
+        self, inputs: ConfidenceInputs, ys: np.ndarray, xs: np.ndarray
+    ) -> np.ndarray:
+        """Confidence at the pixels (ys, xs) only, from 13×13×D extracts.
+
+        Args:
+            inputs: As for :meth:`__call__`.
+            ys: (N,) integer rows.
+            xs: (N,) integer columns.
+
+        Returns:
+            (N,) float32, equal to ``self(inputs)[ys, xs]`` (within 1e-5).
+
+        Raises:
+            InputError: As for :meth:`__call__`, or pixels outside the image.
+        """
+        self._check(inputs)
+        return predict_confidence_at(self._net, inputs.cost_volume, ys, xs, device=self.device)
 
 
 CONFIDENCE_METHODS.add('cva_net', CVANetConfidence)

@@ -44,6 +44,8 @@ def test_registered_and_equal_to_predict_confidence(weights):
     confidence = method(inputs)
     assert confidence.shape == (14, 15) and confidence.dtype == np.float32
     np.testing.assert_allclose(confidence, predict_confidence(net, inputs.cost_volume), atol=1e-5)
+    ys, xs = np.array([0, 13, 6]), np.array([0, 14, 3])
+    np.testing.assert_allclose(method.confidence_at(inputs, ys, xs), confidence[ys, xs], atol=1e-5)
     shortcut = compute_confidence(
         'cva_net', inputs, matcher='census_bm', max_disparity=DEPTH, weights=path
     )
@@ -57,6 +59,8 @@ def test_depth_and_matcher_checks(weights):
     )
     with pytest.raises(InputError, match='depth D = 16; got depth 20'):
         method(_inputs(depth=20))
+    with pytest.raises(InputError, match='depth D = 16; got depth 20'):
+        method.confidence_at(_inputs(depth=20), np.array([0]), np.array([0]))
     with pytest.raises(InputError, match="matcher 'census_bm'; got a cost volume of 'mccnn_fast'"):
         method(_inputs(matcher='mccnn_fast'))
     with pytest.raises(ModelError, match='asked for D = 32'):
