@@ -76,16 +76,35 @@ def test_train_writes_weights_and_card_then_resumes(tmp_path):
     assert load_weights(weights)[1]['samples_seen'] == 96
 
 
-def test_resume_reproduces_an_uninterrupted_run(tmp_path):
-    straight, split = tmp_path / 'straight', tmp_path / 'split'
-    assert main([*TINY, '--out', str(straight), '--epochs', '2', '--epochs-low-lr', '0']) == 0
-    assert main([*TINY, '--out', str(split), '--epochs', '1', '--epochs-low-lr', '0']) == 0
-    args = [*TINY, '--out', str(split), '--epochs', '2', '--epochs-low-lr', '0', '--resume']
-    assert main(args) == 0
-    a = torch.load(straight / 'checkpoint.pt', weights_only=True)['model']
-    b = torch.load(split / 'checkpoint.pt', weights_only=True)['model']
-    for key in a:
-        torch.testing.assert_close(a[key], b[key], atol=1e-6, rtol=1e-5)
+def test_interrupted_run_resumes_as_if_uninterrupted(tmp_path, monkeypatch):
+    from cva_confidence_ros.training import trainer
+
+    straight, broken = tmp_path / 'straight', tmp_path / 'broken'
+    args = [*TINY, '--epochs', '2', '--epochs-low-lr', '0']
+    assert main([*args, '--out', str(straight)]) == 0
+
+    real_epoch = trainer._run_epoch
+    calls = []
+
+    def crash_in_second_epoch(*a, **k):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt  # Ctrl-C in the middle of epoch 2
+        return real_epoch(*a, **k)
+
+    monkeypatch.setattr(trainer, '_run_epoch', crash_in_second_epoch)
+    assert main([*args, '--out', str(broken)]) == 130
+    assert [h['epoch'] for h in _history(broken)] == [1]
+    monkeypatch.setattr(trainer, '_run_epoch', real_epoch)
+    assert main([*args, '--out', str(broken), '--resume']) == 0
+
+    a = torch.load(straight / 'checkpoint.pt', weights_only=True)
+    b = torch.load(broken / 'checkpoint.pt', weights_only=True)
+    assert a['epoch'] == b['epoch'] == 2
+    for key in a['model']:
+        torch.testing.assert_close(a['model'][key], b['model'][key], atol=1e-6, rtol=1e-5)
+    losses = [h['train_loss'] for h in _history(straight)]
+    assert [h['train_loss'] for h in _history(broken)] == pytest.approx(losses, rel=1e-5)
 
 
 def test_dense_mode_counts_labelled_outputs(tmp_path):
