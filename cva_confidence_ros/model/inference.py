@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 import contextlib
 import math
+from typing import cast
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
@@ -19,7 +20,13 @@ from torch import nn
 import torch.nn.functional as F
 
 from cva_confidence_ros.errors import ConfigError, InputError
-from cva_confidence_ros.model.network import FUSION_LAYERS, PATCH_SIZE, CVANet
+from cva_confidence_ros.model.network import (
+    DEPTH_KERNELS,
+    FUSION_LAYERS,
+    PATCH_SIZE,
+    CVANet,
+    conv_bias,
+)
 
 __all__ = [
     'PAD',
@@ -80,8 +87,9 @@ class FoldedCVANet(nn.Module):
             in_scale, in_shift = _bn_affine(net.fusion.input_bn)
             pairs = zip(net.fusion.convs, net.fusion.norms, strict=True)
             for index, (conv, norm) in enumerate(pairs):
+                assert isinstance(conv, nn.Conv3d)
                 weight = conv.weight.double()
-                bias = conv.bias.double()
+                bias = conv_bias(conv).double()
                 if index == 0:
                     # The first convolution is unpadded, so the input BN x → a·x + c moves into
                     # it exactly: w' = a·w, b' = b + c·Σw.
@@ -102,8 +110,7 @@ class FoldedCVANet(nn.Module):
         batch, channels, depth, height, width = x.shape
         # Forward only, Conv1d over (N, C, D') beats the training layout's Conv2d by ~1.5×.
         x = x.permute(0, 3, 4, 1, 2).reshape(batch * height * width, channels, depth)
-        for conv in self.depth:
-            k = conv.kernel_size[0]
+        for conv, k in zip(self.depth, DEPTH_KERNELS, strict=True):
             x = F.relu(conv(F.pad(x, ((k - 1) // 2, k // 2))))
         x = self.fc2(F.relu(self.fc1(x)))
         return x.reshape(batch, height, width)
@@ -113,8 +120,10 @@ class FoldedCVANet(nn.Module):
         return torch.sigmoid(self.forward_logits(volume))
 
 
-def _bn_affine(norm: nn.modules.batchnorm._BatchNorm) -> tuple[torch.Tensor, torch.Tensor]:
+def _bn_affine(norm: nn.Module) -> tuple[torch.Tensor, torch.Tensor]:
     """Per-channel (scale, shift) of a BN in eval mode, float64."""
+    assert isinstance(norm, nn.modules.batchnorm._BatchNorm)
+    assert norm.running_var is not None and norm.running_mean is not None
     scale = norm.weight.double() / torch.sqrt(norm.running_var.double() + norm.eps)
     shift = norm.bias.double() - norm.running_mean.double() * scale
     return scale, shift
@@ -124,29 +133,31 @@ def _folded_copy(
     conv: nn.Module,
     weight: torch.Tensor | None,
     bias: torch.Tensor | None,
-    norm: nn.modules.batchnorm._BatchNorm | None,
+    norm: nn.Module | None,
     as_1d: bool = False,
-) -> nn.Module:
+) -> nn.modules.conv._ConvNd:
     """A new convolution like ``conv`` whose weights include the BN ``norm`` after it.
 
     With ``as_1d`` a (k, 1)-kernel ``Conv2d`` becomes the equivalent k-kernel ``Conv1d``.
     """
+    assert isinstance(conv, (nn.Conv2d, nn.Conv3d))
     weight = conv.weight.double() if weight is None else weight
-    bias = conv.bias.double() if bias is None else bias
+    bias = conv_bias(conv).double() if bias is None else bias
     device = conv.weight.device
+    new: nn.modules.conv._ConvNd
     if as_1d:
         weight = weight[..., 0]
-        new: nn.Module = nn.Conv1d(
-            conv.in_channels, conv.out_channels, conv.kernel_size[0], device=device
-        )
+        new = nn.Conv1d(conv.in_channels, conv.out_channels, conv.kernel_size[0], device=device)
     else:
-        new = type(conv)(conv.in_channels, conv.out_channels, conv.kernel_size, device=device)
+        assert isinstance(conv, nn.Conv3d)
+        kernel = cast(tuple[int, int, int], conv.kernel_size)
+        new = nn.Conv3d(conv.in_channels, conv.out_channels, kernel, device=device)
     if norm is not None:
         scale, shift = _bn_affine(norm)
         weight = weight * scale.reshape(-1, *([1] * (weight.ndim - 1)))
         bias = bias * scale + shift
     new.weight.copy_(weight.float())
-    new.bias.copy_(bias.float())
+    conv_bias(new).copy_(bias.float())
     new.requires_grad_(False)
     return new
 
@@ -281,6 +292,8 @@ def _inference_model(
     if isinstance(net, FoldedCVANet):
         return net.to(device)
     if fold_bn:
+        if not isinstance(net, CVANet):
+            raise ConfigError(f'expected a CVANet or FoldedCVANet; got {type(net).__name__}')
         return fold_batchnorm(net).to(device)
     if next(net.parameters()).device != device:
         raise ConfigError(

@@ -96,8 +96,8 @@ class DepthProcessing(nn.Module):
 
     def forward(self, curves: torch.Tensor) -> torch.Tensor:
         x = curves
-        for conv, norm in zip(self.convs, self.norms, strict=True):
-            x = F.relu(norm(conv(pad_depth(x, conv.kernel_size[0]))))
+        for conv, norm, kernel in zip(self.convs, self.norms, DEPTH_KERNELS, strict=True):
+            x = F.relu(norm(conv(pad_depth(x, kernel))))
         return x
 
 
@@ -175,8 +175,9 @@ class CVANet(nn.Module):
         Biases start at zero (the Keras default); batch normalisation keeps its defaults.
         """
         for module in (*self.fusion.convs, *self.depth.convs):
+            assert isinstance(module, nn.modules.conv._ConvNd)
             nn.init.normal_(module.weight, mean=0.0, std=CONV_INIT_STD)
-            nn.init.zeros_(module.bias)
+            nn.init.zeros_(conv_bias(module))
         # Glorot as for the dense layers they stand for: fan-in = all inputs of a node,
         # fan-out = the number of nodes (PyTorch's xavier_ would multiply the fan-out by the
         # kernel depth of the convolution form).
@@ -184,7 +185,7 @@ class CVANet(nn.Module):
             fan_in = module.weight[0].numel()
             limit = glorot_limit(fan_in, module.out_channels)
             nn.init.uniform_(module.weight, -limit, limit)
-            nn.init.zeros_(module.bias)
+            nn.init.zeros_(conv_bias(module))
 
     def check_input(self, volume: torch.Tensor) -> None:
         """Raise :class:`InputError` unless ``volume`` is (B, 1, D, ≥13, ≥13) with this D."""
@@ -233,8 +234,16 @@ def keras_parameter_count(module: nn.Module) -> int:
     count = sum(p.numel() for p in module.parameters())
     for sub in module.modules():
         if isinstance(sub, nn.modules.batchnorm._BatchNorm) and sub.track_running_stats:
+            assert sub.running_mean is not None and sub.running_var is not None
             count += sub.running_mean.numel() + sub.running_var.numel()
     return int(count)
+
+
+def conv_bias(conv: nn.modules.conv._ConvNd) -> torch.Tensor:
+    """The bias of a convolution of this network (every one has a bias, as in the paper)."""
+    if conv.bias is None:
+        raise ConfigError(f'expected a convolution with a bias; got {conv}')
+    return conv.bias
 
 
 def receptive_field() -> int:

@@ -255,8 +255,8 @@ def dense_crops(
             total += n
             if total >= n_samples:
                 break
-    scene, y0, x0, n = (np.array(column, dtype=np.int32) for column in zip(*chosen, strict=True))
-    return CropBatch(scene, y0, x0, n)
+    columns = [np.array(column, dtype=np.int32) for column in zip(*chosen, strict=True)]
+    return CropBatch(*columns)
 
 
 def gather_crops(

@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 import datetime
+from functools import partial
 import json
 import math
 import os
@@ -140,22 +141,13 @@ def _load_samples(
     for spec in specs:
         name, split = parse_dataset_spec(spec)
         for scene in list_scenes(name, root, split)[: config.max_scenes]:
-            loaders.append(
-                (
-                    f'{name}/{scene}',
-                    lambda n=name, c=scene, s=split: load_scene(n, root, c, s),
-                )
-            )
+            loaders.append((f'{name}/{scene}', partial(load_scene, name, root, scene, split)))
     count = config.val_synthetic if validation else config.synthetic
     first = config.synthetic_seed + (VAL_SEED_OFFSET if validation else 0)
     height, width = config.synthetic_hw
     for seed in range(first, first + count):
-        loaders.append(
-            (
-                f'synthetic/seed{seed}',
-                lambda s=seed: synthetic_pair(s, height, width, config.max_disparity),
-            )
-        )
+        pair = partial(synthetic_pair, seed, height, width, config.max_disparity)
+        loaders.append((f'synthetic/seed{seed}', pair))
     return loaders
 
 
@@ -479,4 +471,5 @@ def _limit_numba_threads(threads: int) -> None:
         import numba
     except ImportError:
         return
-    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    available = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
+    numba.set_num_threads(min(threads, available))
