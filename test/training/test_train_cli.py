@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import pytest
@@ -37,6 +38,14 @@ def _restore_threads():
     yield
     numba.set_num_threads(numba_threads)
     torch.set_num_threads(threads)
+
+
+def _data_root() -> Path:
+    env = os.environ.get('CVA_DATA_ROOT')
+    root = Path(env) if env else Path(__file__).resolve().parents[2] / '..' / 'shared' / 'data'
+    if not (root / 'kitti2012').is_dir() or not (root / 'eth3d').is_dir():
+        pytest.skip(f'shared stereo data not found at {root}')
+    return root
 
 
 def _history(out: Path) -> list[dict]:
@@ -144,3 +153,23 @@ def test_config_validation():
     config = TrainConfig(synthetic=1, epochs=2, epochs_low_lr=1, lr=1e-3)
     assert [config.lr_at(e) for e in range(3)] == pytest.approx([1e-3, 1e-3, 1e-4])
     assert config.synthetic_hw == (128, 256)
+
+
+def test_train_on_real_data_sets(tmp_path):
+    """The loader path: one KITTI 2012 scene, halved until it fits D, validated on ETH3D."""
+    root = _data_root()
+    out, weights = tmp_path / 'real', tmp_path / 'w.pt'
+    args = [
+        '--max-disparity', '16', '--data-root', str(root), '--datasets', 'kitti2012',
+        '--max-scenes', '1', '--val-datasets', 'eth3d', '--val-pixels', '20',
+        '--epochs', '1', '--epochs-low-lr', '0', '--batch-size', '16',
+        '--samples-per-epoch', '16', '--threads', '1', '--no-progress',
+        '--out', str(out), '--weights-out', str(weights),
+    ]  # fmt: skip
+    assert main(args) == 0
+    meta = load_weights(weights)[1]
+    (scene,) = meta['scenes']
+    assert scene['name'] == 'kitti2012/000000'
+    assert scene['factor'] == 8  # KITTI disparities reach ~230 px: 230 / 8 < 16
+    assert meta['val_scenes'][0]['name'].startswith('eth3d/')
+    assert meta['datasets'] == ['kitti2012'] and meta['val_pixels'] == 20
