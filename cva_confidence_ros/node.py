@@ -175,6 +175,7 @@ class ConfidenceNode(Node):
         pipeline_config, node_config = build_configs(parameter_values(self))
         self._lock = threading.Lock()
         self._pipeline = StereoPipeline(pipeline_config)
+        self._pipeline.warm_up()
         self._pipeline_config = pipeline_config
         self._node_config = node_config
         self._sync = self._make_sync(node_config)

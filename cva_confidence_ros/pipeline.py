@@ -144,6 +144,20 @@ class StereoPipeline:
             tile_budget_mb=config.tile_budget_mb,
         )
 
+    def warm_up(self) -> None:
+        """Run the matcher once on a small random pair.
+
+        The numba kernels compile (or load from their cache) and MC-CNN loads its weights on
+        first use; doing it here keeps that second-long delay out of the first real frame.
+        """
+        from cva_confidence_ros.matching import compute_cost_volume
+
+        rng = np.random.default_rng(0)
+        width = self.config.max_disparity + 16
+        left = rng.integers(0, 256, (16, width), dtype=np.uint8)
+        compute_cost_volume(left, np.roll(left, -2, axis=1), self.config.matcher,
+                            self.config.max_disparity)
+
     def process(self, left: np.ndarray, right: np.ndarray) -> PipelineResult:
         """Match one rectified pair and estimate per-pixel confidence.
 

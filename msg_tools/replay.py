@@ -341,7 +341,7 @@ def node_outputs(
     """The messages the node publishes for one processed pair, built by the node's own code.
 
     Mirrors ``ConfidenceNode._publish``: geometry scaled to the processed size, confidence
-    mapped to [0, 1] (``node.to_unit_interval``), kept = finite disparity and confidence ≥
+    in [0, 1] (the pipeline's fixed per-method map), kept = finite disparity and confidence ≥
     threshold, messages from ``ros.convert`` serialised by rclpy, so the bytes are those the
     node would send.
 
@@ -361,7 +361,6 @@ def node_outputs(
     from rclpy.serialization import serialize_message
     from std_msgs.msg import Header
 
-    from cva_confidence_ros.node import to_unit_interval
     from cva_confidence_ros.pointcloud import disparity_to_points, make_cloud, pack_rgb
     from cva_confidence_ros.ros.convert import (
         array_to_image,
@@ -377,7 +376,7 @@ def node_outputs(
     out_h, out_w = disparity.shape
     if (out_h, out_w) != tuple(input_shape):
         geometry = geometry.scaled(out_w / input_shape[1], out_h / input_shape[0])
-    confidence = to_unit_interval(result.confidence)
+    confidence = np.clip(np.nan_to_num(result.confidence, nan=0.0), 0.0, 1.0)
     kept = np.isfinite(disparity) & (confidence >= config.confidence_threshold)
     filtered = np.where(kept, disparity, np.float32(np.nan)).astype(np.float32)
     messages = [
