@@ -49,7 +49,9 @@ class PipelineConfig:
         from cva_confidence_ros.matching import MATCHERS
 
         if self.matcher not in MATCHERS:
-            raise ConfigError(f'unknown matcher {self.matcher!r}; expected one of {MATCHERS.names()}')
+            raise ConfigError(
+                f'unknown matcher {self.matcher!r}; expected one of {MATCHERS.names()}'
+            )
         if self.confidence_method not in CONFIDENCE_METHODS:
             raise ConfigError(
                 f'unknown confidence_method {self.confidence_method!r}; '
@@ -73,7 +75,9 @@ class PipelineConfig:
         names = {f.name for f in fields(self)}
         unknown = set(changes) - names
         if unknown:
-            raise ConfigError(f'unknown pipeline options {sorted(unknown)}; expected {sorted(names)}')
+            raise ConfigError(
+                f'unknown pipeline options {sorted(unknown)}; expected {sorted(names)}'
+            )
         values = {f.name: getattr(self, f.name) for f in fields(self)}
         values.update(changes)
         return PipelineConfig(**values)  # type: ignore[arg-type]
@@ -144,6 +148,14 @@ class StereoPipeline:
             tile_budget_mb=config.tile_budget_mb,
         )
 
+    def _matcher_params(self) -> dict[str, object]:
+        # MC-CNN is the one matcher with a network; it runs where the confidence network runs.
+        if self.config.matcher == 'mccnn_fast':
+            from cva_confidence_ros.model import resolve_device
+
+            return {'device': str(resolve_device(self.config.device))}
+        return {}
+
     def warm_up(self) -> None:
         """Run the matcher once on a small random pair.
 
@@ -155,8 +167,13 @@ class StereoPipeline:
         rng = np.random.default_rng(0)
         width = self.config.max_disparity + 16
         left = rng.integers(0, 256, (16, width), dtype=np.uint8)
-        compute_cost_volume(left, np.roll(left, -2, axis=1), self.config.matcher,
-                            self.config.max_disparity)
+        compute_cost_volume(
+            left,
+            np.roll(left, -2, axis=1),
+            self.config.matcher,
+            self.config.max_disparity,
+            **self._matcher_params(),
+        )
 
     def process(self, left: np.ndarray, right: np.ndarray) -> PipelineResult:
         """Match one rectified pair and estimate per-pixel confidence.
@@ -173,7 +190,11 @@ class StereoPipeline:
         """
         from cva_confidence_ros.confidence import ConfidenceInputs
         from cva_confidence_ros.datasets.resize import resize_image
-        from cva_confidence_ros.matching import compute_cost_volume, left_right_check, wta_disparity
+        from cva_confidence_ros.matching import (
+            compute_cost_volume,
+            left_right_check,
+            wta_disparity,
+        )
 
         _check_pair(left, right)
         cfg = self.config
@@ -186,13 +207,14 @@ class StereoPipeline:
         timings['resize'] = (time.perf_counter() - start) * 1e3
 
         tic = time.perf_counter()
-        volume = compute_cost_volume(left_s, right_s, cfg.matcher, cfg.max_disparity)
+        params = self._matcher_params()
+        volume = compute_cost_volume(left_s, right_s, cfg.matcher, cfg.max_disparity, **params)
         disparity = wta_disparity(volume)
         volume_right = None
         disparity_right = None
         if cfg.lr_check or getattr(self._method, 'needs_right', False):
             volume_right = compute_cost_volume(
-                left_s, right_s, cfg.matcher, cfg.max_disparity, view='right'
+                left_s, right_s, cfg.matcher, cfg.max_disparity, view='right', **params
             )
             disparity_right = wta_disparity(volume_right)
         timings['matching'] = (time.perf_counter() - tic) * 1e3

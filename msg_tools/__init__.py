@@ -13,8 +13,8 @@ Modules:
     bag_from_dataset, bag_replay: the two command-line tools.
 
 The replay decodes inputs and builds outputs with the node's own code
-(``cva_confidence_ros.ros.convert``, the pipeline's [0, 1] confidence), so its output bag holds what
-the node publishes.
+(``cva_confidence_ros.ros.convert``, the pipeline's [0, 1] confidence), so its output bag
+holds what the node publishes.
 """
 
 from __future__ import annotations
