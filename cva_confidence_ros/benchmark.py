@@ -403,14 +403,24 @@ def _parser() -> argparse.ArgumentParser:
                         f'{_BASELINE} is always added as the reference')
     parser.add_argument('--json', type=Path, default=None, metavar='PATH',
                         help='write the records as a JSON list to PATH')
+    parser.add_argument('--suite', choices=('matchers', 'node'), default='matchers',
+                        help='matchers (this table) or node: end-to-end latency of cva-node '
+                        'over DDS (see cva-benchmark --suite node --help)')
     parser.add_argument(_WORKER_FLAG, default=None, help=argparse.SUPPRESS)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``cva-benchmark``; returns the process exit code."""
+    suite = argparse.ArgumentParser(add_help=False)
+    suite.add_argument('--suite', choices=('matchers', 'node'), default='matchers')
+    chosen, rest = suite.parse_known_args(argv)
+    if chosen.suite == 'node':
+        from cva_confidence_ros.node_benchmark import main as node_main
+
+        return node_main(rest)
     parser = _parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(rest)
     try:
         settings = BenchSettings(args.width, args.height, args.max_disparity, args.repeat)
         if args.worker is not None:

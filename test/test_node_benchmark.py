@@ -1,0 +1,133 @@
+"""cva-benchmark --suite node: settings, operation count, extrapolation, table, one real run."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from cva_confidence_ros import benchmark, node_benchmark
+from cva_confidence_ros.errors import ConfigError
+from cva_confidence_ros.node_benchmark import NodeBenchSettings
+
+pytestmark = pytest.mark.timeout(180)
+
+
+@pytest.mark.parametrize(
+    ('changes', 'message'),
+    [
+        ({'width': 8}, 'at least'),
+        ({'repeat': 0}, 'repeat'),
+        ({'downsample': 3}, 'downsample'),
+        ({'device': 'tpu'}, 'device'),
+        ({'crop': (0, 4)}, 'crop'),
+        ({'rate_hz': 0.0}, 'rate'),
+        ({'outputs': ('points3',)}, 'outputs'),
+        ({'domain_id': 300}, 'domain_id'),
+    ],
+)
+def test_invalid_settings_are_rejected(changes: dict[str, object], message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        NodeBenchSettings(**changes)  # type: ignore[arg-type]
+
+
+def test_node_parameters_ask_for_reliable_qos_both_ways() -> None:
+    settings = NodeBenchSettings(max_disparity=32, downsample=2)
+    args = node_benchmark.node_parameters(settings, 'census_sgm', 'lrc', '/w.pt')
+    values = dict(arg.split(':=') for arg in args if arg != '-p')
+    assert args.count('-p') == len(values)
+    assert values['input_qos'] == values['output_qos'] == 'reliable'
+    assert values['matcher'] == 'census_sgm' and values['confidence_method'] == 'lrc'
+    assert values['max_disparity'] == '32' and values['downsample'] == '2'
+    assert values['model_path'] == '/w.pt'
+    assert settings.processed_size == (240, 320)
+
+
+def test_network_flops_of_one_extract_match_the_architecture() -> None:
+    depth = 16
+    # Six unpadded 3×3×3 convolutions, 32 filters: layer k outputs (D − 2k) × (13 − 2k)².
+    fusion = sum(
+        2 * 32 * (1 if k == 1 else 32) * 27 * (depth - 2 * k) * (13 - 2 * k) ** 2
+        for k in range(1, 7)
+    )
+    # Ten depth convolutions (kernels 8, 16, 32, 64 × 7) over D − 12, then 16 and 1 nodes.
+    curves = 2 * 32 * 32 * (8 + 16 + 32 + 7 * 64) * (depth - 12)
+    dense = 2 * 16 * 32 * (depth - 12) + 2 * 16
+    assert fusion + curves + dense == 102_169_248
+    assert node_benchmark.network_flops(1, 1, depth) == 102_169_248
+    # Small tiles repeat the 6-px borders: the same frame costs more when cut finer.
+    whole = node_benchmark.network_flops(64, 96, depth)
+    assert node_benchmark.network_flops(64, 96, depth, tile_budget_mb=1.0) > 2 * whole
+
+
+def _base_record() -> dict[str, object]:
+    return {
+        'config': 'node:census_bm+pkrn', 'device': 'cpu', 'width': 640, 'height': 480,
+        'max_disparity': 128, 'matcher': 'census_bm', 'downsample': 1,
+        'latency_ms_median': 200.0,
+        'stages_ms': {'matching': 120.0, 'confidence': 30.0, 'frame': 170.0},
+    }  # fmt: skip
+
+
+def test_extrapolation_swaps_the_confidence_stage_for_the_scaled_network_time() -> None:
+    crop = {
+        'crop': [10, 20], 'crop_confidence_ms': 1000.0, 'crop_pixels_per_s': 200.0,
+        'crop_flops': 2e9, 'frame_flops': 50e9, 'crop_gflop_per_s': 2.0,
+        'crop_peak_delta_mb': 100.0, 'gemm_gflops': 40.0,
+    }  # fmt: skip
+    row = node_benchmark.extrapolate_cva_net(_base_record(), crop, 'random init')
+    # 1000 ms × 50 / 2 = 25 s of network; 200 − 30 ms of the rest
+    assert row['network_ms'] == pytest.approx(25_000.0)
+    assert row['latency_ms_median'] == pytest.approx(25_170.0)
+    assert row['fps'] == pytest.approx(1000.0 / 25_170.0)
+    assert row['online'] is False and row['extrapolated'] is True
+    assert row['config'] == 'node:census_bm+cva_net'
+    assert row['stages_ms']['frame'] == pytest.approx(25_140.0)
+    assert row['network_gflops'] == pytest.approx(50.0)
+    assert row['peak_mem_mb'] is None
+    assert set(node_benchmark.RECORD_KEYS) <= set(row)
+
+
+def test_table_marks_extrapolated_rows_and_the_online_ones() -> None:
+    fast = {
+        **_base_record(), 'ms_per_frame': 100.0, 'latency_ms_median': 100.0, 'fps': 10.0,
+        'online': True, 'extrapolated': False, 'peak_mem_mb': 500.0, 'note': '',
+    }  # fmt: skip
+    slow = {
+        **fast, 'config': 'node:census_bm+cva_net', 'latency_ms_median': 9000.0, 'fps': 0.11,
+        'online': False, 'extrapolated': True, 'peak_mem_mb': None, 'note': 'extrapolated: x',
+    }  # fmt: skip
+    table = node_benchmark.format_table([fast, slow], threads=2)
+    lines = table.splitlines()
+    assert any(line.startswith('| node:census_bm+pkrn | 100.0 | 10.00 | yes |') for line in lines)
+    assert any(line.startswith('| node:census_bm+cva_net * | 9000.0 | 0.11 | no |')
+               for line in lines)
+    assert 'EXTRAPOLATED' in table and 'extrapolated: x' in table
+
+
+def test_tiny_run_through_the_real_node(tmp_path: Path) -> None:
+    out = tmp_path / 'node.json'
+    code = benchmark.main(
+        ['--suite', 'node', '--width', '96', '--height', '64', '--max-disparity', '16',
+         '--repeat', '2', '--matchers', 'census_bm', '--methods', 'pkrn', 'cva_net',
+         '--crop', '8', '16', '--threads', '1', '--json', str(out)]
+    )  # fmt: skip
+    assert code == 0
+    rows = json.loads(out.read_text())
+    assert [row['config'] for row in rows] == ['node:census_bm+pkrn', 'node:census_bm+cva_net']
+    measured, extrapolated = rows
+    for row in rows:
+        assert set(node_benchmark.RECORD_KEYS) <= set(row)
+        assert (row['width'], row['height'], row['max_disparity']) == (96, 64, 16)
+        assert row['latency_ms_median'] > 0
+        assert row['fps'] == pytest.approx(1000.0 / row['latency_ms_median'])
+        assert row['online'] == (row['fps'] >= 5.0)
+    assert measured['extrapolated'] is False
+    assert len(measured['latencies_ms']) == 2 and min(measured['latencies_ms']) > 0
+    # the node's own times come over /diagnostics and cannot exceed the round trip
+    assert 0 < measured['stages_ms']['frame'] <= max(measured['latencies_ms'])
+    assert measured['peak_mem_mb'] >= measured['rss_ready_mb'] > 0
+    assert extrapolated['extrapolated'] is True
+    assert extrapolated['crop'] == [8, 16] and extrapolated['network_gflops'] > 0
+    assert extrapolated['base_config'] == 'node:census_bm+pkrn'
