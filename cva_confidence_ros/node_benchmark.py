@@ -21,6 +21,12 @@ limited to this host). This process then talks to it over DDS like any client wo
    keeps only the newest pending pair, so this shows the output rate it sustains and how many
    pairs it drops.
 
+DDS: by default both sides use :data:`FASTDDS_LARGE_MESSAGES_XML`, a Fast DDS profile with a
+16 MB shared-memory segment. With stock Fast DDS (``--dds-profile inherit``), 640×480 frames
+mostly take about 3 s whatever the node computes: the ~1 MB messages overflow the 512 kB
+segment and wait for the reliable writer's next heartbeat. Users of the node need the same
+profile (``FASTRTPS_DEFAULT_PROFILES_FILE``) or another RMW for the measured rates.
+
 CVA-Net on a CPU needs minutes to an hour for one 640×480 frame at D = 128, so by default its
 rows are *extrapolated*, and marked so: in a subprocess, the network's time on a small crop of
 the frame's cost volume is measured through what the pipeline's confidence stage runs, and
@@ -95,6 +101,40 @@ _STATUS_SUFFIX = 'stereo confidence'
 # Rectified-camera model of the benchmark pair; it only sets the numbers in points2.
 _BASELINE_M = 0.193
 _DEVICES = ('cpu', 'cuda', 'auto')
+_LARGE_SHM = 'large-shm'
+_INHERIT = 'inherit'
+# Fast DDS 2.x (ROS 2 Jazzy) reads the first, Fast DDS 3 the second.
+_PROFILE_VARIABLES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
+
+#: Fast DDS profile for image-sized messages on one host: a 16 MB shared-memory segment per
+#: participant instead of the stock 512 kB. With the stock segment, the four ~1 MB messages of
+#: one 640×480 frame do not all fit; the ones that miss are repaired only at the writer's next
+#: heartbeat (every 3 s), and most frames then take 3 s instead of a tenth of that.
+FASTDDS_LARGE_MESSAGES_XML = """\
+<?xml version="1.0" encoding="UTF-8" ?>
+<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+  <transport_descriptors>
+    <transport_descriptor>
+      <transport_id>shm_large_messages</transport_id>
+      <type>SHM</type>
+      <segment_size>16777216</segment_size>
+    </transport_descriptor>
+    <transport_descriptor>
+      <transport_id>udp</transport_id>
+      <type>UDPv4</type>
+    </transport_descriptor>
+  </transport_descriptors>
+  <participant profile_name="cva_large_messages" is_default_profile="true">
+    <rtps>
+      <userTransports>
+        <transport_id>shm_large_messages</transport_id>
+        <transport_id>udp</transport_id>
+      </userTransports>
+      <useBuiltinTransports>false</useBuiltinTransports>
+    </rtps>
+  </participant>
+</profiles>
+"""
 
 
 @dataclass(frozen=True)
@@ -121,6 +161,9 @@ class NodeBenchSettings:
             ``disparity_filtered``, ``points2``); the node computes only what has subscribers.
         timeout_s: Longest wait for one frame's answer; a dead node is noticed at once.
         domain_id: ROS domain of the node and the client; None = one derived from the pid.
+        dds_profile: ``large-shm`` (:data:`FASTDDS_LARGE_MESSAGES_XML` for the node and the
+            client), ``inherit`` (the environment's DDS settings, stock Fast DDS unless set)
+            or the path of a Fast DDS XML profiles file.
     """
 
     width: int = 640
@@ -137,6 +180,7 @@ class NodeBenchSettings:
     outputs: tuple[str, ...] = ('disparity', 'confidence')
     timeout_s: float = 3600.0
     domain_id: int | None = None
+    dds_profile: str = _LARGE_SHM
 
     def __post_init__(self) -> None:
         if self.height < 8 or self.width < 16:
@@ -163,6 +207,13 @@ class NodeBenchSettings:
             raise ConfigError(f'timeout must be > 0 s; got {self.timeout_s}')
         if self.domain_id is not None and not 0 <= self.domain_id <= 232:
             raise ConfigError(f'domain_id must be in [0, 232]; got {self.domain_id}')
+        if self.dds_profile not in (_LARGE_SHM, _INHERIT) and not Path(
+            self.dds_profile
+        ).is_file():
+            raise ConfigError(
+                f'dds_profile must be {_LARGE_SHM!r}, {_INHERIT!r} or an existing XML file; '
+                f'got {self.dds_profile!r}'
+            )
 
     @property
     def processed_size(self) -> tuple[int, int]:
@@ -599,6 +650,7 @@ def measure_node(
     pair: tuple[np.ndarray, np.ndarray],
     stamps: Iterator[int] | None = None,
     model_path: str = '',
+    dds_profile_file: str | None = None,
 ) -> dict[str, Any]:
     """Start ``cva-node`` for one configuration and time it over DDS.
 
@@ -609,29 +661,35 @@ def measure_node(
         pair: (left, right) (H, W, 3) uint8 RGB input pair at the input size.
         stamps: Source of unique stamps (ns); None = a fresh one.
         model_path: The node's ``model_path`` (CVA-Net weights), '' = its default.
+        dds_profile_file: Fast DDS XML profiles for the node and this client (see
+            :data:`FASTDDS_LARGE_MESSAGES_XML`); None = the environment's DDS settings.
 
     Returns:
         A record with :data:`RECORD_KEYS` plus ``matcher``, ``method``, ``downsample``,
-        ``latencies_ms`` (every timed frame), ``stages_ms`` (medians of the node's own stage
-        times), ``rss_ready_mb`` and, with a burst, the ``burst_*`` values.
+        ``latencies_ms`` (every timed frame), ``node_frames_ms`` (the node's own time of each,
+        message in → outputs published), ``stages_ms`` (medians of the node's stage times),
+        ``rss_ready_mb`` and, with a burst, the ``burst_*`` values.
 
     Raises:
         ConfigError: The node did not start, rejected the frames or did not answer in time.
     """
     stamps = stamps or _stamps()
-    env = _package_env(settings.threads)
-    env['ROS_DOMAIN_ID'] = str(settings.domain)
-    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    previous = os.environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE')
-    # The client's participant reads it when the context starts.
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    dds_env = {'ROS_DOMAIN_ID': str(settings.domain), 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+    if dds_profile_file:
+        dds_env.update({name: dds_profile_file for name in _PROFILE_VARIABLES})
+    env = {**_package_env(settings.threads), **dds_env}
+    # The client's participant reads these when its context starts (Fast DDS loads the XML
+    # profiles once per process, at its first participant).
+    previous = {name: os.environ.get(name) for name in dds_env}
+    os.environ.update(dds_env)
     try:
         client = _Client(settings.domain, settings.outputs)
     finally:
-        if previous is None:
-            os.environ.pop('ROS_AUTOMATIC_DISCOVERY_RANGE', None)
-        else:
-            os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = previous
+        for name, value in previous.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
     with client:
         node = _NodeProcess(node_parameters(settings, matcher, method, model_path), env)
         try:
@@ -693,8 +751,10 @@ def measure_node(
         'method': method,
         'downsample': settings.downsample,
         'latencies_ms': latencies,
+        'node_frames_ms': stages.get('frame', []),
         'stages_ms': {stage: statistics.median(values) for stage, values in stages.items()},
         'rss_ready_mb': rss_ready,
+        'dds_profile': settings.dds_profile,
         'note': '',
     }
     record.update(burst)
@@ -989,8 +1049,10 @@ def extrapolate_cva_net(
         'method': _NETWORK,
         'downsample': base.get('downsample', 1),
         'latencies_ms': [],
+        'node_frames_ms': [],
         'stages_ms': stages,
         'rss_ready_mb': None,
+        'dds_profile': base.get('dds_profile'),
         'base_config': base['config'],
         'base_latency_ms': base['latency_ms_median'],
         'network_ms': network_ms,
@@ -1037,6 +1099,14 @@ def run_suite(
     stamps = _stamps()
     records: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory(prefix='cva_node_bench_') as folder:
+        profile = None if settings.dds_profile == _INHERIT else settings.dds_profile
+        if settings.dds_profile == _LARGE_SHM:
+            profile = str(Path(folder) / 'fastdds_large_messages.xml')
+            Path(profile).write_text(FASTDDS_LARGE_MESSAGES_XML, encoding='utf-8')
+
+        def measure(method: str, model_path: str = '') -> dict[str, Any]:
+            return measure_node(settings, matcher, method, pair, stamps, model_path, profile)
+
         for matcher in matchers:
             base: dict[str, Any] | None = None
             by_method: dict[str, dict[str, Any]] = {}
@@ -1044,7 +1114,7 @@ def run_suite(
             for method in sorted(methods, key=lambda name: name == _NETWORK):
                 if method != _NETWORK:
                     log(f'measuring node:{matcher}+{method} …')
-                    by_method[method] = measure_node(settings, matcher, method, pair, stamps)
+                    by_method[method] = measure(method)
                     if method == BASE_METHOD:
                         base = by_method[method]
                     continue
@@ -1053,14 +1123,14 @@ def run_suite(
                 )
                 if full:
                     log(f'measuring node:{matcher}+{method} (full network; {weights_note}) …')
-                    record = measure_node(settings, matcher, method, pair, stamps, weights)
+                    record = measure(method, weights)
                     record['weights'] = weights_note
                     record['note'] = weights_note
                     by_method[method] = record
                     continue
                 if base is None:
                     log(f'measuring node:{matcher}+{BASE_METHOD} (base of the CVA-Net row) …')
-                    base = measure_node(settings, matcher, BASE_METHOD, pair, stamps)
+                    base = measure(BASE_METHOD)
                 log(f'measuring CVA-Net on a crop ({matcher}; {weights_note}) …')
                 crop = _crop_in_subprocess(settings, matcher, weights)
                 by_method[method] = extrapolate_cva_net(base, crop, weights_note)
@@ -1081,7 +1151,7 @@ def format_table(records: Sequence[dict[str, Any]], threads: int) -> str:
     lines = [
         f"Node end to end: {first['width']}×{first['height']} input, D = "
         f"{first['max_disparity']}, downsample {first.get('downsample', 1)}, device "
-        f"{first['device']}, {threads} CPU cores",
+        f"{first['device']}, {threads} CPU cores, DDS profile {first.get('dds_profile')}",
         '',
         '| config | latency ms | fps | online (≥ 5 Hz) | matching ms | confidence ms '
         '| node frame ms | peak RSS MB |',
@@ -1104,6 +1174,22 @@ def format_table(records: Sequence[dict[str, Any]], threads: int) -> str:
         '/diagnostics; node frame = message in → outputs published); peak RSS = VmHWM of the '
         'node process.',
     ]
+    bursts = [r for r in records if r.get('burst_rate_hz')]
+    if bursts:
+        lines += [
+            '',
+            '| config | burst in Hz | sent | answered | dropped | out Hz |',
+            '|---|---:|---:|---:|---:|---:|',
+        ]
+        lines += [
+            f"| {r['config']} | {_cell(r['burst_publish_hz'])} | {r['burst_sent']} "
+            f"| {r['burst_answered']} | {r['burst_dropped']} | {_cell(r['burst_output_hz'], 2)} |"
+            for r in bursts
+        ]
+        lines.append(
+            'burst: pairs published at a fixed rate without waiting; the node works on the '
+            'newest pending pair and drops the ones it had no time for.'
+        )
     extrapolated = [r for r in records if r['extrapolated']]
     if extrapolated:
         lines.append('* EXTRAPOLATED, not run whole (pass --full-cva-net to run it):')
@@ -1145,6 +1231,11 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument('--timeout', type=float, default=defaults.timeout_s,
                         help='longest wait for one answer, s')
     parser.add_argument('--domain-id', type=int, default=None)
+    parser.add_argument('--dds-profile', default=defaults.dds_profile,
+                        metavar='large-shm|inherit|PATH',
+                        help='Fast DDS settings of the node and the client: large-shm (default; a '
+                        '16 MB shared-memory segment, without which 640×480 frames stall for '
+                        "seconds), inherit (the environment's) or an XML profiles file")
     parser.add_argument('--json', type=Path, default=None, metavar='PATH',
                         help='write the records as a JSON list to PATH')
     parser.add_argument(_CROP_WORKER_FLAG, default=None, help=argparse.SUPPRESS)
@@ -1172,6 +1263,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             outputs=tuple(args.outputs),
             timeout_s=args.timeout,
             domain_id=args.domain_id,
+            dds_profile=args.dds_profile,
         )
         if args.crop_worker is not None:
             record = measure_network_crop(settings, args.crop_worker, args.weights)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from xml.etree import ElementTree
 
 import pytest
 
@@ -25,6 +26,7 @@ pytestmark = pytest.mark.timeout(180)
         ({'rate_hz': 0.0}, 'rate'),
         ({'outputs': ('points3',)}, 'outputs'),
         ({'domain_id': 300}, 'domain_id'),
+        ({'dds_profile': 'no/such/profiles.xml'}, 'dds_profile'),
     ],
 )
 def test_invalid_settings_are_rejected(changes: dict[str, object], message: str) -> None:
@@ -42,6 +44,14 @@ def test_node_parameters_ask_for_reliable_qos_both_ways() -> None:
     assert values['max_disparity'] == '32' and values['downsample'] == '2'
     assert values['model_path'] == '/w.pt'
     assert settings.processed_size == (240, 320)
+
+
+def test_large_message_profile_gives_shared_memory_room_for_image_messages() -> None:
+    root = ElementTree.fromstring(node_benchmark.FASTDDS_LARGE_MESSAGES_XML)
+    sizes = [int(e.text or 0) for e in root.iter() if e.tag.endswith('segment_size')]
+    # two 640×480 rgb8 inputs plus four float32 / point outputs of one frame, with room to spare
+    assert sizes == [16 * 1024 * 1024]
+    assert sizes[0] > 2 * 640 * 480 * 3 + 4 * 640 * 480 * 4
 
 
 def test_network_flops_of_one_extract_match_the_architecture() -> None:
@@ -111,7 +121,8 @@ def test_tiny_run_through_the_real_node(tmp_path: Path) -> None:
     code = benchmark.main(
         ['--suite', 'node', '--width', '96', '--height', '64', '--max-disparity', '16',
          '--repeat', '2', '--matchers', 'census_bm', '--methods', 'pkrn', 'cva_net',
-         '--crop', '8', '16', '--threads', '1', '--json', str(out)]
+         '--crop', '8', '16', '--threads', '1', '--rate', '50', '--burst-frames', '3',
+         '--json', str(out)]
     )  # fmt: skip
     assert code == 0
     rows = json.loads(out.read_text())
@@ -128,6 +139,8 @@ def test_tiny_run_through_the_real_node(tmp_path: Path) -> None:
     # the node's own times come over /diagnostics and cannot exceed the round trip
     assert 0 < measured['stages_ms']['frame'] <= max(measured['latencies_ms'])
     assert measured['peak_mem_mb'] >= measured['rss_ready_mb'] > 0
+    assert measured['burst_sent'] == 3 and measured['burst_answered'] >= 1
+    assert measured['burst_answered'] + measured['burst_dropped'] <= 3
     assert extrapolated['extrapolated'] is True
     assert extrapolated['crop'] == [8, 16] and extrapolated['network_gflops'] > 0
     assert extrapolated['base_config'] == 'node:census_bm+pkrn'
