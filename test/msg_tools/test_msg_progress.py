@@ -33,6 +33,8 @@ def test_progress_reports_rate_and_time_left() -> None:
 
 
 def test_signal_waits_for_the_critical_section() -> None:
+    # CI may start the suite with SIGINT ignored (a background job): restore what was there.
+    original = signal.getsignal(signal.SIGINT)
     steps = []
     with GracefulInterrupt() as interrupts:
         with pytest.raises(KeyboardInterrupt):
@@ -42,7 +44,7 @@ def test_signal_waits_for_the_critical_section() -> None:
         assert steps == ['finished the section'] and interrupts.requested
         interrupts.closing()
         os.kill(os.getpid(), signal.SIGTERM)  # only noted while the outputs are closed
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    assert signal.getsignal(signal.SIGINT) is original
 
 
 def test_node_arguments_mirror_the_replay_options(tmp_path: Path) -> None:

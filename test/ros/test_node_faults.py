@@ -104,8 +104,9 @@ def test_burst_keeps_the_newest_and_memory_flat(running: _Running) -> None:
     settled = processed + dropped + after['frames_invalid'] - before['frames_invalid']
     assert processed < 150
     assert dropped > 0
-    # Every received pair was processed or dropped, but for at most one waiting in the slot.
-    assert settled <= received <= settled + 1
+    # Every received pair was processed or dropped, but for at most one waiting in the slot
+    # (at either snapshot: one pair in the slot at the first one is settled by the second).
+    assert settled - 1 <= received <= settled + 1
     assert rss_mb() - before_rss < 64.0
     # Nothing is queued behind the scenes: the synchroniser holds at most one queue per topic.
     assert all(n <= node.node_config.queue_size for n in node._sync.pending().values())
