@@ -38,7 +38,7 @@ class PipelineConfig:
     max_disparity: int = 64
     confidence_method: str = 'cva_net'
     model_path: str = ''
-    device: str = 'cpu'
+    device: str = 'auto'
     confidence_threshold: float = 0.5
     downsample: int = 1
     lr_check: bool = False
