@@ -19,6 +19,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from cva_confidence_ros.confidence.base import (
@@ -56,6 +57,30 @@ def _map_rows(volume: np.ndarray, fn: Callable[[np.ndarray], np.ndarray]) -> np.
     return out
 
 
+@numba.njit(cache=True, parallel=True, fastmath=False)
+def _two_smallest_kernel(volume: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    # One pass over the disparities per row, in memory order (d outer, x inner): a strided
+    # np.partition along axis 0 was ~20× slower on a 128×480×640 volume.
+    depth, height, width = volume.shape
+    c1 = np.empty((height, width), dtype=np.float32)
+    c2 = np.empty((height, width), dtype=np.float32)
+    d1 = np.zeros((height, width), dtype=np.int64)
+    for y in numba.prange(height):
+        for x in range(width):
+            c1[y, x] = volume[0, y, x]
+            c2[y, x] = np.inf
+        for d in range(1, depth):
+            for x in range(width):
+                value = volume[d, y, x]
+                if value < c1[y, x]:
+                    c2[y, x] = c1[y, x]
+                    c1[y, x] = value
+                    d1[y, x] = d
+                elif value < c2[y, x]:
+                    c2[y, x] = value
+    return c1, d1, c2
+
+
 def two_smallest(volume: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Smallest cost, its disparity and the second-smallest cost of every pixel.
 
@@ -71,14 +96,8 @@ def two_smallest(volume: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
     """
     if volume.ndim != 3 or volume.shape[0] < 2:
         raise InputError(f'expected a (D, H, W) cost volume with D ≥ 2; got shape {volume.shape}')
-    c1 = np.empty(volume.shape[1:], dtype=np.float32)
-    c2 = np.empty_like(c1)
-    d1 = np.empty(volume.shape[1:], dtype=np.int64)
-    for rows in _row_blocks(volume):
-        block = volume[:, rows]
-        smallest = np.partition(block, 1, axis=0)
-        c1[rows], c2[rows] = smallest[0], smallest[1]
-        d1[rows] = np.argmin(block, axis=0)
+    volume = np.ascontiguousarray(volume, dtype=np.float32)
+    c1, d1, c2 = _two_smallest_kernel(volume)
     return c1, d1, c2
 
 
