@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
 import time
+from typing import Any
 
 import numpy as np
 
@@ -148,7 +149,7 @@ class StereoPipeline:
             tile_budget_mb=config.tile_budget_mb,
         )
 
-    def _matcher_params(self) -> dict[str, object]:
+    def _matcher_params(self) -> dict[str, Any]:
         # MC-CNN is the one matcher with a network; it runs where the confidence network runs.
         if self.config.matcher == 'mccnn_fast':
             from cva_confidence_ros.model import resolve_device
