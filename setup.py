@@ -49,7 +49,8 @@ setup(
         (f'share/{PACKAGE}', ['package.xml']),
         (f'share/{PACKAGE}/launch', glob('launch/*.launch.py')),
         (f'share/{PACKAGE}/config', glob('config/*.yaml') + glob('config/*.xml')),
-        (f'share/{PACKAGE}/models', glob('models/*.pt') + glob('models/*.md')),
+        (f'share/{PACKAGE}/models', sorted(glob('models/*.pt') + glob('models/*.md')
+                                             + glob('models/*.json') + glob('models/*.yaml'))),
     ],
     install_requires=['setuptools', 'numpy', 'scipy', 'opencv-python-headless', 'numba'],
     zip_safe=True,
