@@ -17,7 +17,6 @@ from dataclasses import dataclass
 from pathlib import Path
 import time
 from typing import Any
-import weakref
 
 import numpy as np
 
@@ -147,35 +146,14 @@ def overlay_threshold(confidence: np.ndarray, error_rate: float) -> float:
     return float(np.quantile(values, min(max(error_rate, 0.0), 1.0)))
 
 
-_PATCH_NETS: weakref.WeakKeyDictionary[Any, Any] = weakref.WeakKeyDictionary()
-
-
-def _patch_net(method: Any) -> Any:
-    """The CVA-Net of a ``cva_net`` method for patch mode, loaded once per method object."""
-    from cva_confidence_ros.model import load_weights
-
-    net = _PATCH_NETS.get(method)
-    if net is None:
-        # The method keeps its (BN-folded) network private; its public weights path and
-        # checks give the same network, at the cost of one more load per run.
-        net, _ = load_weights(
-            method.weights_path,
-            matcher=method.matcher,
-            max_disparity=method.max_disparity,
-            device=method.device,
-        )
-        _PATCH_NETS[method] = net
-    return net
-
-
 def confidence_at(
     method: Any, inputs: Any, ys: np.ndarray, xs: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Confidence of ``method`` at pixels ``(ys, xs)``, computed only there if it can.
 
-    Patch mode is used for a method that offers ``confidence_at(inputs, ys, xs)`` and for
-    CVA-Net (``model.predict_confidence_at`` on 13×13×D extracts); any other method is run
-    densely and read at the pixels.
+    Patch mode is used for a method that offers ``confidence_at(inputs, ys, xs)`` (CVA-Net:
+    ``model.predict_confidence_at`` on 13×13×D extracts); any other method is run densely and
+    read at the pixels.
 
     Args:
         method: A confidence method from ``confidence.CONFIDENCE_METHODS``.
@@ -190,23 +168,9 @@ def confidence_at(
     Raises:
         InputError: The cost volume does not fit the network (depth) or matcher.
     """
-    from cva_confidence_ros.confidence.cva_net import CVANetConfidence
-
     point_fn = getattr(method, 'confidence_at', None)
     if callable(point_fn):
         return np.asarray(point_fn(inputs, ys, xs), dtype=np.float32).ravel(), None
-    if isinstance(method, CVANetConfidence):
-        from cva_confidence_ros.model import predict_confidence_at
-
-        if inputs.matcher and inputs.matcher != method.matcher:
-            raise InputError(
-                f'cva_net weights are for matcher {method.matcher!r}; got a cost volume of '
-                f'{inputs.matcher!r}'
-            )
-        values = predict_confidence_at(
-            _patch_net(method), inputs.cost_volume, ys, xs, device=method.device
-        )
-        return np.asarray(values, dtype=np.float32).ravel(), None
     dense = np.asarray(method(inputs), dtype=np.float32)
     return dense[ys, xs], dense
 
