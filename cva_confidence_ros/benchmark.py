@@ -27,8 +27,18 @@ the warm-up).
 
 Configurations are entries of :data:`CASES`; the matchers of
 :data:`cva_confidence_ros.matching.MATCHERS` and ``opencv_sgbm`` are registered here. A later
-configuration (e.g. the confidence network) registers a factory returning a :class:`Case` whose
-``extras`` fill ``network_gflops``, ``gemm_gflops`` or ``auc_rel``.
+configuration registers a factory returning a :class:`Case` whose ``extras`` fill
+``network_gflops``, ``gemm_gflops`` or ``auc_rel``.
+
+The CVA-Net row ``cvanet_d<D>`` (``--network``, on by default) is measured apart, in a
+subprocess of its own, by :func:`run_network`: the whole frame would take minutes on a CPU,
+so :func:`cva_confidence_ros.model.predict_confidence` (batch normalisation folded, inference
+mode) runs on a ``--network-crop`` square of the Motorcycle frame's cost volume, and the
+frame's time is extrapolated by the ratio of floating-point operations (``extrapolated:
+true``). ``network_gflops`` is the rate achieved on the crop, ``gemm_gflops`` the best rate of
+a 2048×2048 float32 ``torch.matmul`` in the same process (same device and threads): the
+practical peak. ``auc_rel`` is 1.0: this full-precision paper network is the reference that
+faster variants report their AUC against.
 """
 
 from __future__ import annotations
@@ -51,17 +61,19 @@ from typing import Any
 import cv2
 import numpy as np
 
-from cva_confidence_ros.errors import ConfigError
+from cva_confidence_ros.errors import ConfigError, ModelError
 from cva_confidence_ros.registry import Registry
 
 __all__ = [
     'CASES',
+    'NETWORK_MATCHER',
     'RECORD_KEYS',
     'BenchSettings',
     'Case',
     'main',
     'make_pairs',
     'run_case',
+    'run_network',
 ]
 
 #: Keys of every record written by ``--json``.
@@ -77,8 +89,13 @@ RECORD_KEYS = (
     'gemm_gflops',
     'auc_rel',
 )
+#: Matcher whose cost volume feeds the CVA-Net row (its shipped weights are used if present).
+NETWORK_MATCHER = 'census_bm'
 _BASELINE = 'opencv_sgbm'
 _WORKER_FLAG = '--worker'
+_NETWORK_WORKER_FLAG = '--network-worker'
+_NETWORK_PREFIX = 'cvanet_d'
+_GEMM_SIZE = 2048
 _RECORD_PREFIX = 'BENCH-RECORD '
 
 
@@ -325,6 +342,130 @@ def run_case(name: str, settings: BenchSettings) -> dict[str, Any]:
     return record
 
 
+def _gemm_gflops(device: Any, size: int = _GEMM_SIZE, repeat: int = 3) -> float:
+    """Best float32 ``torch.matmul`` rate of two size×size matrices on ``device``, GFLOP/s."""
+    import torch
+
+    generator = torch.Generator().manual_seed(0)
+    a = torch.rand(size, size, generator=generator).to(device)
+    b = torch.rand(size, size, generator=generator).to(device)
+    best = float('inf')
+    with torch.inference_mode():
+        torch.matmul(a, b)  # untimed: loads the kernels, warms the caches
+        for _ in range(repeat):
+            if device.type == 'cuda':
+                torch.cuda.synchronize(device)
+            start = time.perf_counter()
+            torch.matmul(a, b)
+            if device.type == 'cuda':
+                torch.cuda.synchronize(device)
+            best = min(best, time.perf_counter() - start)
+    return 2.0 * size**3 / best / 1e9
+
+
+def _network(matcher: str, max_disparity: int) -> tuple[Any, str | None]:
+    """Shipped CVA-Net weights for (matcher, D), else a seeded random one and why."""
+    import torch
+
+    from cva_confidence_ros.model import CVANet, default_weights_path, load_weights
+
+    try:
+        path = default_weights_path(matcher, max_disparity)
+    except ModelError:
+        torch.manual_seed(0)
+        return CVANet(max_disparity).eval(), (
+            f'random init: no shipped weights for {matcher}, D = {max_disparity} '
+            '(speed does not depend on weight values)'
+        )
+    net, _ = load_weights(path, matcher=matcher, max_disparity=max_disparity)
+    return net, None
+
+
+def run_network(
+    settings: BenchSettings, crop: int = 64, matcher: str = NETWORK_MATCHER
+) -> dict[str, Any]:
+    """Measure CVA-Net on a crop of the frame's cost volume (in this process).
+
+    The matcher's volume is computed on a band of ``crop`` full-width rows in the middle of
+    the Motorcycle pair (so that every crop column has all its disparities) and cut to the
+    middle ``crop`` columns. After an untimed run on a 4×4 corner, ``min(repeat, 3)`` calls
+    of ``predict_confidence`` on the crop are timed; the median gives the crop's rate, and
+    the frame's time is that median × FLOPs(frame) / FLOPs(crop), both counted by
+    :func:`cva_confidence_ros.node_benchmark.network_flops` with the same tiling.
+
+    Args:
+        settings: Frame size and D.
+        crop: Side of the square crop in pixels (≥ 1; clipped to the frame).
+        matcher: Matcher of the cost volume and of the weights looked for.
+
+    Returns:
+        A record with :data:`RECORD_KEYS` (``config`` = ``cvanet_d<D>``, ``auc_rel`` = 1.0,
+        ``peak_mem_mb`` = the crop's peak resident memory above what was resident before it)
+        plus ``extrapolated`` (True), ``crop`` ([rows, columns]), ``crop_ms``, ``threads``
+        and, for random weights, ``note``.
+
+    Raises:
+        ConfigError: ``crop`` < 1.
+    """
+    import torch
+
+    from cva_confidence_ros.matching import compute_cost_volume
+    from cva_confidence_ros.model import fold_batchnorm, predict_confidence, resolve_device
+    from cva_confidence_ros.node_benchmark import network_flops
+
+    if crop < 1:
+        raise ConfigError(f'network crop must be ≥ 1 pixel; got {crop}')
+    depth = settings.max_disparity
+    rows, columns = min(crop, settings.height), min(crop, settings.width)
+    left, right = make_pairs(settings)['real']
+    top = (settings.height - rows) // 2
+    band = slice(top, top + rows)
+    volume = compute_cost_volume(
+        np.ascontiguousarray(left[band]), np.ascontiguousarray(right[band]), matcher, depth
+    )
+    first = (settings.width - columns) // 2
+    volume = np.ascontiguousarray(volume[:, :, first:first + columns], dtype=np.float32)
+    device = resolve_device('cpu')
+    net, note = _network(matcher, depth)
+    # Folded once, as the confidence method does for a stream of frames.
+    model = fold_batchnorm(net)
+    predict_confidence(model, np.ascontiguousarray(volume[:, :4, :4]), device=device)
+    rss_before = _memory_kb('VmRSS')
+    have_hwm = _reset_peak()
+    times = []
+    for _ in range(min(settings.repeat, 3)):
+        start = time.perf_counter()
+        predict_confidence(model, volume, device=device)
+        times.append(time.perf_counter() - start)
+    peak = _memory_kb('VmHWM') if have_hwm else None
+    seconds = statistics.median(times)
+    crop_flops = network_flops(rows, columns, depth)
+    frame_flops = network_flops(settings.height, settings.width, depth)
+    record: dict[str, Any] = {
+        'config': f'{_NETWORK_PREFIX}{depth}',
+        'device': device.type,
+        'width': settings.width,
+        'height': settings.height,
+        'max_disparity': depth,
+        'ms_per_frame': seconds * frame_flops / crop_flops * 1e3,
+        'peak_mem_mb': (
+            max(peak - rss_before, 0) / 1024.0
+            if peak is not None and rss_before is not None
+            else None
+        ),
+        'network_gflops': crop_flops / seconds / 1e9,
+        'gemm_gflops': _gemm_gflops(device),
+        'auc_rel': 1.0,
+        'extrapolated': True,
+        'crop': [rows, columns],
+        'crop_ms': seconds * 1e3,
+        'threads': torch.get_num_threads(),
+    }
+    if note is not None:
+        record['note'] = note
+    return record
+
+
 def _settings_args(settings: BenchSettings) -> list[str]:
     return [
         '--width', str(settings.width),
@@ -334,16 +475,23 @@ def _settings_args(settings: BenchSettings) -> list[str]:
     ]
 
 
-def _run_in_subprocess(name: str, settings: BenchSettings) -> dict[str, Any]:
+def _run_in_subprocess(
+    name: str, settings: BenchSettings, extra: Sequence[str] = ()
+) -> dict[str, Any]:
     env = dict(os.environ)
     # The child must import this very package, also when it is run from a source checkout.
     package_root = str(Path(__file__).resolve().parents[1])
     env['PYTHONPATH'] = os.pathsep.join(
         [package_root] + ([env['PYTHONPATH']] if env.get('PYTHONPATH') else [])
     )
-    command = [sys.executable, '-m', 'cva_confidence_ros.benchmark', _WORKER_FLAG, name]
+    flag = _NETWORK_WORKER_FLAG if name.startswith(_NETWORK_PREFIX) else _WORKER_FLAG
+    command = [sys.executable, '-m', 'cva_confidence_ros.benchmark', flag, name]
     result = subprocess.run(
-        command + _settings_args(settings), capture_output=True, text=True, env=env, check=False
+        command + _settings_args(settings) + list(extra),
+        capture_output=True,
+        text=True,
+        env=env,
+        check=False,
     )
     for line in reversed(result.stdout.splitlines()):
         if line.startswith(_RECORD_PREFIX):
@@ -357,6 +505,7 @@ def _run_in_subprocess(name: str, settings: BenchSettings) -> dict[str, Any]:
 def format_table(records: Sequence[dict[str, Any]], threads: int) -> str:
     """Human-readable table of the records with the ratio to OpenCV SGBM."""
     baseline = next((r['ms_per_frame'] for r in records if r['config'] == _BASELINE), None)
+    networks = [r for r in records if r.get('network_gflops') is not None]
     first = records[0]
     nan = float('nan')
     lines = [
@@ -383,6 +532,16 @@ def format_table(records: Sequence[dict[str, Any]], threads: int) -> str:
         "row's frames in the same process (the ratio's reference); peak MB = peak resident "
         'memory a frame needs (buffers kept between frames included)'
     )
+    for record in networks:
+        crop = record.get('crop') or ['?', '?']
+        gemm = record.get('gemm_gflops')
+        share = f" = {record['network_gflops'] / gemm:.0%} of" if gemm else ' of'
+        lines.append(
+            f"{record['config']}: {record['network_gflops']:.1f} GFLOP/s{share} a "
+            f"{_GEMM_SIZE}² float32 matmul ({gemm or nan:.1f} GFLOP/s); measured on a "
+            f'{crop[0]}×{crop[1]} crop, ms/frame extrapolated by FLOPs, peak MB of the crop'
+            + (f"; {record['note']}" if record.get('note') else '')
+        )
     return '\n'.join(lines)
 
 
@@ -406,7 +565,13 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument('--suite', choices=('matchers', 'node'), default='matchers',
                         help='matchers (this table) or node: end-to-end latency of cva-node '
                         'over DDS (see cva-benchmark --suite node --help)')
+    parser.add_argument('--network', action=argparse.BooleanOptionalAction, default=True,
+                        help=f'add the CVA-Net row {_NETWORK_PREFIX}<D> (on a crop of the '
+                        f'{NETWORK_MATCHER} cost volume, extrapolated to the frame by FLOPs)')
+    parser.add_argument('--network-crop', type=int, default=64, metavar='PIXELS',
+                        help='side of the square crop the network row is timed on')
     parser.add_argument(_WORKER_FLAG, default=None, help=argparse.SUPPRESS)
+    parser.add_argument(_NETWORK_WORKER_FLAG, default=None, help=argparse.SUPPRESS)
     return parser
 
 
@@ -427,6 +592,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             record = run_case(args.worker, settings)
             print(_RECORD_PREFIX + json.dumps(record), flush=True)
             return 0
+        if args.network_worker is not None:
+            record = run_network(settings, args.network_crop)
+            print(_RECORD_PREFIX + json.dumps(record), flush=True)
+            return 0
+        if args.network_crop < 1:
+            raise ConfigError(f'--network-crop must be ≥ 1 pixel; got {args.network_crop}')
         names = list(args.matchers) if args.matchers else CASES.names()
         for name in names:
             CASES.get(name)
@@ -435,12 +606,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         for name in names:
             print(f'measuring {name} …', file=sys.stderr, flush=True)
             records.append(_run_in_subprocess(name, settings))
+        if args.network:
+            name = f'{_NETWORK_PREFIX}{settings.max_disparity}'
+            print(f'measuring {name} …', file=sys.stderr, flush=True)
+            crop = ['--network-crop', str(args.network_crop)]
+            records.append(_run_in_subprocess(name, settings, crop))
     except ConfigError as error:
         parser.exit(2, f'cva-benchmark: error: {error}\n')
     print(format_table(records, os.cpu_count() or 1))
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        rows = [{key: record[key] for key in RECORD_KEYS} for record in records]
+        extra_keys = ('extrapolated', 'note')
+        rows = [
+            {key: record[key] for key in RECORD_KEYS + extra_keys if key in record}
+            for record in records
+        ]
         args.json.write_text(json.dumps(rows, indent=2) + '\n', encoding='utf-8')
         print(f'wrote {args.json}', file=sys.stderr)
     return 0

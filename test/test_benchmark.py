@@ -54,7 +54,7 @@ def test_tiny_run_writes_the_records(tmp_path: Path, capsys: pytest.CaptureFixtu
     out = tmp_path / 'bench' / 'out.json'
     code = benchmark.main(
         ['--width', '64', '--height', '48', '--max-disparity', '16', '--repeat', '1',
-         '--matchers', 'census_bm', '--json', str(out)]
+         '--matchers', 'census_bm', '--no-network', '--json', str(out)]
     )
     assert code == 0
     records = json.loads(out.read_text())
@@ -81,3 +81,40 @@ def test_every_matcher_is_a_configuration() -> None:
     from cva_confidence_ros.matching import MATCHERS
 
     assert set(MATCHERS.names()) | {'opencv_sgbm'} == set(benchmark.CASES.names())
+
+
+def test_network_row_is_extrapolated_from_a_crop() -> None:
+    settings = benchmark.BenchSettings(width=64, height=48, max_disparity=16, repeat=1)
+    record = benchmark.run_network(settings, crop=8)
+    assert set(benchmark.RECORD_KEYS) <= set(record)
+    assert record['config'] == 'cvanet_d16' and record['device'] == 'cpu'
+    assert record['extrapolated'] is True and record['crop'] == [8, 8]
+    assert record['auc_rel'] == 1.0
+    # no weights are shipped for D = 16: a random network, and the record says so
+    assert 'random init' in record['note']
+    assert record['network_gflops'] > 0 and record['gemm_gflops'] > 0
+    # the 64×48 frame has 48 times the crop's pixels, and more FLOPs than the crop
+    assert record['ms_per_frame'] > record['crop_ms'] > 0
+    assert record['peak_mem_mb'] is None or record['peak_mem_mb'] >= 0
+
+
+def test_network_row_goes_into_the_json(tmp_path: Path) -> None:
+    out = tmp_path / 'out.json'
+    code = benchmark.main(
+        ['--width', '64', '--height', '48', '--max-disparity', '16', '--repeat', '1',
+         '--matchers', 'census_bm', '--network-crop', '8', '--json', str(out)]
+    )
+    assert code == 0
+    records = json.loads(out.read_text())
+    assert [r['config'] for r in records] == ['census_bm', 'opencv_sgbm', 'cvanet_d16']
+    network = records[-1]
+    assert tuple(network)[: len(benchmark.RECORD_KEYS)] == benchmark.RECORD_KEYS
+    assert network['extrapolated'] is True and network['ms_per_frame'] > 0
+    assert network['network_gflops'] > 0 and network['gemm_gflops'] > 0
+
+
+def test_network_crop_must_be_positive(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        benchmark.main(['--network-crop', '0'])
+    assert exit_info.value.code == 2
+    assert 'network-crop' in capsys.readouterr().err
