@@ -241,7 +241,8 @@ def make_pairs(settings: BenchSettings) -> dict[str, tuple[np.ndarray, np.ndarra
     }
 
 
-def _memory_kb(field_name: str) -> int | None:
+def memory_kb(field_name: str) -> int | None:
+    """A ``/proc/self/status`` field in kB (e.g. ``VmRSS``, ``VmHWM``); None if unreadable."""
     try:
         with open('/proc/self/status', encoding='ascii') as status:
             for line in status:
@@ -299,7 +300,7 @@ def run_case(name: str, settings: BenchSettings) -> dict[str, Any]:
         if runner is not None:
             left, right = pairs['synthetic']
             runner.frame(np.ascontiguousarray(left[small]), np.ascontiguousarray(right[small]))
-    rss_before = _memory_kb('VmRSS') or 0
+    rss_before = memory_kb('VmRSS') or 0
     for left, right in pairs.values():
         case.frame(left, right)
         if baseline is not None:
@@ -317,7 +318,7 @@ def run_case(name: str, settings: BenchSettings) -> dict[str, Any]:
             for stage, value in stage_times.items():
                 stages.setdefault(stage, []).append(value)
         if round_index == 0:
-            peak = _memory_kb('VmHWM') if have_hwm else None
+            peak = memory_kb('VmHWM') if have_hwm else None
             if peak is None:
                 # ru_maxrss is in kB on Linux; it also covers the untimed warm-up frames.
                 peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
@@ -430,14 +431,14 @@ def run_network(
     # Folded once, as the confidence method does for a stream of frames.
     model = fold_batchnorm(net)
     predict_confidence(model, np.ascontiguousarray(volume[:, :4, :4]), device=device)
-    rss_before = _memory_kb('VmRSS')
+    rss_before = memory_kb('VmRSS')
     have_hwm = _reset_peak()
     times = []
     for _ in range(min(settings.repeat, 3)):
         start = time.perf_counter()
         predict_confidence(model, volume, device=device)
         times.append(time.perf_counter() - start)
-    peak = _memory_kb('VmHWM') if have_hwm else None
+    peak = memory_kb('VmHWM') if have_hwm else None
     seconds = statistics.median(times)
     crop_flops = network_flops(rows, columns, depth)
     frame_flops = network_flops(settings.height, settings.width, depth)

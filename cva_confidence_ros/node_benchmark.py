@@ -61,7 +61,7 @@ from typing import Any
 import numpy as np
 
 from cva_confidence_ros.benchmark import RECORD_KEYS as MATCHER_RECORD_KEYS
-from cva_confidence_ros.benchmark import BenchSettings, make_pairs
+from cva_confidence_ros.benchmark import BenchSettings, make_pairs, memory_kb
 from cva_confidence_ros.errors import ConfigError, CVAError, ModelError
 
 __all__ = [
@@ -821,17 +821,6 @@ def network_flops(
     return total
 
 
-def _own_memory_kb(field_name: str) -> int | None:
-    try:
-        with open('/proc/self/status', encoding='ascii') as status:
-            for line in status:
-                if line.startswith(field_name + ':'):
-                    return int(line.split()[1])
-    except OSError:
-        return None
-    return None
-
-
 def _reset_own_peak() -> bool:
     try:
         with open('/proc/self/clear_refs', 'w', encoding='ascii') as clear:
@@ -935,12 +924,12 @@ def measure_network_crop(
         matcher=matcher,
     )
     method(tiny)
-    rss_before = _own_memory_kb('VmRSS')
+    rss_before = memory_kb('VmRSS')
     peak_reset = _reset_own_peak()
     start = time.perf_counter()
     method.to_unit_interval(np.asarray(method(inputs), dtype=np.float32))
     seconds = time.perf_counter() - start
-    peak = _own_memory_kb('VmHWM') if peak_reset else None
+    peak = memory_kb('VmHWM') if peak_reset else None
     crop_flops = network_flops(rows, columns, config.max_disparity, config.tile_budget_mb)
     frame_flops = network_flops(
         full_rows, full_columns, config.max_disparity, config.tile_budget_mb

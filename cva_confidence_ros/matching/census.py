@@ -15,6 +15,7 @@ from numba.extending import intrinsic
 import numpy as np
 
 from cva_confidence_ros.errors import InputError
+from cva_confidence_ros.matching.base import to_gray
 
 __all__ = [
     'CENSUS_BITS',
@@ -79,6 +80,26 @@ def census_transform(gray: np.ndarray) -> np.ndarray:
     if gray.size == 0:
         raise InputError(f'census_transform expects a non-empty image; got shape {gray.shape}')
     return _census_kernel(np.ascontiguousarray(gray))
+
+
+def census_views(
+    left: np.ndarray, right: np.ndarray, view: str
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Census codes of the reference and the other image, and the partner-column step.
+
+    Args:
+        left: (H, W) or (H, W, 3) uint8 left image.
+        right: Same shape as ``left``.
+        view: ``'left'`` (partner at x − d, step −1) or ``'right'`` (partner at x + d, step 1).
+
+    Returns:
+        ``(ref, other, step)``: (H, W) uint32 census codes of both images and the step.
+    """
+    codes_left = census_transform(to_gray(left))
+    codes_right = census_transform(to_gray(right))
+    if view == 'left':
+        return codes_left, codes_right, -1
+    return codes_right, codes_left, 1
 
 
 def hamming_distance(code_a: np.ndarray, code_b: np.ndarray) -> np.ndarray:

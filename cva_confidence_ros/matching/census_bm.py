@@ -8,10 +8,10 @@ from numba import njit, prange
 import numpy as np
 
 from cva_confidence_ros.errors import ConfigError
-from cva_confidence_ros.matching.base import Matcher, to_gray
+from cva_confidence_ros.matching.base import Matcher
 from cva_confidence_ros.matching.census import (
     CENSUS_BITS,
-    census_transform,
+    census_views,
     popcount,
     valid_range,
 )
@@ -132,12 +132,7 @@ class CensusBlockMatcher(Matcher):
 
         See :meth:`Matcher.compute` for the arguments.
         """
-        codes_left = census_transform(to_gray(left))
-        codes_right = census_transform(to_gray(right))
-        if view == 'left':
-            ref, other, step = codes_left, codes_right, -1
-        else:
-            ref, other, step = codes_right, codes_left, 1
+        ref, other, step = census_views(left, right, view)
         height, width = ref.shape
         # Allocated by numpy, not inside the kernel: numpy asks the kernel for huge pages on
         # large arrays, which makes first-touch page faults of the volume several times cheaper.

@@ -7,8 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from cva_confidence_ros.errors import ConfigError
-from cva_confidence_ros.matching.base import Matcher, to_gray
-from cva_confidence_ros.matching.census import CENSUS_BITS, census_transform
+from cva_confidence_ros.matching.base import Matcher
+from cva_confidence_ros.matching.census import CENSUS_BITS, census_views
 from cva_confidence_ros.matching.sgm import MAX_ACCUMULATED, SGM_PATHS, census_sgm_volume
 
 __all__ = ['CensusSGMConfig', 'CensusSGMMatcher']
@@ -60,12 +60,7 @@ class CensusSGMMatcher(Matcher):
 
         See :meth:`Matcher.compute` for the arguments.
         """
-        codes_left = census_transform(to_gray(left))
-        codes_right = census_transform(to_gray(right))
-        if view == 'left':
-            ref, other, step = codes_left, codes_right, -1
-        else:
-            ref, other, step = codes_right, codes_left, 1
+        ref, other, step = census_views(left, right, view)
         return census_sgm_volume(
             ref, other, int(max_disparity), step, self.config.p1, self.config.p2
         )
