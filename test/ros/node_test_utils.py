@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+import contextlib
 import os
 import threading
 import time
@@ -253,3 +254,20 @@ def rss_mb() -> float:
             if line.startswith('VmRSS:'):
                 return int(line.split()[1]) / 1024.0
     return float('nan')
+
+
+@contextlib.contextmanager
+def localhost_context(domain: int) -> Iterator[Context]:
+    """An initialised rclpy context on ``domain`` with discovery kept on this host."""
+    previous = os.environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE')
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    context = Context()
+    rclpy.init(context=context, domain_id=domain)
+    try:
+        yield context
+    finally:
+        rclpy.shutdown(context=context)
+        if previous is None:
+            os.environ.pop('ROS_AUTOMATIC_DISCOVERY_RANGE', None)
+        else:
+            os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = previous

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
-import os
 
 from node_test_utils import (
     Spinner,
@@ -12,12 +11,12 @@ from node_test_utils import (
     first_stamp,
     image_msg,
     info_msgs,
+    localhost_context,
     rss_mb,
     textured_pair,
 )
 import numpy as np
 import pytest
-import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 
@@ -52,22 +51,14 @@ class _Running:
 
 @pytest.fixture(scope='module')
 def running() -> Iterator[_Running]:
-    previous = os.environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE')
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    context = Context()
-    rclpy.init(context=context, domain_id=domain_id(1))
-    state = _Running(context)
-    try:
-        yield state
-    finally:
-        state.spinner.stop()
-        state.node.destroy_node()
-        state.client.node.destroy_node()
-        rclpy.shutdown(context=context)
-        if previous is None:
-            os.environ.pop('ROS_AUTOMATIC_DISCOVERY_RANGE', None)
-        else:
-            os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = previous
+    with localhost_context(domain_id(1)) as context:
+        state = _Running(context)
+        try:
+            yield state
+        finally:
+            state.spinner.stop()
+            state.node.destroy_node()
+            state.client.node.destroy_node()
 
 
 def _burst(running: _Running, left: np.ndarray, right: np.ndarray, count: int) -> list[int]:

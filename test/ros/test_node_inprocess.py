@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
-import os
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -17,6 +16,7 @@ from node_test_utils import (
     first_stamp,
     image_msg,
     info_msgs,
+    localhost_context,
     textured_pair,
 )
 import numpy as np
@@ -73,22 +73,14 @@ class _Running:
 
 @pytest.fixture(scope='module')
 def running() -> Iterator[_Running]:
-    previous = os.environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE')
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    context = Context()
-    rclpy.init(context=context, domain_id=domain_id(0))
-    state = _Running(context)
-    try:
-        yield state
-    finally:
-        state.spinner.stop()
-        state.node.destroy_node()
-        state.client.node.destroy_node()
-        rclpy.shutdown(context=context)
-        if previous is None:
-            os.environ.pop('ROS_AUTOMATIC_DISCOVERY_RANGE', None)
-        else:
-            os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = previous
+    with localhost_context(domain_id(0)) as context:
+        state = _Running(context)
+        try:
+            yield state
+        finally:
+            state.spinner.stop()
+            state.node.destroy_node()
+            state.client.node.destroy_node()
 
 
 def _interior(array: np.ndarray, border: int) -> np.ndarray:

@@ -11,11 +11,16 @@ import sys
 import threading
 import time
 
-from node_test_utils import Spinner, StereoClient, domain_id, first_stamp, textured_pair
+from node_test_utils import (
+    Spinner,
+    StereoClient,
+    domain_id,
+    first_stamp,
+    localhost_context,
+    textured_pair,
+)
 import numpy as np
 import pytest
-import rclpy
-from rclpy.context import Context
 
 from cva_confidence_ros.ros.convert import disparity_from_message, float_image_to_array
 
@@ -78,22 +83,14 @@ class NodeProcess:
 def client() -> Iterator[StereoClient]:
     if not CVA_NODE.exists():
         pytest.skip(f'{CVA_NODE.name} is not installed next to the interpreter (make setup)')
-    context = Context()
-    rclpy.init(context=context, domain_id=DOMAIN)
-    previous = os.environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE')
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    stereo = StereoClient(context, namespace=NAMESPACE)
-    spinner = Spinner(context, stereo.node)
-    try:
-        yield stereo
-    finally:
-        spinner.stop()
-        stereo.node.destroy_node()
-        rclpy.shutdown(context=context)
-        if previous is None:
-            os.environ.pop('ROS_AUTOMATIC_DISCOVERY_RANGE', None)
-        else:
-            os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = previous
+    with localhost_context(DOMAIN) as context:
+        stereo = StereoClient(context, namespace=NAMESPACE)
+        spinner = Spinner(context, stereo.node)
+        try:
+            yield stereo
+        finally:
+            spinner.stop()
+            stereo.node.destroy_node()
 
 
 def _started(node: NodeProcess, timeout: float = 90.0) -> None:
