@@ -115,6 +115,30 @@ def _clean_disparity(disparity: np.ndarray) -> np.ndarray:
     return disparity
 
 
+def _im0_im1_sample(
+    dataset: str, scene: str, folder: Path, gt: Path, mask: Path | None
+) -> StereoSample:
+    """The MiddEval3 / ETH3D layout: im0.png, im1.png, a PFM ground truth, optional
+    non-occlusion mask (255 = visible) and calib.txt."""
+    nonocc = None
+    if mask is not None:
+        nonocc = read_image(mask) == 255
+        if nonocc.ndim == 3:
+            nonocc = nonocc.all(axis=2)
+    calib = None
+    if (folder / 'calib.txt').is_file():
+        calib = read_middlebury_calibration(folder / 'calib.txt')
+    return StereoSample(
+        dataset=dataset,
+        scene=scene,
+        left=read_image(folder / 'im0.png'),
+        right=read_image(folder / 'im1.png'),
+        disparity=_clean_disparity(read_pfm(gt)),
+        nonocc=nonocc,
+        calib=calib,
+    )
+
+
 def _first_existing(folder: Path, names: tuple[str, ...]) -> Path | None:
     for name in names:
         if (folder / name).is_file():
@@ -302,22 +326,9 @@ class Middlebury2014(StereoDataset):
         folder = self._base(root, split) / scene
         if not self._is_scene(folder):
             raise self.missing(root, scene)
-        nonocc = None
-        if (folder / 'mask0nocc.png').is_file():
-            nonocc = read_image(folder / 'mask0nocc.png') == 255
-            if nonocc.ndim == 3:
-                nonocc = nonocc.all(axis=2)
-        calib = None
-        if (folder / 'calib.txt').is_file():
-            calib = read_middlebury_calibration(folder / 'calib.txt')
-        return StereoSample(
-            dataset=self.name,
-            scene=scene,
-            left=read_image(folder / 'im0.png'),
-            right=read_image(folder / 'im1.png'),
-            disparity=_clean_disparity(read_pfm(folder / 'disp0GT.pfm')),
-            nonocc=nonocc,
-            calib=calib,
+        mask = folder / 'mask0nocc.png'
+        return _im0_im1_sample(
+            self.name, scene, folder, folder / 'disp0GT.pfm', mask if mask.is_file() else None
         )
 
 
@@ -545,24 +556,7 @@ class Eth3d(StereoDataset):
 
     def load_scene(self, root: Path, scene: str, split: str | None) -> StereoSample:
         gt, mask = self._files(root, split, scene)
-        folder = self._base(root, split) / scene
-        nonocc = None
-        if mask is not None:
-            nonocc = read_image(mask) == 255
-            if nonocc.ndim == 3:
-                nonocc = nonocc.all(axis=2)
-        calib = None
-        if (folder / 'calib.txt').is_file():
-            calib = read_middlebury_calibration(folder / 'calib.txt')
-        return StereoSample(
-            dataset=self.name,
-            scene=scene,
-            left=read_image(folder / 'im0.png'),
-            right=read_image(folder / 'im1.png'),
-            disparity=_clean_disparity(read_pfm(gt)),
-            nonocc=nonocc,
-            calib=calib,
-        )
+        return _im0_im1_sample(self.name, scene, self._base(root, split) / scene, gt, mask)
 
 
 class FlyingThings3D(StereoDataset):
