@@ -19,6 +19,8 @@ from cva_confidence_ros.model.network import (
     keras_parameter_count,
 )
 from cva_confidence_ros.model.weights import (
+    ARCHITECTURES,
+    architecture_of,
     default_weights_path,
     load_weights,
     save_weights,
@@ -27,10 +29,12 @@ from cva_confidence_ros.model.weights import (
 )
 
 __all__ = [
+    'ARCHITECTURES',
     'PAD',
     'PATCH_SIZE',
     'CVANet',
     'FoldedCVANet',
+    'architecture_of',
     'default_weights_path',
     'expected_parameter_count',
     'fold_batchnorm',

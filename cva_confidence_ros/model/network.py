@@ -25,6 +25,7 @@ kernel. It is applied with an explicit ``F.pad`` (:func:`pad_depth`) so that the
 from __future__ import annotations
 
 import math
+from typing import ClassVar
 
 import torch
 from torch import nn
@@ -153,6 +154,9 @@ class CVANet(nn.Module):
     Raises:
         ConfigError: ``max_disparity`` below 13 (nothing left after the fusion).
     """
+
+    #: Architecture name in weights files (``model.weights.ARCHITECTURES``).
+    arch: ClassVar[str] = 'cvanet'
 
     def __init__(self, max_disparity: int = 256, dropout: float = 0.5) -> None:
         super().__init__()

@@ -1,13 +1,18 @@
-"""Saving, loading and finding CVA-Net weights.
+"""Saving, loading and finding network weights (CVA-Net and every other learned method).
 
 A weights file is a ``torch.save`` dict ``{'state_dict': ..., 'meta': {...}}``; ``meta`` holds at
-least ``arch = 'cvanet'``, ``matcher`` and ``max_disparity`` plus a training summary.
-Shipped weights are named ``cvanet_<matcher>_d<D>.pt``.
+least ``arch`` (a name of :data:`ARCHITECTURES`, e.g. ``'cvanet'``), ``matcher`` and
+``max_disparity`` plus a training summary. Shipped weights are named
+``<arch>_<matcher>_d<D>.pt``.
+
+A network class takes part by having a class attribute ``arch`` (its registered name), an
+attribute ``max_disparity``, and a builder registered in :data:`ARCHITECTURES` that rebuilds an
+untrained instance from ``meta``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 import json
 import os
 from pathlib import Path
@@ -20,9 +25,11 @@ from torch import nn
 from cva_confidence_ros.errors import ModelError
 from cva_confidence_ros.model.inference import resolve_device
 from cva_confidence_ros.model.network import CVANet
+from cva_confidence_ros.registry import Registry
 
 __all__ = [
     'ARCH',
+    'ARCHITECTURES',
     'PACKAGE',
     'default_weights_path',
     'load_weights',
@@ -31,20 +38,48 @@ __all__ = [
     'weights_search_dirs',
 ]
 
+#: The architecture name of CVA-Net itself (the default everywhere).
 ARCH = 'cvanet'
 PACKAGE = 'cva_confidence_ros'
 
+#: arch name → builder ``(meta) -> nn.Module`` of an untrained network of that architecture.
+ARCHITECTURES: Registry[Callable[[Mapping[str, Any]], nn.Module]] = Registry(
+    'network architecture'
+)
+ARCHITECTURES.add(ARCH, lambda meta: CVANet(int(meta['max_disparity'])))
 
-def weights_file_name(matcher: str, max_disparity: int) -> str:
-    """Shipped-weights file name for a matcher and depth, e.g. ``cvanet_census_bm_d64.pt``."""
-    return f'{ARCH}_{matcher}_d{int(max_disparity)}.pt'
+
+def weights_file_name(matcher: str, max_disparity: int, arch: str = ARCH) -> str:
+    """Shipped-weights file name, e.g. ``cvanet_census_bm_d64.pt`` or ``ccnn_census_bm_d64.pt``."""
+    return f'{arch}_{matcher}_d{int(max_disparity)}.pt'
+
+
+def _unwrap(net: nn.Module) -> nn.Module:
+    inner = getattr(net, 'module', None)  # DistributedDataParallel
+    return inner if isinstance(inner, nn.Module) else net
+
+
+def architecture_of(net: nn.Module) -> str:
+    """The registered architecture name of ``net`` (its class attribute ``arch``).
+
+    Raises:
+        ModelError: ``net`` belongs to no registered architecture.
+    """
+    model = _unwrap(net)
+    arch = getattr(type(model), 'arch', None)
+    if not isinstance(arch, str) or arch not in ARCHITECTURES:
+        raise ModelError(
+            f'expected a network of a registered architecture {ARCHITECTURES.names()}; '
+            f'got {type(model).__name__}'
+        )
+    return arch
 
 
 def save_weights(net: nn.Module, path: str | os.PathLike[str], meta: Mapping[str, Any]) -> Path:
     """Write ``net``'s weights and ``meta`` to ``path`` (parent folders are created).
 
     Args:
-        net: A :class:`CVANet` (or a DistributedDataParallel wrapper of one).
+        net: A network of a registered architecture (or a DistributedDataParallel wrapper).
         path: Target ``.pt`` file; written to a temporary name first, then renamed.
         meta: At least ``matcher``; ``max_disparity`` and ``arch`` are filled in from ``net``.
             Stored as JSON-like plain values (tuples become lists, other objects strings).
@@ -53,11 +88,11 @@ def save_weights(net: nn.Module, path: str | os.PathLike[str], meta: Mapping[str
         The written path.
 
     Raises:
-        ModelError: ``meta`` lacks ``matcher`` or contradicts the network's depth.
+        ModelError: ``net`` of no registered architecture; ``meta`` lacks ``matcher`` or
+            contradicts the network's depth.
     """
-    model = net.module if isinstance(getattr(net, 'module', None), CVANet) else net
-    if not isinstance(model, CVANet):
-        raise ModelError(f'expected a CVANet to save; got {type(model).__name__}')
+    arch = architecture_of(net)
+    model = _unwrap(net)
     meta = dict(meta)
     if not meta.get('matcher'):
         raise ModelError(
@@ -68,7 +103,7 @@ def save_weights(net: nn.Module, path: str | os.PathLike[str], meta: Mapping[str
             f"meta['max_disparity'] = {meta['max_disparity']} contradicts the network's "
             f'D = {model.max_disparity}'
         )
-    meta['arch'] = ARCH
+    meta['arch'] = arch
     # Only plain values load back with torch.load(weights_only=True); a JSON round trip turns
     # tuples into lists and anything exotic (versions, paths) into strings.
     meta = json.loads(json.dumps(meta, default=str))
@@ -86,21 +121,24 @@ def load_weights(
     matcher: str | None = None,
     max_disparity: int | None = None,
     device: str | torch.device = 'cpu',
-) -> tuple[CVANet, dict[str, Any]]:
-    """Load a :class:`CVANet` in eval mode from a weights file and check what it is for.
+    arch: str | None = ARCH,
+) -> tuple[Any, dict[str, Any]]:
+    """Load a network in eval mode from a weights file and check what it is for.
 
     Args:
         path: A file written by :func:`save_weights`.
         matcher: If given, the matcher the weights must have been trained for.
         max_disparity: If given, the cost-volume depth D the weights must have.
         device: Where to put the network (``'cpu'``, ``'cuda'``, ``'auto'``).
+        arch: The architecture the weights must be of (default CVA-Net); None = any
+            registered architecture.
 
     Returns:
-        ``(net, meta)``.
+        ``(net, meta)``; ``net`` is a :class:`CVANet` unless ``arch`` says otherwise.
 
     Raises:
-        ModelError: Missing, empty or corrupt file; not CVA-Net weights; or weights for another
-            matcher or depth than asked.
+        ModelError: Missing, empty or corrupt file; weights of another architecture; or
+            weights for another matcher or depth than asked.
     """
     path = Path(path)
     if not path.is_file():
@@ -120,8 +158,13 @@ def load_weights(
             f'{path} is not a CVA-Net weights file: expected state_dict and meta; got {keys}'
         )
     meta = dict(blob['meta'])
-    if meta.get('arch') != ARCH:
-        raise ModelError(f'{path} holds weights of arch {meta.get("arch")!r}; expected {ARCH!r}')
+    stored = meta.get('arch')
+    if arch is not None and stored != arch:
+        raise ModelError(f'{path} holds weights of arch {stored!r}; expected {arch!r}')
+    if stored not in ARCHITECTURES:
+        raise ModelError(
+            f'{path} holds weights of arch {stored!r}; expected one of {ARCHITECTURES.names()}'
+        )
     for_what = f'matcher {meta.get("matcher")!r} and D = {meta.get("max_disparity")}'
     if matcher is not None and meta.get('matcher') != matcher:
         raise ModelError(
@@ -134,10 +177,10 @@ def load_weights(
             f'Train weights for it with: cva-train --max-disparity {max_disparity} ...'
         )
     try:
-        net = CVANet(int(meta['max_disparity']))
+        net = ARCHITECTURES.get(stored)(meta)
         net.load_state_dict(blob['state_dict'])
     except (KeyError, TypeError, ValueError, RuntimeError) as exc:
-        raise ModelError(f'{path}: the stored tensors do not fit CVA-Net ({exc})') from exc
+        raise ModelError(f'{path}: the stored tensors do not fit arch {stored!r} ({exc})') from exc
     net.to(resolve_device(device)).eval()
     return net, meta
 
@@ -168,14 +211,14 @@ def weights_search_dirs() -> list[Path]:
     return dirs
 
 
-def default_weights_path(matcher: str, max_disparity: int) -> Path:
-    """Path of the shipped weights ``cvanet_<matcher>_d<D>.pt``.
+def default_weights_path(matcher: str, max_disparity: int, arch: str = ARCH) -> Path:
+    """Path of the shipped weights ``<arch>_<matcher>_d<D>.pt``.
 
     Raises:
         ModelError: No such file in any of :func:`weights_search_dirs`; the message lists the
             folders and says how to train the weights.
     """
-    name = weights_file_name(matcher, max_disparity)
+    name = weights_file_name(matcher, max_disparity, arch)
     dirs = weights_search_dirs()
     for folder in dirs:
         candidate = folder / name
@@ -183,8 +226,8 @@ def default_weights_path(matcher: str, max_disparity: int) -> Path:
             return candidate
     looked = ', '.join(str(d) for d in dirs)
     raise ModelError(
-        f'no shipped CVA-Net weights {name} for matcher {matcher!r} and D = {max_disparity}; '
-        f'looked in: {looked}. Train them with: cva-train --matcher {matcher} '
+        f'no shipped {arch} weights {name} for matcher {matcher!r} and D = {max_disparity}; '
+        f'looked in: {looked}. Train them with: cva-train --arch {arch} --matcher {matcher} '
         f'--max-disparity {max_disparity} --data-root DATA --datasets kitti2012 '
         f'--weights-out models/{name}'
     )

@@ -50,6 +50,11 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     data = parser.add_argument_group('data')
+    data.add_argument(
+        '--arch',
+        default=defaults['arch'].default,
+        help='network architecture to train (cvanet = the paper network)',
+    )
     data.add_argument('--matcher', default=defaults['matcher'].default, help='matcher name')
     data.add_argument(
         '--max-disparity',
@@ -121,6 +126,7 @@ def build_parser() -> argparse.ArgumentParser:
 def config_from_args(args: argparse.Namespace) -> TrainConfig:
     """Translate parsed arguments into a validated :class:`TrainConfig`."""
     return TrainConfig(
+        arch=args.arch,
         matcher=args.matcher,
         max_disparity=args.max_disparity,
         data_root=args.data_root,

@@ -33,6 +33,8 @@ class TrainConfig:
     """Everything that decides what ``cva-train`` does.
 
     Attributes:
+        arch: Network architecture to train, a name of ``model.ARCHITECTURES``
+            (``cvanet`` = CVA-Net, the paper's network).
         matcher: Registered matcher whose cost volumes the network learns from.
         max_disparity: Cost-volume depth D (paper: 256).
         data_root: Folder holding the data sets (each under its registered name, or itself one).
@@ -61,6 +63,7 @@ class TrainConfig:
         progress: Show a progress bar.
     """
 
+    arch: str = 'cvanet'
     matcher: str = 'census_bm'
     max_disparity: int = 64
     data_root: str | None = None
@@ -90,6 +93,7 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         from cva_confidence_ros.datasets import DATASETS, DEVELOP_DATASETS
+        from cva_confidence_ros.model import ARCHITECTURES
 
         object.__setattr__(self, 'datasets', tuple(self.datasets))
         object.__setattr__(self, 'val_datasets', tuple(self.val_datasets))
@@ -113,6 +117,10 @@ class TrainConfig:
             _at_least('samples_per_epoch', self.samples_per_epoch, 1)
         if self.threads is not None:
             _at_least('threads', self.threads, 1)
+        if self.arch not in ARCHITECTURES:
+            raise ConfigError(
+                f'unknown arch {self.arch!r}; expected one of {ARCHITECTURES.names()}'
+            )
         if self.mode not in MODES:
             raise ConfigError(f'mode must be one of {MODES}; got {self.mode!r}')
         if self.device not in _DEVICES and not str(self.device).startswith('cuda:'):

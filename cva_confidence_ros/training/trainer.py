@@ -27,7 +27,13 @@ import torch.nn.functional as F
 from cva_confidence_ros.datasets import StereoSample, list_scenes, load_scene
 from cva_confidence_ros.datasets.synthetic import synthetic_pair
 from cva_confidence_ros.errors import ConfigError, ModelError
-from cva_confidence_ros.model import CVANet, predict_confidence_at, resolve_device, save_weights
+from cva_confidence_ros.model import (
+    ARCHITECTURES,
+    CVANet,
+    predict_confidence_at,
+    resolve_device,
+    save_weights,
+)
 from cva_confidence_ros.training.card import hardware_facts, write_model_card
 from cva_confidence_ros.training.config import TrainConfig, parse_dataset_spec
 from cva_confidence_ros.training.data import (
@@ -62,6 +68,7 @@ _RESUME_KEYS = (
     'batch_size',
     'samples_per_epoch',
     'seed',
+    'arch',
 )
 
 
@@ -191,7 +198,8 @@ def _load_checkpoint(path: Path, config: TrainConfig) -> dict[str, Any]:
         state = torch.load(path, map_location='cpu', weights_only=True)
     except Exception as exc:  # torch raises many unrelated types for a damaged file
         raise ModelError(f'cannot read checkpoint {path} ({type(exc).__name__}: {exc})') from exc
-    saved = state.get('config', {})
+    # Checkpoints written before ``arch`` existed are CVA-Net runs.
+    saved = {'arch': 'cvanet', **state.get('config', {})}
     current = config.to_dict()
     changed = [k for k in _RESUME_KEYS if saved.get(k) != current.get(k)]
     if changed:
@@ -353,7 +361,7 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
     )
 
     torch.manual_seed(config.seed)
-    net = CVANet(config.max_disparity).to(dist.device)
+    net = ARCHITECTURES.get(config.arch)({'max_disparity': config.max_disparity}).to(dist.device)
     optimiser = torch.optim.Adam(net.parameters(), lr=config.lr, betas=(0.9, 0.999))
     history: list[dict[str, Any]] = []
     start_epoch = 0
@@ -423,7 +431,7 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
     wall = previous_wall + time.perf_counter() - started
     last = history[-1] if history else {}
     summary: dict[str, Any] = {
-        'arch': 'cvanet',
+        'arch': config.arch,
         'matcher': config.matcher,
         'max_disparity': config.max_disparity,
         'mode': config.mode,

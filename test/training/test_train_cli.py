@@ -150,6 +150,8 @@ def test_config_validation():
         TrainConfig(synthetic=1, mode='fancy')
     with pytest.raises(ConfigError, match='2·D'):
         TrainConfig(synthetic=1, max_disparity=64, synthetic_size=(64, 100))
+    with pytest.raises(ConfigError, match="unknown arch 'resnet'.*cvanet"):
+        TrainConfig(synthetic=1, arch='resnet')
     config = TrainConfig(synthetic=1, epochs=2, epochs_low_lr=1, lr=1e-3)
     assert [config.lr_at(e) for e in range(3)] == pytest.approx([1e-3, 1e-3, 1e-4])
     assert config.synthetic_hw == (128, 256)
