@@ -78,6 +78,9 @@ class FoldedCVANet(nn.Module):
     (B, H, W). Built by :func:`fold_batchnorm`; has no dropout and no BN.
     """
 
+    #: Ready for inference as it is (no BN to fold, no dropout); see :func:`predict_confidence`.
+    is_folded = True
+
     def __init__(self, net: CVANet) -> None:
         super().__init__()
         self.max_disparity = net.max_disparity
@@ -289,12 +292,21 @@ def predict_confidence(
 def _inference_model(
     net: nn.Module, device: torch.device, fold_bn: bool, stack: contextlib.ExitStack
 ) -> nn.Module:
-    if isinstance(net, FoldedCVANet):
+    """The module to run: ``net`` itself if it is already folded (``is_folded``), else its
+    folded copy (CVA-Net, or any other cost-volume network with a ``fold_batchnorm()``
+    method returning an inference module), else ``net`` in eval mode (``fold_bn=False``)."""
+    if getattr(net, 'is_folded', False):
         return net.to(device)
     if fold_bn:
-        if not isinstance(net, CVANet):
-            raise ConfigError(f'expected a CVANet or FoldedCVANet; got {type(net).__name__}')
-        return fold_batchnorm(net).to(device)
+        if isinstance(net, CVANet):
+            return fold_batchnorm(net).to(device)
+        fold = getattr(net, 'fold_batchnorm', None)
+        if not callable(fold):
+            raise ConfigError(
+                f'expected a CVANet, a folded network or one with fold_batchnorm(); '
+                f'got {type(net).__name__}'
+            )
+        return fold().to(device)
     if next(net.parameters()).device != device:
         raise ConfigError(
             f'fold_bn=False runs the network where it lies ({next(net.parameters()).device}); '
