@@ -26,6 +26,7 @@ __all__ = [
 
 # Method modules, imported for their registrations: add one line per module, keep them sorted.
 from cva_confidence_ros.confidence import (  # noqa: E402
+    baselines,  # noqa: F401  (ccnn, lfn, lgc_net)
     cva_net,  # noqa: F401  (cva_net)
     handcrafted,  # noqa: F401  (pkrn, mlm, lrd, lrc, score)
 )

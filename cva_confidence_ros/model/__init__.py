@@ -49,3 +49,7 @@ __all__ = [
     'weights_file_name',
     'weights_search_dirs',
 ]
+
+# Architectures registered on import: the baselines that read the disparity map (CCNN, LFN,
+# LGC-Net), so that load_weights knows them wherever the package is used.
+from cva_confidence_ros.model import baselines  # noqa: E402, F401

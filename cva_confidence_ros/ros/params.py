@@ -176,12 +176,14 @@ PIPELINE_PARAMETERS: tuple[ParamSpec, ...] = (
     ),
     _pipeline(
         'confidence_method',
-        'Confidence method: cva_net (learned) or a hand-crafted measure.',
-        constraints='cva_net or a hand-crafted measure (pkrn, mlm, lrd, lrc, score)',
+        'Confidence method: cva_net (learned), a learned baseline or a hand-crafted measure.',
+        constraints='cva_net, a learned baseline (ccnn, lfn, lgc_net) or a hand-crafted '
+        'measure (pkrn, mlm, lrd, lrc, score)',
     ),
     _pipeline(
         'model_path',
-        'CVA-Net weights file; empty = the shipped weights for the matcher and max_disparity.',
+        'Weights file of the learned method; empty = the shipped weights for the matcher and '
+        'max_disparity.',
     ),
     _pipeline(
         'device',

@@ -76,10 +76,14 @@ def write_model_card(
     )
     hardware = facts.get('hardware', {})
     lines = [
-        f'# CVA-Net weights `{Path(weights_path).name}`',
+        f'# {facts.get("network", "CVA-Net")} weights `{Path(weights_path).name}`',
         '',
-        'CVA-Net (Mehltretter & Heipke, ICCVW 2019): per-pixel confidence of the winner-takes-all '
-        'disparity, learned from 13×13×D extracts of the normalised cost volume.',
+        facts.get(
+            'network_description',
+            'CVA-Net (Mehltretter & Heipke, ICCVW 2019): per-pixel confidence of the '
+            'winner-takes-all disparity, learned from 13×13×D extracts of the normalised cost '
+            'volume.',
+        ),
         '',
         '## Use',
         '',
@@ -110,7 +114,11 @@ def write_model_card(
         f'{facts.get("epochs_low_lr")} at lr {_fmt(facts.get("lr_low"))}',
         f'- batch size: {facts.get("batch_size")}, samples per epoch: '
         f'{_fmt(facts.get("samples_per_epoch"))}, samples seen: {_fmt(facts.get("samples_seen"))}',
-        '- loss: binary cross-entropy; optimiser: Adam (β1 0.9, β2 0.999); dropout 0.5',
+        *(
+            [f'- {note}' for note in facts['network_notes']]
+            if facts.get('network_notes')
+            else ['- loss: binary cross-entropy; optimiser: Adam (β1 0.9, β2 0.999); dropout 0.5']
+        ),
         f'- seed: {facts.get("seed")}',
         '',
         '## Hardware and time',

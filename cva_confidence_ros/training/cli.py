@@ -53,7 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
     data.add_argument(
         '--arch',
         default=defaults['arch'].default,
-        help='network architecture to train (cvanet = the paper network)',
+        help='network architecture to train: cvanet (the paper network) or the baselines '
+        'ccnn, lfn, lgcnet (disparity + image; --mode sparse = 9×9 patches)',
     )
     data.add_argument('--matcher', default=defaults['matcher'].default, help='matcher name')
     data.add_argument(

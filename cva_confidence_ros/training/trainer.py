@@ -331,7 +331,12 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         ModelError: Unreadable checkpoint.
     """
     from cva_confidence_ros.matching import MATCHERS
+    from cva_confidence_ros.model.baselines import BASELINE_ARCHS
 
+    if config.arch in BASELINE_ARCHS:  # CCNN, LFN, LGC-Net learn from disparity + image
+        from cva_confidence_ros.training.baselines import train_baseline
+
+        return train_baseline(config, command)
     if config.matcher not in MATCHERS:
         raise ConfigError(
             f'unknown matcher {config.matcher!r}; expected one of {MATCHERS.names()}'

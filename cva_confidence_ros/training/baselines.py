@@ -1,0 +1,599 @@
+"""Training of the disparity-map baselines (CCNN, LFN, LGC-Net) with ``cva-train --arch``.
+
+Same data, labels, validation, checkpoints and model card as CVA-Net's trainer
+(:mod:`cva_confidence_ros.training.trainer`); only the network inputs differ. Every scene is
+matched once with the configured matcher, and its winner-takes-all disparity (÷ D) and left
+image (grey, ÷ 255) are kept, edge-padded by :data:`~cva_confidence_ros.model.baselines.MARGIN`
+px, with the KITTI-criterion labels of the pixels that have ground truth.
+
+Samples are output pixels with a label, drawn as crops:
+
+* ``--mode sparse``: crops of one output pixel, i.e. the 9×9 patches of the published CCNN /
+  LFN recipes (``--batch-size`` patches per step);
+* ``--mode dense``: ``--crop-size``² outputs per crop with a masked loss (the inputs are the
+  crop plus the networks' margins), ``ceil(batch / crop²)`` crops per step.
+
+LGC-Net is trained in Tosi et al.'s two stages within one command: stage 1 trains CCNN (the
+local network) and ConfNet together on the same crops (the sum of their two losses; their
+parameters are disjoint, so this is two independent trainings sharing the data loading);
+stage 2 freezes both, computes their confidence maps of every training scene once, and trains
+the fusion network. Each stage runs the configured schedule (``--epochs`` at ``--lr`` then
+``--epochs-low-lr`` at the lower rate), so an LGC-Net run has twice as many epochs. ConfNet
+needs crops whose sides are multiples of 16: the crop side is rounded down to one (and
+``--mode sparse`` is refused for LGC-Net).
+
+One process (CPU or one GPU); DistributedDataParallel is not offered for these small networks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import datetime
+import math
+import os
+from pathlib import Path
+import time
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+import torch.nn.functional as F
+
+from cva_confidence_ros.datasets import StereoSample
+from cva_confidence_ros.errors import ConfigError, DataError
+from cva_confidence_ros.model import ARCHITECTURES, resolve_device, save_weights
+from cva_confidence_ros.model.baselines import (
+    CONFNET_FACTOR,
+    MARGIN,
+    TOWER_MARGIN,
+    LGCNet,
+    network_inputs,
+)
+from cva_confidence_ros.training.card import hardware_facts, write_model_card
+from cva_confidence_ros.training.config import TrainConfig
+from cva_confidence_ros.training.data import (
+    batches,
+    dense_crops,
+    sample_index,
+    validation_subset,
+)
+
+__all__ = [
+    'NETWORK_FACTS',
+    'DisparityScene',
+    'crop_side',
+    'gather_planes',
+    'prepare_disparity_scene',
+    'train_baseline',
+]
+
+#: arch → (card title, one-paragraph description).
+NETWORK_FACTS: dict[str, tuple[str, str]] = {
+    'ccnn': (
+        'CCNN',
+        'CCNN (Poggi & Mattoccia, BMVC 2016): per-pixel confidence of the winner-takes-all '
+        'disparity, learned from 9×9 patches of the disparity map divided by D (four 3×3 '
+        'convolutions of 64, two 1×1 layers of 100, sigmoid output).',
+    ),
+    'lfn': (
+        'LFN',
+        'LFN (Fu et al. 2017): late fusion of a disparity tower and a reference-image tower '
+        '(each four 3×3 convolutions of 64 on 9×9 patches), then 1×1 layers of 100, 100, 1; '
+        'per-pixel confidence of the winner-takes-all disparity.',
+    ),
+    'lgcnet': (
+        'LGC-Net',
+        'LGC-Net (Tosi et al., ECCV 2018): local confidence (CCNN on 9×9 disparity patches) '
+        'and global confidence (ConfNet, an encoder–decoder with encoders of 64/128/256/512 '
+        'on disparity and image), fused by a network of three 3×3-convolution towers and 1×1 '
+        'layers of 100, 100, 1.',
+    ),
+}
+
+_CHOICES = [
+    'inputs: WTA disparity ÷ D (NaN → 0) and the left image as grey ÷ 255 (not RGB: the '
+    'training data mixes grey and colour pairs)',
+    'borders: edge replication, the same in training crops and whole-image inference',
+    'loss: binary cross-entropy on labelled pixels; optimiser Adam (β1 0.9, β2 0.999) with '
+    "this project's learning-rate schedule instead of the papers' (CPU budget)",
+]
+_LGC_CHOICES = [
+    'local network: CCNN; ConfNet without batch normalisation (batches of 1–2 crops on CPU)',
+    'two stages in one run: CCNN + ConfNet (stage 1), then the fusion with both frozen '
+    '(stage 2), each with the full epoch schedule',
+    'weights stored as float16 (halves the file; loaded back into float32)',
+]
+
+
+@dataclass(eq=False)
+class DisparityScene:
+    """One matched scene at the training resolution, as the baselines see it.
+
+    Attributes:
+        name: ``dataset/scene``.
+        factor: Downscaling factor applied by ``fit_disparity_range``.
+        disparity: (H + 16, W + 16) float32 WTA disparity ÷ D, edge-padded by 8 px.
+        image: (H + 16, W + 16) float32 grey left image ÷ 255, edge-padded by 8 px.
+        labelled: (H, W) bool, True where ground truth is known.
+        correct: (H, W) bool, True where the WTA disparity is correct (KITTI criterion).
+        local: Stage 2 of LGC-Net only: (H + 16, W + 16) float32 CCNN confidence (edge-padded).
+        global_: Stage 2 of LGC-Net only: (H + 16, W + 16) float32 ConfNet confidence.
+    """
+
+    name: str
+    factor: int
+    disparity: np.ndarray
+    image: np.ndarray
+    labelled: np.ndarray
+    correct: np.ndarray
+    local: np.ndarray | None = None
+    global_: np.ndarray | None = None
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(H, W) of the scene's outputs."""
+        return int(self.labelled.shape[0]), int(self.labelled.shape[1])
+
+    @property
+    def n_labelled(self) -> int:
+        """Pixels with ground truth."""
+        return int(self.labelled.sum())
+
+    @property
+    def n_wrong(self) -> int:
+        """Labelled pixels whose WTA disparity is wrong."""
+        return int((self.labelled & ~self.correct).sum())
+
+    def planes(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Unpadded (1, 1, H, W) disparity and image tensors (for whole-scene inference)."""
+        inner = (slice(MARGIN, -MARGIN), slice(MARGIN, -MARGIN))
+        return (
+            torch.from_numpy(np.ascontiguousarray(self.disparity[inner]))[None, None],
+            torch.from_numpy(np.ascontiguousarray(self.image[inner]))[None, None],
+        )
+
+
+def prepare_disparity_scene(
+    sample: StereoSample, matcher: str, max_disparity: int
+) -> DisparityScene:
+    """Shrink a sample until its ground truth fits D, match it, keep disparity, image, labels.
+
+    Raises:
+        DataError: No pixel with ground truth after shrinking.
+    """
+    from cva_confidence_ros.datasets import fit_disparity_range
+    from cva_confidence_ros.matching import compute_cost_volume, wta_disparity
+    from cva_confidence_ros.metrics import kitti_error
+
+    fitted, factor = fit_disparity_range(sample, max_disparity)
+    volume = compute_cost_volume(fitted.left, fitted.right, matcher, max_disparity)
+    estimate = wta_disparity(volume)
+    truth = fitted.disparity
+    labelled = np.isfinite(truth)
+    name = f'{sample.dataset}/{sample.scene}'
+    if not labelled.any():
+        raise DataError(f'{name}: no pixel with ground truth at factor {factor}')
+    correct = ~kitti_error(estimate, truth) & labelled
+    disparity, image = network_inputs(estimate, fitted.left, max_disparity)
+    pad = ((MARGIN, MARGIN), (MARGIN, MARGIN))
+    return DisparityScene(
+        name,
+        factor,
+        np.pad(disparity, pad, mode='edge'),
+        np.pad(image, pad, mode='edge'),
+        labelled,
+        correct,
+    )
+
+
+def crop_side(config: TrainConfig, scenes: list[DisparityScene]) -> int:
+    """Output side of the training crops (see the module docstring).
+
+    Raises:
+        ConfigError: LGC-Net with ``--mode sparse``, or scenes smaller than 16 px.
+    """
+    smallest = min(min(s.shape) for s in scenes)
+    if config.mode == 'sparse':
+        if config.arch == 'lgcnet':
+            raise ConfigError(
+                'lgcnet trains ConfNet on image crops: use --mode dense with a --crop-size '
+                f'that is a multiple of {CONFNET_FACTOR}'
+            )
+        return 1
+    side = min(config.crop_size, smallest)
+    if config.arch == 'lgcnet':
+        side -= side % CONFNET_FACTOR
+        if side < CONFNET_FACTOR:
+            raise ConfigError(
+                f'lgcnet needs crops of at least {CONFNET_FACTOR} px (ConfNet pools 4 times); '
+                f'got --crop-size {config.crop_size} and a smallest scene side of {smallest}'
+            )
+    return side
+
+
+def gather_planes(
+    scenes: list[DisparityScene],
+    crops: Any,
+    rows: np.ndarray,
+    side: int,
+    margin: int,
+    names: tuple[str, ...] = ('disparity', 'image'),
+) -> tuple[list[torch.Tensor], torch.Tensor, torch.Tensor]:
+    """Input planes, targets and loss masks of the chosen crops.
+
+    Args:
+        scenes: The prepared scenes.
+        crops: A ``training.data.CropBatch`` (top-left output corners per crop).
+        rows: (B,) indices into ``crops``.
+        side: Output side of a crop.
+        margin: Input pixels on each side beyond the outputs (4 for a tower, 0 for ConfNet).
+        names: Which padded planes of the scenes to cut (``disparity``, ``image``, ``local``,
+            ``global_``).
+
+    Returns:
+        ``(planes, targets, mask)``: per name a (B, 1, side + 2·margin, side + 2·margin)
+        float32 tensor; (B, side, side) float32 targets (1 = correct); (B, side, side) bool.
+    """
+    span = side + 2 * margin
+    planes = [np.empty((len(rows), 1, span, span), np.float32) for _ in names]
+    targets = np.empty((len(rows), side, side), np.float32)
+    mask = np.empty((len(rows), side, side), bool)
+    for out, row in enumerate(rows):
+        scene = scenes[int(crops.scene[row])]
+        y0, x0 = int(crops.y0[row]), int(crops.x0[row])
+        top, left = y0 + MARGIN - margin, x0 + MARGIN - margin
+        for plane, name in zip(planes, names, strict=True):
+            plane[out, 0] = getattr(scene, name)[top : top + span, left : left + span]
+        targets[out] = scene.correct[y0 : y0 + side, x0 : x0 + side]
+        mask[out] = scene.labelled[y0 : y0 + side, x0 : x0 + side]
+    return [torch.from_numpy(p) for p in planes], torch.from_numpy(targets), torch.from_numpy(mask)
+
+
+def _masked_bce(logits: torch.Tensor, targets: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    logits = logits[:, 0]
+    if not bool(mask.any()):
+        return logits.sum() * 0.0
+    return F.binary_cross_entropy_with_logits(logits[mask], targets[mask])
+
+
+def _auc(net: nn.Module, scenes: list[DisparityScene], subsets: list[Any], device: Any,
+         part: str | None = None) -> dict[str, float | None]:
+    from cva_confidence_ros.metrics import optimal_auc, roc_auc
+
+    confidences, wrongs = [], []
+    net.eval()
+    with torch.no_grad():
+        for scene, (ys, xs) in zip(scenes, subsets, strict=True):
+            if ys.size == 0:
+                continue
+            d, i = (t.to(device) for t in scene.planes())
+            if part == 'local':
+                conf = net.local.dense_confidence(d, i)
+            elif part == 'global':
+                conf = net.confnet.dense_confidence(d, i)
+            else:
+                conf = net.dense_confidence(d, i)
+            confidences.append(conf[0, 0].cpu().numpy()[ys, xs])
+            wrongs.append(~scene.correct[ys, xs])
+    net.train()
+    if not confidences:
+        return {'val_auc': None, 'val_auc_opt': None, 'val_error_rate': None}
+    confidence, wrong = np.concatenate(confidences), np.concatenate(wrongs)
+    rate = float(wrong.mean())
+    return {
+        'val_auc': float(roc_auc(confidence, wrong)),
+        'val_auc_opt': float(optimal_auc(rate)),
+        'val_error_rate': rate,
+    }
+
+
+def _freeze_parts(net: LGCNet, scenes: list[DisparityScene], device: Any) -> None:
+    """Stage 2 inputs: CCNN and ConfNet confidence of every training scene, computed once."""
+    net.eval()
+    with torch.no_grad():
+        for scene in scenes:
+            d, i = (t.to(device) for t in scene.planes())
+            _, local4, global4 = net.parts(d, i)
+            pad = ((TOWER_MARGIN, TOWER_MARGIN), (TOWER_MARGIN, TOWER_MARGIN))
+            scene.local = np.pad(local4[0, 0].cpu().numpy(), pad, mode='edge')
+            scene.global_ = np.pad(global4[0, 0].cpu().numpy(), pad, mode='edge')
+    net.train()
+
+
+def _stage_of(config: TrainConfig, epoch: int) -> tuple[str, int]:
+    """(stage name, epoch index within the stage) of a 0-based run epoch."""
+    if config.arch != 'lgcnet':
+        return 'single', epoch
+    if epoch < config.total_epochs:
+        return 'parts', epoch
+    return 'fusion', epoch - config.total_epochs
+
+
+def _optimiser(net: nn.Module, stage: str, lr: float) -> torch.optim.Optimizer:
+    if stage == 'parts':
+        assert isinstance(net, LGCNet)
+        params = list(net.local.parameters()) + list(net.confnet.parameters())
+    elif stage == 'fusion':
+        assert isinstance(net, LGCNet)
+        params = list(net.fusion.parameters())
+    else:
+        params = list(net.parameters())
+    return torch.optim.Adam(params, lr=lr, betas=(0.9, 0.999))
+
+
+def _step_loss(
+    net: nn.Module, stage: str, scenes: list[DisparityScene], crops: Any, step: np.ndarray,
+    side: int, device: Any,
+) -> tuple[torch.Tensor, int]:
+    if stage == 'fusion':
+        planes, targets, mask = gather_planes(
+            scenes, crops, step, side, TOWER_MARGIN, ('disparity', 'local', 'global_')
+        )
+        planes = [p.to(device) for p in planes]
+        logits = net.fusion.forward_logits(*planes)
+        mask, targets = mask.to(device), targets.to(device)
+        return _masked_bce(logits, targets, mask), int(mask.sum())
+    planes, targets, mask = gather_planes(scenes, crops, step, side, TOWER_MARGIN)
+    mask, targets = mask.to(device), targets.to(device)
+    planes = [p.to(device) for p in planes]
+    if stage == 'single':
+        return _masked_bce(net.forward_logits(*planes), targets, mask), int(mask.sum())
+    loss = _masked_bce(net.local.forward_logits(*planes), targets, mask)
+    inner = [p[:, :, TOWER_MARGIN:-TOWER_MARGIN, TOWER_MARGIN:-TOWER_MARGIN] for p in planes]
+    loss = loss + _masked_bce(net.confnet.forward_logits(*inner), targets, mask)
+    return loss, int(mask.sum())
+
+
+def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
+    """Train CCNN, LFN or LGC-Net as configured; write checkpoints, log, weights, model card.
+
+    Called by :func:`cva_confidence_ros.training.trainer.train` for those architectures; same
+    arguments, return value and errors.
+    """
+    from cva_confidence_ros.matching import MATCHERS
+    from cva_confidence_ros.training.trainer import (
+        CHECKPOINT_NAME,
+        _limit_numba_threads,
+        _load_checkpoint,
+        _load_samples,
+        _Log,
+        _progress,
+        _save_checkpoint,
+        _scene_facts,
+    )
+
+    if config.matcher not in MATCHERS:
+        raise ConfigError(
+            f'unknown matcher {config.matcher!r}; expected one of {MATCHERS.names()}'
+        )
+    if int(os.environ.get('WORLD_SIZE', '1')) > 1:
+        raise ConfigError(
+            f'--arch {config.arch} trains in one process; run it without torchrun'
+        )
+    if config.threads:
+        _limit_numba_threads(config.threads)
+        torch.set_num_threads(config.threads)
+    device = resolve_device(config.device)
+    out = Path(config.out)
+    out.mkdir(parents=True, exist_ok=True)
+    log = _Log(out / 'train.log', True)
+    log(f'cva-train: {command or config.to_dict()}')
+    started = time.perf_counter()
+
+    def prepare(validation: bool) -> list[DisparityScene]:
+        scenes = []
+        for label, loader in _load_samples(config, validation):
+            tic = time.perf_counter()
+            scene = prepare_disparity_scene(loader(), config.matcher, config.max_disparity)
+            scenes.append(scene)
+            log(
+                f'{"val " if validation else ""}scene {label}: {scene.shape[0]}×'
+                f'{scene.shape[1]} (factor {scene.factor}), {scene.n_labelled} labelled, '
+                f'{scene.n_wrong / max(1, scene.n_labelled):.1%} wrong, '
+                f'{time.perf_counter() - tic:.1f} s'
+            )
+        return scenes
+
+    scenes = prepare(False)
+    index = sample_index(scenes)  # type: ignore[arg-type]
+    val_scenes = prepare(True)
+    val_subsets = validation_subset(val_scenes, config.val_pixels, config.seed)  # type: ignore[arg-type]
+    side = crop_side(config, scenes)
+    n_samples = config.samples_per_epoch or len(index)
+    log(
+        f'{len(scenes)} training scenes, {len(index)} labelled pixels, '
+        f'{index.fraction_wrong:.1%} labelled wrong; {n_samples} samples per epoch '
+        f'({config.mode} mode, crops of {side}² outputs); {len(val_scenes)} validation scenes'
+    )
+
+    torch.manual_seed(config.seed)
+    net = ARCHITECTURES.get(config.arch)({'max_disparity': config.max_disparity}).to(device)
+    epochs_total = config.total_epochs * (2 if config.arch == 'lgcnet' else 1)
+    history: list[dict[str, Any]] = []
+    start_epoch = 0
+    previous_wall = 0.0
+    checkpoint = out / CHECKPOINT_NAME
+    saved_optimiser: tuple[str, Any] | None = None
+    if config.resume and checkpoint.is_file():
+        state = _load_checkpoint(checkpoint, config)
+        net.load_state_dict(state['model'])
+        history = list(state['history'])
+        start_epoch = int(state['epoch'])
+        previous_wall = float(state.get('wall_time_s', 0.0))
+        saved_optimiser = (str(state.get('stage', 'single')), state['optimizer'])
+        log(f'resumed from {checkpoint} after epoch {start_epoch}')
+    elif config.resume:
+        log(f'--resume: no checkpoint in {out}, starting from scratch')
+
+    optimiser: torch.optim.Optimizer | None = None
+    current_stage = ''
+    for epoch in range(start_epoch, epochs_total):
+        stage, stage_epoch = _stage_of(config, epoch)
+        if stage != current_stage:
+            optimiser = _optimiser(net, stage, config.lr)
+            if saved_optimiser is not None and saved_optimiser[0] == stage:
+                optimiser.load_state_dict(saved_optimiser[1])
+            saved_optimiser = None
+            if stage == 'fusion':
+                tic = time.perf_counter()
+                assert isinstance(net, LGCNet)
+                _freeze_parts(net, scenes, device)
+                log(f'stage 2: CCNN and ConfNet frozen, their maps of {len(scenes)} scenes '
+                    f'computed in {time.perf_counter() - tic:.1f} s')
+            current_stage = stage
+        assert optimiser is not None
+        lr = config.lr_at(stage_epoch)
+        for group in optimiser.param_groups:
+            group['lr'] = lr
+        torch.manual_seed(config.seed * 1_000_003 + epoch * 7919 + 1)
+        crops = dense_crops(scenes, index, n_samples, side, config.seed, epoch)  # type: ignore[arg-type]
+        per_step = max(1, math.ceil(config.batch_size / side**2))
+        steps = list(batches(np.arange(len(crops.scene)), per_step))
+        net.train()
+        tic = time.perf_counter()
+        loss_sum, seen = 0.0, 0
+        description = f'epoch {epoch + 1}/{epochs_total}' + (
+            f' ({stage})' if stage != 'single' else ''
+        )
+        with _progress(int(crops.n_labelled.sum()), description, config.progress) as bar:
+            for step in steps:
+                loss, count = _step_loss(net, stage, scenes, crops, step, side, device)
+                optimiser.zero_grad(set_to_none=True)
+                loss.backward()
+                optimiser.step()
+                loss_sum += float(loss.detach()) * count
+                seen += count
+                bar.update(count)
+                elapsed = time.perf_counter() - tic
+                bar.set_postfix(loss=f'{loss_sum / max(1, seen):.4f}', sps=f'{seen / elapsed:.0f}')
+        seconds = time.perf_counter() - tic
+        record: dict[str, Any] = {
+            'epoch': epoch + 1,
+            'lr': lr,
+            'train_loss': loss_sum / max(1, seen),
+            'samples': seen,
+            'seconds': seconds,
+            'samples_per_s': seen / max(seconds, 1e-9),
+        }
+        if stage != 'single':
+            record['stage'] = stage
+        if stage == 'parts':
+            local = _auc(net, val_scenes, val_subsets, device, 'local')
+            global_ = _auc(net, val_scenes, val_subsets, device, 'global')
+            record.update(
+                {
+                    'val_auc': None,
+                    'val_auc_local': local['val_auc'],
+                    'val_auc_global': global_['val_auc'],
+                    'val_auc_opt': local['val_auc_opt'],
+                    'val_error_rate': local['val_error_rate'],
+                }
+            )
+        else:
+            record.update(_auc(net, val_scenes, val_subsets, device))
+        history.append(record)
+        wall = previous_wall + time.perf_counter() - started
+        _save_checkpoint(
+            checkpoint,
+            {
+                'format': 1,
+                'epoch': epoch + 1,
+                'stage': stage,
+                'model': {k: v.detach().cpu() for k, v in net.state_dict().items()},
+                'optimizer': optimiser.state_dict(),
+                'history': history,
+                'config': config.to_dict(),
+                'wall_time_s': wall,
+            },
+        )
+        import json
+
+        (out / 'history.json').write_text(json.dumps(history, indent=2) + '\n', 'utf-8')
+        val = record.get('val_auc')
+        parts = ''
+        if stage == 'parts' and record['val_auc_local'] is not None:
+            parts = (f', val AUC CCNN {record["val_auc_local"]:.4f} / ConfNet '
+                     f'{record["val_auc_global"]:.4f}')
+        log(
+            f'{description}: lr {lr:.1e}, loss {record["train_loss"]:.4f}, {seen} samples in '
+            f'{seconds:.1f} s ({record["samples_per_s"]:.1f}/s)'
+            + (f', val AUC {val:.4f} (optimal {record["val_auc_opt"]:.4f})'
+               if val is not None else parts)
+        )
+
+    wall = previous_wall + time.perf_counter() - started
+    summary = _summary(config, scenes, val_scenes, val_subsets, index, n_samples, side,
+                       history, device, wall, command, _scene_facts)
+    if config.weights_out:
+        to_save = net
+        if config.arch == 'lgcnet':
+            import copy
+
+            to_save = copy.deepcopy(net).half()
+        path = save_weights(to_save, config.weights_out, summary)
+        md_path, json_path = write_model_card(path, summary)
+        log(f'wrote {path}, {md_path} and {json_path}')
+    return summary
+
+
+def _summary(
+    config: TrainConfig, scenes: list[DisparityScene], val_scenes: list[DisparityScene],
+    val_subsets: list[Any], index: Any, n_samples: int, side: int,
+    history: list[dict[str, Any]], device: Any, wall: float, command: str, scene_facts: Any,
+) -> dict[str, Any]:
+    last = history[-1] if history else {}
+    title, description = NETWORK_FACTS[config.arch]
+    notes = list(_CHOICES) + (list(_LGC_CHOICES) if config.arch == 'lgcnet' else [])
+    notes.append(
+        'samples: ' + ('9×9 patches, one labelled output each' if side == 1 else
+                       f'crops of {side}² outputs, masked loss on the labelled ones')
+    )
+    for record in history:
+        if record.get('stage') == 'parts' and record.get('val_auc_local') is not None:
+            notes.append(
+                f'stage 1 epoch {record["epoch"]}: val AUC CCNN {record["val_auc_local"]:.4f},'
+                f' ConfNet {record["val_auc_global"]:.4f}'
+            )
+    summary: dict[str, Any] = {
+        'arch': config.arch,
+        'network': title,
+        'network_description': description,
+        'network_notes': notes,
+        'matcher': config.matcher,
+        'max_disparity': config.max_disparity,
+        'mode': config.mode,
+        'crop_size': side,
+        'datasets': list(config.datasets),
+        'synthetic': config.synthetic,
+        'synthetic_size': list(config.synthetic_hw),
+        'scenes': scene_facts(scenes),
+        'labelled_pixels': len(index),
+        'fraction_wrong': index.fraction_wrong,
+        'val_datasets': list(config.val_datasets),
+        'val_synthetic': config.val_synthetic,
+        'val_scenes': scene_facts(val_scenes),
+        'val_pixels': int(sum(ys.size for ys, _ in val_subsets)),
+        'samples_per_epoch': n_samples,
+        'samples_seen': int(sum(r['samples'] for r in history)),
+        'epochs': config.epochs,
+        'epochs_low_lr': config.epochs_low_lr,
+        'stages': 2 if config.arch == 'lgcnet' else 1,
+        'batch_size': config.batch_size,
+        'lr': config.lr,
+        'lr_low': config.lr * config.low_lr_factor,
+        'seed': config.seed,
+        'hardware': hardware_facts(device, 1),
+        'wall_time_s': wall,
+        'command': command,
+        'final_train_loss': last.get('train_loss'),
+        'final_val_auc': last.get('val_auc'),
+        'final_val_auc_opt': last.get('val_auc_opt'),
+        'final_val_error_rate': last.get('val_error_rate'),
+        'history': history,
+        'date': datetime.date.today().isoformat(),
+    }
+    if config.arch == 'lgcnet':
+        summary['confnet_width'] = 32
+        summary['storage'] = 'float16'
+    return summary
