@@ -21,6 +21,7 @@ ENTRY_POINTS = [
     ('node', 'cva-node', 'cva_confidence_ros.node:main'),
     ('train', 'cva-train', 'cva_confidence_ros.training.cli:main'),
     ('evaluate', 'cva-evaluate', 'cva_confidence_ros.evaluation.cli:main'),
+    ('table1', 'cva-table1', 'cva_confidence_ros.evaluation.table1:main'),
     ('benchmark', 'cva-benchmark', 'cva_confidence_ros.benchmark:main'),
     ('demo', 'cva-demo', 'cva_confidence_ros.demo:main'),
     ('bag_from_dataset', 'cva-bag-from-dataset', 'msg_tools.bag_from_dataset:main'),

@@ -1,0 +1,582 @@
+"""``cva-table1``: the paper's Table 1 in one command (every learned and hand-crafted method,
+every matcher, every test data set).
+
+Rows: KITTI 2012, KITTI 2015, Middlebury v3 × Census-BM, Census-SGM, MC-CNN; columns: Opt.,
+CCNN, LFN, LGC-Net, CVA-Net, then the hand-crafted measures PKRN, MLM, LRD, LRC, Score; each
+cell the AUC × 10² averaged over the scenes of the data set (paper Sec. 4.1); the best
+non-optimal value of each row in bold. Written to ``OUT/``: ``table1.md`` (with the paper's
+own numbers beside it), ``table1.json`` (cells and per-scene records), ``table1.png``.
+
+Protocols (``--protocol``; ``auto`` picks ``paper`` when the KITTI 2012 folder holds more than
+``--kitti2012-train`` pairs):
+
+* ``paper``: full KITTI / Middlebury downloads. Learned methods are trained on the first 20
+  KITTI 2012 pairs; the KITTI 2012 row scores the remaining pairs, KITTI 2015 all 200, and
+  Middlebury v3 the 15 ``trainingQ`` (quarter size) scenes.
+* ``develop``: a data root with a train/develop split such as ``../shared/data``. Only the
+  develop data sets are scored: KITTI 2015, Middlebury v3 (``middlebury2014`` trainingQ) and,
+  as an extra row the paper does not have, Middlebury 2003. The KITTI 2012 row stays empty:
+  every KITTI 2012 pair of such a root is training data. Learned methods use the shipped
+  weights (trained on the training half of the split; see their model cards).
+
+Weights: ``--weights-dir DIR/<arch>_<matcher>_d<D>.pt`` when present, else the shipped file;
+a missing one is an error unless ``--train-missing``, which trains it into ``--weights-dir``
+with ``cva-train``'s code and the shipped weights' recipe (``--train-scale`` shrinks the
+samples per epoch, for quick runs) on the protocol's training data.
+
+As everywhere, every scene is halved until its ground truth fits D, and ``--max-pixels`` scores
+a fixed random subset of ground-truth pixels per scene (the same pixels for every method).
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from dataclasses import dataclass
+import json
+import math
+from pathlib import Path
+import sys
+import time
+from typing import Any
+
+from cva_confidence_ros.errors import ConfigError, CVAError, DataError, ModelError
+
+__all__ = [
+    'COLUMNS',
+    'MATCHER_LABELS',
+    'PAPER_TABLE1',
+    'TableRow',
+    'format_table1',
+    'main',
+    'table_rows',
+]
+
+PROG = 'cva-table1'
+
+#: (method name, column title), in the paper's order, then the hand-crafted measures.
+COLUMNS: tuple[tuple[str, str], ...] = (
+    ('ccnn', 'CCNN'),
+    ('lfn', 'LFN'),
+    ('lgc_net', 'LGC-Net'),
+    ('cva_net', 'CVA-Net'),
+    ('pkrn', 'PKRN'),
+    ('mlm', 'MLM'),
+    ('lrd', 'LRD'),
+    ('lrc', 'LRC'),
+    ('score', 'Score'),
+)
+#: method → architecture of its weights.
+LEARNED: dict[str, str] = {'ccnn': 'ccnn', 'lfn': 'lfn', 'lgc_net': 'lgcnet', 'cva_net': 'cvanet'}
+MATCHER_LABELS: dict[str, str] = {
+    'census_bm': 'Census-BM',
+    'census_sgm': 'Census-SGM',
+    'mccnn_fast': 'MC-CNN',
+}
+#: The paper's Table 1 (AUC × 10²): data set → matcher → (Opt., CCNN, LFN, LGC-Net, CVA-Net).
+PAPER_TABLE1: dict[str, dict[str, tuple[float, float, float, float, float]]] = {
+    'KITTI 2012': {
+        'census_bm': (10.94, 12.37, 12.30, 11.97, 11.52),
+        'census_sgm': (0.92, 2.41, 2.44, 2.31, 2.25),
+        'mccnn_fast': (2.24, 2.89, 2.91, 2.71, 2.55),
+    },
+    'KITTI 2015': {
+        'census_bm': (9.07, 10.59, 10.49, 10.18, 9.86),
+        'census_sgm': (0.84, 2.36, 2.40, 2.39, 2.31),
+        'mccnn_fast': (2.46, 3.35, 3.35, 3.19, 3.02),
+    },
+    'Middlebury v3': {
+        'census_bm': (6.69, 9.01, 9.12, 8.36, 8.21),
+        'census_sgm': (2.26, 5.58, 6.14, 5.33, 5.40),
+        'mccnn_fast': (3.54, 5.22, 5.27, 4.91, 4.85),
+    },
+}
+#: The shipped weights' training recipe per architecture (see models/*.md).
+RECIPES: dict[str, dict[str, Any]] = {
+    'cvanet': {'mode': 'dense', 'crop_size': 16, 'batch_size': 256, 'epochs': 4,
+               'epochs_low_lr': 1, 'lr': 1e-3, 'samples_per_epoch': 30_000},
+    'ccnn': {'mode': 'dense', 'crop_size': 32, 'batch_size': 4096, 'epochs': 3,
+             'epochs_low_lr': 1, 'lr': 1e-3, 'samples_per_epoch': 400_000},
+    'lfn': {'mode': 'dense', 'crop_size': 32, 'batch_size': 4096, 'epochs': 3,
+            'epochs_low_lr': 1, 'lr': 1e-3, 'samples_per_epoch': 400_000},
+    'lgcnet': {'mode': 'dense', 'crop_size': 80, 'batch_size': 12_800, 'epochs': 3,
+               'epochs_low_lr': 1, 'lr': 1e-3, 'samples_per_epoch': 500_000},
+}
+DEVELOP_TRAIN = ('kitti2012', 'flyingthings3d', 'sceneflow_extra', 'tartanair', 'eth3d',
+                 'middlebury2001', 'middlebury2006')
+
+
+@dataclass(frozen=True)
+class TableRow:
+    """One data-set block of the table.
+
+    Attributes:
+        label: Row title (``KITTI 2012``, ...).
+        dataset: Registered data set name.
+        split: Data-set split (None = default).
+        first: Index of the first scene scored (KITTI 2012 in the paper protocol: 20).
+        missing: Why the row is empty ('' = it is scored).
+    """
+
+    label: str
+    dataset: str
+    split: str | None = None
+    first: int = 0
+    missing: str = ''
+
+
+def _scene_count(name: str, root: Path, split: str | None = None) -> int:
+    from cva_confidence_ros.datasets import list_scenes
+
+    try:
+        return len(list_scenes(name, root, split))
+    except (DataError, ConfigError):
+        return 0
+
+
+def resolve_protocol(protocol: str, root: Path, kitti2012_train: int) -> str:
+    """``paper`` or ``develop`` (``auto``: paper when KITTI 2012 has more pairs than used for
+    training)."""
+    if protocol != 'auto':
+        return protocol
+    return 'paper' if _scene_count('kitti2012', root) > kitti2012_train else 'develop'
+
+
+def table_rows(protocol: str, root: Path, kitti2012_train: int = 20) -> list[TableRow]:
+    """The rows of ``protocol`` on ``root``, each scored or with the reason it is missing."""
+    if protocol == 'paper':
+        rows = [
+            TableRow('KITTI 2012', 'kitti2012', first=kitti2012_train),
+            TableRow('KITTI 2015', 'kitti2015'),
+            TableRow('Middlebury v3', 'middlebury2014', 'trainingQ'),
+        ]
+    else:
+        rows = [
+            TableRow('KITTI 2012', 'kitti2012', missing=(
+                'every KITTI 2012 pair of this data root belongs to the training split (the '
+                'paper scores pairs 20–193 of the full download)')),
+            TableRow('KITTI 2015', 'kitti2015'),
+            TableRow('Middlebury v3', 'middlebury2014', 'trainingQ'),
+            TableRow('Middlebury 2003 (extra)', 'middlebury2003'),
+        ]
+    checked = []
+    for row in rows:
+        if not row.missing:
+            count = _scene_count(row.dataset, root, row.split)
+            if count <= row.first:
+                row = TableRow(row.label, row.dataset, row.split, row.first,
+                               f'no {row.dataset} pairs to score under {root}')
+        checked.append(row)
+    return checked
+
+
+def _mean(values: Sequence[float]) -> float:
+    return math.fsum(values) / len(values)
+
+
+def _cells(records: Sequence[dict[str, Any]]) -> dict[tuple[str, str], dict[str, float]]:
+    """(row label, matcher) → {'opt': ..., method: mean AUC × 10²}."""
+    grouped: dict[tuple[str, str], dict[str, list[float]]] = {}
+    optimal: dict[tuple[str, str], dict[str, float]] = {}
+    for r in records:
+        key = (r['row'], r['matcher'])
+        grouped.setdefault(key, {}).setdefault(r['method'], []).append(r['auc'])
+        optimal.setdefault(key, {}).setdefault(r['scene'], r['auc_opt'])
+    cells = {}
+    for key, methods in grouped.items():
+        cell = {name: _mean(values) * 100.0 for name, values in methods.items()}
+        cell['opt'] = _mean(list(optimal[key].values())) * 100.0
+        cells[key] = cell
+    return cells
+
+
+def _bold_best(values: dict[str, float], decimals: int) -> set[str]:
+    shown = {k: round(v, decimals) for k, v in values.items()}
+    if not shown:
+        return set()
+    best = min(shown.values())
+    return {k for k, v in shown.items() if v == best}
+
+
+def format_table1(
+    records: Sequence[dict[str, Any]],
+    rows: Sequence[TableRow],
+    matchers: Sequence[str],
+    columns: Sequence[tuple[str, str]] = COLUMNS,
+    decimals: int = 2,
+) -> str:
+    """Markdown in the layout of the paper's Table 1 (missing rows show ``–``).
+
+    Args:
+        records: Per-scene records with ``row``, ``scene``, ``matcher``, ``method``, ``auc``,
+            ``auc_opt``.
+        rows: The data-set blocks, in order.
+        matchers: Matcher order within a block.
+        columns: (method, title) pairs.
+        decimals: Digits after the decimal point.
+
+    Returns:
+        The table, ending in a newline; the best method value of each row is bold (ties: all).
+    """
+    cells = _cells(records)
+    header = ['data set', 'matcher', 'Opt.', *[title for _, title in columns]]
+    lines = [
+        '| ' + ' | '.join(header) + ' |',
+        '|' + '|'.join([':---', ':---'] + ['---:'] * (len(header) - 2)) + '|',
+    ]
+    for row in rows:
+        for matcher in matchers:
+            cell = cells.get((row.label, matcher), {})
+            values = {m: cell[m] for m, _ in columns if m in cell}
+            bold = _bold_best(values, decimals)
+            texts = [f'{cell["opt"]:.{decimals}f}' if 'opt' in cell else '–']
+            for method, _ in columns:
+                if method not in values:
+                    texts.append('–')
+                else:
+                    text = f'{values[method]:.{decimals}f}'
+                    texts.append(f'**{text}**' if method in bold else text)
+            label = MATCHER_LABELS.get(matcher, matcher)
+            lines.append('| ' + ' | '.join([row.label, label, *texts]) + ' |')
+    return '\n'.join(lines) + '\n'
+
+
+def format_paper_table1() -> str:
+    """The paper's own Table 1 (Opt., CCNN, LFN, LGC-Net, CVA-Net), best in bold."""
+    header = ['data set', 'matcher', 'Opt.', 'CCNN', 'LFN', 'LGC-Net', 'CVA-Net']
+    lines = ['| ' + ' | '.join(header) + ' |', '|:---|:---|' + '---:|' * 5]
+    for label, block in PAPER_TABLE1.items():
+        for matcher, values in block.items():
+            best = min(values[1:])
+            texts = [f'{values[0]:.2f}'] + [
+                f'**{v:.2f}**' if v == best else f'{v:.2f}' for v in values[1:]
+            ]
+            lines.append('| ' + ' | '.join([label, MATCHER_LABELS[matcher], *texts]) + ' |')
+    return '\n'.join(lines) + '\n'
+
+
+def save_table_png(
+    records: Sequence[dict[str, Any]],
+    rows: Sequence[TableRow],
+    matchers: Sequence[str],
+    path: Path,
+    title: str,
+    columns: Sequence[tuple[str, str]] = COLUMNS,
+) -> Path:
+    """The table as a PNG: each cell shaded by its AUC relative to the row's best (green)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    cells = _cells(records)
+    labels, texts, colours = [], [], []
+    for row in rows:
+        for matcher in matchers:
+            cell = cells.get((row.label, matcher), {})
+            values = {m: cell[m] for m, _ in columns if m in cell}
+            bold = _bold_best(values, 2)
+            best = min(values.values()) if values else 0.0
+            labels.append(f'{row.label} · {MATCHER_LABELS.get(matcher, matcher)}')
+            line, shade = [f'{cell["opt"]:.2f}' if 'opt' in cell else '–'], ['#eeeeee']
+            for method, _ in columns:
+                if method not in values:
+                    line.append('–')
+                    shade.append('#ffffff')
+                    continue
+                line.append(f'{values[method]:.2f}')
+                ratio = min(1.0, (values[method] / best - 1.0) if best > 0 else 1.0)
+                shade.append('#7fd17f' if method in bold else
+                             (1.0, 1.0 - 0.45 * ratio, 1.0 - 0.45 * ratio))
+            texts.append(line)
+            colours.append(shade)
+    figure = Figure(figsize=(1.0 * (len(columns) + 4), 0.32 * (len(labels) + 3)))
+    FigureCanvasAgg(figure)
+    axes = figure.add_subplot(111)
+    axes.axis('off')
+    table = axes.table(
+        cellText=texts,
+        cellColours=colours,
+        rowLabels=labels,
+        colLabels=['Opt.', *[t for _, t in columns]],
+        loc='center',
+    )
+    table.auto_set_font_size(False)
+    table.set_fontsize(8)
+    axes.set_title(title, fontsize=9)
+    figure.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=130)
+    return path
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Reproduce the paper's Table 1: AUC of CCNN, LFN, LGC-Net, CVA-Net and "
+        'the hand-crafted measures for every matcher on KITTI 2012 / 2015 and Middlebury v3.',
+    )
+    parser.add_argument('--data-root', type=Path, required=True,
+                        help='folder holding the data sets (e.g. ../shared/data)')
+    parser.add_argument('--protocol', choices=('auto', 'paper', 'develop'), default='auto',
+                        help='paper = full downloads; develop = train/develop split')
+    parser.add_argument('--out', type=Path, required=True,
+                        help='folder for table1.md, table1.json, table1.png')
+    parser.add_argument('--matchers', default='census_bm,census_sgm,mccnn_fast')
+    parser.add_argument('--methods', default=','.join(m for m, _ in COLUMNS),
+                        help='columns, in order (default all)')
+    parser.add_argument('--max-disparity', type=int, default=64)
+    parser.add_argument('--max-pixels', type=int, default=None,
+                        help='score a fixed random subset of N ground-truth pixels per scene')
+    parser.add_argument('--seed', type=int, default=0, help='seed of the pixel subsets')
+    parser.add_argument('--max-scenes', type=int, default=None,
+                        help='score at most this many scenes per data set')
+    parser.add_argument('--kitti2012-train', type=int, default=20,
+                        help='paper protocol: the first N KITTI 2012 pairs are training data')
+    parser.add_argument('--weights-dir', type=Path, default=None,
+                        help='look for <arch>_<matcher>_d<D>.pt here first (and train there)')
+    parser.add_argument('--train-missing', action='store_true',
+                        help='train missing weights with the shipped recipe')
+    parser.add_argument('--train-scale', type=float, default=1.0,
+                        help='scale the recipe samples per epoch (quick runs < 1)')
+    parser.add_argument('--train-synthetic', type=int, default=None,
+                        help='synthetic training pairs (default 24 develop, 0 paper)')
+    parser.add_argument('--train-synthetic-size', default=None,
+                        help='HxW of the synthetic training pairs (default by D)')
+    parser.add_argument('--train-datasets', default=None,
+                        help='comma-separated training data sets, or "none" (default by '
+                        'protocol)')
+    parser.add_argument('--device', default='cpu', choices=('cpu', 'cuda', 'auto'))
+    parser.add_argument('--threads', type=int, default=None, help='torch and numba threads')
+    return parser
+
+
+def _log(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def _names(text: str, what: str) -> list[str]:
+    names = [n.strip() for n in text.split(',') if n.strip()]
+    if not names:
+        raise ConfigError(f'expected a comma-separated list of {what}; got {text!r}')
+    return list(dict.fromkeys(names))
+
+
+def _weights_path(args: argparse.Namespace, arch: str, matcher: str) -> Path | None:
+    from cva_confidence_ros.model import default_weights_path, weights_file_name
+
+    name = weights_file_name(matcher, args.max_disparity, arch)
+    if args.weights_dir is not None and (args.weights_dir / name).is_file():
+        return args.weights_dir / name
+    try:
+        return default_weights_path(matcher, args.max_disparity, arch)
+    except ModelError:
+        return None
+
+
+def _train(args: argparse.Namespace, protocol: str, arch: str, matcher: str) -> Path:
+    from cva_confidence_ros.model import weights_file_name
+    from cva_confidence_ros.training import TrainConfig
+    from cva_confidence_ros.training.trainer import train
+
+    folder = args.weights_dir if args.weights_dir is not None else args.out / 'weights'
+    target = folder / weights_file_name(matcher, args.max_disparity, arch)
+    recipe = dict(RECIPES[arch])
+    recipe['samples_per_epoch'] = max(1, int(recipe['samples_per_epoch'] * args.train_scale))
+    if args.train_datasets is not None:
+        datasets = () if args.train_datasets == 'none' else tuple(
+            _names(args.train_datasets, 'data sets'))
+    else:
+        datasets = DEVELOP_TRAIN if protocol == 'develop' else ('kitti2012',)
+    synthetic = args.train_synthetic
+    if synthetic is None:
+        synthetic = 24 if protocol == 'develop' else 0
+    size = None
+    if args.train_synthetic_size:
+        height, _, width = args.train_synthetic_size.partition('x')
+        if not (height.isdigit() and width.isdigit()):
+            raise ConfigError(
+                f'--train-synthetic-size must be HxW, e.g. 64x128; got {args.train_synthetic_size!r}'
+            )
+        size = (int(height), int(width))
+    config = TrainConfig(
+        arch=arch,
+        matcher=matcher,
+        max_disparity=args.max_disparity,
+        data_root=str(args.data_root) if datasets else None,
+        datasets=datasets,
+        max_scenes=args.kitti2012_train if protocol == 'paper' else None,
+        synthetic=synthetic,
+        synthetic_size=size,
+        val_synthetic=2,
+        val_pixels=1500,
+        seed=1,
+        device=args.device,
+        threads=args.threads,
+        out=str(args.out / 'runs' / target.stem),
+        weights_out=str(target),
+        progress=False,
+        **recipe,
+    )
+    command = (
+        f'{PROG} --train-missing (arch {arch}, matcher {matcher}, data sets '
+        f'{",".join(datasets) or "none"}, synthetic {synthetic}, recipe {recipe})'
+    )
+    _log(f'training {target.name}: {command}')
+    train(config, command)
+    return target
+
+
+def run(args: argparse.Namespace) -> int:
+    """Score every method on every row; write the outputs. Raises ``CVAError`` on bad input."""
+    from cva_confidence_ros.confidence import CONFIDENCE_METHODS
+    from cva_confidence_ros.datasets import list_scenes, load_scene
+    from cva_confidence_ros.evaluation.scene import evaluate_scene
+    from cva_confidence_ros.matching import MATCHERS
+
+    if args.max_pixels is not None and args.max_pixels < 1:
+        raise ConfigError(f'--max-pixels must be ≥ 1; got {args.max_pixels}')
+    if not 0 < args.train_scale <= 1e3:
+        raise ConfigError(f'--train-scale must be in (0, 1000]; got {args.train_scale}')
+    if not args.data_root.is_dir():
+        raise DataError(f'--data-root {args.data_root} is not a folder')
+    if args.threads:
+        import torch
+
+        from cva_confidence_ros.training.trainer import _limit_numba_threads
+
+        _limit_numba_threads(args.threads)
+        torch.set_num_threads(args.threads)
+    matchers = _names(args.matchers, 'matchers')
+    for matcher in matchers:
+        MATCHERS.get(matcher)
+    methods = _names(args.methods, 'methods')
+    for method in methods:
+        CONFIDENCE_METHODS.get(method)
+    titles = dict(COLUMNS)
+    columns = [(m, titles.get(m, m)) for m in methods]
+    protocol = resolve_protocol(args.protocol, args.data_root, args.kitti2012_train)
+    rows = table_rows(protocol, args.data_root, args.kitti2012_train)
+    if all(row.missing for row in rows):
+        raise DataError(
+            f'no test data under {args.data_root}: '
+            + '; '.join(f'{r.label}: {r.missing}' for r in rows)
+        )
+    _log(f'protocol {protocol}; rows: ' + ', '.join(
+        r.label + (' (missing)' if r.missing else '') for r in rows))
+
+    weights: dict[tuple[str, str], Path] = {}
+    missing = []
+    for method in methods:
+        arch = LEARNED.get(method)
+        if arch is None:
+            continue
+        for matcher in matchers:
+            path = _weights_path(args, arch, matcher)
+            if path is None:
+                missing.append((arch, matcher))
+            else:
+                weights[(method, matcher)] = path
+    if missing and not args.train_missing:
+        listed = ', '.join(f'{a}/{m}' for a, m in missing)
+        raise ModelError(
+            f'no weights for {listed} at D = {args.max_disparity}; train them with '
+            f'--train-missing (or cva-train --arch ARCH) or give --weights-dir'
+        )
+    by_arch = {arch: method for method, arch in LEARNED.items()}
+    for arch, matcher in missing:
+        weights[(by_arch[arch], matcher)] = _train(args, protocol, arch, matcher)
+
+    built: dict[str, dict[str, Any]] = {}
+    for matcher in matchers:
+        built[matcher] = {}
+        for method in methods:
+            path = weights.get((method, matcher))
+            built[matcher][method] = CONFIDENCE_METHODS.get(method)(
+                matcher=matcher, max_disparity=args.max_disparity,
+                weights=str(path) if path else None, device=args.device,
+            )
+
+    records: list[dict[str, Any]] = []
+    jobs = []
+    for row in rows:
+        if row.missing:
+            continue
+        scenes = list_scenes(row.dataset, args.data_root, row.split)[row.first :]
+        jobs.extend((row, scene) for scene in scenes[: args.max_scenes])
+    started = time.perf_counter()
+    for number, (row, scene) in enumerate(jobs, start=1):
+        sample = load_scene(row.dataset, args.data_root, scene, split=row.split)
+        prefix = f'[{number}/{len(jobs)}] {row.dataset}/{scene}'
+        for matcher in matchers:
+            for record in evaluate_scene(
+                sample, matcher, built[matcher], max_disparity=args.max_disparity,
+                max_pixels=args.max_pixels, seed=args.seed, method_order=methods,
+                log=lambda message, p=prefix: _log(f'{p} {message}'),
+            ):
+                records.append({'row': row.label, **record.as_dict()})
+        _log(f'{prefix} done, {time.perf_counter() - started:.0f} s so far')
+
+    table = format_table1(records, rows, matchers, columns)
+    missing_rows = [r for r in rows if r.missing]
+    notes = [f'- {r.label}: not scored — {r.missing}.' for r in missing_rows]
+    subset = f'{args.max_pixels} ground-truth pixels per scene (seed {args.seed})' if (
+        args.max_pixels) else 'all ground-truth pixels'
+    markdown = '\n'.join([
+        f'AUC × 10², mean over scenes; protocol `{protocol}`, D = {args.max_disparity}, '
+        f'{subset}; bold = best non-optimal value of the row.',
+        '',
+        table,
+        *notes,
+        '',
+        "The paper's Table 1 (Mehltretter & Heipke 2019, D = 256, full data sets):",
+        '',
+        format_paper_table1(),
+    ])
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / 'table1.md').write_text(markdown, encoding='utf-8')
+    cells = _cells(records)
+    summary = {
+        'protocol': protocol,
+        'max_disparity': args.max_disparity,
+        'max_pixels': args.max_pixels,
+        'seed': args.seed,
+        'matchers': matchers,
+        'methods': methods,
+        'rows': [{'label': r.label, 'dataset': r.dataset, 'split': r.split, 'first': r.first,
+                  'missing': r.missing} for r in rows],
+        'weights': {f'{m}/{k}': str(p) for (m, k), p in weights.items()},
+        'cells': [{'row': label, 'matcher': matcher, **values}
+                  for (label, matcher), values in cells.items()],
+        'records': records,
+        'paper': {label: {m: dict(zip(['opt', 'ccnn', 'lfn', 'lgc_net', 'cva_net'], v,
+                                      strict=True)) for m, v in block.items()}
+                  for label, block in PAPER_TABLE1.items()},
+    }
+    (args.out / 'table1.json').write_text(json.dumps(summary, indent=2) + '\n', 'utf-8')
+    save_table_png(records, rows, matchers, args.out / 'table1.png',
+                   f'Table 1 reproduction ({protocol}, D = {args.max_disparity}): AUC × 10²',
+                   columns)
+    sys.stdout.write(markdown)
+    sys.stdout.flush()
+    _log(f'wrote {args.out / "table1.md"}, table1.json, table1.png')
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``cva-table1`` (``ros2 run cva_confidence_ros table1``).
+
+    Returns:
+        0 on success, 2 on bad input (one line on stderr), 1 if an output cannot be written.
+    """
+    args = _build_parser().parse_args(argv)
+    try:
+        return run(args)
+    except CVAError as exc:
+        print(f'{PROG}: error: {exc}', file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f'{PROG}: error: {exc}', file=sys.stderr)
+        return 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())

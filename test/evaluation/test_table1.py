@@ -1,0 +1,160 @@
+"""``cva-table1`` on a tiny synthetic data root in the KITTI / Middlebury layouts."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from cva_confidence_ros.datasets.io import write_pfm
+from cva_confidence_ros.datasets.synthetic import synthetic_pair
+from cva_confidence_ros.evaluation.table1 import (
+    COLUMNS,
+    PAPER_TABLE1,
+    format_paper_table1,
+    format_table1,
+    main,
+    table_rows,
+)
+
+D = 16
+
+
+@pytest.fixture(autouse=True)
+def _restore_threads():
+    import numba
+
+    threads, numba_threads = torch.get_num_threads(), numba.get_num_threads()
+    yield
+    numba.set_num_threads(numba_threads)
+    torch.set_num_threads(threads)
+
+
+def _write_kitti(root: Path, name: str, seeds: list[int], dirs: tuple[str, str, str]) -> None:
+    base = root / name / 'training'
+    for folder in dirs:
+        (base / folder).mkdir(parents=True, exist_ok=True)
+    for number, seed in enumerate(seeds):
+        pair = synthetic_pair(seed, 40, 64, D)
+        stem = f'{number:06d}_10.png'
+        cv2.imwrite(str(base / dirs[0] / stem), cv2.cvtColor(pair.left, cv2.COLOR_RGB2BGR)
+                    if pair.left.ndim == 3 else pair.left)
+        cv2.imwrite(str(base / dirs[1] / stem), cv2.cvtColor(pair.right, cv2.COLOR_RGB2BGR)
+                    if pair.right.ndim == 3 else pair.right)
+        gt = np.where(np.isfinite(pair.disparity), pair.disparity * 256.0, 0.0)
+        gt[::3] = 0  # sparse, like LiDAR
+        cv2.imwrite(str(base / dirs[2] / stem), gt.astype(np.uint16))
+
+
+def _write_middlebury(root: Path, scene: str, seed: int) -> None:
+    folder = root / 'middlebury2014' / 'trainingQ' / scene
+    folder.mkdir(parents=True)
+    pair = synthetic_pair(seed, 40, 64, D)
+    for name, image in (('im0.png', pair.left), ('im1.png', pair.right)):
+        cv2.imwrite(str(folder / name),
+                    cv2.cvtColor(image, cv2.COLOR_RGB2BGR) if image.ndim == 3 else image)
+    write_pfm(folder / 'disp0GT.pfm', np.where(np.isfinite(pair.disparity), pair.disparity,
+                                               np.inf).astype(np.float32))
+
+
+@pytest.fixture(scope='module')
+def data_root(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp('data')
+    _write_kitti(root, 'kitti2012', [101, 102], ('colored_0', 'colored_1', 'disp_occ'))
+    _write_kitti(root, 'kitti2015', [201, 202], ('image_2', 'image_3', 'disp_occ_0'))
+    _write_middlebury(root, 'Synth', 301)
+    return root
+
+
+def test_rows_per_protocol(data_root):
+    develop = table_rows('develop', data_root)
+    assert [r.label for r in develop] == ['KITTI 2012', 'KITTI 2015', 'Middlebury v3',
+                                          'Middlebury 2003 (extra)']
+    assert 'training split' in develop[0].missing
+    assert develop[1].missing == '' and develop[2].missing == ''
+    assert 'no middlebury2003 pairs' in develop[3].missing
+    paper = table_rows('paper', data_root, kitti2012_train=1)
+    assert [(r.label, r.first, r.missing) for r in paper] == [
+        ('KITTI 2012', 1, ''), ('KITTI 2015', 0, ''), ('Middlebury v3', 0, '')]
+    assert 'no kitti2012' in table_rows('paper', data_root, kitti2012_train=2)[0].missing
+
+
+def test_format_bold_and_missing():
+    rows = table_rows('develop', Path('/nonexistent'))
+    records = [
+        {'row': 'KITTI 2015', 'scene': s, 'matcher': 'census_bm', 'method': m, 'auc': a,
+         'auc_opt': 0.01}
+        for s, m, a in [('a', 'ccnn', 0.05), ('b', 'ccnn', 0.07), ('a', 'pkrn', 0.04),
+                        ('b', 'pkrn', 0.08)]
+    ]
+    table = format_table1(records, rows, ['census_bm'], [('ccnn', 'CCNN'), ('pkrn', 'PKRN')])
+    lines = table.splitlines()
+    assert lines[0] == '| data set | matcher | Opt. | CCNN | PKRN |'
+    assert '| KITTI 2015 | Census-BM | 1.00 | **6.00** | **6.00** |' in lines  # tie: both
+    assert '| KITTI 2012 | Census-BM | – | – | – |' in lines
+    paper = format_paper_table1()
+    assert '| Middlebury v3 | Census-SGM | 2.26 | 5.58 | 6.14 | **5.33** | 5.40 |' in paper
+    assert PAPER_TABLE1['KITTI 2012']['census_bm'][4] == 11.52
+
+
+def test_table1_trains_missing_weights_and_writes_outputs(data_root, tmp_path, capsys):
+    out = tmp_path / 'out'
+    # CVA-Net is left out here (its CPU inference alone would take minutes); the last run
+    # below adds it with weights from the weights folder.
+    methods = [m for m, _ in COLUMNS if m != 'cva_net']
+    args = ['--data-root', str(data_root), '--out', str(out), '--matchers', 'census_bm',
+            '--max-disparity', str(D), '--max-pixels', '300', '--weights-dir',
+            str(tmp_path / 'w'), '--threads', '1', '--protocol', 'develop',
+            '--methods', ','.join(methods)]
+    # Without weights (D = 16 is shipped for nothing) and without --train-missing: exit 2.
+    assert main(args) == 2
+    assert 'no weights for' in capsys.readouterr().err
+    quick = ['--train-missing', '--train-scale', '0.002', '--train-datasets', 'none',
+             '--train-synthetic', '2', '--train-synthetic-size', '48x64']
+    assert main([*args, *quick]) == 0
+    for arch in ('ccnn', 'lfn', 'lgcnet'):
+        assert (tmp_path / 'w' / f'{arch}_census_bm_d16.pt').is_file()
+    markdown = (out / 'table1.md').read_text()
+    header = '| data set | matcher | Opt. | ' + ' | '.join(
+        t for m, t in COLUMNS if m in methods) + ' |'
+    assert header in markdown
+    kitti15 = next(line for line in markdown.splitlines()
+                   if line.startswith('| KITTI 2015 | Census-BM |'))
+    assert kitti15.count('**') >= 2 and '–' not in kitti15
+    assert 'KITTI 2012: not scored' in markdown and "paper's Table 1" in markdown
+    summary = json.loads((out / 'table1.json').read_text())
+    assert summary['protocol'] == 'develop'
+    assert {r['row'] for r in summary['records']} == {'KITTI 2015', 'Middlebury v3'}
+    assert {r['method'] for r in summary['records']} == set(methods)
+    assert all(0 <= r['auc'] <= 1 and r['n_pixels'] <= 300 for r in summary['records'])
+    assert (out / 'table1.png').stat().st_size > 1000
+    # A second run finds the trained weights and gives the same numbers.
+    again = tmp_path / 'again'
+    assert main([*args[:3], str(again), *args[4:]]) == 0
+    assert json.loads((again / 'table1.json').read_text())['cells'] == summary['cells']
+    # All columns, CVA-Net from (random) weights in the weights folder, on a few pixels.
+    from cva_confidence_ros.model import CVANet, save_weights
+
+    torch.manual_seed(0)
+    save_weights(CVANet(D), tmp_path / 'w' / 'cvanet_census_bm_d16.pt', {'matcher': 'census_bm'})
+    full = tmp_path / 'full'
+    assert main([*args[:3], str(full), *args[4:-2], '--max-pixels', '20']) == 0
+    records = json.loads((full / 'table1.json').read_text())['records']
+    assert {r['method'] for r in records} == {m for m, _ in COLUMNS}
+
+
+def test_paper_protocol_on_a_tiny_root(data_root, tmp_path):
+    out = tmp_path / 'paper'
+    code = main(['--data-root', str(data_root), '--out', str(out), '--matchers', 'census_bm',
+                 '--methods', 'pkrn,score', '--max-disparity', str(D), '--kitti2012-train',
+                 '1', '--threads', '1'])
+    assert code == 0
+    summary = json.loads((out / 'table1.json').read_text())
+    assert summary['protocol'] == 'paper'
+    scored = {(r['row'], r['scene']) for r in summary['records']}
+    assert scored == {('KITTI 2012', '000001'), ('KITTI 2015', '000000'),
+                      ('KITTI 2015', '000001'), ('Middlebury v3', 'Synth')}
