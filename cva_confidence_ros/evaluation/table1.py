@@ -394,7 +394,8 @@ def _train(args: argparse.Namespace, protocol: str, arch: str, matcher: str) -> 
         height, _, width = args.train_synthetic_size.partition('x')
         if not (height.isdigit() and width.isdigit()):
             raise ConfigError(
-                f'--train-synthetic-size must be HxW, e.g. 64x128; got {args.train_synthetic_size!r}'
+                '--train-synthetic-size must be HxW, e.g. 64x128; got '
+                f'{args.train_synthetic_size!r}'
             )
         size = (int(height), int(width))
     config = TrainConfig(
