@@ -234,3 +234,16 @@ def test_predict_rejects_other_networks():
         predict_disparity_confidence(CVANet(16), np.zeros((4, 4)), np.zeros((4, 4), np.uint8))
     assert isinstance(_net('lfn'), LFN) and isinstance(_net('ccnn'), CCNN)
     assert isinstance(_net('lgcnet'), LGCNet)
+
+
+@pytest.mark.parametrize(('method', 'arch'), [('ccnn', 'ccnn'), ('lgc_net', 'lgcnet')])
+def test_usable_as_the_pipelines_confidence_method(shipped_like, method, arch):
+    from cva_confidence_ros.datasets.synthetic import synthetic_pair
+    from cva_confidence_ros.pipeline import PipelineConfig, StereoPipeline
+
+    pair = synthetic_pair(5, 32, 48, D)
+    config = PipelineConfig(matcher='census_bm', max_disparity=D, confidence_method=method,
+                            model_path=str(shipped_like[arch]))
+    result = StereoPipeline(config).process(pair.left, pair.right)
+    assert result.confidence.shape == (32, 48)
+    assert ((result.confidence > 0) & (result.confidence < 1)).all()
