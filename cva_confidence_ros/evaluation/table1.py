@@ -344,6 +344,10 @@ def _build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--train-datasets', default=None,
                         help='comma-separated training data sets, or "none" (default by '
                         'protocol)')
+    parser.add_argument('--reuse', type=Path, default=None,
+                        help='records JSON of an earlier cva-evaluate / cva-table1 run with the '
+                        'same D, --max-pixels and --seed: its (scene, matcher, method) '
+                        'results are taken over after a consistency check, not recomputed')
     parser.add_argument('--device', default='cpu', choices=('cpu', 'cuda', 'auto'))
     parser.add_argument('--threads', type=int, default=None, help='torch and numba threads')
     return parser
@@ -426,6 +430,27 @@ def _train(args: argparse.Namespace, protocol: str, arch: str, matcher: str) -> 
     return target
 
 
+def _load_reusable(
+    path: Path, methods: Sequence[str]
+) -> dict[tuple[str, str, str], dict[str, dict[str, Any]]]:
+    """(dataset, scene, matcher) → method → record, from a records JSON (a list, or the
+    ``records`` of a ``table1.json``)."""
+    from cva_confidence_ros.evaluation.records import EvalRecord
+
+    try:
+        data = json.loads(path.read_text(encoding='utf-8'))
+    except (OSError, json.JSONDecodeError) as exc:
+        raise DataError(f'cannot read --reuse records {path}: {exc}') from None
+    items = data.get('records', []) if isinstance(data, dict) else data
+    found: dict[tuple[str, str, str], dict[str, dict[str, Any]]] = {}
+    for item in items:
+        record = EvalRecord.from_mapping(item).as_dict()
+        if record['method'] in methods:
+            key = (str(record['dataset']), str(record['scene']), str(record['matcher']))
+            found.setdefault(key, {})[str(record['method'])] = record
+    return found
+
+
 def run(args: argparse.Namespace) -> int:
     """Score every method on every row; write the outputs. Raises ``CVAError`` on bad input."""
     from cva_confidence_ros.confidence import CONFIDENCE_METHODS
@@ -496,6 +521,7 @@ def run(args: argparse.Namespace) -> int:
                 weights=str(path) if path else None, device=args.device,
             )
 
+    reusable = _load_reusable(args.reuse, methods) if args.reuse else {}
     records: list[dict[str, Any]] = []
     jobs = []
     for row in rows:
@@ -508,12 +534,32 @@ def run(args: argparse.Namespace) -> int:
         sample = load_scene(row.dataset, args.data_root, scene, split=row.split)
         prefix = f'[{number}/{len(jobs)}] {row.dataset}/{scene}'
         for matcher in matchers:
-            for record in evaluate_scene(
-                sample, matcher, built[matcher], max_disparity=args.max_disparity,
-                max_pixels=args.max_pixels, seed=args.seed, method_order=methods,
-                log=lambda message, p=prefix: _log(f'{p} {message}'),
-            ):
-                records.append({'row': row.label, **record.as_dict()})
+            old = reusable.get((row.dataset, scene, matcher), {})
+            todo = [m for m in methods if m not in old]
+            if len(todo) == len(methods) or not todo:
+                old, todo = {}, list(methods)  # nothing to check reused records against
+            fresh = {
+                record.method: {'row': row.label, **record.as_dict()}
+                for record in evaluate_scene(
+                    sample, matcher, built[matcher], max_disparity=args.max_disparity,
+                    max_pixels=args.max_pixels, seed=args.seed, method_order=todo,
+                    log=lambda message, p=prefix: _log(f'{p} {message}'),
+                )
+            }
+            check = next(iter(fresh.values()))
+            for method, item in old.items():
+                same = (item['n_pixels'] == check['n_pixels']
+                        and abs(item['error_rate'] - check['error_rate']) < 1e-9)
+                if not same:
+                    raise DataError(
+                        f'--reuse {args.reuse}: {row.dataset}/{scene} {matcher} {method} was '
+                        f'scored on other pixels ({item["n_pixels"]} px, error rate '
+                        f'{item["error_rate"]:.6f}; now {check["n_pixels"]} px, '
+                        f'{check["error_rate"]:.6f}): use the same D, --max-pixels and --seed'
+                    )
+                fresh[method] = {'row': row.label, **item, 'reused': True}
+                _log(f'{prefix} {matcher} {method} reused: AUC {100 * item["auc"]:.2f}')
+            records.extend(fresh[m] for m in methods)
         _log(f'{prefix} done, {time.perf_counter() - started:.0f} s so far')
 
     table = format_table1(records, rows, matchers, columns)
@@ -521,6 +567,10 @@ def run(args: argparse.Namespace) -> int:
     notes = [f'- {r.label}: not scored — {r.missing}.' for r in missing_rows]
     subset = f'{args.max_pixels} ground-truth pixels per scene (seed {args.seed})' if (
         args.max_pixels) else 'all ground-truth pixels'
+    reused = sorted({r['method'] for r in records if r.get('reused')})
+    if reused:
+        subset += (f'; {", ".join(reused)} taken over from `{args.reuse.name}` (same pixels, '
+                   'checked by their error rate)')
     markdown = '\n'.join([
         f'AUC × 10², mean over scenes; protocol `{protocol}`, D = {args.max_disparity}, '
         f'{subset}; bold = best non-optimal value of the row.',

@@ -136,6 +136,17 @@ def test_table1_trains_missing_weights_and_writes_outputs(data_root, tmp_path, c
     again = tmp_path / 'again'
     assert main([*args[:3], str(again), *args[4:]]) == 0
     assert json.loads((again / 'table1.json').read_text())['cells'] == summary['cells']
+    # --reuse takes records over (checked by pixel count and error rate) instead of scoring.
+    taken = [dict(r, auc=0.5) for r in summary['records'] if r['method'] == 'ccnn']
+    (tmp_path / 'old.json').write_text(json.dumps(taken))
+    reuse = tmp_path / 'reuse'
+    assert main([*args[:3], str(reuse), *args[4:], '--reuse', str(tmp_path / 'old.json')]) == 0
+    cells = json.loads((reuse / 'table1.json').read_text())['cells']
+    assert {c['ccnn'] for c in cells} == {50.0}
+    assert [c['pkrn'] for c in cells] == [c['pkrn'] for c in summary['cells']]
+    (tmp_path / 'bad.json').write_text(json.dumps([dict(r, error_rate=0.9) for r in taken]))
+    assert main([*args[:3], str(reuse), *args[4:], '--reuse', str(tmp_path / 'bad.json')]) == 2
+    assert 'scored on other pixels' in capsys.readouterr().err
     # All columns, CVA-Net from (random) weights in the weights folder, on a few pixels.
     from cva_confidence_ros.model import CVANet, save_weights
 
