@@ -247,3 +247,20 @@ def test_usable_as_the_pipelines_confidence_method(shipped_like, method, arch):
     result = StereoPipeline(config).process(pair.left, pair.right)
     assert result.confidence.shape == (32, 48)
     assert ((result.confidence > 0) & (result.confidence < 1)).all()
+
+
+@pytest.mark.parametrize('matcher', ['census_bm', 'census_sgm', 'mccnn_fast'])
+@pytest.mark.parametrize(('method', 'arch'), [('ccnn', 'ccnn'), ('lfn', 'lfn'),
+                                              ('lgc_net', 'lgcnet')])
+def test_shipped_weights_load_and_have_cards(method, arch, matcher):
+    from cva_confidence_ros.model import default_weights_path
+
+    try:
+        path = default_weights_path(matcher, 64, arch)
+    except ModelError:
+        pytest.skip(f'no shipped {arch} weights for {matcher}')
+    built = CONFIDENCE_METHODS.get(method)(matcher=matcher, max_disparity=64)
+    assert built.meta['arch'] == arch and built.meta['samples_seen'] > 0
+    card = path.with_suffix('.md').read_text()
+    assert card.startswith(f'# {built.meta["network"]} weights')
+    assert '## Evaluation on the develop split' in card and '(to be added)' not in card
