@@ -1,4 +1,4 @@
-"""CVA-Net: the network, its inference on whole images or pixel subsets, and weights I/O."""
+"""CVA-Net: the network, its inference (whole, per pixel, sparse + filled) and weights I/O."""
 
 from __future__ import annotations
 
@@ -18,6 +18,12 @@ from cva_confidence_ros.model.network import (
     expected_parameter_count,
     keras_parameter_count,
 )
+from cva_confidence_ros.model.sparse import (
+    SparseConfig,
+    SparseEvaluator,
+    SparseResult,
+    sparse_confidence,
+)
 from cva_confidence_ros.model.weights import (
     default_weights_path,
     load_weights,
@@ -31,6 +37,9 @@ __all__ = [
     'PATCH_SIZE',
     'CVANet',
     'FoldedCVANet',
+    'SparseConfig',
+    'SparseEvaluator',
+    'SparseResult',
     'default_weights_path',
     'expected_parameter_count',
     'fold_batchnorm',
@@ -41,6 +50,7 @@ __all__ = [
     'predict_confidence_at',
     'resolve_device',
     'save_weights',
+    'sparse_confidence',
     'tile_shape',
     'weights_file_name',
     'weights_search_dirs',
