@@ -63,6 +63,7 @@ from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.model.inference import (
     PAD,
     CVANet,
+    _check_pixels,
     _check_volume,
     _unwrap,
     fold_batchnorm,
@@ -361,6 +362,27 @@ class SparseEvaluator:
                         values = self._dense(tile, way, ys, xs)
                     result[ys + y0, xs + x0] = values
         return result
+
+    def at(self, cost_volume: np.ndarray, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
+        """Network confidence at the pixels (ys, xs) from 13×13×D extracts.
+
+        Args:
+            cost_volume: (D, H, W) float normalised cost volume in [0, 1].
+            ys: (N,) integer rows in [0, H).
+            xs: (N,) integer columns in [0, W).
+
+        Returns:
+            (N,) float32 in (0, 1), equal to ``self(cost_volume)[ys, xs]`` (within 1e-5).
+
+        Raises:
+            InputError: Bad volume, or pixels outside the image.
+        """
+        volume = _check_volume(self.net, cost_volume)
+        ys, xs = _check_pixels(ys, xs, volume.shape[1:])
+        padded = pad_cost_volume(volume)
+        windows = sliding_window_view(padded, (PATCH_SIZE, PATCH_SIZE), axis=(1, 2))
+        with torch.inference_mode(), precision_context(self.device, self.precision):
+            return self._extracts(windows, ys, xs)
 
     def _dense(self, tile: torch.Tensor, way: str, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
         index_y = torch.from_numpy(ys).to(self.device)
