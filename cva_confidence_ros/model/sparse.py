@@ -268,6 +268,8 @@ class SparseEvaluator:
         self._meta: nn.Module | None = None
         #: Tiles evaluated per way since construction (for benchmarks and tests).
         self.path_counts: dict[str, int] = {'tile': 0, 'fused': 0, 'extracts': 0}
+        #: Floating-point operations run since construction (counted, not timed).
+        self.flops_done = 0.0
 
     # -- operation counts ---------------------------------------------------------------------
     def _flops(self, kind: str, rows: int, columns: int) -> float:
@@ -297,9 +299,8 @@ class SparseEvaluator:
             self._flop_cache[key] = float(counter.get_total_flops())
         return self._flop_cache[key]
 
-    def _choose(self, rows: int, columns: int, count: int) -> str:
-        if self.path != 'auto':
-            return self.path
+    def _costs(self, rows: int, columns: int, count: int) -> dict[str, float]:
+        """Operations of each available way for ``count`` wanted pixels of a rows×columns tile."""
         costs = {
             'tile': self._flops('tile', rows, columns),
             'extracts': count * self._flops('tile', 1, 1),
@@ -308,7 +309,14 @@ class SparseEvaluator:
             costs['fused'] = self._flops('fusion', rows, columns) + count * self._flops(
                 'head', 1, 1
             )
-        return min(costs, key=costs.__getitem__)
+        return costs
+
+    def _choose(self, rows: int, columns: int, count: int) -> str:
+        costs = self._costs(rows, columns, count)
+        way = min(costs, key=costs.__getitem__) if self.path == 'auto' else self.path
+        self.path_counts[way] += 1
+        self.flops_done += costs[way]
+        return way
 
     # -- evaluation ---------------------------------------------------------------------------
     def __call__(self, cost_volume: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
@@ -349,7 +357,6 @@ class SparseEvaluator:
                     if ys.size == 0:
                         continue
                     way = self._choose(y1 - y0, x1 - x0, ys.size)
-                    self.path_counts[way] += 1
                     if way == 'extracts':
                         if windows is None:
                             windows = sliding_window_view(
@@ -381,6 +388,8 @@ class SparseEvaluator:
         ys, xs = _check_pixels(ys, xs, volume.shape[1:])
         padded = pad_cost_volume(volume)
         windows = sliding_window_view(padded, (PATCH_SIZE, PATCH_SIZE), axis=(1, 2))
+        self.path_counts['extracts'] += 1
+        self.flops_done += ys.size * self._flops('tile', 1, 1)
         with torch.inference_mode(), precision_context(self.device, self.precision):
             return self._extracts(windows, ys, xs)
 
