@@ -37,7 +37,8 @@ class PipelineConfig:
             rest is filled by joint-bilateral interpolation (1 = every pixel, exact).
         cva_cascade: ``none``, ``pkrn`` or ``lrd``: a cheap measure decides the pixels it is
             sure of; the network runs on the others (``lrd`` adds the right-view volume).
-        cva_cascade_fraction: Share (0, 1] of the pixels the cascade hands to the network.
+        cva_cascade_fraction: Share (0, 1] of the pixels the cascade hands to the network (the
+            least confident by the cheap measure).
         cva_precision: ``fp32``, ``bf16`` or ``fp16`` (CUDA only) arithmetic of the network.
     """
 

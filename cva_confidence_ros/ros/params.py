@@ -224,7 +224,7 @@ PIPELINE_PARAMETERS: tuple[ParamSpec, ...] = (
     ),
     _pipeline(
         'cva_cascade_fraction',
-        'Share of the pixels the cascade leaves undecided (middle of its order) for CVA-Net.',
+        'Share of the pixels the cascade leaves to CVA-Net (the least confident by its measure).',
         low=0.01,
         high=1.0,
     ),

@@ -231,15 +231,22 @@ def test_monotone_map():
         monotone_map(np.array([]), np.array([]), x)
 
 
-def test_cascade_selection_takes_the_middle_band():
+def test_cascade_selection_takes_the_least_confident():
     rank = np.linspace(0, 1, 400).reshape(20, 20)
     candidates = np.ones_like(rank, bool)
     undecided, calibration = cascade_selection(rank, candidates, 0.25)
     assert undecided.sum() == 100
-    assert rank[undecided].min() > 0.35 and rank[undecided].max() < 0.65
+    assert rank[undecided].max() < rank[~undecided].min()
     assert calibration.sum() == max(MIN_CALIBRATION, 100 // CALIBRATION_RATIO)
     assert not (calibration & undecided).any()
-    assert rank[calibration].min() == 0.0 and rank[calibration].max() == 1.0
+    assert rank[calibration].min() == rank[~undecided].min() and rank[calibration].max() == 1.0
+    # On a stride grid only grid pixels are calibration candidates.
+    grid = np.zeros_like(candidates)
+    grid[::4, ::4] = True
+    sparse_undecided, sparse_calibration = cascade_selection(rank, grid, 0.25)
+    assert (sparse_calibration <= grid).all()
+    # 15 decided grid pixels, fewer than MIN_CALIBRATION: all of them calibrate.
+    np.testing.assert_array_equal(sparse_calibration, grid & ~sparse_undecided)
     everything, none = cascade_selection(rank, candidates, 1.0)
     assert everything.all() and not none.any()
 
