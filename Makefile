@@ -13,7 +13,7 @@ DEPS := numpy scipy opencv-python-headless scikit-image numba matplotlib tqdm \
 TEST_DEPS := pytest pytest-timeout colcon-core colcon-python-setup-py colcon-ros ruff
 DEMO_OUT ?= out/demo
 
-.PHONY: setup test demo bench lint clean
+.PHONY: setup test demo bench bench-fast lint clean
 
 setup: $(STAMP)
 
@@ -33,6 +33,11 @@ demo: setup
 
 bench: setup
 	$(BIN)/cva-benchmark --json out/bench.json
+
+# CVA-Net fast paths at 320x240, D = 64, 1 thread; auc_rel needs the develop split.
+bench-fast: setup
+	OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 NUMBA_NUM_THREADS=1 $(BIN)/cva-benchmark --suite fast \
+		$(if $(wildcard ../shared/data),--data-root ../shared/data,) --json out/bench_fast.json
 
 lint: setup
 	$(BIN)/ruff check cva_confidence_ros msg_tools test

@@ -563,9 +563,10 @@ def _parser() -> argparse.ArgumentParser:
                         f'{_BASELINE} is always added as the reference')
     parser.add_argument('--json', type=Path, default=None, metavar='PATH',
                         help='write the records as a JSON list to PATH')
-    parser.add_argument('--suite', choices=('matchers', 'node'), default='matchers',
-                        help='matchers (this table) or node: end-to-end latency of cva-node '
-                        'over DDS (see cva-benchmark --suite node --help)')
+    parser.add_argument('--suite', choices=('matchers', 'node', 'fast'), default='matchers',
+                        help='matchers (this table), node: end-to-end latency of cva-node '
+                        'over DDS (see cva-benchmark --suite node --help), or fast: CVA-Net '
+                        'fast paths with their AUC cost (cva-benchmark --suite fast --help)')
     parser.add_argument('--network', action=argparse.BooleanOptionalAction, default=True,
                         help=f'add the CVA-Net row {_NETWORK_PREFIX}<D> (on a crop of the '
                         f'{NETWORK_MATCHER} cost volume, extrapolated to the frame by FLOPs)')
@@ -579,12 +580,16 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``cva-benchmark``; returns the process exit code."""
     suite = argparse.ArgumentParser(add_help=False)
-    suite.add_argument('--suite', choices=('matchers', 'node'), default='matchers')
+    suite.add_argument('--suite', choices=('matchers', 'node', 'fast'), default='matchers')
     chosen, rest = suite.parse_known_args(argv)
     if chosen.suite == 'node':
         from cva_confidence_ros.node_benchmark import main as node_main
 
         return node_main(rest)
+    if chosen.suite == 'fast':
+        from cva_confidence_ros.fast_benchmark import main as fast_main
+
+        return fast_main(rest)
     parser = _parser()
     args = parser.parse_args(rest)
     try:

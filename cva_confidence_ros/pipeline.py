@@ -33,6 +33,13 @@ class PipelineConfig:
         downsample: 1, 2 or 4; images are shrunk by this factor before matching.
         lr_check: Also run a left–right consistency check and mark failing pixels invalid.
         tile_budget_mb: Memory budget of one network tile at inference.
+        cva_stride: 1, 2, 4 or 8: the network runs on every stride-th pixel of each axis, the
+            rest is filled by joint-bilateral interpolation (1 = every pixel, exact).
+        cva_cascade: ``none``, ``pkrn`` or ``lrd``: a cheap measure decides the pixels it is
+            sure of; the network runs on the others (``lrd`` adds the right-view volume).
+        cva_cascade_fraction: Share (0, 1] of the pixels the cascade hands to the network (the
+            least confident by the cheap measure).
+        cva_precision: ``fp32``, ``bf16`` or ``fp16`` (CUDA only) arithmetic of the network.
     """
 
     matcher: str = 'census_bm'
@@ -44,6 +51,10 @@ class PipelineConfig:
     downsample: int = 1
     lr_check: bool = False
     tile_budget_mb: float = 512.0
+    cva_stride: int = 1
+    cva_cascade: str = 'none'
+    cva_cascade_fraction: float = 0.25
+    cva_precision: str = 'fp32'
 
     def __post_init__(self) -> None:
         from cva_confidence_ros.confidence import CONFIDENCE_METHODS
@@ -70,6 +81,15 @@ class PipelineConfig:
             raise ConfigError(f'downsample must be 1, 2 or 4; got {self.downsample}')
         if self.tile_budget_mb <= 0:
             raise ConfigError(f'tile_budget_mb must be > 0; got {self.tile_budget_mb}')
+        from cva_confidence_ros.model import SparseConfig
+
+        # Raises ConfigError naming the cva_* field.
+        SparseConfig(
+            stride=self.cva_stride,
+            cascade=self.cva_cascade,
+            cascade_fraction=self.cva_cascade_fraction,
+            precision=self.cva_precision,
+        )
 
     def replace(self, **changes: object) -> PipelineConfig:
         """Return a copy with ``changes`` applied (validated)."""
@@ -147,6 +167,10 @@ class StereoPipeline:
             weights=config.model_path or None,
             device=config.device,
             tile_budget_mb=config.tile_budget_mb,
+            cva_stride=config.cva_stride,
+            cva_cascade=config.cva_cascade,
+            cva_cascade_fraction=config.cva_cascade_fraction,
+            cva_precision=config.cva_precision,
         )
 
     def _matcher_params(self) -> dict[str, Any]:

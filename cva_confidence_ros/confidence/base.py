@@ -27,7 +27,20 @@ __all__ = [
 ]
 
 #: Options the pipeline passes to every factory; methods that do not use them ignore them.
-GENERIC_OPTIONS = frozenset({'matcher', 'max_disparity', 'weights', 'device', 'tile_budget_mb'})
+GENERIC_OPTIONS = frozenset(
+    {
+        'matcher',
+        'max_disparity',
+        'weights',
+        'device',
+        'tile_budget_mb',
+        # Sparse evaluation and precision of a cost-volume network (cva_net and its kin).
+        'cva_stride',
+        'cva_cascade',
+        'cva_cascade_fraction',
+        'cva_precision',
+    }
+)
 
 
 def _as_volume(name: str, volume: Any) -> np.ndarray:

@@ -1,4 +1,9 @@
-"""``cva_net``: CVA-Net confidence from the left-reference cost volume (the learned method)."""
+"""``cva_net``: CVA-Net confidence from the left-reference cost volume (the learned method).
+
+By default the network runs on every pixel (the exact path). ``cva_stride``, ``cva_cascade``
+and ``cva_cascade_fraction`` make it run on a subset and fill the rest
+(:mod:`cva_confidence_ros.model.sparse`); ``cva_precision`` picks its arithmetic.
+"""
 
 from __future__ import annotations
 
@@ -7,6 +12,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
+from torch import nn
 
 from cva_confidence_ros.confidence.base import (
     CONFIDENCE_METHODS,
@@ -15,12 +21,10 @@ from cva_confidence_ros.confidence.base import (
 )
 from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.model import (
-    FoldedCVANet,
+    SparseConfig,
+    SparseEvaluator,
     default_weights_path,
-    fold_batchnorm,
     load_weights,
-    predict_confidence,
-    predict_confidence_at,
     resolve_device,
 )
 
@@ -28,7 +32,11 @@ __all__ = ['CVANetConfidence']
 
 
 class CVANetConfidence(ConfidenceMethod):
-    """CVA-Net applied to the whole cost volume; weights are loaded once, at construction.
+    """CVA-Net applied to the cost volume; weights are loaded once, at construction.
+
+    Any network with CVA-Net's contract that :func:`~cva_confidence_ros.model.load_weights`
+    returns (for instance a lighter network's weights file given as ``weights``) runs the same
+    way, sparse evaluation included.
 
     Args:
         matcher: The matcher whose cost volumes the weights were trained on.
@@ -38,11 +46,17 @@ class CVANetConfidence(ConfidenceMethod):
             :func:`~cva_confidence_ros.model.default_weights_path`.
         device: ``'cpu'``, ``'cuda'`` or ``'auto'`` (CUDA when available).
         tile_budget_mb: Memory budget of one network tile, in megabytes.
+        cva_stride: 1, 2, 4 or 8: run the network on every stride-th pixel per axis and fill
+            the others by joint-bilateral interpolation (1 = every pixel).
+        cva_cascade: ``none``, ``pkrn`` or ``lrd``: a cheap measure decides the pixels it is
+            sure of first (``lrd`` makes the pipeline compute the right-reference volume).
+        cva_cascade_fraction: Share (0, 1] of the pixels the cascade hands to the network.
+        cva_precision: ``fp32``, ``bf16`` or ``fp16`` (CUDA only).
         **_: Other generic options of the pipeline, ignored.
 
     Raises:
         ModelError: Weights missing, corrupt, or trained for another matcher or depth.
-        ConfigError: Bad device or budget.
+        ConfigError: Bad device, budget or sparse option (the message names the option).
     """
 
     needs_right: ClassVar[bool] = False
@@ -54,10 +68,22 @@ class CVANetConfidence(ConfidenceMethod):
         weights: str | os.PathLike[str] | None = None,
         device: str = 'cpu',
         tile_budget_mb: float = 512.0,
+        cva_stride: int = 1,
+        cva_cascade: str = 'none',
+        cva_cascade_fraction: float = 0.25,
+        cva_precision: str = 'fp32',
         **_: Any,
     ) -> None:
         if tile_budget_mb <= 0:
             raise ConfigError(f'tile_budget_mb must be > 0; got {tile_budget_mb}')
+        self.sparse = SparseConfig(
+            stride=cva_stride,
+            cascade=cva_cascade,
+            cascade_fraction=cva_cascade_fraction,
+            precision=cva_precision,
+        )
+        # An instance attribute: the pipeline asks for the right view only for LRD.
+        self.needs_right = self.sparse.cascade == 'lrd'  # type: ignore[misc]
         self.matcher = matcher
         self.max_disparity = int(max_disparity)
         self.device = resolve_device(device)
@@ -67,13 +93,26 @@ class CVANetConfidence(ConfidenceMethod):
             path, matcher=matcher, max_disparity=self.max_disparity, device=self.device
         )
         self.weights_path = path
-        # Folding once here saves it on every frame.
-        self._net = fold_batchnorm(net)
+        # Built once: BN folding and the operation counts of the tile shapes are not redone
+        # on every frame.
+        self._evaluator = SparseEvaluator(
+            net, self.device, self.tile_budget_mb, precision=self.sparse.precision
+        )
+        self._cheap = (
+            None
+            if self.sparse.cascade == 'none'
+            else CONFIDENCE_METHODS.get(self.sparse.cascade)()
+        )
 
     @property
-    def net(self) -> FoldedCVANet:
+    def net(self) -> nn.Module:
         """The loaded network, batch normalisations folded in (inference only)."""
-        return self._net
+        return self._evaluator.net
+
+    @property
+    def evaluator(self) -> SparseEvaluator:
+        """The network's evaluator (which way each tile ran: ``evaluator.path_counts``)."""
+        return self._evaluator
 
     def _check(self, inputs: ConfidenceInputs) -> None:
         if inputs.max_disparity != self.max_disparity:
@@ -95,9 +134,13 @@ class CVANetConfidence(ConfidenceMethod):
                 another matcher than the weights were trained for.
         """
         self._check(inputs)
-        return predict_confidence(
-            self._net, inputs.cost_volume, device=self.device, tile_budget_mb=self.tile_budget_mb
+        if self.sparse.exact:
+            return self._evaluator(inputs.cost_volume)
+        cheap = None if self._cheap is None else self._cheap(inputs)
+        result = self._evaluator.confidence(
+            inputs.cost_volume, inputs.image, inputs.disparity, self.sparse, cheap
         )
+        return result.confidence
 
     def confidence_at(
         self, inputs: ConfidenceInputs, ys: np.ndarray, xs: np.ndarray
@@ -110,13 +153,18 @@ class CVANetConfidence(ConfidenceMethod):
             xs: (N,) integer columns.
 
         Returns:
-            (N,) float32, equal to ``self(inputs)[ys, xs]`` (within 1e-5).
+            (N,) float32, equal to ``self(inputs)[ys, xs]`` (within 1e-5). With sparse
+            evaluation a pixel's value depends on its neighbours, so the whole map is computed
+            and indexed.
 
         Raises:
             InputError: As for :meth:`__call__`, or pixels outside the image.
         """
         self._check(inputs)
-        return predict_confidence_at(self._net, inputs.cost_volume, ys, xs, device=self.device)
+        if not self.sparse.exact:
+            ys, xs = np.asarray(ys), np.asarray(xs)
+            return self(inputs)[ys, xs]
+        return self._evaluator.at(inputs.cost_volume, ys, xs)
 
 
 CONFIDENCE_METHODS.add('cva_net', CVANetConfidence)

@@ -1,4 +1,4 @@
-"""CVA-Net: the network, its inference on whole images or pixel subsets, and weights I/O."""
+"""CVA-Net: the network, its inference (whole, per pixel, sparse + filled) and weights I/O."""
 
 from __future__ import annotations
 
@@ -18,6 +18,12 @@ from cva_confidence_ros.model.network import (
     expected_parameter_count,
     keras_parameter_count,
 )
+from cva_confidence_ros.model.sparse import (
+    SparseConfig,
+    SparseEvaluator,
+    SparseResult,
+    sparse_confidence,
+)
 from cva_confidence_ros.model.weights import (
     ARCHITECTURES,
     architecture_of,
@@ -35,6 +41,9 @@ __all__ = [
     'CVANet',
     'FoldedCVANet',
     'architecture_of',
+    'SparseConfig',
+    'SparseEvaluator',
+    'SparseResult',
     'default_weights_path',
     'expected_parameter_count',
     'fold_batchnorm',
@@ -45,6 +54,7 @@ __all__ = [
     'predict_confidence_at',
     'resolve_device',
     'save_weights',
+    'sparse_confidence',
     'tile_shape',
     'weights_file_name',
     'weights_search_dirs',

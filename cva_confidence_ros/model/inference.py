@@ -105,18 +105,32 @@ class FoldedCVANet(nn.Module):
             self.fc2 = _folded_copy(net.classification.fc2, None, None, None, as_1d=True)
         self.eval()
 
-    def forward_logits(self, volume: torch.Tensor) -> torch.Tensor:
-        """(B, 1, D, H + 12, W + 12) float32 → (B, H, W) float32 logits."""
+    def fusion_features(self, volume: torch.Tensor) -> torch.Tensor:
+        """The neighbourhood fusion: (B, 1, D, H + 12, W + 12) → (B, 32, D − 12, H, W).
+
+        With :meth:`head_logits` this splits the network at the per-pixel cost curves, so
+        that :mod:`cva_confidence_ros.model.sparse` can fuse densely and classify only a
+        subset of the pixels.
+        """
         x = volume
         for conv in self.fusion:
             x = F.relu(conv(x))
+        return x
+
+    def head_logits(self, curves: torch.Tensor) -> torch.Tensor:
+        """Depth processing and classification of fused curves: (N, 32, D − 12) → (N,) logits."""
+        x = curves
+        for conv, k in zip(self.depth, DEPTH_KERNELS, strict=True):
+            x = F.relu(conv(F.pad(x, ((k - 1) // 2, k // 2))))
+        return self.fc2(F.relu(self.fc1(x))).reshape(-1)
+
+    def forward_logits(self, volume: torch.Tensor) -> torch.Tensor:
+        """(B, 1, D, H + 12, W + 12) float32 → (B, H, W) float32 logits."""
+        x = self.fusion_features(volume)
         batch, channels, depth, height, width = x.shape
         # Forward only, Conv1d over (N, C, D') beats the training layout's Conv2d by ~1.5×.
         x = x.permute(0, 3, 4, 1, 2).reshape(batch * height * width, channels, depth)
-        for conv, k in zip(self.depth, DEPTH_KERNELS, strict=True):
-            x = F.relu(conv(F.pad(x, ((k - 1) // 2, k // 2))))
-        x = self.fc2(F.relu(self.fc1(x)))
-        return x.reshape(batch, height, width)
+        return self.head_logits(x).reshape(batch, height, width)
 
     def forward(self, volume: torch.Tensor) -> torch.Tensor:
         """Confidence in (0, 1), (B, H, W)."""

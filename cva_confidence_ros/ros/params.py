@@ -210,6 +210,31 @@ PIPELINE_PARAMETERS: tuple[ParamSpec, ...] = (
         low=1.0,
         high=1048576.0,
     ),
+    _pipeline(
+        'cva_stride',
+        'CVA-Net on every stride-th pixel per axis, the rest filled by joint-bilateral '
+        'interpolation guided by image and disparity; 1 = every pixel (exact).',
+        constraints='1, 2, 4 or 8',
+        low=1,
+        high=8,
+    ),
+    _pipeline(
+        'cva_cascade',
+        'Cheap measure that decides the pixels it is sure of before CVA-Net; none = no cascade '
+        '(lrd also computes the right-view cost volume).',
+        constraints='one of none, pkrn, lrd',
+    ),
+    _pipeline(
+        'cva_cascade_fraction',
+        'Share of the pixels the cascade leaves to CVA-Net (the least confident by its measure).',
+        low=0.01,
+        high=1.0,
+    ),
+    _pipeline(
+        'cva_precision',
+        'Arithmetic of CVA-Net: fp32, bf16 (autocast) or fp16 (CUDA only).',
+        constraints='one of fp32, bf16, fp16',
+    ),
 )
 
 NODE_PARAMETERS: tuple[ParamSpec, ...] = (

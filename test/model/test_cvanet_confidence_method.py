@@ -72,3 +72,48 @@ def test_depth_and_matcher_checks(weights):
 def test_missing_shipped_weights_say_how_to_train():
     with pytest.raises(ModelError, match='cva-train'):
         CONFIDENCE_METHODS.get('cva_net')(matcher='no_such_matcher', max_disparity=DEPTH)
+
+
+def test_sparse_options_through_the_pipeline_config(weights):
+    from cva_confidence_ros.errors import ConfigError
+    from cva_confidence_ros.pipeline import PipelineConfig, StereoPipeline
+
+    _, path = weights
+    inputs = _inputs()
+    exact = compute_confidence('cva_net', inputs, max_disparity=DEPTH, weights=path)
+    config = PipelineConfig(
+        max_disparity=DEPTH,
+        model_path=path,
+        device='cpu',
+        cva_stride=4,
+        cva_cascade='pkrn',
+        cva_cascade_fraction=0.5,
+    )
+    pipeline = StereoPipeline(config)
+    method = pipeline._method
+    assert method.sparse.stride == 4 and method.sparse.cascade == 'pkrn'
+    assert method.needs_right is False
+    sparse = method(inputs)
+    assert sparse.shape == exact.shape and np.all((sparse > 0) & (sparse < 1))
+    assert not np.allclose(sparse, exact)  # it is not the exact path ...
+    # ... but where the network ran, its value is kept.
+    evaluated = method.evaluator.path_counts
+    assert sum(evaluated.values()) >= 1
+    ys, xs = np.array([1, 5]), np.array([1, 9])
+    np.testing.assert_allclose(method.confidence_at(inputs, ys, xs), sparse[ys, xs], atol=1e-6)
+    lrd = StereoPipeline(config.replace(cva_cascade='lrd'))._method
+    assert lrd.needs_right is True
+    left = np.random.default_rng(1).integers(0, 255, (20, 40), dtype=np.uint8)
+    result = StereoPipeline(config.replace(cva_cascade='lrd')).process(left, np.roll(left, -3, 1))
+    assert result.confidence.shape == (20, 40)
+    for name, value in (
+        ('cva_stride', 3),
+        ('cva_cascade', 'score'),
+        ('cva_cascade_fraction', 0.0),
+        ('cva_precision', 'int8'),
+    ):
+        with pytest.raises(ConfigError, match=name):
+            config.replace(**{name: value})
+    if not torch.cuda.is_available():
+        with pytest.raises(ConfigError, match='fp16'):
+            StereoPipeline(config.replace(cva_precision='fp16'))

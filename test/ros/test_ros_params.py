@@ -70,6 +70,10 @@ def test_build_configs_applies_changes() -> None:
         ('queue_size', 0, 'queue_size'),
         ('approximate_sync_tolerance_seconds', -0.1, 'tolerance'),
         ('no_such_parameter', 1, 'unknown parameter'),
+        ('cva_stride', 3, 'cva_stride'),
+        ('cva_cascade', 'mlm', 'cva_cascade'),
+        ('cva_cascade_fraction', 0.0, 'cva_cascade_fraction'),
+        ('cva_precision', 'int8', 'cva_precision'),
     ],
 )
 def test_build_configs_rejects(name: str, value: object, match: str) -> None:

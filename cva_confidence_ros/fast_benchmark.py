@@ -1,0 +1,436 @@
+"""Speed and AUC cost of CVA-Net's fast paths (``cva-benchmark --suite fast``).
+
+One record per configuration (:data:`FAST_CONFIGS`: exact, bf16, strides, cascades and their
+combinations, plus whole-pipeline rows), with the keys of
+:data:`cva_confidence_ros.benchmark.RECORD_KEYS`:
+
+* ``ms_per_frame``: the network part (cheap measure and filling included) on the cost volume of
+  the Motorcycle pair fitted to ``--width``×``--height`` (census_bm, D = ``--max-disparity``),
+  median of ``--repeat`` frames after an untimed one. The ``exact`` and ``bf16`` rows would take
+  minutes a frame on a CPU: they are timed on a ``--crop`` square (``bf16``: a quarter of it)
+  and extrapolated to the frame by floating-point operations (``extrapolated: true``).
+  ``pipeline_*`` rows time :meth:`~cva_confidence_ros.pipeline.StereoPipeline.process` on the
+  image pair: matching, WTA, cheap measure and network, what the node does per frame.
+* ``network_gflops``: operations the evaluator chose to run (counted per tile,
+  :class:`~cva_confidence_ros.model.SparseEvaluator`) per second of the row's time;
+  ``gemm_gflops``: a 2048² float32 matmul in the same process, the practical peak.
+* ``peak_mem_mb``: peak resident memory during the timed frames above the resident memory
+  before them (VmHWM reset first).
+* ``auc_rel``: mean AUC over the develop scenes of the configuration / that of the exact fp32
+  network (the paper network at full resolution), when ``--data-root`` holds the develop split;
+  None without it. Each scene is halved until its ground truth fits D, its census_bm cost volume
+  computed, and a ``--auc-crop`` window (rows×columns, the one of nine candidate positions with
+  the most ground truth) scored on its known pixels. A sparse configuration depends on the
+  network only through its values at the pixels it evaluates, which equal the exact network's
+  (tested to 1e-4), so the exact map of the crop is computed once and looked up for every
+  configuration. ``bf16`` is the exception (other arithmetic): its AUC is measured on the
+  central 10×10 pixels of every crop against the exact network's on the same pixels.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+import json
+import os
+from pathlib import Path
+import statistics
+import sys
+import time
+from typing import Any
+
+import numpy as np
+
+from cva_confidence_ros.benchmark import (
+    NETWORK_MATCHER,
+    RECORD_KEYS,
+    BenchSettings,
+    _gemm_gflops,
+    _network,
+    _release_free_heap,
+    _reset_peak,
+    make_pairs,
+    memory_kb,
+)
+from cva_confidence_ros.errors import ConfigError
+
+__all__ = ['FAST_CONFIGS', 'FastConfig', 'develop_crops', 'main', 'run_fast']
+
+
+@dataclass(frozen=True)
+class FastConfig:
+    """One row: the ``cva_*`` options of the network and whether the whole pipeline is timed.
+
+    Attributes:
+        name: Row name.
+        stride: ``cva_stride``.
+        cascade: ``cva_cascade``.
+        fraction: ``cva_cascade_fraction``.
+        precision: ``cva_precision``.
+        pipeline: Time :class:`~cva_confidence_ros.pipeline.StereoPipeline` on the image pair
+            instead of the network on the cost volume.
+    """
+
+    name: str
+    stride: int = 1
+    cascade: str = 'none'
+    fraction: float = 0.25
+    precision: str = 'fp32'
+    pipeline: bool = False
+
+    def sparse(self) -> Any:
+        """The :class:`~cva_confidence_ros.model.SparseConfig` of this row."""
+        from cva_confidence_ros.model import SparseConfig
+
+        return SparseConfig(self.stride, self.cascade, self.fraction, self.precision)
+
+
+#: The rows of ``--suite fast``, in order.
+FAST_CONFIGS: tuple[FastConfig, ...] = (
+    FastConfig('exact'),
+    FastConfig('bf16', precision='bf16'),
+    FastConfig('stride2', stride=2),
+    FastConfig('stride4', stride=4),
+    FastConfig('stride8', stride=8),
+    FastConfig('pkrn0.1', cascade='pkrn', fraction=0.1),
+    FastConfig('pkrn0.25', cascade='pkrn', fraction=0.25),
+    FastConfig('lrd0.1', cascade='lrd', fraction=0.1),
+    FastConfig('lrd0.25', cascade='lrd', fraction=0.25),
+    FastConfig('stride4+pkrn0.25', stride=4, cascade='pkrn', fraction=0.25),
+    FastConfig('stride8+pkrn0.25', stride=8, cascade='pkrn', fraction=0.25),
+    FastConfig('stride8+lrd0.25', stride=8, cascade='lrd', fraction=0.25),
+    FastConfig('stride8+pkrn0.1', stride=8, cascade='pkrn', fraction=0.1),
+    FastConfig('pipeline:stride8', stride=8, pipeline=True),
+    FastConfig('pipeline:stride8+pkrn0.1', stride=8, cascade='pkrn', fraction=0.1, pipeline=True),
+)
+_EXTRAPOLATED = ('exact', 'bf16')
+
+
+def _cheap(name: str, volume: np.ndarray, disparity: np.ndarray, image: np.ndarray,
+           volume_right: np.ndarray | None) -> np.ndarray | None:
+    from cva_confidence_ros.confidence import CONFIDENCE_METHODS, ConfidenceInputs
+
+    if name == 'none':
+        return None
+    inputs = ConfidenceInputs(volume, disparity, image, cost_volume_right=volume_right)
+    return CONFIDENCE_METHODS.get(name)()(inputs)
+
+
+def develop_crops(
+    root: Path, max_disparity: int, crop: tuple[int, int]
+) -> list[dict[str, Any]]:
+    """Cost-volume crops of the develop scenes with their error labels.
+
+    Args:
+        root: Data root holding the develop data sets.
+        max_disparity: D.
+        crop: (rows, columns) of the scored window.
+
+    Returns:
+        One dict per scene: ``name``, ``volume`` (D, h, w), ``volume_right``, ``disparity``,
+        ``image``, ``wrong`` (h, w) bool, ``known`` (h, w) bool.
+    """
+    from cva_confidence_ros.datasets import DEVELOP_DATASETS, list_scenes, load_scene
+    from cva_confidence_ros.datasets.resize import fit_disparity_range
+    from cva_confidence_ros.matching import compute_cost_volume, wta_disparity
+    from cva_confidence_ros.metrics import kitti_error
+
+    crops = []
+    for dataset in DEVELOP_DATASETS:
+        for scene in list_scenes(dataset, root):
+            sample, _ = fit_disparity_range(load_scene(dataset, root, scene), max_disparity)
+            known = np.isfinite(sample.disparity)
+            height, width = known.shape
+            rows, columns = min(crop[0], height), min(crop[1], width)
+            best, window = -1, (0, 0)
+            for fy in (0.25, 0.5, 0.75):
+                for fx in (0.25, 0.5, 0.75):
+                    y0 = int(fy * (height - rows))
+                    x0 = int(fx * (width - columns))
+                    count = int(known[y0:y0 + rows, x0:x0 + columns].sum())
+                    if count > best:
+                        best, window = count, (y0, x0)
+            y0, x0 = window
+            box = (slice(y0, y0 + rows), slice(x0, x0 + columns))
+            volume = compute_cost_volume(sample.left, sample.right, NETWORK_MATCHER, max_disparity)
+            right = compute_cost_volume(
+                sample.left, sample.right, NETWORK_MATCHER, max_disparity, view='right'
+            )
+            disparity = wta_disparity(volume)
+            gt = sample.disparity[box]
+            crops.append({
+                'name': f'{dataset}/{scene}',
+                'volume': np.ascontiguousarray(volume[:, box[0], box[1]]),
+                'volume_right': np.ascontiguousarray(right[:, box[0], box[1]]),
+                'disparity': np.ascontiguousarray(disparity[box]),
+                'image': np.ascontiguousarray(sample.left[box]),
+                'wrong': kitti_error(disparity[box], np.nan_to_num(gt)),
+                'known': np.isfinite(gt),
+            })
+            print(f'  develop crop {dataset}/{scene}: {rows}×{columns}, {best} known pixels',
+                  file=sys.stderr, flush=True)
+    return crops
+
+
+def _auc_rel(configs: Sequence[FastConfig], crops: list[dict[str, Any]], net: Any,
+             log: Callable[[str], None]) -> dict[str, float]:
+    from cva_confidence_ros.metrics import roc_auc
+    from cva_confidence_ros.model import SparseEvaluator, sparse_confidence
+
+    evaluator = SparseEvaluator(net)
+    bf16 = SparseEvaluator(net, precision='bf16')
+    aucs: dict[str, list[float]] = {c.name: [] for c in configs}
+    exact_aucs: list[float] = []
+    bf16_pairs: list[tuple[float, float]] = []
+    for item in crops:
+        tic = time.perf_counter()
+        exact = evaluator(item['volume'])
+        known, wrong = item['known'], item['wrong']
+        exact_auc = roc_auc(exact[known], wrong[known])
+        exact_aucs.append(exact_auc)
+        for config in configs:
+            if config.name in _EXTRAPOLATED:
+                continue
+            cheap = _cheap(config.cascade, item['volume'], item['disparity'], item['image'],
+                           item['volume_right'])
+            result = sparse_confidence(
+                lambda _v, _m, exact=exact: exact, item['volume'], item['image'],
+                item['disparity'], config.sparse(), cheap,
+            )
+            aucs[config.name].append(roc_auc(result.confidence[known], wrong[known]))
+        rows, columns = known.shape
+        centre = (slice(rows // 2 - 5, rows // 2 + 5), slice(columns // 2 - 5, columns // 2 + 5))
+        low = bf16(np.ascontiguousarray(item['volume'][:, centre[0], centre[1]]))
+        sub_known, sub_wrong = known[centre], wrong[centre]
+        if sub_known.sum() > 1:
+            bf16_pairs.append((roc_auc(low[sub_known], sub_wrong[sub_known]),
+                               roc_auc(exact[centre][sub_known], sub_wrong[sub_known])))
+        log(f'  AUC of {item["name"]}: exact {exact_auc:.4f} '
+            f'({time.perf_counter() - tic:.0f} s)')
+    mean_exact = float(np.mean(exact_aucs))
+    out = {name: float(np.mean(values)) / mean_exact for name, values in aucs.items() if values}
+    out['exact'] = 1.0
+    if bf16_pairs:
+        low_mean, ref_mean = np.mean(bf16_pairs, axis=0)
+        out['bf16'] = float(low_mean / ref_mean)
+    return out
+
+
+def run_fast(
+    settings: BenchSettings,
+    configs: Sequence[FastConfig] = FAST_CONFIGS,
+    crop: int = 48,
+    data_root: Path | None = None,
+    auc_crop: tuple[int, int] = (48, 96),
+    log: Callable[[str], None] = lambda text: print(text, file=sys.stderr, flush=True),
+    gemm_size: int = 2048,
+) -> list[dict[str, Any]]:
+    """Measure the fast-path rows in this process (see the module docstring).
+
+    Args:
+        settings: Frame size, D and timed frames per row.
+        configs: The rows.
+        crop: Side of the crop the extrapolated rows are timed on.
+        data_root: Root with the develop split, or None (``auc_rel`` None).
+        auc_crop: (rows, columns) of the AUC window of each develop scene.
+        log: Progress messages.
+        gemm_size: Side of the float32 matmul that gives ``gemm_gflops``.
+
+    Returns:
+        One record per configuration with :data:`RECORD_KEYS` plus ``network_share`` (share of
+        the pixels the network ran on), ``extrapolated`` and, for cascades, ``cheap_ms``.
+    """
+    import torch
+
+    from cva_confidence_ros.matching import compute_cost_volume, wta_disparity
+    from cva_confidence_ros.model import SparseEvaluator, resolve_device
+    from cva_confidence_ros.pipeline import PipelineConfig, StereoPipeline
+
+    device = resolve_device('cpu')
+    depth = settings.max_disparity
+    net, note = _network(NETWORK_MATCHER, depth)
+    left, right = make_pairs(settings)['real']
+    volume = compute_cost_volume(left, right, NETWORK_MATCHER, depth)
+    volume_right = compute_cost_volume(left, right, NETWORK_MATCHER, depth, view='right')
+    disparity = wta_disparity(volume)
+    gemm = _gemm_gflops(device, gemm_size)
+    auc_rel: dict[str, float] = {}
+    if data_root is not None:
+        log(f'develop-split AUC on {auc_crop[0]}×{auc_crop[1]} crops …')
+        auc_rel = _auc_rel(configs, develop_crops(data_root, depth, auc_crop), net, log)
+    records = []
+    for config in configs:
+        log(f'measuring {config.name} …')
+        evaluator = SparseEvaluator(net, device, precision=config.precision)
+        record: dict[str, Any] = {
+            'config': config.name,
+            'device': device.type,
+            'width': settings.width,
+            'height': settings.height,
+            'max_disparity': depth,
+            'gemm_gflops': gemm,
+            'auc_rel': auc_rel.get(config.name),
+            'threads': torch.get_num_threads(),
+            'extrapolated': config.name in _EXTRAPOLATED,
+        }
+        if note is not None:
+            record['note'] = note
+        if config.name in _EXTRAPOLATED:
+            side = crop if config.precision == 'fp32' else max(4, crop // 4)
+            rows, columns = min(side, settings.height), min(side, settings.width)
+            y0, x0 = (settings.height - rows) // 2, (settings.width - columns) // 2
+            part = np.ascontiguousarray(volume[:, y0:y0 + rows, x0:x0 + columns])
+            evaluator(part[:, :4, :4])
+            frame = evaluator._flops('tile', settings.height, settings.width)
+            _release_free_heap()
+            rss, have_hwm = memory_kb('VmRSS'), _reset_peak()
+            flops_before = evaluator.flops_done
+            start = time.perf_counter()
+            evaluator(part)
+            seconds = time.perf_counter() - start
+            done = evaluator.flops_done - flops_before
+            record.update(ms_per_frame=seconds * frame / done * 1e3,
+                          network_gflops=done / seconds / 1e9, network_share=1.0,
+                          crop=[rows, columns])
+        else:
+            sparse = config.sparse()
+            if config.pipeline:
+                pipeline = StereoPipeline(PipelineConfig(
+                    matcher=NETWORK_MATCHER, max_disparity=depth, device='cpu',
+                    model_path=_weights_path(depth), cva_stride=config.stride,
+                    cva_cascade=config.cascade, cva_cascade_fraction=config.fraction,
+                    cva_precision=config.precision,
+                ))
+                pipeline.warm_up()
+                evaluator = pipeline._method.evaluator  # type: ignore[attr-defined]
+
+                def frame_fn(pipeline: Any = pipeline) -> dict[str, float]:
+                    return pipeline.process(left, right).timings_ms
+            else:
+                def frame_fn(evaluator: Any = evaluator, sparse: Any = sparse) -> dict[str, float]:
+                    tic = time.perf_counter()
+                    cheap = _cheap(sparse.cascade, volume, disparity, left,
+                                   volume_right if sparse.cascade == 'lrd' else None)
+                    cheap_ms = (time.perf_counter() - tic) * 1e3
+                    result = evaluator.confidence(volume, left, disparity, sparse, cheap)
+                    return {'cheap': cheap_ms, 'share': result.network_share}
+            frame_fn()  # untimed
+            _release_free_heap()
+            rss, have_hwm = memory_kb('VmRSS'), _reset_peak()
+            flops_before = evaluator.flops_done
+            times, extras = [], []
+            for _ in range(settings.repeat):
+                start = time.perf_counter()
+                extras.append(frame_fn())
+                times.append(time.perf_counter() - start)
+            done = (evaluator.flops_done - flops_before) / settings.repeat
+            seconds = statistics.median(times)
+            record.update(ms_per_frame=seconds * 1e3, network_gflops=done / seconds / 1e9)
+            if config.pipeline:
+                record['stages_ms'] = {key: statistics.median(e[key] for e in extras)
+                                       for key in extras[0]}
+            else:
+                record['network_share'] = extras[0]['share']
+                record['cheap_ms'] = statistics.median(e['cheap'] for e in extras)
+        peak = memory_kb('VmHWM') if have_hwm else None
+        record['peak_mem_mb'] = (
+            max(peak - rss, 0) / 1024.0 if peak is not None and rss is not None else None
+        )
+        log(f"  {config.name}: {record['ms_per_frame']:.0f} ms/frame, auc_rel "
+            f"{record['auc_rel'] if record['auc_rel'] is None else round(record['auc_rel'], 4)}")
+        records.append(record)
+    return records
+
+
+def _weights_path(depth: int) -> str:
+    from cva_confidence_ros.errors import ModelError
+    from cva_confidence_ros.model import default_weights_path
+
+    try:
+        return str(default_weights_path(NETWORK_MATCHER, depth))
+    except ModelError:
+        return ''
+
+
+def format_fast_table(records: Sequence[dict[str, Any]]) -> str:
+    """Markdown table of the fast-path records."""
+    first = records[0]
+    lines = [
+        f"{first['width']}×{first['height']}, D = {first['max_disparity']}, "
+        f"{first.get('threads', '?')} thread(s), census_bm cost volume of the Motorcycle pair",
+        '',
+        '| config | ms/frame | fps | network share | network GFLOP/s | GEMM GFLOP/s '
+        '| peak MB | auc_rel |',
+        '|---|---:|---:|---:|---:|---:|---:|---:|',
+    ]
+    for r in records:
+        auc = '—' if r.get('auc_rel') is None else f"{r['auc_rel']:.3f}"
+        share = r.get('network_share')
+        mark = ' *' if r.get('extrapolated') else ''
+        peak = r.get('peak_mem_mb')
+        lines.append(
+            f"| {r['config']}{mark} | {r['ms_per_frame']:.0f} | {1e3 / r['ms_per_frame']:.3f} "
+            f"| {'—' if share is None else f'{share:.1%}'} | {r['network_gflops']:.1f} "
+            f"| {r['gemm_gflops']:.1f} | {'—' if peak is None else f'{peak:.0f}'} | {auc} |"
+        )
+    lines.append('* timed on a crop, extrapolated to the frame by FLOPs')
+    return '\n'.join(lines)
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog='cva-benchmark --suite fast',
+        description='CVA-Net fast paths (sparse grid, cascades, bf16): ms per frame, GFLOP/s, '
+        'peak memory and develop-split AUC relative to the exact network.',
+    )
+    parser.add_argument('--width', type=int, default=320)
+    parser.add_argument('--height', type=int, default=240)
+    parser.add_argument('--max-disparity', type=int, default=64)
+    parser.add_argument('--repeat', type=int, default=1, help='timed frames per row')
+    parser.add_argument('--configs', nargs='+', default=None, metavar='NAME',
+                        help=f'rows to run (default all: {[c.name for c in FAST_CONFIGS]})')
+    parser.add_argument('--crop', type=int, default=48, metavar='PIXELS',
+                        help='side of the crop the exact row is timed on (bf16: a quarter)')
+    parser.add_argument('--data-root', type=Path, default=None,
+                        help='data root with the develop split (e.g. ../shared/data) for auc_rel')
+    parser.add_argument('--auc-crop', default='48x96', metavar='ROWSxCOLUMNS',
+                        help='window of every develop scene that the AUC is computed on')
+    parser.add_argument('--json', type=Path, default=None, metavar='PATH')
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``cva-benchmark --suite fast``; returns the exit code."""
+    parser = _parser()
+    args = parser.parse_args(argv)
+    try:
+        settings = BenchSettings(args.width, args.height, args.max_disparity, args.repeat)
+        by_name = {c.name: c for c in FAST_CONFIGS}
+        names = args.configs or list(by_name)
+        unknown = [n for n in names if n not in by_name]
+        if unknown:
+            raise ConfigError(f'unknown fast configs {unknown}; expected {list(by_name)}')
+        try:
+            rows, columns = (int(v) for v in args.auc_crop.lower().split('x'))
+        except ValueError as exc:
+            raise ConfigError(f'--auc-crop must be ROWSxCOLUMNS; got {args.auc_crop!r}') from exc
+        if args.crop < 4 or rows < 16 or columns < 16:
+            raise ConfigError('--crop must be ≥ 4 and --auc-crop at least 16x16')
+        records = run_fast(settings, [by_name[n] for n in names], args.crop, args.data_root,
+                           (rows, columns))
+    except ConfigError as error:
+        parser.exit(2, f'cva-benchmark: error: {error}\n')
+    print(format_fast_table(records))
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        extra = ('network_share', 'extrapolated', 'threads', 'cheap_ms', 'stages_ms', 'note')
+        rows_out = [{k: r[k] for k in RECORD_KEYS + extra if k in r} for r in records]
+        args.json.write_text(json.dumps(rows_out, indent=2) + '\n', encoding='utf-8')
+        print(f'wrote {args.json}', file=sys.stderr)
+    return 0
+
+
+if __name__ == '__main__':
+    os.environ.setdefault('OMP_NUM_THREADS', '1')
+    sys.exit(main())
