@@ -56,6 +56,48 @@ def _fmt(value: Any) -> str:
     return str(value)
 
 
+_CVANET_TEXT = (
+    'CVA-Net',
+    'CVA-Net (Mehltretter & Heipke, ICCVW 2019): per-pixel confidence of the winner-takes-all '
+    'disparity, learned from 13×13×D extracts of the normalised cost volume.',
+)
+#: arch → (title, one-paragraph description) of the card.
+_ARCH_TEXT = {
+    'cvanet': _CVANET_TEXT,
+    'cvanet_lite': (
+        'CVA-Net-Lite',
+        'CVA-Net-Lite (`model/lite.py`): a light network with the input and output of CVA-Net '
+        '(13×13×D extracts of the normalised cost volume → confidence of the winner-takes-all '
+        'disparity), the same three stages with far fewer multiply-adds, trained on the labels '
+        'and distilled from CVA-Net.',
+    ),
+}
+
+
+def _loss_line(facts: Mapping[str, Any]) -> str:
+    optimiser = 'optimiser: Adam (β1 0.9, β2 0.999); dropout 0.5'
+    weight = facts.get('distill_weight') or 0.0
+    if not facts.get('teacher') or not weight:
+        return f'- loss: binary cross-entropy; {optimiser}'
+    teacher = facts.get('teacher_meta') or {}
+    return (
+        f'- loss: (1 − A)·BCE(label) + A·BCE(teacher probability) on labelled pixels, '
+        f'A = {_fmt(weight)}; teacher `{Path(str(facts["teacher"])).name}` '
+        f'(arch {teacher.get("arch")}, matcher {teacher.get("matcher")}, '
+        f'{_fmt(teacher.get("samples_seen"))} training samples); {optimiser}'
+    )
+
+
+def _init_lines(facts: Mapping[str, Any]) -> list[str]:
+    if not facts.get('init_weights'):
+        return []
+    source = facts.get('init_meta') or {}
+    return [
+        f'- initialised from `{Path(str(facts["init_weights"])).name}` '
+        f'({_fmt(source.get("samples_seen"))} training samples)'
+    ]
+
+
 def write_model_card(
     weights_path: str | os.PathLike[str], facts: Mapping[str, Any]
 ) -> tuple[Path, Path]:
@@ -75,11 +117,11 @@ def write_model_card(
         json.dumps(dict(facts), indent=2, sort_keys=True) + '\n', encoding='utf-8'
     )
     hardware = facts.get('hardware', {})
+    title, about = _ARCH_TEXT.get(str(facts.get('arch', 'cvanet')), _ARCH_TEXT['cvanet'])
     lines = [
-        f'# CVA-Net weights `{Path(weights_path).name}`',
+        f'# {title} weights `{Path(weights_path).name}`',
         '',
-        'CVA-Net (Mehltretter & Heipke, ICCVW 2019): per-pixel confidence of the winner-takes-all '
-        'disparity, learned from 13×13×D extracts of the normalised cost volume.',
+        about,
         '',
         '## Use',
         '',
@@ -110,7 +152,8 @@ def write_model_card(
         f'{facts.get("epochs_low_lr")} at lr {_fmt(facts.get("lr_low"))}',
         f'- batch size: {facts.get("batch_size")}, samples per epoch: '
         f'{_fmt(facts.get("samples_per_epoch"))}, samples seen: {_fmt(facts.get("samples_seen"))}',
-        '- loss: binary cross-entropy; optimiser: Adam (β1 0.9, β2 0.999); dropout 0.5',
+        _loss_line(facts),
+        *_init_lines(facts),
         f'- seed: {facts.get("seed")}',
         '',
         '## Hardware and time',
@@ -126,7 +169,8 @@ def write_model_card(
         f'- final train loss: {_fmt(facts.get("final_train_loss"))}',
         f'- validation AUC: {_fmt(facts.get("final_val_auc"))} '
         f'(optimal {_fmt(facts.get("final_val_auc_opt"))}, error rate '
-        f'{_fmt(facts.get("final_val_error_rate"))})',
+        f'{_fmt(facts.get("final_val_error_rate"))}; '
+        f'{_fmt(facts.get("final_val_high"))} of the outputs ≥ 0.5)',
         '',
         '| epoch | lr | train loss | samples/s | val AUC |',
         '|---|---|---|---|---|',
