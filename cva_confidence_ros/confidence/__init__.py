@@ -27,5 +27,6 @@ __all__ = [
 # Method modules, imported for their registrations: add one line per module, keep them sorted.
 from cva_confidence_ros.confidence import (  # noqa: E402
     cva_net,  # noqa: F401  (cva_net)
+    cva_net_lite,  # noqa: F401  (cva_net_lite)
     handcrafted,  # noqa: F401  (pkrn, mlm, lrd, lrc, score)
 )

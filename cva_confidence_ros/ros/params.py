@@ -176,8 +176,8 @@ PIPELINE_PARAMETERS: tuple[ParamSpec, ...] = (
     ),
     _pipeline(
         'confidence_method',
-        'Confidence method: cva_net (learned) or a hand-crafted measure.',
-        constraints='cva_net or a hand-crafted measure (pkrn, mlm, lrd, lrc, score)',
+        'Confidence method: cva_net or cva_net_lite (learned) or a hand-crafted measure.',
+        constraints='cva_net, cva_net_lite or a hand-crafted measure (pkrn, mlm, lrd, lrc, score)',
     ),
     _pipeline(
         'model_path',
