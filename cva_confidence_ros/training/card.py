@@ -68,8 +68,8 @@ _ARCH_TEXT = {
         'CVA-Net-Lite',
         'CVA-Net-Lite (`model/lite.py`): a light network with the input and output of CVA-Net '
         '(13×13×D extracts of the normalised cost volume → confidence of the winner-takes-all '
-        'disparity), the same three stages with far fewer multiply-adds, trained on the labels '
-        'and distilled from CVA-Net.',
+        'disparity), the same three stages with about 54× fewer multiply-adds; trained on the '
+        'labels, optionally distilled from CVA-Net (see the loss line).',
     ),
 }
 

@@ -205,3 +205,25 @@ def test_missing_shipped_weights_say_how_to_train():
         default_weights_path('census_bm', 40, 'cvanet_lite')
     with pytest.raises(ModelError, match='cvanet_lite_census_bm_d40.pt'):
         CONFIDENCE_METHODS.get('cva_net_lite')(matcher='census_bm', max_disparity=40)
+
+
+@pytest.mark.parametrize('matcher', ['census_bm', 'census_sgm', 'mccnn_fast'])
+def test_shipped_weights_load_and_run(matcher):
+    """The weights in models/: found by default, for their matcher and D = 64, with a card."""
+    path = default_weights_path(matcher, 64, 'cvanet_lite')
+    assert path.name == f'cvanet_lite_{matcher}_d64.pt'
+    assert path.with_suffix('.md').is_file() and path.with_suffix('.yaml').is_file()
+    method = CONFIDENCE_METHODS.get('cva_net_lite')(matcher=matcher, max_disparity=64)
+    assert method.meta['arch'] == 'cvanet_lite' and method.meta['samples_seen'] > 0
+    rng = np.random.default_rng(0)
+    truth = rng.integers(0, 64, size=(16, 20))
+    volume = np.clip(np.abs(np.arange(64)[:, None, None] - truth) / 8.0, 0, 1).astype(np.float32)
+    volume += rng.random(volume.shape, dtype=np.float32) * 0.05
+    inputs = ConfidenceInputs(
+        cost_volume=np.clip(volume, 0, 1),
+        disparity=truth.astype(np.float32),
+        image=np.zeros((16, 20), np.uint8),
+        matcher=matcher,
+    )
+    confidence = method(inputs)
+    assert confidence.shape == (16, 20) and np.all((confidence > 0) & (confidence < 1))
