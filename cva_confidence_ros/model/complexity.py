@@ -127,7 +127,8 @@ def macs_per_pixel(net_or_arch: nn.Module | str, max_disparity: int | None = Non
         max_disparity: D; defaults to the network's own (required with an arch name).
 
     Returns:
-        Σ over layers of inputs × channels × depth (CVA-Net at D = 64: 34,664,464).
+        Σ over layers of inputs × channels × depth (at D = 64: CVA-Net 34,658,640,
+        CVA-Net-Lite 647,056).
     """
     return sum(
         layer.inputs * layer.channels * layer.depth
