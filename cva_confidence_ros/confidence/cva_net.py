@@ -60,6 +60,8 @@ class CVANetConfidence(ConfidenceMethod):
     """
 
     needs_right: ClassVar[bool] = False
+    #: Network architecture of the weights (``model.ARCHITECTURES``); subclasses change it.
+    arch: ClassVar[str] = 'cvanet'
 
     def __init__(
         self,
@@ -88,9 +90,17 @@ class CVANetConfidence(ConfidenceMethod):
         self.max_disparity = int(max_disparity)
         self.device = resolve_device(device)
         self.tile_budget_mb = float(tile_budget_mb)
-        path = Path(weights) if weights else default_weights_path(matcher, self.max_disparity)
+        path = (
+            Path(weights)
+            if weights
+            else default_weights_path(matcher, self.max_disparity, self.arch)
+        )
         net, self.meta = load_weights(
-            path, matcher=matcher, max_disparity=self.max_disparity, device=self.device
+            path,
+            matcher=matcher,
+            max_disparity=self.max_disparity,
+            device=self.device,
+            arch=self.arch,
         )
         self.weights_path = path
         # Built once: BN folding and the operation counts of the tile shapes are not redone
@@ -117,12 +127,12 @@ class CVANetConfidence(ConfidenceMethod):
     def _check(self, inputs: ConfidenceInputs) -> None:
         if inputs.max_disparity != self.max_disparity:
             raise InputError(
-                f'cva_net weights {self.weights_path.name} take cost volumes of depth '
+                f'{self.arch} weights {self.weights_path.name} take cost volumes of depth '
                 f'D = {self.max_disparity}; got depth {inputs.max_disparity}'
             )
         if inputs.matcher and inputs.matcher != self.matcher:
             raise InputError(
-                f'cva_net weights {self.weights_path.name} are for matcher {self.matcher!r}; '
+                f'{self.arch} weights {self.weights_path.name} are for matcher {self.matcher!r}; '
                 f'got a cost volume of {inputs.matcher!r}'
             )
 

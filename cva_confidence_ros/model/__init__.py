@@ -1,7 +1,9 @@
-"""CVA-Net: the network, its inference (whole, per pixel, sparse + filled) and weights I/O."""
+"""CVA-Net and CVA-Net-Lite: the networks, their inference (whole, per pixel, sparse + filled)
+and weights I/O."""
 
 from __future__ import annotations
 
+from cva_confidence_ros.model.complexity import dense_macs, macs_per_pixel
 from cva_confidence_ros.model.inference import (
     PAD,
     FoldedCVANet,
@@ -12,6 +14,7 @@ from cva_confidence_ros.model.inference import (
     resolve_device,
     tile_shape,
 )
+from cva_confidence_ros.model.lite import CVANetLite, FoldedCVANetLite
 from cva_confidence_ros.model.network import (
     PATCH_SIZE,
     CVANet,
@@ -39,16 +42,20 @@ __all__ = [
     'PAD',
     'PATCH_SIZE',
     'CVANet',
+    'CVANetLite',
     'FoldedCVANet',
+    'FoldedCVANetLite',
     'architecture_of',
     'SparseConfig',
     'SparseEvaluator',
     'SparseResult',
     'default_weights_path',
+    'dense_macs',
     'expected_parameter_count',
     'fold_batchnorm',
     'keras_parameter_count',
     'load_weights',
+    'macs_per_pixel',
     'pad_cost_volume',
     'predict_confidence',
     'predict_confidence_at',

@@ -242,6 +242,10 @@ class SparseEvaluator:
         net = _unwrap(net)
         if isinstance(net, CVANet):
             net = fold_batchnorm(net)
+        elif not getattr(net, 'is_folded', False) and callable(
+            getattr(net, 'fold_batchnorm', None)
+        ):
+            net = net.fold_batchnorm()  # e.g. CVA-Net-Lite
         if not isinstance(getattr(net, 'max_disparity', None), int):
             raise ConfigError(
                 f'expected a cost-volume network with an integer max_disparity; '

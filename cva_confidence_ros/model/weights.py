@@ -24,6 +24,7 @@ from torch import nn
 
 from cva_confidence_ros.errors import ModelError
 from cva_confidence_ros.model.inference import resolve_device
+from cva_confidence_ros.model.lite import CVANetLite
 from cva_confidence_ros.model.network import CVANet
 from cva_confidence_ros.registry import Registry
 
@@ -47,6 +48,7 @@ ARCHITECTURES: Registry[Callable[[Mapping[str, Any]], nn.Module]] = Registry(
     'network architecture'
 )
 ARCHITECTURES.add(ARCH, lambda meta: CVANet(int(meta['max_disparity'])))
+ARCHITECTURES.add(CVANetLite.arch, lambda meta: CVANetLite(int(meta['max_disparity'])))
 
 
 def weights_file_name(matcher: str, max_disparity: int, arch: str = ARCH) -> str:

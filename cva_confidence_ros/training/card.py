@@ -56,6 +56,48 @@ def _fmt(value: Any) -> str:
     return str(value)
 
 
+_CVANET_TEXT = (
+    'CVA-Net',
+    'CVA-Net (Mehltretter & Heipke, ICCVW 2019): per-pixel confidence of the winner-takes-all '
+    'disparity, learned from 13×13×D extracts of the normalised cost volume.',
+)
+#: arch → (title, one-paragraph description) of the card.
+_ARCH_TEXT = {
+    'cvanet': _CVANET_TEXT,
+    'cvanet_lite': (
+        'CVA-Net-Lite',
+        'CVA-Net-Lite (`model/lite.py`): a light network with the input and output of CVA-Net '
+        '(13×13×D extracts of the normalised cost volume → confidence of the winner-takes-all '
+        'disparity), the same three stages with about 54× fewer multiply-adds; trained on the '
+        'labels, optionally distilled from CVA-Net (see the loss line).',
+    ),
+}
+
+
+def _loss_line(facts: Mapping[str, Any]) -> str:
+    optimiser = 'optimiser: Adam (β1 0.9, β2 0.999); dropout 0.5'
+    weight = facts.get('distill_weight') or 0.0
+    if not facts.get('teacher') or not weight:
+        return f'- loss: binary cross-entropy; {optimiser}'
+    teacher = facts.get('teacher_meta') or {}
+    return (
+        f'- loss: (1 − A)·BCE(label) + A·BCE(teacher probability) on labelled pixels, '
+        f'A = {_fmt(weight)}; teacher `{Path(str(facts["teacher"])).name}` '
+        f'(arch {teacher.get("arch")}, matcher {teacher.get("matcher")}, '
+        f'{_fmt(teacher.get("samples_seen"))} training samples); {optimiser}'
+    )
+
+
+def _init_lines(facts: Mapping[str, Any]) -> list[str]:
+    if not facts.get('init_weights'):
+        return []
+    source = facts.get('init_meta') or {}
+    return [
+        f'- initialised from `{Path(str(facts["init_weights"])).name}` '
+        f'({_fmt(source.get("samples_seen"))} training samples)'
+    ]
+
+
 def write_model_card(
     weights_path: str | os.PathLike[str], facts: Mapping[str, Any]
 ) -> tuple[Path, Path]:
@@ -75,15 +117,11 @@ def write_model_card(
         json.dumps(dict(facts), indent=2, sort_keys=True) + '\n', encoding='utf-8'
     )
     hardware = facts.get('hardware', {})
+    title, about = _ARCH_TEXT.get(str(facts.get('arch', 'cvanet')), _ARCH_TEXT['cvanet'])
     lines = [
-        f'# {facts.get("network", "CVA-Net")} weights `{Path(weights_path).name}`',
+        f'# {facts.get("network") or title} weights `{Path(weights_path).name}`',
         '',
-        facts.get(
-            'network_description',
-            'CVA-Net (Mehltretter & Heipke, ICCVW 2019): per-pixel confidence of the '
-            'winner-takes-all disparity, learned from 13×13×D extracts of the normalised cost '
-            'volume.',
-        ),
+        facts.get('network_description') or about,
         '',
         '## Use',
         '',
@@ -117,7 +155,7 @@ def write_model_card(
         *(
             [f'- {note}' for note in facts['network_notes']]
             if facts.get('network_notes')
-            else ['- loss: binary cross-entropy; optimiser: Adam (β1 0.9, β2 0.999); dropout 0.5']
+            else [_loss_line(facts), *_init_lines(facts)]
         ),
         f'- seed: {facts.get("seed")}',
         '',
@@ -134,7 +172,8 @@ def write_model_card(
         f'- final train loss: {_fmt(facts.get("final_train_loss"))}',
         f'- validation AUC: {_fmt(facts.get("final_val_auc"))} '
         f'(optimal {_fmt(facts.get("final_val_auc_opt"))}, error rate '
-        f'{_fmt(facts.get("final_val_error_rate"))})',
+        f'{_fmt(facts.get("final_val_error_rate"))}; '
+        f'{_fmt(facts.get("final_val_high"))} of the outputs ≥ 0.5)',
         '',
         '| epoch | lr | train loss | samples/s | val AUC |',
         '|---|---|---|---|---|',

@@ -111,6 +111,20 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help='labelled samples per epoch (default: every labelled pixel once)',
     )
+    run.add_argument(
+        '--teacher',
+        default=None,
+        help='weights of a trained network to distil from (e.g. models/cvanet_<matcher>_d<D>.pt)',
+    )
+    run.add_argument(
+        '--distill-weight',
+        type=float,
+        default=defaults['distill_weight'].default,
+        help='A: loss = (1-A)*BCE(label) + A*BCE(teacher probability), labelled pixels',
+    )
+    run.add_argument(
+        '--init-weights', default=None, help='start from these weights (same --arch and D)'
+    )
     run.add_argument('--seed', type=int, default=0)
     run.add_argument('--device', default='cpu', help="'cpu', 'cuda', 'cuda:N' or 'auto'")
     run.add_argument('--threads', type=int, default=None, help='torch and numba CPU threads')
@@ -154,6 +168,9 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         weights_out=args.weights_out,
         resume=args.resume,
         progress=not args.no_progress,
+        teacher=args.teacher,
+        distill_weight=args.distill_weight,
+        init_weights=args.init_weights,
     )
 
 

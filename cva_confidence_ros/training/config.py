@@ -61,6 +61,10 @@ class TrainConfig:
         weights_out: Final weights file (+ model card beside it); None = only checkpoints.
         resume: Continue from ``out/checkpoint.pt`` if it exists.
         progress: Show a progress bar.
+        teacher: Weights file of a trained network that the trained one learns to imitate
+            (knowledge distillation, see ``training.distill``); None = labels only.
+        distill_weight: A in [0, 1]: loss = (1 − A)·BCE(label) + A·BCE(teacher probability).
+        init_weights: Weights file of the same architecture and D to start from (warm start).
     """
 
     arch: str = 'cvanet'
@@ -90,6 +94,9 @@ class TrainConfig:
     weights_out: str | None = None
     resume: bool = False
     progress: bool = True
+    teacher: str | None = None
+    distill_weight: float = 0.0
+    init_weights: str | None = None
 
     def __post_init__(self) -> None:
         from cva_confidence_ros.datasets import DATASETS, DEVELOP_DATASETS
@@ -128,6 +135,13 @@ class TrainConfig:
         if not (self.lr > 0 and 0 < self.low_lr_factor <= 1):
             raise ConfigError(
                 f'lr must be > 0 and low_lr_factor in (0, 1]; got {self.lr}, {self.low_lr_factor}'
+            )
+        if not 0.0 <= self.distill_weight <= 1.0:
+            raise ConfigError(f'distill_weight must be in [0, 1]; got {self.distill_weight}')
+        if (self.distill_weight > 0) != bool(self.teacher):
+            raise ConfigError(
+                'distillation needs both --teacher PATH and --distill-weight A > 0; got '
+                f'teacher {self.teacher!r} and distill_weight {self.distill_weight}'
             )
         if not self.datasets and self.synthetic == 0:
             raise ConfigError('no training data: give --datasets and/or --synthetic N (N > 0)')

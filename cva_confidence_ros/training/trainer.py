@@ -22,7 +22,6 @@ from typing import Any
 import numpy as np
 import torch
 from torch import nn
-import torch.nn.functional as F
 
 from cva_confidence_ros.datasets import StereoSample, list_scenes, load_scene
 from cva_confidence_ros.datasets.synthetic import synthetic_pair
@@ -48,6 +47,12 @@ from cva_confidence_ros.training.data import (
     sample_index,
     validation_subset,
 )
+from cva_confidence_ros.training.distill import (
+    distillation_loss,
+    load_init_weights,
+    load_teacher,
+    teacher_logits,
+)
 
 __all__ = ['CHECKPOINT_NAME', 'VAL_SEED_OFFSET', 'train']
 
@@ -69,7 +74,12 @@ _RESUME_KEYS = (
     'samples_per_epoch',
     'seed',
     'arch',
+    'teacher',
+    'distill_weight',
+    'init_weights',
 )
+# Values of keys added after the first checkpoints were written, for those checkpoints.
+_RESUME_DEFAULTS = {'arch': 'cvanet', 'teacher': None, 'distill_weight': 0.0, 'init_weights': None}
 
 
 @dataclass(frozen=True)
@@ -199,7 +209,7 @@ def _load_checkpoint(path: Path, config: TrainConfig) -> dict[str, Any]:
     except Exception as exc:  # torch raises many unrelated types for a damaged file
         raise ModelError(f'cannot read checkpoint {path} ({type(exc).__name__}: {exc})') from exc
     # Checkpoints written before ``arch`` existed are CVA-Net runs.
-    saved = {'arch': 'cvanet', **state.get('config', {})}
+    saved = {**_RESUME_DEFAULTS, **state.get('config', {})}
     current = config.to_dict()
     changed = [k for k in _RESUME_KEYS if saved.get(k) != current.get(k)]
     if changed:
@@ -226,13 +236,15 @@ def _validate(
         confidences.append(predict_confidence_at(net, scene.unpadded_volume(), ys, xs, device))
         wrongs.append(~scene.correct[ys, xs])
     if not confidences:
-        return {'val_auc': None, 'val_auc_opt': None, 'val_error_rate': None}
+        return {'val_auc': None, 'val_auc_opt': None, 'val_error_rate': None, 'val_high': None}
     confidence, wrong = np.concatenate(confidences), np.concatenate(wrongs)
     rate = float(wrong.mean())
     return {
         'val_auc': float(roc_auc(confidence, wrong)),
         'val_auc_opt': float(optimal_auc(rate)),
         'val_error_rate': rate,
+        # Share of outputs >= 0.5: near 1 means the network calls almost everything correct.
+        'val_high': float(np.mean(confidence >= 0.5)),
     }
 
 
@@ -268,6 +280,7 @@ def _run_epoch(
     n_samples: int,
     epoch: int,
     dist: _Dist,
+    teacher: nn.Module | None = None,
 ) -> tuple[float, int, float]:
     """One epoch; returns (mean loss over all processes, samples seen in all, seconds)."""
     model.train()
@@ -292,7 +305,8 @@ def _run_epoch(
                 volumes, targets = gather_extracts(scenes, index, step)
                 volumes, targets = volumes.to(device), targets.to(device)
                 logits = model(volumes)[:, 0, 0]
-                loss = F.binary_cross_entropy_with_logits(logits, targets)
+                soft = None if teacher is None else teacher_logits(teacher, volumes)[:, 0, 0]
+                loss = distillation_loss(logits, targets, soft, config.distill_weight)
                 count = len(step)
             else:
                 volumes, targets, mask = gather_crops(scenes, crops, step, config.crop_size)
@@ -300,7 +314,10 @@ def _run_epoch(
                 logits = model(volumes)
                 count = int(mask.sum())
                 if count:
-                    loss = F.binary_cross_entropy_with_logits(logits[mask], targets[mask])
+                    soft = None if teacher is None else teacher_logits(teacher, volumes)[mask]
+                    loss = distillation_loss(
+                        logits[mask], targets[mask], soft, config.distill_weight
+                    )
                 else:  # keep the graph (and DDP's gradient exchange) alive
                     loss = logits.sum() * 0.0
             optimiser.zero_grad(set_to_none=True)
@@ -367,6 +384,19 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
 
     torch.manual_seed(config.seed)
     net = ARCHITECTURES.get(config.arch)({'max_disparity': config.max_disparity}).to(dist.device)
+    init_meta = None
+    if config.init_weights:
+        init_meta = load_init_weights(net, config.init_weights, config.arch)
+        log(f'initialised from {config.init_weights} ({_weights_facts(init_meta)})')
+    teacher, teacher_meta = None, None
+    if config.teacher:
+        teacher, teacher_meta = load_teacher(
+            config.teacher, config.matcher, config.max_disparity, dist.device
+        )
+        log(
+            f'distilling from {config.teacher} ({_weights_facts(teacher_meta)}) with weight '
+            f'{config.distill_weight}'
+        )
     optimiser = torch.optim.Adam(net.parameters(), lr=config.lr, betas=(0.9, 0.999))
     history: list[dict[str, Any]] = []
     start_epoch = 0
@@ -394,7 +424,7 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         # Dropout draws depend on (seed, epoch, rank) only: a resumed epoch repeats exactly.
         torch.manual_seed(config.seed * 1_000_003 + epoch * 7919 + dist.rank + 1)
         loss, seen, seconds = _run_epoch(
-            config, model, optimiser, scenes, index, n_samples, epoch, dist
+            config, model, optimiser, scenes, index, n_samples, epoch, dist, teacher
         )
         record: dict[str, Any] = {
             'epoch': epoch + 1,
@@ -426,7 +456,8 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
                 f'epoch {epoch + 1}/{config.total_epochs}: lr {lr:.1e}, loss {loss:.4f}, '
                 f'{seen} samples in {seconds:.1f} s ({record["samples_per_s"]:.1f}/s)'
                 + (
-                    f', val AUC {val:.4f} (optimal {record["val_auc_opt"]:.4f})'
+                    f', val AUC {val:.4f} (optimal {record["val_auc_opt"]:.4f}), '
+                    f'{record["val_high"]:.1%} of val outputs >= 0.5'
                     if val is not None
                     else ''
                 )
@@ -459,6 +490,11 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         'lr': config.lr,
         'lr_low': config.lr * config.low_lr_factor,
         'seed': config.seed,
+        'teacher': config.teacher,
+        'teacher_meta': _weights_facts(teacher_meta) if teacher_meta else None,
+        'distill_weight': config.distill_weight,
+        'init_weights': config.init_weights,
+        'init_meta': _weights_facts(init_meta) if init_meta else None,
         'hardware': hardware_facts(dist.device, dist.world),
         'wall_time_s': wall,
         'command': command,
@@ -466,6 +502,7 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         'final_val_auc': last.get('val_auc'),
         'final_val_auc_opt': last.get('val_auc_opt'),
         'final_val_error_rate': last.get('val_error_rate'),
+        'final_val_high': last.get('val_high'),
         'history': history,
         'date': datetime.date.today().isoformat(),
     }
@@ -477,6 +514,12 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
     if dist.world > 1:
         torch.distributed.destroy_process_group()
     return summary
+
+
+def _weights_facts(meta: dict[str, Any]) -> dict[str, Any]:
+    """The identifying facts of a weights file's meta (not its whole history)."""
+    keys = ('arch', 'matcher', 'max_disparity', 'samples_seen', 'command', 'date')
+    return {key: meta.get(key) for key in keys if key in meta}
 
 
 def _limit_numba_threads(threads: int) -> None:

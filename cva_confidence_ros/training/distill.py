@@ -1,0 +1,112 @@
+"""Knowledge distillation and warm starts for ``cva-train``.
+
+Distillation (``--teacher PATH --distill-weight A``): a trained network (normally the paper's
+CVA-Net) runs on the same batch as the student, folded and in eval mode, without gradients.
+On every labelled output the loss is
+
+    (1 − A) · BCE(student, label) + A · BCE(student, teacher probability)
+
+so A = 0 is plain training and A = 1 imitates the teacher only. The teacher's probability is
+a soft target: it also tells the student how sure the teacher is. Unlabelled outputs of a
+dense-mode crop stay out of the loss, as in plain training: the shipped teachers are weaker
+than the labels (see the model cards), so the labels should keep the last word, and sparse and
+dense mode then train on the same pixels.
+
+Warm start (``--init-weights PATH``): weights of the same architecture and depth D are
+copied into the network before the first epoch (continued training, e.g. of CVA-Net).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+import torch.nn.functional as F
+
+from cva_confidence_ros.errors import ConfigError
+from cva_confidence_ros.model import CVANet, fold_batchnorm, load_weights
+
+__all__ = ['distillation_loss', 'load_init_weights', 'load_teacher', 'teacher_logits']
+
+
+def load_teacher(
+    path: str, matcher: str, max_disparity: int, device: torch.device
+) -> tuple[nn.Module, dict[str, Any]]:
+    """Load the teacher network of a distillation run, folded and frozen.
+
+    Args:
+        path: Weights file of any registered architecture (normally CVA-Net).
+        matcher: The matcher the student learns; the teacher must be trained for it too.
+        max_disparity: The student's D; the teacher must take the same cost volumes.
+        device: Where the teacher runs (the training device).
+
+    Returns:
+        ``(teacher, meta)``: an inference module mapping (B, 1, D, H + 12, W + 12) to (B, H, W)
+        logits through ``forward_logits``, and the teacher's stored meta.
+
+    Raises:
+        ModelError: Missing or corrupt file, or weights for another matcher or depth.
+        ConfigError: The architecture cannot be folded for inference.
+    """
+    net, meta = load_weights(path, matcher=matcher, max_disparity=max_disparity, arch=None)
+    if isinstance(net, CVANet):
+        teacher: nn.Module = fold_batchnorm(net)
+    elif callable(getattr(net, 'fold_batchnorm', None)):
+        teacher = net.fold_batchnorm()
+    else:
+        raise ConfigError(
+            f'teacher {path} (arch {meta.get("arch")!r}) has no fold_batchnorm(); '
+            'expected a cost-volume network such as CVA-Net'
+        )
+    teacher.to(device).eval().requires_grad_(False)
+    return teacher, meta
+
+
+def teacher_logits(teacher: nn.Module, volumes: torch.Tensor) -> torch.Tensor:
+    """The teacher's (B, H, W) logits for (B, 1, D, H + 12, W + 12) inputs, without a graph."""
+    with torch.no_grad():
+        return teacher.forward_logits(volumes)
+
+
+def distillation_loss(
+    logits: torch.Tensor,
+    targets: torch.Tensor,
+    teacher: torch.Tensor | None,
+    weight: float,
+) -> torch.Tensor:
+    """Mean of (1 − A)·BCE(logits, targets) + A·BCE(logits, sigmoid(teacher)).
+
+    Args:
+        logits: (N,) student logits of the labelled outputs.
+        targets: (N,) labels, 1 = correct disparity.
+        teacher: (N,) teacher logits of the same outputs, or None (then A must be 0).
+        weight: A in [0, 1].
+
+    Returns:
+        The scalar loss.
+    """
+    if not 0.0 <= weight <= 1.0:
+        raise ConfigError(f'distill weight must be in [0, 1]; got {weight}')
+    hard = F.binary_cross_entropy_with_logits(logits, targets)
+    if teacher is None or weight == 0.0:
+        if weight != 0.0:
+            raise ConfigError('a distill weight > 0 needs teacher logits')
+        return hard
+    soft = F.binary_cross_entropy_with_logits(logits, torch.sigmoid(teacher.float()))
+    return (1.0 - weight) * hard + weight * soft
+
+
+def load_init_weights(net: nn.Module, path: str, arch: str) -> dict[str, Any]:
+    """Copy the weights of ``path`` into ``net`` (same architecture and depth D).
+
+    Returns:
+        The stored meta of the weights (for the training summary).
+
+    Raises:
+        ModelError: Missing or corrupt file, other architecture or other D.
+    """
+    source, meta = load_weights(Path(path), max_disparity=net.max_disparity, arch=arch)
+    net.load_state_dict(source.state_dict())
+    return meta
