@@ -85,7 +85,9 @@ def main(argv: list[str] | None = None) -> int:
         '--matchers', default='census_bm,census_sgm,mccnn_fast', help='comma-separated matchers'
     )
     parser.add_argument(
-        '--methods', default='cva_net,pkrn,mlm,lrd,lrc,score', help='confidence methods to replay'
+        '--methods',
+        default='cva_net,cva_net_lite,ccnn,lfn,lgc_net,pkrn,mlm,lrd,lrc,score',
+        help='confidence methods to replay',
     )
     args = parser.parse_args(argv)
 
