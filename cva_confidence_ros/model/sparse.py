@@ -68,6 +68,7 @@ from cva_confidence_ros.model.inference import (
     _check_pixels,
     _check_volume,
     _unwrap,
+    activations_per_pixel,
     fold_batchnorm,
     pad_cost_volume,
     resolve_device,
@@ -348,7 +349,13 @@ class SparseEvaluator:
                 f'mask must be a ({height}, {width}) bool array; got {mask.shape} {mask.dtype}'
             )
         result = np.full((height, width), np.nan, dtype=np.float32)
-        rows, columns = tile_shape(height, width, self.max_disparity, self.tile_budget_mb)
+        rows, columns = tile_shape(
+            height,
+            width,
+            self.max_disparity,
+            self.tile_budget_mb,
+            activations_per_pixel(self.net, self.max_disparity),
+        )
         padded_np = pad_cost_volume(volume)
         padded = torch.from_numpy(padded_np)
         windows = None
