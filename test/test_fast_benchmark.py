@@ -98,7 +98,8 @@ def test_lite_rows_time_lite_and_score_it_against_the_full_network():
         'name': 'synthetic', 'volume': volume, 'disparity': disparity, 'image': sample.left,
         'volume_right': compute_cost_volume(sample.left, sample.right, 'census_bm', 16,
                                             view='right'),
-        'wrong': kitti_error(disparity, sample.disparity), 'known': np.ones(volume.shape[1:], bool),
+        'wrong': kitti_error(disparity, sample.disparity),
+        'known': np.ones(volume.shape[1:], bool),
     }  # fmt: skip
     torch.manual_seed(0)
     net, lite = CVANet(16).eval(), CVANetLite(16).eval()
