@@ -1,7 +1,8 @@
 """Speed and AUC cost of CVA-Net's fast paths (``cva-benchmark --suite fast``).
 
 One record per configuration (:data:`FAST_CONFIGS`: exact, bf16, strides, cascades and their
-combinations, plus whole-pipeline rows), with the keys of
+combinations, plus whole-pipeline rows, for CVA-Net and, in the ``lite*`` rows, for CVA-Net-Lite:
+:attr:`FastConfig.arch`), with the keys of
 :data:`cva_confidence_ros.benchmark.RECORD_KEYS`:
 
 * ``ms_per_frame``: the network part (cheap measure and filling included) on the cost volume of
@@ -18,7 +19,7 @@ combinations, plus whole-pipeline rows), with the keys of
   before them (VmHWM reset first).
 * ``auc_rel``: mean AUC over the develop scenes of the configuration / that of the exact fp32
   network (the paper network at full resolution), when ``--data-root`` holds the develop split;
-  None without it. Each scene is halved until its ground truth fits D, its census_bm cost volume
+  None without it. Lite rows are relative to the same exact CVA-Net (so they can be < 1). Each scene is halved until its ground truth fits D, its census_bm cost volume
   computed, and a ``--auc-crop`` window (rows×columns, the one of nine candidate positions with
   the most ground truth) scored on its known pixels. A sparse configuration depends on the
   network only through its values at the pixels it evaluates, which equal the exact network's
