@@ -19,9 +19,10 @@ combinations, plus whole-pipeline rows, for CVA-Net and, in the ``lite*`` rows, 
   before them (VmHWM reset first).
 * ``auc_rel``: mean AUC over the develop scenes of the configuration / that of the exact fp32
   network (the paper network at full resolution), when ``--data-root`` holds the develop split;
-  None without it. Lite rows are relative to the same exact CVA-Net (so they can be < 1). Each scene is halved until its ground truth fits D, its census_bm cost volume
-  computed, and a ``--auc-crop`` window (rows×columns, the one of nine candidate positions with
-  the most ground truth) scored on its known pixels. A sparse configuration depends on the
+  None without it; Lite rows are relative to the same exact CVA-Net (so they can be < 1).
+  Each scene is halved until its ground truth fits D, its census_bm cost volume computed, and
+  a ``--auc-crop`` window (rows×columns, the one of nine candidate positions with the most
+  ground truth) scored on its known pixels. A sparse configuration depends on the
   network only through its values at the pixels it evaluates, which equal the exact network's
   (tested to 1e-4), so the exact map of the crop is computed once and looked up for every
   configuration. ``bf16`` is the exception (other arithmetic): its AUC is measured on the

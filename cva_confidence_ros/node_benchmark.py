@@ -3,7 +3,8 @@
 For every matcher × confidence method, the real ``cva-node`` is started as a subprocess with
 those parameters (reliable QoS on its inputs and outputs, a ROS domain of its own, discovery
 limited to this host), plus any ``--param NAME=VALUE`` (as ``-p NAME:=VALUE``, e.g.
-``--param cva_stride=4``; the row's config name lists them). This process then talks to it over DDS like any client would:
+``--param cva_stride=4``; the row's config name lists them). This process then talks to it
+over DDS like any client would:
 
 1. it waits for the node's ``ready`` line and for both sides of every topic to be matched;
 2. one warm-up frame: the Motorcycle pair (scikit-image, Middlebury 2014) resized and
