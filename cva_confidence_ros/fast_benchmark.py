@@ -1,7 +1,8 @@
 """Speed and AUC cost of CVA-Net's fast paths (``cva-benchmark --suite fast``).
 
 One record per configuration (:data:`FAST_CONFIGS`: exact, bf16, strides, cascades and their
-combinations, plus whole-pipeline rows), with the keys of
+combinations, plus whole-pipeline rows, for CVA-Net and, in the ``lite*`` rows, for CVA-Net-Lite:
+:attr:`FastConfig.arch`), with the keys of
 :data:`cva_confidence_ros.benchmark.RECORD_KEYS`:
 
 * ``ms_per_frame``: the network part (cheap measure and filling included) on the cost volume of
@@ -18,9 +19,10 @@ combinations, plus whole-pipeline rows), with the keys of
   before them (VmHWM reset first).
 * ``auc_rel``: mean AUC over the develop scenes of the configuration / that of the exact fp32
   network (the paper network at full resolution), when ``--data-root`` holds the develop split;
-  None without it. Each scene is halved until its ground truth fits D, its census_bm cost volume
-  computed, and a ``--auc-crop`` window (rows×columns, the one of nine candidate positions with
-  the most ground truth) scored on its known pixels. A sparse configuration depends on the
+  None without it; Lite rows are relative to the same exact CVA-Net (so they can be < 1).
+  Each scene is halved until its ground truth fits D, its census_bm cost volume computed, and
+  a ``--auc-crop`` window (rows×columns, the one of nine candidate positions with the most
+  ground truth) scored on its known pixels. A sparse configuration depends on the
   network only through its values at the pixels it evaluates, which equal the exact network's
   (tested to 1e-4), so the exact map of the crop is computed once and looked up for every
   configuration. ``bf16`` is the exception (other arithmetic): its AUC is measured on the
@@ -70,6 +72,9 @@ class FastConfig:
         precision: ``cva_precision``.
         pipeline: Time :class:`~cva_confidence_ros.pipeline.StereoPipeline` on the image pair
             instead of the network on the cost volume.
+        arch: Network: ``cvanet`` (the paper's, method ``cva_net``) or ``cvanet_lite``
+            (CVA-Net-Lite, method ``cva_net_lite``). ``auc_rel`` is relative to the exact
+            ``cvanet`` either way.
     """
 
     name: str
@@ -78,6 +83,16 @@ class FastConfig:
     fraction: float = 0.25
     precision: str = 'fp32'
     pipeline: bool = False
+    arch: str = 'cvanet'
+
+    def __post_init__(self) -> None:
+        if self.arch not in _METHODS:
+            raise ConfigError(f'arch must be one of {sorted(_METHODS)}; got {self.arch!r}')
+
+    @property
+    def method(self) -> str:
+        """The confidence method that runs this row's network."""
+        return _METHODS[self.arch]
 
     def sparse(self) -> Any:
         """The :class:`~cva_confidence_ros.model.SparseConfig` of this row."""
@@ -85,6 +100,10 @@ class FastConfig:
 
         return SparseConfig(self.stride, self.cascade, self.fraction, self.precision)
 
+
+#: Confidence method of each network architecture.
+_METHODS = {'cvanet': 'cva_net', 'cvanet_lite': 'cva_net_lite'}
+_LITE = 'cvanet_lite'
 
 #: The rows of ``--suite fast``, in order.
 FAST_CONFIGS: tuple[FastConfig, ...] = (
@@ -103,6 +122,19 @@ FAST_CONFIGS: tuple[FastConfig, ...] = (
     FastConfig('stride8+pkrn0.1', stride=8, cascade='pkrn', fraction=0.1),
     FastConfig('pipeline:stride8', stride=8, pipeline=True),
     FastConfig('pipeline:stride8+pkrn0.1', stride=8, cascade='pkrn', fraction=0.1, pipeline=True),
+    FastConfig('lite', arch=_LITE),
+    FastConfig('lite+stride2', stride=2, arch=_LITE),
+    FastConfig('lite+stride4', stride=4, arch=_LITE),
+    FastConfig('lite+stride8', stride=8, arch=_LITE),
+    FastConfig('lite+stride4+pkrn0.25', stride=4, cascade='pkrn', fraction=0.25, arch=_LITE),
+    FastConfig('lite+stride8+pkrn0.25', stride=8, cascade='pkrn', fraction=0.25, arch=_LITE),
+    FastConfig('lite+stride8+pkrn0.1', stride=8, cascade='pkrn', fraction=0.1, arch=_LITE),
+    FastConfig('pipeline:lite+stride2', stride=2, pipeline=True, arch=_LITE),
+    FastConfig('pipeline:lite+stride4', stride=4, pipeline=True, arch=_LITE),
+    FastConfig(
+        'pipeline:lite+stride8+pkrn0.1', stride=8, cascade='pkrn', fraction=0.1, pipeline=True,
+        arch=_LITE,
+    ),
 )
 _EXTRAPOLATED = ('exact', 'bf16')
 
@@ -174,12 +206,20 @@ def develop_crops(
 
 
 def _auc_rel(configs: Sequence[FastConfig], crops: list[dict[str, Any]], net: Any,
-             log: Callable[[str], None]) -> dict[str, float]:
+             log: Callable[[str], None], lite: Any = None) -> dict[str, float]:
+    """Mean develop AUC of each row / that of the exact CVA-Net (``net``); Lite rows look
+    up the exact map of ``lite`` (CVA-Net-Lite) instead, still relative to CVA-Net."""
     from cva_confidence_ros.metrics import roc_auc
     from cva_confidence_ros.model import SparseEvaluator, sparse_confidence
 
     evaluator = SparseEvaluator(net)
     bf16 = SparseEvaluator(net, precision='bf16')
+    want_bf16 = any(c.name == 'bf16' for c in configs)
+    lite_evaluator = None
+    if any(c.arch == _LITE for c in configs):
+        if lite is None:
+            raise ConfigError('CVA-Net-Lite rows need the Lite network')
+        lite_evaluator = SparseEvaluator(lite)
     aucs: dict[str, list[float]] = {c.name: [] for c in configs}
     exact_aucs: list[float] = []
     bf16_pairs: list[tuple[float, float]] = []
@@ -189,21 +229,23 @@ def _auc_rel(configs: Sequence[FastConfig], crops: list[dict[str, Any]], net: An
         known, wrong = item['known'], item['wrong']
         exact_auc = roc_auc(exact[known], wrong[known])
         exact_aucs.append(exact_auc)
+        lite_exact = None if lite_evaluator is None else lite_evaluator(item['volume'])
         for config in configs:
             if config.name in _EXTRAPOLATED:
                 continue
             cheap = _cheap(config.cascade, item['volume'], item['disparity'], item['image'],
                            item['volume_right'])
+            values = lite_exact if config.arch == _LITE else exact
             result = sparse_confidence(
-                lambda _v, _m, exact=exact: exact, item['volume'], item['image'],
+                lambda _v, _m, values=values: values, item['volume'], item['image'],
                 item['disparity'], config.sparse(), cheap,
             )
             aucs[config.name].append(roc_auc(result.confidence[known], wrong[known]))
         rows, columns = known.shape
         centre = (slice(rows // 2 - 5, rows // 2 + 5), slice(columns // 2 - 5, columns // 2 + 5))
-        low = bf16(np.ascontiguousarray(item['volume'][:, centre[0], centre[1]]))
         sub_known, sub_wrong = known[centre], wrong[centre]
-        if sub_known.sum() > 1:
+        if want_bf16 and sub_known.sum() > 1:
+            low = bf16(np.ascontiguousarray(item['volume'][:, centre[0], centre[1]]))
             bf16_pairs.append((roc_auc(low[sub_known], sub_wrong[sub_known]),
                                roc_auc(exact[centre][sub_known], sub_wrong[sub_known])))
         log(f'  AUC of {item["name"]}: exact {exact_auc:.4f} '
@@ -250,6 +292,9 @@ def run_fast(
     device = resolve_device('cpu')
     depth = settings.max_disparity
     net, note = _network(NETWORK_MATCHER, depth)
+    lite, lite_note = (
+        _lite_network(depth) if any(c.arch == _LITE for c in configs) else (None, None)
+    )
     left, right = make_pairs(settings)['real']
     volume = compute_cost_volume(left, right, NETWORK_MATCHER, depth)
     volume_right = compute_cost_volume(left, right, NETWORK_MATCHER, depth, view='right')
@@ -258,11 +303,12 @@ def run_fast(
     auc_rel: dict[str, float] = {}
     if data_root is not None:
         log(f'develop-split AUC on {auc_crop[0]}×{auc_crop[1]} crops …')
-        auc_rel = _auc_rel(configs, develop_crops(data_root, depth, auc_crop), net, log)
+        auc_rel = _auc_rel(configs, develop_crops(data_root, depth, auc_crop), net, log, lite)
     records = []
     for config in configs:
         log(f'measuring {config.name} …')
-        evaluator = SparseEvaluator(net, device, precision=config.precision)
+        row_net = lite if config.arch == _LITE else net
+        evaluator = SparseEvaluator(row_net, device, precision=config.precision)
         record: dict[str, Any] = {
             'config': config.name,
             'device': device.type,
@@ -273,9 +319,11 @@ def run_fast(
             'auc_rel': auc_rel.get(config.name),
             'threads': torch.get_num_threads(),
             'extrapolated': config.name in _EXTRAPOLATED,
+            'arch': config.arch,
         }
-        if note is not None:
-            record['note'] = note
+        row_note = lite_note if config.arch == _LITE else note
+        if row_note is not None:
+            record['note'] = row_note
         if config.name in _EXTRAPOLATED:
             side = crop if config.precision == 'fp32' else max(4, crop // 4)
             rows, columns = min(side, settings.height), min(side, settings.width)
@@ -298,7 +346,8 @@ def run_fast(
             if config.pipeline:
                 pipeline = StereoPipeline(PipelineConfig(
                     matcher=NETWORK_MATCHER, max_disparity=depth, device='cpu',
-                    model_path=_weights_path(depth), cva_stride=config.stride,
+                    confidence_method=config.method,
+                    model_path=_weights_path(depth, config.arch), cva_stride=config.stride,
                     cva_cascade=config.cascade, cva_cascade_fraction=config.fraction,
                     cva_precision=config.precision,
                 ))
@@ -343,14 +392,33 @@ def run_fast(
     return records
 
 
-def _weights_path(depth: int) -> str:
+def _weights_path(depth: int, arch: str = 'cvanet') -> str:
     from cva_confidence_ros.errors import ModelError
     from cva_confidence_ros.model import default_weights_path
 
     try:
-        return str(default_weights_path(NETWORK_MATCHER, depth))
+        return str(default_weights_path(NETWORK_MATCHER, depth, arch))
     except ModelError:
         return ''
+
+
+def _lite_network(depth: int) -> tuple[Any, str | None]:
+    """Shipped CVA-Net-Lite weights for (census_bm, D), else a seeded random one and why."""
+    import torch
+
+    from cva_confidence_ros.errors import ModelError
+    from cva_confidence_ros.model import CVANetLite, default_weights_path, load_weights
+
+    try:
+        path = default_weights_path(NETWORK_MATCHER, depth, _LITE)
+    except ModelError:
+        torch.manual_seed(0)
+        return CVANetLite(depth).eval(), (
+            f'random init: no shipped CVA-Net-Lite weights for {NETWORK_MATCHER}, D = {depth} '
+            '(speed does not depend on weight values; auc_rel is meaningless)'
+        )
+    net, _ = load_weights(path, matcher=NETWORK_MATCHER, max_disparity=depth, arch=_LITE)
+    return net, None
 
 
 def format_fast_table(records: Sequence[dict[str, Any]]) -> str:
@@ -424,7 +492,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(format_fast_table(records))
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        extra = ('network_share', 'extrapolated', 'threads', 'cheap_ms', 'stages_ms', 'note')
+        extra = ('network_share', 'extrapolated', 'threads', 'cheap_ms', 'stages_ms', 'note',
+                 'arch')
         rows_out = [{k: r[k] for k in RECORD_KEYS + extra if k in r} for r in records]
         args.json.write_text(json.dumps(rows_out, indent=2) + '\n', encoding='utf-8')
         print(f'wrote {args.json}', file=sys.stderr)

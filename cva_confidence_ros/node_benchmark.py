@@ -2,7 +2,9 @@
 
 For every matcher × confidence method, the real ``cva-node`` is started as a subprocess with
 those parameters (reliable QoS on its inputs and outputs, a ROS domain of its own, discovery
-limited to this host). This process then talks to it over DDS like any client would:
+limited to this host), plus any ``--param NAME=VALUE`` (as ``-p NAME:=VALUE``, e.g.
+``--param cva_stride=4``; the row's config name lists them). This process then talks to it
+over DDS like any client would:
 
 1. it waits for the node's ``ready`` line and for both sides of every topic to be matched;
 2. one warm-up frame: the Motorcycle pair (scikit-image, Middlebury 2014) resized and
@@ -49,6 +51,7 @@ import itertools
 import json
 import os
 from pathlib import Path
+import re
 import signal
 import statistics
 import subprocess
@@ -77,6 +80,7 @@ __all__ = [
     'measure_network_crop',
     'measure_node',
     'network_flops',
+    'parse_params',
     'run_suite',
 ]
 
@@ -103,6 +107,8 @@ _BASELINE_M = 0.193
 _DEVICES = ('cpu', 'cuda', 'auto')
 _LARGE_SHM = 'large-shm'
 _INHERIT = 'inherit'
+#: A ROS parameter name as ``--param`` takes it.
+_PARAM_NAME = re.compile(r'[A-Za-z][A-Za-z0-9_.]*')
 # Fast DDS 2.x (ROS 2 Jazzy) reads the first, Fast DDS 3 the second.
 _PROFILE_VARIABLES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
 
@@ -164,6 +170,9 @@ class NodeBenchSettings:
         dds_profile: ``large-shm`` (:data:`FASTDDS_LARGE_MESSAGES_XML` for the node and the
             client), ``inherit`` (the environment's DDS settings, stock Fast DDS unless set)
             or the path of a Fast DDS XML profiles file.
+        params: Further node parameters, (name, value) pairs passed as ``-p name:=value``
+            after (and so over) the benchmark's own, e.g. ``(('cva_stride', '4'),)``; see
+            :func:`parse_params`.
     """
 
     width: int = 640
@@ -181,8 +190,15 @@ class NodeBenchSettings:
     timeout_s: float = 3600.0
     domain_id: int | None = None
     dds_profile: str = _LARGE_SHM
+    params: tuple[tuple[str, str], ...] = ()
 
     def __post_init__(self) -> None:
+        for pair in self.params:
+            if len(pair) != 2 or not _PARAM_NAME.fullmatch(str(pair[0])) or str(pair[1]) == '':
+                raise ConfigError(
+                    f'params must be (name, value) pairs with a parameter name and a non-empty '
+                    f'value; got {pair!r}'
+                )
         if self.height < 8 or self.width < 16:
             raise ConfigError(f'images must be at least 16×8; got {self.width}×{self.height}')
         if not 1 <= self.max_disparity <= 1024:
@@ -224,6 +240,26 @@ class NodeBenchSettings:
     def domain(self) -> int:
         """The ROS domain used: given, or 1–100 from the pid (the node tests use 101–220)."""
         return self.domain_id if self.domain_id is not None else 1 + os.getpid() % 100
+
+
+def parse_params(items: Sequence[str]) -> tuple[tuple[str, str], ...]:
+    """``NAME=VALUE`` strings (``--param``) → (name, value) pairs, in order.
+
+    Raises:
+        ConfigError: An item without ``=``, or with an empty or malformed name or an empty
+            value; the message names the item.
+    """
+    pairs = []
+    for item in items:
+        name, sep, value = str(item).partition('=')
+        name, value = name.strip(), value.strip()
+        if not sep or not _PARAM_NAME.fullmatch(name) or not value:
+            raise ConfigError(
+                f'--param must be NAME=VALUE with a node parameter name (letters, digits, '
+                f'_ and .) and a value, e.g. cva_stride=4; got {item!r}'
+            )
+        pairs.append((name, value))
+    return tuple(pairs)
 
 
 def benchmark_pair(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
@@ -278,6 +314,7 @@ def node_parameters(
     }
     if model_path:
         values['model_path'] = model_path
+    values.update(dict(settings.params))
     args: list[str] = []
     for name, value in values.items():
         args += ['-p', f'{name}:={value}']
@@ -733,7 +770,9 @@ def measure_node(
     latency = statistics.median(latencies)
     fps = 1000.0 / latency
     record: dict[str, Any] = {
-        'config': f'node:{matcher}+{method}',
+        'config': f'node:{matcher}+{method}' + ''.join(
+            f' {name}={value}' for name, value in settings.params
+        ),
         'device': settings.device,
         'width': settings.width,
         'height': settings.height,
@@ -755,6 +794,7 @@ def measure_node(
         'stages_ms': {stage: statistics.median(values) for stage, values in stages.items()},
         'rss_ready_mb': rss_ready,
         'dds_profile': settings.dds_profile,
+        'params': dict(settings.params),
         'note': '',
     }
     record.update(burst)
@@ -1084,6 +1124,11 @@ def run_suite(
     for name in methods:
         CONFIDENCE_METHODS.get(name)
     full = settings.full_cva_net or settings.device != 'cpu'
+    if settings.params and _NETWORK in methods and not full:
+        raise ConfigError(
+            f'--param with {_NETWORK} on the CPU needs --full-cva-net: the extrapolated row '
+            f'times the exact network on a crop and would ignore the parameters'
+        )
     pair = benchmark_pair(settings.width, settings.height)
     stamps = _stamps()
     records: list[dict[str, Any]] = []
@@ -1225,6 +1270,9 @@ def _parser() -> argparse.ArgumentParser:
                         help='Fast DDS settings of the node and the client: large-shm (default; a '
                         '16 MB shared-memory segment, without which 640×480 frames stall for '
                         "seconds), inherit (the environment's) or an XML profiles file")
+    parser.add_argument('--param', action='append', default=[], metavar='NAME=VALUE',
+                        help='extra node parameter, passed as -p NAME:=VALUE to every node '
+                        'started (repeatable), e.g. --param cva_stride=4')
     parser.add_argument('--json', type=Path, default=None, metavar='PATH',
                         help='write the records as a JSON list to PATH')
     parser.add_argument(_CROP_WORKER_FLAG, default=None, help=argparse.SUPPRESS)
@@ -1253,6 +1301,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             timeout_s=args.timeout,
             domain_id=args.domain_id,
             dds_profile=args.dds_profile,
+            params=parse_params(args.param),
         )
         if args.crop_worker is not None:
             record = measure_network_crop(settings, args.crop_worker, args.weights)

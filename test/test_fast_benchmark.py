@@ -46,8 +46,70 @@ def test_cli_rejects_unknown_rows(tmp_path, capsys):
 
 def test_cli_writes_json(tmp_path):
     out = tmp_path / 'fast.json'
-    code = main(['--suite', 'fast', '--width', '80', '--height', '8', '--configs', 'stride8',
-                 '--json', str(out)])
+    code = main(
+        [
+            '--suite',
+            'fast',
+            '--width',
+            '80',
+            '--height',
+            '8',
+            '--configs',
+            'stride8',
+            '--json',
+            str(out),
+        ]
+    )
     assert code == 0
     rows = json.loads(out.read_text())
     assert rows[0]['config'] == 'stride8' and set(RECORD_KEYS) <= set(rows[0])
+
+
+def test_lite_rows_time_lite_and_score_it_against_the_full_network():
+    import numpy as np
+
+    from cva_confidence_ros.datasets.synthetic import synthetic_pair
+    from cva_confidence_ros.fast_benchmark import FastConfig, _auc_rel
+    from cva_confidence_ros.matching import compute_cost_volume, wta_disparity
+    from cva_confidence_ros.metrics import kitti_error, roc_auc
+    from cva_confidence_ros.model import CVANet, CVANetLite, SparseEvaluator
+
+    by_name = {c.name: c for c in FAST_CONFIGS}
+    names = ('lite', 'lite+stride4', 'lite+stride8+pkrn0.1', 'pipeline:lite+stride4')
+    assert all(
+        by_name[n].arch == 'cvanet_lite' and by_name[n].method == 'cva_net_lite' for n in names
+    )
+    assert by_name['stride4'].arch == 'cvanet'
+    with pytest.raises(Exception, match='arch'):
+        FastConfig('x', arch='resnet')
+    records = run_fast(
+        BenchSettings(80, 8, 64, 1), [by_name[n] for n in names], crop=4,
+        log=lambda _text: None, gemm_size=256,
+    )  # fmt: skip
+    assert [r['arch'] for r in records] == ['cvanet_lite'] * 4
+    assert records[0]['network_share'] == 1.0 and records[0]['extrapolated'] is False
+    assert records[1]['network_share'] == pytest.approx(1 / 16, abs=0.05)
+    assert 'matching' in records[3]['stages_ms']
+    # auc_rel of a Lite row = AUC of Lite (looked up at the evaluated pixels) / AUC of CVA-Net
+    sample = synthetic_pair(3, 32, 64, 16)
+    volume = compute_cost_volume(sample.left, sample.right, 'census_bm', 16)
+    disparity = wta_disparity(volume)
+    crop = {
+        'name': 'synthetic', 'volume': volume, 'disparity': disparity, 'image': sample.left,
+        'volume_right': compute_cost_volume(sample.left, sample.right, 'census_bm', 16,
+                                            view='right'),
+        'wrong': kitti_error(disparity, sample.disparity),
+        'known': np.ones(volume.shape[1:], bool),
+    }  # fmt: skip
+    torch.manual_seed(0)
+    net, lite = CVANet(16).eval(), CVANetLite(16).eval()
+    configs = [FastConfig('lite', arch='cvanet_lite'), FastConfig('stride2', stride=2),
+               FastConfig('lite+stride2', stride=2, arch='cvanet_lite')]  # fmt: skip
+    rel = _auc_rel(configs, [crop], net, lambda _text: None, lite)
+    wrong = crop['wrong'].ravel()
+    full = roc_auc(SparseEvaluator(net)(volume).ravel(), wrong)
+    assert rel['lite'] == pytest.approx(
+        roc_auc(SparseEvaluator(lite)(volume).ravel(), wrong) / full
+    )
+    assert rel['exact'] == 1.0 and 'bf16' not in rel  # bf16 only when its row is asked for
+    assert rel['lite+stride2'] != rel['lite'] and rel['stride2'] != rel['lite+stride2']

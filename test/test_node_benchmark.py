@@ -46,6 +46,36 @@ def test_node_parameters_ask_for_reliable_qos_both_ways() -> None:
     assert settings.processed_size == (240, 320)
 
 
+def test_param_option_reaches_the_node_as_ros_parameters() -> None:
+    """``--param NAME=VALUE`` (repeatable) is parsed, checked and passed as ``-p NAME:=VALUE``."""
+    args = node_benchmark._parser().parse_args(
+        ['--param', 'cva_stride=4', '--param', 'cva_cascade=pkrn', '--param', 'matcher=x']
+    )
+    params = node_benchmark.parse_params(args.param)
+    assert params == (('cva_stride', '4'), ('cva_cascade', 'pkrn'), ('matcher', 'x'))
+    settings = NodeBenchSettings(params=params)
+    ros_args = node_benchmark.node_parameters(settings, 'census_bm', 'cva_net_lite')
+    assert ros_args[-4:] == ['-p', 'cva_stride:=4', '-p', 'cva_cascade:=pkrn']
+    # a --param overrides the benchmark's own value of the same name (no duplicate -p)
+    values = dict(arg.split(':=') for arg in ros_args if arg != '-p')
+    assert ros_args.count('-p') == len(values) and values['matcher'] == 'x'
+    assert node_benchmark.parse_params([' cva_precision = bf16 ']) == (('cva_precision', 'bf16'),)
+    for bad in ('cva_stride', 'cva_stride=', '=4', '4x=1', 'a b=1'):
+        with pytest.raises(ConfigError, match='--param must be NAME=VALUE'):
+            node_benchmark.parse_params([bad])
+    with pytest.raises(ConfigError, match='params'):
+        NodeBenchSettings(params=(('cva_stride', ''),))
+    # the CPU extrapolation of cva_net times the exact network: parameters would be ignored
+    with pytest.raises(ConfigError, match='--full-cva-net'):
+        node_benchmark.run_suite(settings, ['census_bm'], ['cva_net'])
+    code = None
+    try:
+        node_benchmark.main(['--methods', 'cva_net', '--param', 'nonsense'])
+    except SystemExit as exit_:
+        code = exit_.code
+    assert code == 2
+
+
 def test_large_message_profile_gives_shared_memory_room_for_image_messages() -> None:
     root = ElementTree.fromstring(node_benchmark.FASTDDS_LARGE_MESSAGES_XML)
     sizes = [int(e.text or 0) for e in root.iter() if e.tag.endswith('segment_size')]

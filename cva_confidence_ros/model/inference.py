@@ -31,6 +31,7 @@ from cva_confidence_ros.model.network import (
 __all__ = [
     'PAD',
     'FoldedCVANet',
+    'activations_per_pixel',
     'fold_batchnorm',
     'pad_cost_volume',
     'predict_confidence',
@@ -236,21 +237,40 @@ def pad_cost_volume(cost_volume: np.ndarray, dtype: np.dtype | type = np.float32
 
 
 def tile_shape(
-    height: int, width: int, max_disparity: int, tile_budget_mb: float
+    height: int,
+    width: int,
+    max_disparity: int,
+    tile_budget_mb: float,
+    activations_per_pixel: int | None = None,
 ) -> tuple[int, int]:
     """Output tile (rows, columns) whose activations fit ``tile_budget_mb`` megabytes.
 
-    The widest activation is the 32-channel fusion output over the padded tile,
-    32 · D · (rows + 12) · (columns + 12) float32 values, counted :data:`_LIVE_COPIES` times.
+    The widest activation has ``activations_per_pixel`` float32 values per pixel of the padded
+    tile (default CVA-Net's 32-channel fusion output, 32 · D), over
+    (rows + 12) · (columns + 12) pixels, counted :data:`_LIVE_COPIES` times. Networks give
+    their own figure by :func:`activations_per_pixel`.
     """
     if tile_budget_mb <= 0:
         raise ConfigError(f'tile_budget_mb must be > 0; got {tile_budget_mb}')
-    per_pixel = 4 * 32 * max_disparity * _LIVE_COPIES
+    values = 32 * max_disparity if activations_per_pixel is None else activations_per_pixel
+    if values < 1:
+        raise ConfigError(f'activations_per_pixel must be >= 1; got {values}')
+    per_pixel = 4 * values * _LIVE_COPIES
     padded_pixels = max(1, int(tile_budget_mb * 1e6 / per_pixel))
     side = max(1, int(math.sqrt(padded_pixels)) - 2 * PAD)
     columns = min(width, side)
     rows = max(1, padded_pixels // (columns + 2 * PAD) - 2 * PAD)
     return min(height, rows), columns
+
+
+def activations_per_pixel(net: nn.Module, max_disparity: int) -> int:
+    """Float32 values per image pixel of the widest activation of ``net`` at depth D.
+
+    Uses the network's ``activations_per_pixel`` attribute when it has one (CVA-Net-Lite),
+    else CVA-Net's 32 · D.
+    """
+    own = getattr(_unwrap(net), 'activations_per_pixel', None)
+    return int(own) if isinstance(own, int) and own >= 1 else 32 * int(max_disparity)
 
 
 def predict_confidence(
@@ -287,7 +307,9 @@ def predict_confidence(
     volume = _check_volume(net, cost_volume)
     torch_device = resolve_device(device)
     depth, height, width = volume.shape
-    rows, columns = tile_shape(height, width, depth, tile_budget_mb)
+    rows, columns = tile_shape(
+        height, width, depth, tile_budget_mb, activations_per_pixel(net, depth)
+    )
     padded = torch.from_numpy(pad_cost_volume(volume))
     result = np.empty((height, width), dtype=np.float32)
     with contextlib.ExitStack() as stack:

@@ -51,6 +51,7 @@ __all__ = [
     'LiteDepthProcessing',
     'LiteFusion',
     'condensed_depth',
+    'lite_activations_per_pixel',
 ]
 
 #: Filters of every fusion and depth-processing convolution (CVA-Net: 32).
@@ -69,6 +70,11 @@ LITE_MIN_DISPARITY = LITE_FIRST_KERNEL
 def condensed_depth(max_disparity: int) -> int:
     """Depth of the cost curves after the strided first convolution: ⌊(D − 8) / 4⌋ + 1."""
     return (int(max_disparity) - LITE_FIRST_KERNEL) // LITE_STRIDE + 1
+
+
+def lite_activations_per_pixel(max_disparity: int) -> int:
+    """Float32 values per pixel of CVA-Net-Lite's widest activation: max(D, 16 · D'')."""
+    return max(int(max_disparity), LITE_FILTERS * condensed_depth(max_disparity))
 
 
 class LiteFusion(nn.Module):
@@ -193,6 +199,11 @@ class CVANetLite(nn.Module):
         """Confidence in (0, 1) of shape (B, H, W)."""
         return torch.sigmoid(self.forward_logits(volume))
 
+    @property
+    def activations_per_pixel(self) -> int:
+        """Float32 values per pixel of the widest activation (the tile size follows from it)."""
+        return lite_activations_per_pixel(self.max_disparity)
+
     def fold_batchnorm(self) -> FoldedCVANetLite:
         """An inference-only copy with every BN merged into a convolution (this net unchanged)."""
         return FoldedCVANetLite(self)
@@ -267,21 +278,41 @@ class FoldedCVANetLite(nn.Module):
         self.requires_grad_(False)
         self.eval()
 
-    def forward_logits(self, volume: torch.Tensor) -> torch.Tensor:
-        """(B, 1, D, H + 12, W + 12) float32 → (B, H, W) float32 logits."""
+    @property
+    def activations_per_pixel(self) -> int:
+        """Float32 values per pixel of the widest activation (the tile size follows from it)."""
+        return lite_activations_per_pixel(self.max_disparity)
+
+    def fusion_features(self, volume: torch.Tensor) -> torch.Tensor:
+        """The neighbourhood fusion: (B, 1, D, H + 12, W + 12) → (B, 16, D'', H, W).
+
+        With :meth:`head_logits` it splits the network at the per-pixel curves, as
+        CVA-Net's folded form does, so that the sparse evaluation can fuse densely and run the
+        depth stage only at the wanted pixels.
+        """
         check_volume_tensor(volume, self.max_disparity)
         x = volume
         for conv in self.fusion:
             x = F.relu(conv(x))
-        batch, channels, depth, height, width = x.shape
+        return x
+
+    def head_logits(self, curves: torch.Tensor) -> torch.Tensor:
+        """Depth processing and classification of fused curves: (N, 16, D'') → (N,) logits."""
         # (N, C·D'') with feature index c·D'' + d, as the banded matrices expect.
-        x = x.permute(0, 3, 4, 1, 2).reshape(batch * height * width, channels * depth)
+        x = curves.reshape(curves.shape[0], -1)
         for index in range(len(LITE_DEPTH_KERNELS)):
             matrix = getattr(self, f'depth_matrix{index}')
             x = F.relu(torch.addmm(getattr(self, f'depth_bias{index}'), x, matrix))
         x = F.relu(torch.addmm(self.fc1.bias, x, self.fc1_matrix))
         x = x @ self.fc2.weight[:, :, 0].t() + self.fc2.bias
-        return x.reshape(batch, height, width)
+        return x.reshape(-1)
+
+    def forward_logits(self, volume: torch.Tensor) -> torch.Tensor:
+        """(B, 1, D, H + 12, W + 12) float32 → (B, H, W) float32 logits."""
+        x = self.fusion_features(volume)
+        batch, channels, depth, height, width = x.shape
+        x = x.permute(0, 3, 4, 1, 2).reshape(batch * height * width, channels, depth)
+        return self.head_logits(x).reshape(batch, height, width)
 
     def forward(self, volume: torch.Tensor) -> torch.Tensor:
         """Confidence in (0, 1), (B, H, W)."""
