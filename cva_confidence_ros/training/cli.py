@@ -20,7 +20,7 @@ import shlex
 import sys
 
 from cva_confidence_ros.errors import CVAError
-from cva_confidence_ros.training.config import MODES, TrainConfig
+from cva_confidence_ros.training.config import FUSION_SPLITS, MODES, TrainConfig
 
 __all__ = ['build_parser', 'config_from_args', 'main']
 
@@ -111,6 +111,13 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help='labelled samples per epoch (default: every labelled pixel once)',
     )
+    run.add_argument(
+        '--fusion-split',
+        choices=FUSION_SPLITS,
+        default=defaults['fusion_split'].default,
+        help='lgcnet: alternate = parts on half of the scenes (sorted by name, even positions), '
+        'fusion on the other half; none = both stages on all scenes',
+    )
     run.add_argument('--seed', type=int, default=0)
     run.add_argument('--device', default='cpu', help="'cpu', 'cuda', 'cuda:N' or 'auto'")
     run.add_argument('--threads', type=int, default=None, help='torch and numba CPU threads')
@@ -154,6 +161,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         weights_out=args.weights_out,
         resume=args.resume,
         progress=not args.no_progress,
+        fusion_split=args.fusion_split,
     )
 
 
