@@ -18,7 +18,14 @@ local network) and ConfNet together on the same crops (the sum of their two loss
 parameters are disjoint, so this is two independent trainings sharing the data loading);
 stage 2 freezes both, computes their confidence maps of every training scene once, and trains
 the fusion network. Each stage runs the configured schedule (``--epochs`` at ``--lr`` then
-``--epochs-low-lr`` at the lower rate), so an LGC-Net run has twice as many epochs. ConfNet
+``--epochs-low-lr`` at the lower rate), so an LGC-Net run has twice as many epochs.
+
+The two stages learn from disjoint halves of the training scenes (``--fusion-split alternate``,
+the default; :func:`split_scenes`): the scenes sorted by name, even positions for CCNN + ConfNet,
+odd positions for the fusion. Trained on the parts' own training scenes (``--fusion-split
+none``), the fusion learns how over-confident the parts are there, not how they behave on new
+scenes, and ends worse than its own parts on unseen data. Of the fusion's epochs, the one with
+the best validation AUC is kept (its weights are the ones written). ConfNet
 needs crops whose sides are multiples of 16: the crop side is rounded down to one (and
 ``--mode sparse`` is refused for LGC-Net).
 
@@ -63,6 +70,7 @@ __all__ = [
     'NETWORK_FACTS',
     'DisparityScene',
     'crop_side',
+    'split_scenes',
     'gather_planes',
     'prepare_disparity_scene',
     'train_baseline',
@@ -185,6 +193,36 @@ def prepare_disparity_scene(
         labelled,
         correct,
     )
+
+
+def split_scenes(names: list[str], how: str) -> tuple[list[int], list[int]]:
+    """Indices of the scenes for LGC-Net's stage 1 (parts) and stage 2 (fusion).
+
+    Args:
+        names: ``dataset/scene`` of every training scene, in loading order.
+        how: ``alternate`` (sorted by name: even positions → parts, odd → fusion; disjoint,
+            together every scene) or ``none`` (every scene in both).
+
+    Returns:
+        ``(parts, fusion)``: sorted index lists into ``names``.
+
+    Raises:
+        ConfigError: Unknown ``how``; ``alternate`` with fewer than 2 scenes or repeated names.
+    """
+    if how == 'none':
+        everything = list(range(len(names)))
+        return everything, list(everything)
+    if how != 'alternate':
+        raise ConfigError(f'unknown fusion split {how!r}; expected alternate or none')
+    if len(set(names)) != len(names):
+        raise ConfigError('--fusion-split alternate needs distinct scene names')
+    if len(names) < 2:
+        raise ConfigError(
+            f'--fusion-split alternate needs at least 2 training scenes; got {len(names)} '
+            '(add scenes or use --fusion-split none)'
+        )
+    order = sorted(range(len(names)), key=lambda i: names[i])
+    return sorted(order[0::2]), sorted(order[1::2])
 
 
 def crop_side(config: TrainConfig, scenes: list[DisparityScene]) -> int:
@@ -397,6 +435,22 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
 
     scenes = prepare(False)
     index = sample_index(scenes)  # type: ignore[arg-type]
+    split = config.fusion_split if config.arch == 'lgcnet' else 'none'
+    parts_at, fusion_at = split_scenes([s.name for s in scenes], split)
+    stage_scenes = {
+        'single': scenes,
+        'parts': [scenes[i] for i in parts_at],
+        'fusion': [scenes[i] for i in fusion_at],
+    }
+    stage_index = {
+        'single': index,
+        'parts': sample_index(stage_scenes['parts']),  # type: ignore[arg-type]
+        'fusion': sample_index(stage_scenes['fusion']),  # type: ignore[arg-type]
+    }
+    if config.arch == 'lgcnet':
+        log(f'fusion split {split}: parts on {len(parts_at)} scenes '
+            f'({len(stage_index["parts"])} labelled px), fusion on {len(fusion_at)} scenes '
+            f'({len(stage_index["fusion"])} labelled px)')
     val_scenes = prepare(True)
     val_subsets = validation_subset(val_scenes, config.val_pixels, config.seed)  # type: ignore[arg-type]
     side = crop_side(config, scenes)
@@ -415,6 +469,7 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
     previous_wall = 0.0
     checkpoint = out / CHECKPOINT_NAME
     saved_optimiser: tuple[str, Any] | None = None
+    best: dict[str, Any] | None = None  # LGC-Net: the fusion epoch with the best val AUC
     if config.resume and checkpoint.is_file():
         state = _load_checkpoint(checkpoint, config)
         net.load_state_dict(state['model'])
@@ -422,6 +477,14 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
         start_epoch = int(state['epoch'])
         previous_wall = float(state.get('wall_time_s', 0.0))
         saved_optimiser = (str(state.get('stage', 'single')), state['optimizer'])
+        best = state.get('best_fusion')
+        saved_split = state.get('config', {}).get('fusion_split', 'none')
+        if config.arch == 'lgcnet' and saved_split != config.fusion_split:
+            raise ConfigError(
+                f'cannot resume from {checkpoint}: the run was started with other settings '
+                f'(fusion_split: {saved_split!r} → {config.fusion_split!r}); use another --out '
+                'folder or the original settings'
+            )
         log(f'resumed from {checkpoint} after epoch {start_epoch}')
     elif config.resume:
         log(f'--resume: no checkpoint in {out}, starting from scratch')
@@ -438,8 +501,9 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
             if stage == 'fusion':
                 tic = time.perf_counter()
                 assert isinstance(net, LGCNet)
-                _freeze_parts(net, scenes, device)
-                log(f'stage 2: CCNN and ConfNet frozen, their maps of {len(scenes)} scenes '
+                _freeze_parts(net, stage_scenes['fusion'], device)
+                log(f'stage 2: CCNN and ConfNet frozen, their maps of '
+                    f'{len(stage_scenes["fusion"])} scenes '
                     f'computed in {time.perf_counter() - tic:.1f} s')
             current_stage = stage
         assert optimiser is not None
@@ -447,7 +511,9 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
         for group in optimiser.param_groups:
             group['lr'] = lr
         torch.manual_seed(config.seed * 1_000_003 + epoch * 7919 + 1)
-        crops = dense_crops(scenes, index, n_samples, side, config.seed, epoch)  # type: ignore[arg-type]
+        crops = dense_crops(  # type: ignore[arg-type]
+            stage_scenes[stage], stage_index[stage], n_samples, side, config.seed, epoch
+        )
         per_step = max(1, math.ceil(config.batch_size / side**2))
         steps = list(batches(np.arange(len(crops.scene)), per_step))
         net.train()
@@ -458,7 +524,9 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
         )
         with _progress(int(crops.n_labelled.sum()), description, config.progress) as bar:
             for step in steps:
-                loss, count = _step_loss(net, stage, scenes, crops, step, side, device)
+                loss, count = _step_loss(
+                    net, stage, stage_scenes[stage], crops, step, side, device
+                )
                 optimiser.zero_grad(set_to_none=True)
                 loss.backward()
                 optimiser.step()
@@ -493,6 +561,16 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
         else:
             record.update(_auc(net, val_scenes, val_subsets, device))
         history.append(record)
+        if stage == 'fusion' and record['val_auc'] is not None and (
+            best is None or record['val_auc'] < best['val_auc']
+        ):
+            assert isinstance(net, LGCNet)
+            best = {
+                'epoch': epoch + 1,
+                'val_auc': record['val_auc'],
+                'fusion': {k: v.detach().cpu().clone()
+                           for k, v in net.fusion.state_dict().items()},
+            }
         wall = previous_wall + time.perf_counter() - started
         _save_checkpoint(
             checkpoint,
@@ -503,6 +581,7 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
                 'model': {k: v.detach().cpu() for k, v in net.state_dict().items()},
                 'optimizer': optimiser.state_dict(),
                 'history': history,
+                'best_fusion': best,
                 'config': config.to_dict(),
                 'wall_time_s': wall,
             },
@@ -522,9 +601,31 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
                if val is not None else parts)
         )
 
+    selected = None
+    if best is not None and isinstance(net, LGCNet) and history:
+        net.fusion.load_state_dict(best['fusion'])
+        selected = {'epoch': int(best['epoch']), 'val_auc': float(best['val_auc'])}
+        log(f'fusion: kept epoch {selected["epoch"]} (best val AUC {selected["val_auc"]:.4f})')
     wall = previous_wall + time.perf_counter() - started
     summary = _summary(config, scenes, val_scenes, val_subsets, index, n_samples, side,
                        history, device, wall, command, _scene_facts)
+    if config.arch == 'lgcnet':
+        summary['fusion_split'] = split
+        summary['parts_scenes'] = [s.name for s in stage_scenes['parts']]
+        summary['fusion_scenes'] = [s.name for s in stage_scenes['fusion']]
+        summary['network_notes'].append(
+            f'fusion split {split}: CCNN + ConfNet trained on {len(parts_at)} scenes '
+            f'({", ".join(summary["parts_scenes"])}), the fusion on '
+            + (f'{len(fusion_at)} others ({", ".join(summary["fusion_scenes"])})'
+               if split != 'none' else 'the same scenes')
+        )
+        if selected is not None:
+            summary['fusion_epoch_selected'] = selected['epoch']
+            summary['final_val_auc'] = selected['val_auc']
+            summary['network_notes'].append(
+                f'fusion weights of run epoch {selected["epoch"]}, the stage-2 epoch with the '
+                f'best validation AUC ({selected["val_auc"]:.4f})'
+            )
     if config.weights_out:
         to_save = net
         if config.arch == 'lgcnet':

@@ -20,7 +20,7 @@ import shlex
 import sys
 
 from cva_confidence_ros.errors import CVAError
-from cva_confidence_ros.training.config import MODES, TrainConfig
+from cva_confidence_ros.training.config import FUSION_SPLITS, MODES, TrainConfig
 
 __all__ = ['build_parser', 'config_from_args', 'main']
 
@@ -125,6 +125,13 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument(
         '--init-weights', default=None, help='start from these weights (same --arch and D)'
     )
+    run.add_argument(
+        '--fusion-split',
+        choices=FUSION_SPLITS,
+        default=defaults['fusion_split'].default,
+        help='lgcnet: alternate = parts on half of the scenes (sorted by name, even positions), '
+        'fusion on the other half; none = both stages on all scenes',
+    )
     run.add_argument('--seed', type=int, default=0)
     run.add_argument('--device', default='cpu', help="'cpu', 'cuda', 'cuda:N' or 'auto'")
     run.add_argument('--threads', type=int, default=None, help='torch and numba CPU threads')
@@ -171,6 +178,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         teacher=args.teacher,
         distill_weight=args.distill_weight,
         init_weights=args.init_weights,
+        fusion_split=args.fusion_split,
     )
 
 

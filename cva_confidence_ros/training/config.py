@@ -7,11 +7,16 @@ from typing import Any
 
 from cva_confidence_ros.errors import ConfigError
 
-__all__ = ['MODES', 'TrainConfig', 'default_synthetic_size', 'parse_dataset_spec']
+__all__ = ['FUSION_SPLITS', 'MODES', 'TrainConfig', 'default_synthetic_size', 'parse_dataset_spec']
 
 #: ``sparse``: one 13×13×D extract per sample (the paper); ``dense``: crops with a masked loss.
 MODES = ('sparse', 'dense')
 _DEVICES = ('cpu', 'cuda', 'auto')
+#: LGC-Net's split of the training scenes between its two stages: ``alternate`` (scenes sorted
+#: by name, even positions train CCNN + ConfNet, odd positions the fusion) or ``none`` (both
+#: stages on every scene, which lets the fusion learn the parts' over-confidence on their own
+#: training scenes).
+FUSION_SPLITS = ('alternate', 'none')
 
 
 def default_synthetic_size(max_disparity: int) -> tuple[int, int]:
@@ -65,6 +70,9 @@ class TrainConfig:
             (knowledge distillation, see ``training.distill``); None = labels only.
         distill_weight: A in [0, 1]: loss = (1 − A)·BCE(label) + A·BCE(teacher probability).
         init_weights: Weights file of the same architecture and D to start from (warm start).
+        fusion_split: LGC-Net only: which training scenes each stage sees (see
+            :data:`FUSION_SPLITS`; ``alternate``: the parts learn from one half of the scenes and
+            the fusion from the other, ``none``: both stages from all scenes).
     """
 
     arch: str = 'cvanet'
@@ -97,6 +105,7 @@ class TrainConfig:
     teacher: str | None = None
     distill_weight: float = 0.0
     init_weights: str | None = None
+    fusion_split: str = 'alternate'
 
     def __post_init__(self) -> None:
         from cva_confidence_ros.datasets import DATASETS, DEVELOP_DATASETS
@@ -127,6 +136,10 @@ class TrainConfig:
         if self.arch not in ARCHITECTURES:
             raise ConfigError(
                 f'unknown arch {self.arch!r}; expected one of {ARCHITECTURES.names()}'
+            )
+        if self.fusion_split not in FUSION_SPLITS:
+            raise ConfigError(
+                f'fusion_split must be one of {FUSION_SPLITS}; got {self.fusion_split!r}'
             )
         if self.mode not in MODES:
             raise ConfigError(f'mode must be one of {MODES}; got {self.mode!r}')

@@ -11,7 +11,7 @@ import torch
 from cva_confidence_ros.errors import ConfigError
 from cva_confidence_ros.model import load_weights
 from cva_confidence_ros.training import TrainConfig
-from cva_confidence_ros.training.baselines import crop_side, train_baseline
+from cva_confidence_ros.training.baselines import crop_side, split_scenes, train_baseline
 from cva_confidence_ros.training.cli import main
 
 TINY = [
@@ -71,6 +71,15 @@ def test_each_arch_trains_through_cva_train(tmp_path, arch, title):
         assert [h['lr'] for h in history] == pytest.approx([1e-3, 1e-4, 1e-3, 1e-4])
         assert all(0 <= h['val_auc_global'] <= 1 for h in history[:2])
         assert meta['storage'] == 'float16' and meta['crop_size'] == 16
+        # Default split: parts on seed0, fusion on seed1 (sorted names, alternating).
+        assert meta['fusion_split'] == 'alternate'
+        assert meta['parts_scenes'] == ['synthetic/seed0']
+        assert meta['fusion_scenes'] == ['synthetic/seed1']
+        # The written fusion is the stage-2 epoch with the best validation AUC.
+        fusion_aucs = {h['epoch']: h['val_auc'] for h in history[2:]}
+        assert meta['fusion_epoch_selected'] == min(fusion_aucs, key=fusion_aucs.get)
+        assert meta['final_val_auc'] == pytest.approx(min(fusion_aucs.values()))
+        assert 'fusion split alternate' in markdown
         assert 'ConfNet' in markdown and 'stage 1 epoch 1' in markdown
     else:
         assert [h['lr'] for h in history] == pytest.approx([1e-3, 1e-4])
@@ -116,3 +125,44 @@ def test_crop_side_rules():
         crop_side(base.replace(arch='lgcnet', mode='sparse'), scenes)
     with pytest.raises(ConfigError, match='at least 16 px'):
         crop_side(base.replace(arch='lgcnet'), [_Scene((12, 90))])
+
+
+def test_split_scenes_is_deterministic_disjoint_and_covering():
+    names = [f'synthetic/seed{i}' for i in range(12)] + ['kitti2012/000001', 'eth3d/a',
+                                                         'kitti2012/000000']
+    parts, fusion = split_scenes(names, 'alternate')
+    assert set(parts).isdisjoint(fusion)
+    assert sorted(parts + fusion) == list(range(len(names)))
+    assert abs(len(parts) - len(fusion)) <= 1
+    # Alternating over the names in sorted order, whatever the loading order.
+    ordered = sorted(names)
+    assert sorted(names[i] for i in parts) == ordered[0::2]
+    assert sorted(names[i] for i in fusion) == ordered[1::2]
+    shuffled = names[::-1]
+    parts_b, fusion_b = split_scenes(shuffled, 'alternate')
+    assert {shuffled[i] for i in parts_b} == {names[i] for i in parts}
+    assert split_scenes(names, 'alternate') == (parts, fusion)
+    everything = list(range(len(names)))
+    assert split_scenes(names, 'none') == (everything, everything)
+    with pytest.raises(ConfigError, match='at least 2 training scenes'):
+        split_scenes(['synthetic/seed0'], 'alternate')
+    with pytest.raises(ConfigError, match='distinct'):
+        split_scenes(['a/b', 'a/b'], 'alternate')
+    with pytest.raises(ConfigError, match='unknown fusion split'):
+        split_scenes(names, 'halves')
+
+
+def test_fusion_split_none_and_resume_guard(tmp_path):
+    out, weights = tmp_path / 'run', tmp_path / 'lgcnet.pt'
+    args = [*TINY, '--arch', 'lgcnet', '--out', str(out), '--weights-out', str(weights),
+            '--epochs', '1', '--epochs-low-lr', '0', '--fusion-split', 'none']
+    assert main(args) == 0
+    _, meta = load_weights(weights, matcher='census_bm', max_disparity=16, arch='lgcnet')
+    both = ['synthetic/seed0', 'synthetic/seed1']
+    assert meta['parts_scenes'] == both and meta['fusion_scenes'] == both
+    assert [h['stage'] for h in _history(out)] == ['parts', 'fusion']
+    # Resuming with the other split is refused (exit code 2), an unknown split too.
+    resumed = [*args[:-1], 'alternate', '--resume']
+    assert main(resumed) == 2
+    with pytest.raises(ConfigError, match='fusion_split'):
+        TrainConfig(synthetic=1, fusion_split='halves')
