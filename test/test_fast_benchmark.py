@@ -10,13 +10,7 @@ import torch
 from cva_confidence_ros.benchmark import RECORD_KEYS, BenchSettings, main
 from cva_confidence_ros.fast_benchmark import FAST_CONFIGS, format_fast_table, run_fast
 
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures('one_torch_thread')
 
 
 def test_rows_have_the_record_keys():

@@ -18,12 +18,7 @@ from cva_confidence_ros.model import (
 DEPTH, HEIGHT, WIDTH = 16, 20, 24
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures('one_torch_thread')
 
 
 def _volume(seed: int = 0) -> np.ndarray:

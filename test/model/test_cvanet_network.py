@@ -13,13 +13,7 @@ from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.model import CVANet, expected_parameter_count, keras_parameter_count
 from cva_confidence_ros.model.network import CONV_INIT_STD, DEPTH_KERNELS, pad_depth
 
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures('one_torch_thread')
 
 
 def test_parameter_count_matches_paper():

@@ -25,12 +25,7 @@ from cva_confidence_ros.model.lite import condensed_depth
 DEPTH, HEIGHT, WIDTH = 24, 18, 21
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures('one_torch_thread')
 
 
 def _volume(seed: int = 0, depth: int = DEPTH) -> np.ndarray:
