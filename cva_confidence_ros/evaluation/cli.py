@@ -26,7 +26,7 @@ matcher or depth) ends with a one-line message and exit code 2.
 from __future__ import annotations
 
 import argparse
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 import sys
 import time
@@ -34,7 +34,7 @@ from typing import Any
 
 from cva_confidence_ros.errors import ConfigError, CVAError, DataError
 
-__all__ = ['main', 'parse_dataset_names', 'parse_weights']
+__all__ = ['exit_code', 'main', 'parse_dataset_names', 'parse_weights']
 
 PROG = 'cva-evaluate'
 
@@ -253,13 +253,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         be written.
     """
     args = _build_parser().parse_args(argv)
+    return exit_code(PROG, lambda: run(args))
+
+
+def exit_code(prog: str, command: Callable[[], int]) -> int:
+    """Run ``command`` the way the evaluation tools end: its own code, or one line on stderr
+    and 2 for bad input (:class:`CVAError`), 1 for an output that cannot be written."""
     try:
-        return run(args)
+        return command()
     except CVAError as exc:
-        print(f'{PROG}: error: {exc}', file=sys.stderr)
+        print(f'{prog}: error: {exc}', file=sys.stderr)
         return 2
     except OSError as exc:
-        print(f'{PROG}: error: {exc}', file=sys.stderr)
+        print(f'{prog}: error: {exc}', file=sys.stderr)
         return 1
 
 

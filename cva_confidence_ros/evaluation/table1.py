@@ -40,7 +40,7 @@ import sys
 import time
 from typing import Any
 
-from cva_confidence_ros.errors import ConfigError, CVAError, DataError, ModelError
+from cva_confidence_ros.errors import ConfigError, DataError, ModelError
 
 __all__ = [
     'COLUMNS',
@@ -629,15 +629,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     Returns:
         0 on success, 2 on bad input (one line on stderr), 1 if an output cannot be written.
     """
+    from cva_confidence_ros.evaluation.cli import exit_code
+
     args = _build_parser().parse_args(argv)
-    try:
-        return run(args)
-    except CVAError as exc:
-        print(f'{PROG}: error: {exc}', file=sys.stderr)
-        return 2
-    except OSError as exc:
-        print(f'{PROG}: error: {exc}', file=sys.stderr)
-        return 1
+    return exit_code(PROG, lambda: run(args))
 
 
 if __name__ == '__main__':

@@ -30,11 +30,12 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
-from cva_confidence_ros.errors import ConfigError, InputError
+from cva_confidence_ros.errors import InputError
 from cva_confidence_ros.model.network import (
     CONV_INIT_STD,
     FUSION_LAYERS,
     PATCH_SIZE,
+    check_network_options,
     conv_bias,
     glorot_limit,
     pad_depth,
@@ -157,14 +158,12 @@ class CVANetLite(nn.Module):
 
     def __init__(self, max_disparity: int = 64, dropout: float = 0.5) -> None:
         super().__init__()
-        if int(max_disparity) != max_disparity or max_disparity < LITE_MIN_DISPARITY:
-            raise ConfigError(
-                f'max_disparity must be an integer >= {LITE_MIN_DISPARITY} (the first '
-                f'convolution spans {LITE_FIRST_KERNEL} disparities); got {max_disparity}'
-            )
-        if not 0.0 <= dropout < 1.0:
-            raise ConfigError(f'dropout must be in [0, 1); got {dropout}')
-        self.max_disparity = int(max_disparity)
+        self.max_disparity = check_network_options(
+            max_disparity,
+            LITE_MIN_DISPARITY,
+            f'the first convolution spans {LITE_FIRST_KERNEL} disparities',
+            dropout,
+        )
         self.fusion = LiteFusion()
         self.depth = LiteDepthProcessing()
         self.classification = LiteClassification(condensed_depth(self.max_disparity), dropout)

@@ -41,6 +41,7 @@ __all__ = [
     'Classification',
     'DepthProcessing',
     'NeighbourhoodFusion',
+    'check_network_options',
     'keras_parameter_count',
 ]
 
@@ -160,14 +161,12 @@ class CVANet(nn.Module):
 
     def __init__(self, max_disparity: int = 256, dropout: float = 0.5) -> None:
         super().__init__()
-        if int(max_disparity) != max_disparity or max_disparity < MIN_DISPARITY:
-            raise ConfigError(
-                f'max_disparity must be an integer >= {MIN_DISPARITY} (the fusion removes '
-                f'{2 * FUSION_LAYERS} disparities); got {max_disparity}'
-            )
-        if not 0.0 <= dropout < 1.0:
-            raise ConfigError(f'dropout must be in [0, 1); got {dropout}')
-        self.max_disparity = int(max_disparity)
+        self.max_disparity = check_network_options(
+            max_disparity,
+            MIN_DISPARITY,
+            f'the fusion removes {2 * FUSION_LAYERS} disparities',
+            dropout,
+        )
         self.fusion = NeighbourhoodFusion()
         self.depth = DepthProcessing()
         self.classification = Classification(self.max_disparity - 2 * FUSION_LAYERS, dropout)
@@ -227,6 +226,29 @@ class CVANet(nn.Module):
     def forward(self, volume: torch.Tensor) -> torch.Tensor:
         """Confidence in (0, 1) of shape (B, H, W) for an input (B, 1, D, H + 12, W + 12)."""
         return torch.sigmoid(self.forward_logits(volume))
+
+
+def check_network_options(
+    max_disparity: int, minimum: int, reason: str, dropout: float
+) -> int:
+    """Check the options of a cost-volume network; return D as an int.
+
+    Args:
+        max_disparity: Cost-volume depth D asked for.
+        minimum: Smallest D the architecture accepts.
+        reason: Why (ends the error message).
+        dropout: Dropout rate of the classification stage.
+
+    Raises:
+        ConfigError: D not an integer or below ``minimum``, or dropout outside [0, 1).
+    """
+    if int(max_disparity) != max_disparity or max_disparity < minimum:
+        raise ConfigError(
+            f'max_disparity must be an integer >= {minimum} ({reason}); got {max_disparity}'
+        )
+    if not 0.0 <= dropout < 1.0:
+        raise ConfigError(f'dropout must be in [0, 1); got {dropout}')
+    return int(max_disparity)
 
 
 def keras_parameter_count(module: nn.Module) -> int:
