@@ -74,6 +74,11 @@ _ARCH_TEXT = {
 }
 
 
+def _share(value: Any) -> str:
+    """A fraction in [0, 1] as a percentage, '—' if unknown."""
+    return '—' if value is None else f'{100 * float(value):.1f} %'
+
+
 def _loss_line(facts: Mapping[str, Any]) -> str:
     optimiser = 'optimiser: Adam (β1 0.9, β2 0.999); dropout 0.5'
     weight = facts.get('distill_weight') or 0.0
@@ -173,7 +178,7 @@ def write_model_card(
         f'- validation AUC: {_fmt(facts.get("final_val_auc"))} '
         f'(optimal {_fmt(facts.get("final_val_auc_opt"))}, error rate '
         f'{_fmt(facts.get("final_val_error_rate"))}; '
-        f'{_fmt(facts.get("final_val_high"))} of the outputs ≥ 0.5)',
+        f'{_share(facts.get("final_val_high"))} of the outputs ≥ 0.5)',
         '',
         '| epoch | lr | train loss | samples/s | val AUC |',
         '|---|---|---|---|---|',
