@@ -48,7 +48,7 @@ from torch import nn
 import torch.nn.functional as F
 
 from cva_confidence_ros.datasets import StereoSample
-from cva_confidence_ros.errors import ConfigError, DataError
+from cva_confidence_ros.errors import ConfigError
 from cva_confidence_ros.model import ARCHITECTURES, resolve_device, save_weights
 from cva_confidence_ros.model.baselines import (
     CONFNET_FACTOR,
@@ -62,6 +62,7 @@ from cva_confidence_ros.training.config import TrainConfig
 from cva_confidence_ros.training.data import (
     batches,
     dense_crops,
+    match_and_label,
     sample_index,
     validation_subset,
 )
@@ -170,28 +171,16 @@ def prepare_disparity_scene(
     Raises:
         DataError: No pixel with ground truth after shrinking.
     """
-    from cva_confidence_ros.datasets import fit_disparity_range
-    from cva_confidence_ros.matching import compute_cost_volume, wta_disparity
-    from cva_confidence_ros.metrics import kitti_error
-
-    fitted, factor = fit_disparity_range(sample, max_disparity)
-    volume = compute_cost_volume(fitted.left, fitted.right, matcher, max_disparity)
-    estimate = wta_disparity(volume)
-    truth = fitted.disparity
-    labelled = np.isfinite(truth)
-    name = f'{sample.dataset}/{sample.scene}'
-    if not labelled.any():
-        raise DataError(f'{name}: no pixel with ground truth at factor {factor}')
-    correct = ~kitti_error(estimate, truth) & labelled
-    disparity, image = network_inputs(estimate, fitted.left, max_disparity)
+    matched = match_and_label(sample, matcher, max_disparity)
+    disparity, image = network_inputs(matched.estimate, matched.fitted.left, max_disparity)
     pad = ((MARGIN, MARGIN), (MARGIN, MARGIN))
     return DisparityScene(
-        name,
-        factor,
+        matched.name,
+        matched.factor,
         np.pad(disparity, pad, mode='edge'),
         np.pad(image, pad, mode='edge'),
-        labelled,
-        correct,
+        matched.labelled,
+        matched.correct,
     )
 
 
@@ -389,29 +378,22 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
     Called by :func:`cva_confidence_ros.training.trainer.train` for those architectures; same
     arguments, return value and errors.
     """
-    from cva_confidence_ros.matching import MATCHERS
     from cva_confidence_ros.training.trainer import (
         CHECKPOINT_NAME,
-        _limit_numba_threads,
         _load_checkpoint,
         _load_samples,
         _Log,
         _progress,
         _save_checkpoint,
         _scene_facts,
+        check_matcher_and_threads,
     )
 
-    if config.matcher not in MATCHERS:
-        raise ConfigError(
-            f'unknown matcher {config.matcher!r}; expected one of {MATCHERS.names()}'
-        )
     if int(os.environ.get('WORLD_SIZE', '1')) > 1:
         raise ConfigError(
             f'--arch {config.arch} trains in one process; run it without torchrun'
         )
-    if config.threads:
-        _limit_numba_threads(config.threads)
-        torch.set_num_threads(config.threads)
+    check_matcher_and_threads(config)
     device = resolve_device(config.device)
     out = Path(config.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -34,6 +34,7 @@ __all__ = [
     'epoch_order',
     'gather_crops',
     'gather_extracts',
+    'match_and_label',
     'prepare_scene',
     'sample_index',
     'validation_subset',
@@ -94,20 +95,52 @@ def prepare_scene(sample: StereoSample, matcher: str, max_disparity: int) -> Pre
     Raises:
         DataError: No pixel with ground truth after shrinking.
     """
+    matched = match_and_label(sample, matcher, max_disparity)
+    padded = torch.from_numpy(pad_cost_volume(matched.volume, np.float16))
+    return PreparedScene(matched.name, matched.factor, padded, matched.labelled, matched.correct)
+
+
+@dataclass(eq=False)
+class MatchedScene:
+    """A sample shrunk until its ground truth fits D, matched and labelled.
+
+    Attributes:
+        name: ``dataset/scene``.
+        factor: Downscaling factor applied by ``fit_disparity_range``.
+        fitted: The shrunk sample.
+        volume: (D, H, W) float32 cost volume.
+        estimate: (H, W) winner-takes-all disparity.
+        labelled: (H, W) bool, True where ground truth is known.
+        correct: (H, W) bool, True where the WTA disparity is correct (KITTI criterion).
+    """
+
+    name: str
+    factor: int
+    fitted: StereoSample
+    volume: np.ndarray
+    estimate: np.ndarray
+    labelled: np.ndarray
+    correct: np.ndarray
+
+
+def match_and_label(sample: StereoSample, matcher: str, max_disparity: int) -> MatchedScene:
+    """Shrink ``sample`` until its ground truth fits D, match it and label its pixels.
+
+    Raises:
+        DataError: No pixel with ground truth after shrinking.
+    """
     from cva_confidence_ros.matching import compute_cost_volume, wta_disparity
     from cva_confidence_ros.metrics import kitti_error
 
     fitted, factor = fit_disparity_range(sample, max_disparity)
     volume = compute_cost_volume(fitted.left, fitted.right, matcher, max_disparity)
     estimate = wta_disparity(volume)
-    truth = fitted.disparity
-    labelled = np.isfinite(truth)
+    labelled = np.isfinite(fitted.disparity)
     name = f'{sample.dataset}/{sample.scene}'
     if not labelled.any():
         raise DataError(f'{name}: no pixel with ground truth at factor {factor}')
-    correct = ~kitti_error(estimate, truth) & labelled
-    padded = torch.from_numpy(pad_cost_volume(volume, np.float16))
-    return PreparedScene(name, factor, padded, labelled, correct)
+    correct = ~kitti_error(estimate, fitted.disparity) & labelled
+    return MatchedScene(name, factor, fitted, volume, estimate, labelled, correct)
 
 
 @dataclass(frozen=True)

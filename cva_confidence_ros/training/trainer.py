@@ -347,21 +347,13 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         DataError: Unreadable data or no labelled pixel.
         ModelError: Unreadable checkpoint.
     """
-    from cva_confidence_ros.matching import MATCHERS
     from cva_confidence_ros.model.baselines import BASELINE_ARCHS
 
     if config.arch in BASELINE_ARCHS:  # CCNN, LFN, LGC-Net learn from disparity + image
         from cva_confidence_ros.training.baselines import train_baseline
 
         return train_baseline(config, command)
-    if config.matcher not in MATCHERS:
-        raise ConfigError(
-            f'unknown matcher {config.matcher!r}; expected one of {MATCHERS.names()}'
-        )
-    if config.threads:
-        # numba's OpenMP layer resets the OpenMP thread count that torch also uses: numba first.
-        _limit_numba_threads(config.threads)
-        torch.set_num_threads(config.threads)
+    check_matcher_and_threads(config)
     dist = _setup_distributed(config.device)
     out = Path(config.out)
     if dist.main:
@@ -520,6 +512,24 @@ def _weights_facts(meta: dict[str, Any]) -> dict[str, Any]:
     """The identifying facts of a weights file's meta (not its whole history)."""
     keys = ('arch', 'matcher', 'max_disparity', 'samples_seen', 'command', 'date')
     return {key: meta.get(key) for key in keys if key in meta}
+
+
+def check_matcher_and_threads(config: TrainConfig) -> None:
+    """Refuse an unknown matcher; apply ``config.threads`` to numba and torch.
+
+    Raises:
+        ConfigError: The matcher is not registered.
+    """
+    from cva_confidence_ros.matching import MATCHERS
+
+    if config.matcher not in MATCHERS:
+        raise ConfigError(
+            f'unknown matcher {config.matcher!r}; expected one of {MATCHERS.names()}'
+        )
+    if config.threads:
+        # numba's OpenMP layer resets the OpenMP thread count that torch also uses: numba first.
+        _limit_numba_threads(config.threads)
+        torch.set_num_threads(config.threads)
 
 
 def _limit_numba_threads(threads: int) -> None:
