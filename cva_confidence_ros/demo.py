@@ -86,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         '--methods',
-        default='cva_net,cva_net_lite,ccnn,lfn,lgc_net,pkrn,mlm,lrd,lrc,score',
+        default='cva_net,cva_net_lite,cva_net_fast,ccnn,lfn,lgc_net,pkrn,mlm,lrd,lrc,score',
         help='confidence methods to replay',
     )
     args = parser.parse_args(argv)

@@ -72,9 +72,9 @@ class FastConfig:
         precision: ``cva_precision``.
         pipeline: Time :class:`~cva_confidence_ros.pipeline.StereoPipeline` on the image pair
             instead of the network on the cost volume.
-        arch: Network: ``cvanet`` (the paper's, method ``cva_net``) or ``cvanet_lite``
-            (CVA-Net-Lite, method ``cva_net_lite``). ``auc_rel`` is relative to the exact
-            ``cvanet`` either way.
+        arch: Network: ``cvanet`` (the paper's, method ``cva_net``), ``cvanet_lite``
+            (CVA-Net-Lite, method ``cva_net_lite``) or ``cvanet_fast`` (CVA-Net-Fast, method
+            ``cva_net_fast``). ``auc_rel`` is relative to the exact ``cvanet`` either way.
     """
 
     name: str
@@ -102,8 +102,10 @@ class FastConfig:
 
 
 #: Confidence method of each network architecture.
-_METHODS = {'cvanet': 'cva_net', 'cvanet_lite': 'cva_net_lite'}
+_METHODS = {'cvanet': 'cva_net', 'cvanet_lite': 'cva_net_lite', 'cvanet_fast': 'cva_net_fast'}
 _LITE = 'cvanet_lite'
+_FAST = 'cvanet_fast'
+_TITLES = {_LITE: 'CVA-Net-Lite', _FAST: 'CVA-Net-Fast'}
 
 #: The rows of ``--suite fast``, in order.
 FAST_CONFIGS: tuple[FastConfig, ...] = (
@@ -135,6 +137,9 @@ FAST_CONFIGS: tuple[FastConfig, ...] = (
         'pipeline:lite+stride8+pkrn0.1', stride=8, cascade='pkrn', fraction=0.1, pipeline=True,
         arch=_LITE,
     ),
+    FastConfig('fast', arch=_FAST),
+    FastConfig('fast+stride2', stride=2, arch=_FAST),
+    FastConfig('pipeline:fast', pipeline=True, arch=_FAST),
 )
 _EXTRAPOLATED = ('exact', 'bf16')
 
@@ -206,20 +211,22 @@ def develop_crops(
 
 
 def _auc_rel(configs: Sequence[FastConfig], crops: list[dict[str, Any]], net: Any,
-             log: Callable[[str], None], lite: Any = None) -> dict[str, float]:
-    """Mean develop AUC of each row / that of the exact CVA-Net (``net``); Lite rows look
-    up the exact map of ``lite`` (CVA-Net-Lite) instead, still relative to CVA-Net."""
+             log: Callable[[str], None], others: dict[str, Any] | None = None
+             ) -> dict[str, float]:
+    """Mean develop AUC of each row / that of the exact CVA-Net (``net``); rows of another
+    architecture look up the exact map of ``others[arch]`` instead, still relative to CVA-Net."""
     from cva_confidence_ros.metrics import roc_auc
     from cva_confidence_ros.model import SparseEvaluator, sparse_confidence
 
     evaluator = SparseEvaluator(net)
     bf16 = SparseEvaluator(net, precision='bf16')
     want_bf16 = any(c.name == 'bf16' for c in configs)
-    lite_evaluator = None
-    if any(c.arch == _LITE for c in configs):
-        if lite is None:
-            raise ConfigError('CVA-Net-Lite rows need the Lite network')
-        lite_evaluator = SparseEvaluator(lite)
+    others = others or {}
+    light = {}
+    for arch in sorted({c.arch for c in configs} - {'cvanet'}):
+        if arch not in others:
+            raise ConfigError(f'{_TITLES[arch]} rows need the {_TITLES[arch]} network')
+        light[arch] = SparseEvaluator(others[arch])
     aucs: dict[str, list[float]] = {c.name: [] for c in configs}
     exact_aucs: list[float] = []
     bf16_pairs: list[tuple[float, float]] = []
@@ -229,13 +236,13 @@ def _auc_rel(configs: Sequence[FastConfig], crops: list[dict[str, Any]], net: An
         known, wrong = item['known'], item['wrong']
         exact_auc = roc_auc(exact[known], wrong[known])
         exact_aucs.append(exact_auc)
-        lite_exact = None if lite_evaluator is None else lite_evaluator(item['volume'])
+        light_exact = {arch: light[arch](item['volume']) for arch in light}
         for config in configs:
             if config.name in _EXTRAPOLATED:
                 continue
             cheap = _cheap(config.cascade, item['volume'], item['disparity'], item['image'],
                            item['volume_right'])
-            values = lite_exact if config.arch == _LITE else exact
+            values = light_exact.get(config.arch, exact)
             result = sparse_confidence(
                 lambda _v, _m, values=values: values, item['volume'], item['image'],
                 item['disparity'], config.sparse(), cheap,
@@ -292,9 +299,9 @@ def run_fast(
     device = resolve_device('cpu')
     depth = settings.max_disparity
     net, note = _network(NETWORK_MATCHER, depth)
-    lite, lite_note = (
-        _lite_network(depth) if any(c.arch == _LITE for c in configs) else (None, None)
-    )
+    light = {
+        arch: _light_network(depth, arch) for arch in {c.arch for c in configs} - {'cvanet'}
+    }
     left, right = make_pairs(settings)['real']
     volume = compute_cost_volume(left, right, NETWORK_MATCHER, depth)
     volume_right = compute_cost_volume(left, right, NETWORK_MATCHER, depth, view='right')
@@ -303,11 +310,14 @@ def run_fast(
     auc_rel: dict[str, float] = {}
     if data_root is not None:
         log(f'develop-split AUC on {auc_crop[0]}×{auc_crop[1]} crops …')
-        auc_rel = _auc_rel(configs, develop_crops(data_root, depth, auc_crop), net, log, lite)
+        auc_rel = _auc_rel(
+            configs, develop_crops(data_root, depth, auc_crop), net, log,
+            {arch: pair[0] for arch, pair in light.items()},
+        )
     records = []
     for config in configs:
         log(f'measuring {config.name} …')
-        row_net = lite if config.arch == _LITE else net
+        row_net, row_note = light.get(config.arch, (net, note))
         evaluator = SparseEvaluator(row_net, device, precision=config.precision)
         record: dict[str, Any] = {
             'config': config.name,
@@ -321,7 +331,6 @@ def run_fast(
             'extrapolated': config.name in _EXTRAPOLATED,
             'arch': config.arch,
         }
-        row_note = lite_note if config.arch == _LITE else note
         if row_note is not None:
             record['note'] = row_note
         if config.name in _EXTRAPOLATED:
@@ -402,22 +411,23 @@ def _weights_path(depth: int, arch: str = 'cvanet') -> str:
         return ''
 
 
-def _lite_network(depth: int) -> tuple[Any, str | None]:
-    """Shipped CVA-Net-Lite weights for (census_bm, D), else a seeded random one and why."""
+def _light_network(depth: int, arch: str) -> tuple[Any, str | None]:
+    """Shipped CVA-Net-Lite or -Fast weights for (census_bm, D), else a seeded random network
+    and why."""
     import torch
 
     from cva_confidence_ros.errors import ModelError
-    from cva_confidence_ros.model import CVANetLite, default_weights_path, load_weights
+    from cva_confidence_ros.model import ARCHITECTURES, default_weights_path, load_weights
 
     try:
-        path = default_weights_path(NETWORK_MATCHER, depth, _LITE)
+        path = default_weights_path(NETWORK_MATCHER, depth, arch)
     except ModelError:
         torch.manual_seed(0)
-        return CVANetLite(depth).eval(), (
-            f'random init: no shipped CVA-Net-Lite weights for {NETWORK_MATCHER}, D = {depth} '
-            '(speed does not depend on weight values; auc_rel is meaningless)'
+        return ARCHITECTURES.get(arch)({'max_disparity': depth}).eval(), (
+            f'random init: no shipped {_TITLES[arch]} weights for {NETWORK_MATCHER}, '
+            f'D = {depth} (speed does not depend on weight values; auc_rel is meaningless)'
         )
-    net, _ = load_weights(path, matcher=NETWORK_MATCHER, max_disparity=depth, arch=_LITE)
+    net, _ = load_weights(path, matcher=NETWORK_MATCHER, max_disparity=depth, arch=arch)
     return net, None
 
 

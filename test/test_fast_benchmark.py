@@ -66,7 +66,7 @@ def test_lite_rows_time_lite_and_score_it_against_the_full_network():
     from cva_confidence_ros.fast_benchmark import FastConfig, _auc_rel
     from cva_confidence_ros.matching import compute_cost_volume, wta_disparity
     from cva_confidence_ros.metrics import kitti_error, roc_auc
-    from cva_confidence_ros.model import CVANet, CVANetLite, SparseEvaluator
+    from cva_confidence_ros.model import CVANet, CVANetFast, CVANetLite, SparseEvaluator
 
     by_name = {c.name: c for c in FAST_CONFIGS}
     names = ('lite', 'lite+stride4', 'lite+stride8+pkrn0.1', 'pipeline:lite+stride4')
@@ -96,14 +96,19 @@ def test_lite_rows_time_lite_and_score_it_against_the_full_network():
         'known': np.ones(volume.shape[1:], bool),
     }  # fmt: skip
     torch.manual_seed(0)
-    net, lite = CVANet(16).eval(), CVANetLite(16).eval()
+    net, lite, fast = CVANet(16).eval(), CVANetLite(16).eval(), CVANetFast(16).eval()
     configs = [FastConfig('lite', arch='cvanet_lite'), FastConfig('stride2', stride=2),
-               FastConfig('lite+stride2', stride=2, arch='cvanet_lite')]  # fmt: skip
-    rel = _auc_rel(configs, [crop], net, lambda _text: None, lite)
+               FastConfig('lite+stride2', stride=2, arch='cvanet_lite'),
+               FastConfig('fast', arch='cvanet_fast')]  # fmt: skip
+    rel = _auc_rel(configs, [crop], net, lambda _text: None,
+                   {'cvanet_lite': lite, 'cvanet_fast': fast})  # fmt: skip
     wrong = crop['wrong'].ravel()
     full = roc_auc(SparseEvaluator(net)(volume).ravel(), wrong)
-    assert rel['lite'] == pytest.approx(
-        roc_auc(SparseEvaluator(lite)(volume).ravel(), wrong) / full
-    )
+    for name, other in (('lite', lite), ('fast', fast)):
+        assert rel[name] == pytest.approx(
+            roc_auc(SparseEvaluator(other)(volume).ravel(), wrong) / full
+        )
+    with pytest.raises(Exception, match='CVA-Net-Fast'):
+        _auc_rel(configs, [crop], net, lambda _text: None, {'cvanet_lite': lite})
     assert rel['exact'] == 1.0 and 'bf16' not in rel  # bf16 only when its row is asked for
     assert rel['lite+stride2'] != rel['lite'] and rel['stride2'] != rel['lite+stride2']

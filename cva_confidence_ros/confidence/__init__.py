@@ -28,6 +28,7 @@ __all__ = [
 from cva_confidence_ros.confidence import (  # noqa: E402
     baselines,  # noqa: F401  (ccnn, lfn, lgc_net)
     cva_net,  # noqa: F401  (cva_net)
+    cva_net_fast,  # noqa: F401  (cva_net_fast)
     cva_net_lite,  # noqa: F401  (cva_net_lite)
     handcrafted,  # noqa: F401  (pkrn, mlm, lrd, lrc, score)
 )

@@ -1,9 +1,10 @@
-"""CVA-Net and CVA-Net-Lite: the networks, their inference (whole, per pixel, sparse + filled)
-and weights I/O."""
+"""CVA-Net, CVA-Net-Lite and CVA-Net-Fast: the networks, their inference (whole, per pixel,
+sparse + filled) and weights I/O."""
 
 from __future__ import annotations
 
 from cva_confidence_ros.model.complexity import dense_macs, macs_per_pixel
+from cva_confidence_ros.model.fast import CVANetFast, FoldedCVANetFast
 from cva_confidence_ros.model.inference import (
     PAD,
     FoldedCVANet,
@@ -42,8 +43,10 @@ __all__ = [
     'PAD',
     'PATCH_SIZE',
     'CVANet',
+    'CVANetFast',
     'CVANetLite',
     'FoldedCVANet',
+    'FoldedCVANetFast',
     'FoldedCVANetLite',
     'architecture_of',
     'SparseConfig',

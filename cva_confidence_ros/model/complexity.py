@@ -21,6 +21,14 @@ from typing import NamedTuple
 from torch import nn
 
 from cva_confidence_ros.errors import ConfigError
+from cva_confidence_ros.model.fast import (
+    FAST_CURVE_FEATURES,
+    FAST_FC_NODES,
+    FAST_FILTERS,
+    FAST_INPUTS,
+    CVANetFast,
+    FoldedCVANetFast,
+)
 from cva_confidence_ros.model.inference import FoldedCVANet
 from cva_confidence_ros.model.lite import (
     LITE_DEPTH_KERNELS,
@@ -84,7 +92,23 @@ def _lite_layers(max_disparity: int) -> list[Layer]:
     return layers
 
 
-_TABLES = {'cvanet': _cvanet_layers, 'cvanet_lite': _lite_layers}
+def _fast_layers(max_disparity: int) -> list[Layer]:
+    # The curve encoder runs on every pixel of the padded tile (shrink 0), the plane fusion
+    # shrinks it by 2 px a layer; the WTA scan before it does comparisons, not multiply-adds.
+    del max_disparity  # the cost does not depend on D
+    layers = [
+        Layer(FAST_INPUTS, FAST_CURVE_FEATURES, 1, 0),
+        Layer(FAST_CURVE_FEATURES, FAST_FILTERS, 1, 0),
+    ]
+    layers += [
+        Layer(9 * FAST_FILTERS, FAST_FILTERS, 1, 2 * (index + 1))
+        for index in range(FUSION_LAYERS)
+    ]
+    layers += [Layer(FAST_FILTERS, FAST_FC_NODES, 1, _BORDER), Layer(FAST_FC_NODES, 1, 1, _BORDER)]
+    return layers
+
+
+_TABLES = {'cvanet': _cvanet_layers, 'cvanet_lite': _lite_layers, 'cvanet_fast': _fast_layers}
 
 
 def _resolve(net_or_arch: nn.Module | str, max_disparity: int | None) -> tuple[str, int]:
@@ -96,9 +120,11 @@ def _resolve(net_or_arch: nn.Module | str, max_disparity: int | None) -> tuple[s
         arch = 'cvanet'
     elif isinstance(net_or_arch, (CVANetLite, FoldedCVANetLite)):
         arch = 'cvanet_lite'
+    elif isinstance(net_or_arch, (CVANetFast, FoldedCVANetFast)):
+        arch = 'cvanet_fast'
     else:
         raise ConfigError(
-            f'expected a CVA-Net or CVA-Net-Lite network or arch name; '
+            f'expected a CVA-Net, CVA-Net-Lite or CVA-Net-Fast network or arch name; '
             f'got {type(net_or_arch).__name__}'
         )
     if arch not in _TABLES:
@@ -122,13 +148,13 @@ def macs_per_pixel(net_or_arch: nn.Module | str, max_disparity: int | None = Non
     """Multiply-adds per output pixel of dense inference on a large image.
 
     Args:
-        net_or_arch: :class:`CVANet`, :class:`CVANetLite` (or their folded forms), or
-            ``'cvanet'`` / ``'cvanet_lite'``.
+        net_or_arch: :class:`CVANet`, :class:`CVANetLite`, :class:`CVANetFast` (or their
+            folded forms), or ``'cvanet'`` / ``'cvanet_lite'`` / ``'cvanet_fast'``.
         max_disparity: D; defaults to the network's own (required with an arch name).
 
     Returns:
         Σ over layers of inputs × channels × depth (at D = 64: CVA-Net 34,658,640,
-        CVA-Net-Lite 647,056).
+        CVA-Net-Lite 647,056, CVA-Net-Fast 58,512 at any D).
     """
     return sum(
         layer.inputs * layer.channels * layer.depth

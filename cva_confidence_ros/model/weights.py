@@ -23,6 +23,7 @@ import torch
 from torch import nn
 
 from cva_confidence_ros.errors import ModelError
+from cva_confidence_ros.model.fast import CVANetFast
 from cva_confidence_ros.model.inference import resolve_device
 from cva_confidence_ros.model.lite import CVANetLite
 from cva_confidence_ros.model.network import CVANet
@@ -49,6 +50,7 @@ ARCHITECTURES: Registry[Callable[[Mapping[str, Any]], nn.Module]] = Registry(
 )
 ARCHITECTURES.add(ARCH, lambda meta: CVANet(int(meta['max_disparity'])))
 ARCHITECTURES.add(CVANetLite.arch, lambda meta: CVANetLite(int(meta['max_disparity'])))
+ARCHITECTURES.add(CVANetFast.arch, lambda meta: CVANetFast(int(meta['max_disparity'])))
 
 
 def weights_file_name(matcher: str, max_disparity: int, arch: str = ARCH) -> str:

@@ -176,10 +176,10 @@ PIPELINE_PARAMETERS: tuple[ParamSpec, ...] = (
     ),
     _pipeline(
         'confidence_method',
-        'Confidence method: cva_net or cva_net_lite (learned), a learned baseline or a '
-        'hand-crafted measure.',
-        constraints='cva_net, cva_net_lite, a learned baseline (ccnn, lfn, lgc_net) or a '
-        'hand-crafted measure (pkrn, mlm, lrd, lrc, score)',
+        'Confidence method: cva_net, cva_net_lite or cva_net_fast (learned cost-volume '
+        'networks), a learned baseline or a hand-crafted measure.',
+        constraints='cva_net, cva_net_lite, cva_net_fast, a learned baseline (ccnn, lfn, '
+        'lgc_net) or a hand-crafted measure (pkrn, mlm, lrd, lrc, score)',
     ),
     _pipeline(
         'model_path',

@@ -71,6 +71,14 @@ _ARCH_TEXT = {
         'disparity), the same three stages with about 54× fewer multiply-adds; trained on the '
         'labels, optionally distilled from CVA-Net (see the loss line).',
     ),
+    'cvanet_fast': (
+        'CVA-Net-Fast',
+        'CVA-Net-Fast (`model/fast.py`): a network for CPUs with the input and output of CVA-Net '
+        '(13×13×D extracts of the normalised cost volume → confidence of the winner-takes-all '
+        'disparity): per pixel the 9 costs around the WTA minimum and d_WTA / D through two '
+        'fully-connected layers, then six 3×3 convolutions over the 13×13 window in the image '
+        'plane; about 590× fewer multiply-adds than CVA-Net at D = 64.',
+    ),
 }
 
 

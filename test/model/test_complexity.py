@@ -7,7 +7,7 @@ import torch
 from torch import nn
 
 from cva_confidence_ros.errors import ConfigError
-from cva_confidence_ros.model import CVANet, CVANetLite, dense_macs, macs_per_pixel
+from cva_confidence_ros.model import CVANet, CVANetFast, CVANetLite, dense_macs, macs_per_pixel
 from cva_confidence_ros.model.complexity import layer_table
 
 
@@ -36,7 +36,7 @@ def _hooked_macs(net: nn.Module, volume: torch.Tensor) -> tuple[int, list[int]]:
     return sum(per_layer), per_layer
 
 
-@pytest.mark.parametrize('arch', [CVANet, CVANetLite])
+@pytest.mark.parametrize('arch', [CVANet, CVANetLite, CVANetFast])
 @pytest.mark.parametrize(('depth', 'height', 'width'), [(16, 1, 1), (24, 5, 3), (33, 4, 7)])
 def test_analytic_count_equals_hooked_count(arch, depth, height, width):
     net = arch(depth)
@@ -51,7 +51,7 @@ def test_analytic_count_equals_hooked_count(arch, depth, height, width):
         assert layer.inputs * layer.channels * layer.depth * positions == counted
 
 
-@pytest.mark.parametrize('arch', ['cvanet', 'cvanet_lite'])
+@pytest.mark.parametrize('arch', ['cvanet', 'cvanet_lite', 'cvanet_fast'])
 def test_per_pixel_count_is_the_large_image_limit(arch):
     per_pixel = macs_per_pixel(arch, 64)
     side = 20_000
@@ -88,3 +88,13 @@ def test_bad_arguments():
         macs_per_pixel(CVANet(16), 64)
     with pytest.raises(ConfigError, match='expected a CVA-Net'):
         macs_per_pixel(nn.Linear(2, 2))
+
+
+@pytest.mark.parametrize('depth', [16, 64, 128, 256])
+def test_fast_costs_the_same_at_every_depth_and_is_far_cheaper(depth):
+    # Hand-computed: 10·64 + 64·32 (curve encoder) + 6·9·32² (plane fusion) + 32·16 + 16.
+    assert macs_per_pixel('cvanet_fast', depth) == 640 + 2_048 + 55_296 + 512 + 16
+    assert macs_per_pixel(CVANetFast(depth)) == macs_per_pixel('cvanet_fast', depth)
+    if depth >= 64:
+        assert macs_per_pixel('cvanet', depth) / macs_per_pixel('cvanet_fast', depth) >= 500
+        assert macs_per_pixel('cvanet_lite', depth) / macs_per_pixel('cvanet_fast', depth) >= 10
