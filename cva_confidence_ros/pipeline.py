@@ -26,7 +26,10 @@ class PipelineConfig:
     Attributes:
         matcher: Registered matcher name (``census_bm``, ``census_sgm``, ``mccnn_fast``).
         max_disparity: Cost-volume depth D at the processed resolution.
-        confidence_method: Registered confidence method (``cva_net``, ``pkrn``, ...).
+        confidence_method: Registered confidence method: ``cva_net_fast`` (default: the
+            most accurate shipped network on the develop split and online on a CPU), ``cva_net``
+            (the paper's network), ``cva_net_lite``, a learned baseline or a hand-crafted
+            measure (``pkrn``, ...).
         model_path: Weights for learned methods; empty = the shipped weights for the matcher.
         device: ``cpu``, ``cuda`` or ``auto`` (CUDA when available).
         confidence_threshold: Pixels with confidence below it are invalid in the filtered output.
@@ -44,7 +47,7 @@ class PipelineConfig:
 
     matcher: str = 'census_bm'
     max_disparity: int = 64
-    confidence_method: str = 'cva_net'
+    confidence_method: str = 'cva_net_fast'
     model_path: str = ''
     device: str = 'auto'
     confidence_threshold: float = 0.5
