@@ -83,6 +83,7 @@ def test_sparse_options_through_the_pipeline_config(weights):
     exact = compute_confidence('cva_net', inputs, max_disparity=DEPTH, weights=path)
     config = PipelineConfig(
         max_disparity=DEPTH,
+        confidence_method='cva_net',
         model_path=path,
         device='cpu',
         cva_stride=4,
