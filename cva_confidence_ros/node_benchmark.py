@@ -89,7 +89,7 @@ RECORD_KEYS = MATCHER_RECORD_KEYS + ('latency_ms_median', 'fps', 'online', 'extr
 #: A configuration is online from this output rate on (frames per second).
 ONLINE_HZ = 5.0
 DEFAULT_MATCHERS = ('census_bm', 'census_sgm', 'mccnn_fast')
-DEFAULT_METHODS = ('pkrn', 'mlm', 'lrd', 'lrc', 'score', 'cva_net')
+DEFAULT_METHODS = ('pkrn', 'mlm', 'lrd', 'lrc', 'score', 'cva_net_fast', 'cva_net')
 #: The hand-crafted method whose node run is the base of an extrapolated CVA-Net row: it reads
 #: only the left-reference volume, as CVA-Net does, so its matching stage is the same.
 BASE_METHOD = 'pkrn'

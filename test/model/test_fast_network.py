@@ -240,19 +240,21 @@ def test_missing_shipped_weights_say_how_to_train():
         default_weights_path('census_bm', 40, 'cvanet_fast')
 
 
+@pytest.mark.parametrize('depth', [64, 128])
 @pytest.mark.parametrize('matcher', ['census_bm', 'census_sgm', 'mccnn_fast'])
-def test_shipped_weights_load_and_run(matcher):
-    """The weights in models/: found by default, for their matcher and D = 64, with a card; a
-    clean minimum is trusted more than a flat curve."""
-    path = default_weights_path(matcher, 64, 'cvanet_fast')
-    assert path.name == f'cvanet_fast_{matcher}_d64.pt'
+def test_shipped_weights_load_and_run(matcher, depth):
+    """The weights in models/: found by default, for their matcher and D = 64 or 128, with a
+    card; a clean minimum is trusted more than a flat curve."""
+    path = default_weights_path(matcher, depth, 'cvanet_fast')
+    assert path.name == f'cvanet_fast_{matcher}_d{depth}.pt'
     assert path.with_suffix('.md').is_file() and path.with_suffix('.yaml').is_file()
-    method = CONFIDENCE_METHODS.get('cva_net_fast')(matcher=matcher, max_disparity=64)
+    method = CONFIDENCE_METHODS.get('cva_net_fast')(matcher=matcher, max_disparity=depth)
     assert method.meta['arch'] == 'cvanet_fast' and method.meta['samples_seen'] > 0
     rng = np.random.default_rng(0)
     truth = np.full((24, 40), 20)
-    volume = np.clip(np.abs(np.arange(64)[:, None, None] - truth) / 8.0, 0, 1).astype(np.float32)
-    volume[:, :, 20:] = 0.5 + rng.random((64, 24, 20), dtype=np.float32) * 0.02  # flat, noisy
+    d = np.arange(depth)[:, None, None]
+    volume = np.clip(np.abs(d - truth) / 8.0, 0, 1).astype(np.float32)
+    volume[:, :, 20:] = 0.5 + rng.random((depth, 24, 20), dtype=np.float32) * 0.02  # flat, noisy
     inputs = ConfidenceInputs(
         cost_volume=volume,
         disparity=volume.argmin(axis=0).astype(np.float32),
