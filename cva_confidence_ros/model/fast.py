@@ -33,7 +33,6 @@ by itself.
 
 from __future__ import annotations
 
-import math
 from typing import ClassVar
 
 from numba import njit
@@ -42,13 +41,11 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
-from cva_confidence_ros.model.lite import check_volume_tensor
+from cva_confidence_ros.model.lite import check_volume_tensor, init_light_network
 from cva_confidence_ros.model.network import (
-    CONV_INIT_STD,
     FUSION_LAYERS,
     check_network_options,
     conv_bias,
-    glorot_limit,
 )
 
 __all__ = [
@@ -198,11 +195,12 @@ class CVANetFast(nn.Module):
     confidence (B, H, W) in (0, 1); a 13×13 extract gives (B, 1, 1).
 
     Args:
-        max_disparity: D, the depth of the cost volumes this network accepts (≥ 8).
+        max_disparity: D, the depth of the cost volumes this network accepts (≥ 9: the aligned
+            window of 9 costs).
         dropout: Dropout rate of the classification stage.
 
     Raises:
-        ConfigError: ``max_disparity`` below 8 or not an integer, or a bad dropout rate.
+        ConfigError: ``max_disparity`` below 9 or not an integer, or a bad dropout rate.
     """
 
     #: Architecture name in weights files (``model.weights.ARCHITECTURES``).
@@ -222,17 +220,12 @@ class CVANetFast(nn.Module):
         self.reset_parameters()
 
     def reset_parameters(self) -> None:
-        """Convolutions He-normal (at least CVA-Net's σ = 0.05), fully-connected layers Glorot as
-        in CVA-Net, zero biases, BN defaults."""
-        for module in (self.encoder.fc_curve, self.encoder.squeeze, *self.fusion.convs):
-            assert isinstance(module, nn.modules.conv._ConvNd)
-            fan_in = module.weight[0].numel()
-            nn.init.normal_(module.weight, mean=0.0, std=max(CONV_INIT_STD, math.sqrt(2 / fan_in)))
-            nn.init.zeros_(conv_bias(module))
-        for module in (self.classification.fc1, self.classification.fc2):
-            limit = glorot_limit(module.weight[0].numel(), module.out_channels)
-            nn.init.uniform_(module.weight, -limit, limit)
-            nn.init.zeros_(conv_bias(module))
+        """As CVA-Net-Lite (:func:`~cva_confidence_ros.model.lite.init_light_network`): the
+        per-pixel layers and the plane fusion He-normal, the classification Glorot."""
+        init_light_network(
+            (self.encoder.fc_curve, self.encoder.squeeze, *self.fusion.convs),
+            (self.classification.fc1, self.classification.fc2),
+        )
 
     def check_input(self, volume: torch.Tensor) -> None:
         """Raise :class:`InputError` unless ``volume`` is (B, 1, D, ≥13, ≥13) with this D."""

@@ -23,6 +23,7 @@ At D = 64 it costs about 0.65 M multiply-adds per pixel, 54× fewer than CVA-Net
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 import math
 from typing import ClassVar
 
@@ -52,6 +53,7 @@ __all__ = [
     'LiteDepthProcessing',
     'LiteFusion',
     'condensed_depth',
+    'init_light_network',
     'lite_activations_per_pixel',
 ]
 
@@ -139,6 +141,22 @@ class LiteClassification(nn.Module):
         return self.fc2(x).reshape(-1)
 
 
+def init_light_network(convs: Iterable[nn.Module], fully_connected: Iterable[nn.Module]) -> None:
+    """Initialise a light cost-volume network: convolutions He-normal (narrow layers: CVA-Net's
+    σ = 0.05 would start them almost silent; never below it), fully-connected layers Glorot as in
+    CVA-Net, zero biases; BN layers keep their defaults."""
+    for module in convs:
+        assert isinstance(module, nn.modules.conv._ConvNd)
+        fan_in = module.weight[0].numel()
+        nn.init.normal_(module.weight, mean=0.0, std=max(CONV_INIT_STD, math.sqrt(2 / fan_in)))
+        nn.init.zeros_(conv_bias(module))
+    for module in fully_connected:
+        assert isinstance(module, nn.modules.conv._ConvNd)
+        limit = glorot_limit(module.weight[0].numel(), module.out_channels)
+        nn.init.uniform_(module.weight, -limit, limit)
+        nn.init.zeros_(conv_bias(module))
+
+
 class CVANetLite(nn.Module):
     """CVA-Net-Lite, fully convolutional, with the input and output of :class:`CVANet`.
 
@@ -170,17 +188,11 @@ class CVANetLite(nn.Module):
         self.reset_parameters()
 
     def reset_parameters(self) -> None:
-        """Convolutions He-normal (narrow layers: CVA-Net's σ = 0.05 would start them almost
-        silent), fully-connected layers Glorot as in CVA-Net, zero biases, BN defaults."""
-        for module in (*self.fusion.convs, *self.depth.convs):
-            assert isinstance(module, nn.modules.conv._ConvNd)
-            fan_in = module.weight[0].numel()
-            nn.init.normal_(module.weight, mean=0.0, std=max(CONV_INIT_STD, math.sqrt(2 / fan_in)))
-            nn.init.zeros_(conv_bias(module))
-        for module in (self.classification.fc1, self.classification.fc2):
-            limit = glorot_limit(module.weight[0].numel(), module.out_channels)
-            nn.init.uniform_(module.weight, -limit, limit)
-            nn.init.zeros_(conv_bias(module))
+        """See :func:`init_light_network`."""
+        init_light_network(
+            (*self.fusion.convs, *self.depth.convs),
+            (self.classification.fc1, self.classification.fc2),
+        )
 
     def check_input(self, volume: torch.Tensor) -> None:
         """Raise :class:`InputError` unless ``volume`` is (B, 1, D, ≥13, ≥13) with this D."""
