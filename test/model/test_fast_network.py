@@ -240,11 +240,14 @@ def test_missing_shipped_weights_say_how_to_train():
         default_weights_path('census_bm', 40, 'cvanet_fast')
 
 
-@pytest.mark.parametrize('depth', [64, 128])
-@pytest.mark.parametrize('matcher', ['census_bm', 'census_sgm', 'mccnn_fast'])
+@pytest.mark.parametrize(
+    ('matcher', 'depth'),
+    [(m, d) for d in (64, 128) for m in ('census_bm', 'census_sgm', 'mccnn_fast')]
+    + [('census_bm', 256)],
+)
 def test_shipped_weights_load_and_run(matcher, depth):
-    """The weights in models/: found by default, for their matcher and D = 64 or 128, with a
-    card; a clean minimum is trusted more than a flat curve."""
+    """The weights in models/: found by default, for their matcher and D, with a card; a clean
+    minimum is trusted more than a flat curve."""
     path = default_weights_path(matcher, depth, 'cvanet_fast')
     assert path.name == f'cvanet_fast_{matcher}_d{depth}.pt'
     assert path.with_suffix('.md').is_file() and path.with_suffix('.yaml').is_file()
