@@ -3,6 +3,7 @@ weights) and its WTA-aligned inputs (compiled kernel = torch ops)."""
 
 from __future__ import annotations
 
+from light_net_test_utils import adam_losses, peaked_volume, with_data_bn
 import numpy as np
 import pytest
 import torch
@@ -34,28 +35,15 @@ pytestmark = pytest.mark.usefixtures('one_torch_thread')
 
 
 def _volume(seed: int = 0, depth: int = DEPTH) -> np.ndarray:
-    """A cost volume with a minimum at a per-pixel disparity, plus noise, in [0, 1]."""
-    rng = np.random.default_rng(seed)
-    truth = rng.integers(0, depth, size=(HEIGHT, WIDTH))
-    d = np.arange(depth)[:, None, None]
-    volume = np.abs(d - truth[None]) / 4.0 + rng.normal(0, 0.1, (depth, HEIGHT, WIDTH))
-    return np.clip(volume, 0.0, 1.0).astype(np.float32)
+    return peaked_volume(seed, depth, HEIGHT, WIDTH)
 
 
 @pytest.fixture(scope='module')
 def net() -> CVANetFast:
     """A network whose BN statistics come from data, so that folding is not trivial."""
     torch.manual_seed(0)
-    model = CVANetFast(DEPTH)
-    for module in model.modules():
-        if isinstance(module, torch.nn.modules.batchnorm._BatchNorm):
-            module.momentum = None
-    model.train()
-    with torch.no_grad():
-        for seed in range(3):
-            padded = np.pad(_volume(seed + 10), ((0, 0), (6, 6), (6, 6)))
-            model(torch.from_numpy(padded)[None, None])
-    return model.eval()
+    volumes = (np.pad(_volume(seed + 10), ((0, 0), (6, 6), (6, 6))) for seed in range(3))
+    return with_data_bn(CVANetFast(DEPTH), volumes)
 
 
 def test_aligned_curve_reads_the_costs_around_the_wta_minimum():
@@ -175,17 +163,7 @@ def test_gradient_step_lowers_the_loss():
         np.stack([np.pad(_volume(s), ((0, 0), (6, 6), (6, 6))) for s in range(2)])
     )[:, None]
     target = (torch.rand(2, HEIGHT, WIDTH) > 0.5).float()
-    optimiser = torch.optim.Adam(model.parameters(), lr=1e-2)
-    losses = []
-    for _ in range(5):
-        loss = torch.nn.functional.binary_cross_entropy_with_logits(
-            model.forward_logits(volume), target
-        )
-        optimiser.zero_grad()
-        loss.backward()
-        assert all(p.grad is not None for p in model.parameters())
-        optimiser.step()
-        losses.append(float(loss.detach()))
+    losses = adam_losses(model, volume, target)
     assert losses[-1] < losses[0]
 
 

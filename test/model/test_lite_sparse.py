@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from light_net_test_utils import peaked_volume, with_data_bn
 import numpy as np
 import pytest
 import torch
@@ -29,11 +30,7 @@ pytestmark = pytest.mark.usefixtures('one_torch_thread')
 
 
 def _volume(seed: int = 0) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    truth = rng.integers(0, DEPTH, size=(HEIGHT, WIDTH))
-    d = np.arange(DEPTH)[:, None, None]
-    volume = np.abs(d - truth[None]) / 4.0 + rng.normal(0, 0.1, (DEPTH, HEIGHT, WIDTH))
-    return np.clip(volume, 0.0, 1.0).astype(np.float32)
+    return peaked_volume(seed, DEPTH, HEIGHT, WIDTH)
 
 
 def _inputs(seed: int = 0) -> ConfidenceInputs:
@@ -46,15 +43,7 @@ def _inputs(seed: int = 0) -> ConfidenceInputs:
 def net() -> CVANetLite:
     """A Lite network whose BN statistics come from data, so that folding is not trivial."""
     torch.manual_seed(0)
-    model = CVANetLite(DEPTH)
-    for module in model.modules():
-        if isinstance(module, torch.nn.modules.batchnorm._BatchNorm):
-            module.momentum = None
-    model.train()
-    with torch.no_grad():
-        for seed in range(3):
-            model(torch.from_numpy(_volume(seed + 10))[None, None])
-    return model.eval()
+    return with_data_bn(CVANetLite(DEPTH), (_volume(seed + 10) for seed in range(3)))
 
 
 @pytest.fixture(scope='module')
