@@ -97,6 +97,7 @@ _NETWORK_WORKER_FLAG = '--network-worker'
 _NETWORK_PREFIX = 'cvanet_d'
 _GEMM_SIZE = 2048
 _RECORD_PREFIX = 'BENCH-RECORD '
+_SUITES = ('matchers', 'node', 'fast', 'gpu')
 
 
 @dataclass(frozen=True)
@@ -563,10 +564,12 @@ def _parser() -> argparse.ArgumentParser:
                         f'{_BASELINE} is always added as the reference')
     parser.add_argument('--json', type=Path, default=None, metavar='PATH',
                         help='write the records as a JSON list to PATH')
-    parser.add_argument('--suite', choices=('matchers', 'node', 'fast'), default='matchers',
+    parser.add_argument('--suite', choices=_SUITES, default='matchers',
                         help='matchers (this table), node: end-to-end latency of cva-node '
-                        'over DDS (see cva-benchmark --suite node --help), or fast: CVA-Net '
-                        'fast paths with their AUC cost (cva-benchmark --suite fast --help)')
+                        'over DDS (see cva-benchmark --suite node --help), fast: CVA-Net '
+                        'fast paths with their AUC cost (cva-benchmark --suite fast --help), '
+                        'or gpu: the networks per precision on a CUDA GPU '
+                        '(cva-benchmark --suite gpu --help)')
     parser.add_argument('--network', action=argparse.BooleanOptionalAction, default=True,
                         help=f'add the CVA-Net row {_NETWORK_PREFIX}<D> (on a crop of the '
                         f'{NETWORK_MATCHER} cost volume, extrapolated to the frame by FLOPs)')
@@ -580,7 +583,7 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``cva-benchmark``; returns the process exit code."""
     suite = argparse.ArgumentParser(add_help=False)
-    suite.add_argument('--suite', choices=('matchers', 'node', 'fast'), default='matchers')
+    suite.add_argument('--suite', choices=_SUITES, default='matchers')
     chosen, rest = suite.parse_known_args(argv)
     if chosen.suite == 'node':
         from cva_confidence_ros.node_benchmark import main as node_main
@@ -590,6 +593,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         from cva_confidence_ros.fast_benchmark import main as fast_main
 
         return fast_main(rest)
+    if chosen.suite == 'gpu':
+        from cva_confidence_ros.gpu_benchmark import main as gpu_main
+
+        return gpu_main(rest)
     parser = _parser()
     args = parser.parse_args(rest)
     try:

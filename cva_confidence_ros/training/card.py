@@ -164,7 +164,8 @@ def write_model_card(
         f'- epochs: {facts.get("epochs")} at lr {_fmt(facts.get("lr"))} + '
         f'{facts.get("epochs_low_lr")} at lr {_fmt(facts.get("lr_low"))}',
         f'- batch size: {facts.get("batch_size")}, samples per epoch: '
-        f'{_fmt(facts.get("samples_per_epoch"))}, samples seen: {_fmt(facts.get("samples_seen"))}',
+        f'{_fmt(facts.get("samples_per_epoch"))}, samples seen: {_fmt(facts.get("samples_seen"))}'
+        + (', arithmetic: bf16 autocast' if facts.get('precision') == 'bf16' else ''),
         *(
             [f'- {note}' for note in facts['network_notes']]
             if facts.get('network_notes')

@@ -20,7 +20,12 @@ import shlex
 import sys
 
 from cva_confidence_ros.errors import CVAError
-from cva_confidence_ros.training.config import FUSION_SPLITS, MODES, TrainConfig
+from cva_confidence_ros.training.config import (
+    FUSION_SPLITS,
+    MODES,
+    TRAIN_PRECISIONS,
+    TrainConfig,
+)
 
 __all__ = ['build_parser', 'config_from_args', 'main']
 
@@ -134,6 +139,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument('--seed', type=int, default=0)
     run.add_argument('--device', default='cpu', help="'cpu', 'cuda', 'cuda:N' or 'auto'")
+    run.add_argument(
+        '--precision',
+        choices=TRAIN_PRECISIONS,
+        default='fp32',
+        help='bf16: mixed precision (bfloat16 autocast, float32 weights); for CUDA GPUs',
+    )
     run.add_argument('--threads', type=int, default=None, help='torch and numba CPU threads')
     output = parser.add_argument_group('output')
     output.add_argument('--out', default=defaults['out'].default, help='checkpoints and log')
@@ -170,6 +181,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         samples_per_epoch=args.samples_per_epoch,
         seed=args.seed,
         device=args.device,
+        precision=args.precision,
         threads=args.threads,
         out=args.out,
         weights_out=args.weights_out,

@@ -7,11 +7,20 @@ from typing import Any
 
 from cva_confidence_ros.errors import ConfigError
 
-__all__ = ['FUSION_SPLITS', 'MODES', 'TrainConfig', 'default_synthetic_size', 'parse_dataset_spec']
+__all__ = [
+    'FUSION_SPLITS',
+    'MODES',
+    'TRAIN_PRECISIONS',
+    'TrainConfig',
+    'default_synthetic_size',
+    'parse_dataset_spec',
+]
 
 #: ``sparse``: one 13×13×D extract per sample (the paper); ``dense``: crops with a masked loss.
 MODES = ('sparse', 'dense')
 _DEVICES = ('cpu', 'cuda', 'auto')
+#: Arithmetic of the training steps: float32, or bfloat16 autocast (mixed precision).
+TRAIN_PRECISIONS = ('fp32', 'bf16')
 #: LGC-Net's split of the training scenes between its two stages: ``alternate`` (scenes sorted
 #: by name, even positions train CCNN + ConfNet, odd positions the fusion) or ``none`` (both
 #: stages on every scene, which lets the fusion learn the parts' over-confidence on their own
@@ -61,6 +70,8 @@ class TrainConfig:
         samples_per_epoch: Labelled samples per epoch; None = every labelled pixel once.
         seed: Seed of initialisation, sampling and dropout.
         device: ``cpu``, ``cuda`` or ``auto``.
+        precision: ``fp32``, or ``bf16``: forward and backward under bfloat16 autocast (CUDA;
+            weights, optimiser and batch-norm statistics stay float32).
         threads: torch CPU threads; None = torch's default.
         out: Folder for checkpoints, the log and the history.
         weights_out: Final weights file (+ model card beside it); None = only checkpoints.
@@ -97,6 +108,7 @@ class TrainConfig:
     samples_per_epoch: int | None = None
     seed: int = 0
     device: str = 'cpu'
+    precision: str = 'fp32'
     threads: int | None = None
     out: str = 'out/train'
     weights_out: str | None = None
@@ -145,6 +157,10 @@ class TrainConfig:
             raise ConfigError(f'mode must be one of {MODES}; got {self.mode!r}')
         if self.device not in _DEVICES and not str(self.device).startswith('cuda:'):
             raise ConfigError(f'device must be one of {_DEVICES} or cuda:N; got {self.device!r}')
+        if self.precision not in TRAIN_PRECISIONS:
+            raise ConfigError(
+                f'precision must be one of {TRAIN_PRECISIONS}; got {self.precision!r}'
+            )
         if not (self.lr > 0 and 0 < self.low_lr_factor <= 1):
             raise ConfigError(
                 f'lr must be > 0 and low_lr_factor in (0, 1]; got {self.lr}, {self.low_lr_factor}'

@@ -34,13 +34,15 @@ from cva_confidence_ros.model.sparse import (
 
 DEPTH, HEIGHT, WIDTH = 16, 20, 28
 SHIPPED = Path(__file__).resolve().parents[2] / 'models' / 'cvanet_census_bm_d64.pt'
-#: AUC budget of the approximate paths on the fixed synthetic scene: AUC ≤ budget × exact AUC.
-#: Stride 2 and 4 are the paths that stay within 1.05 on the develop windows of the README's
-#: fast-path table (0.90, 1.02): 1.10 here. Stride 8 and the cascades cost more there (1.14–1.46):
-#: 1.50 here. Measured with the continued census_bm weights (seed 7, 24×160): stride 2/4/8
-#: 0.76/0.79/1.12, pkrn 0.5 → 1.13, pkrn 0.25 with stride 2 → 1.21, with stride 8 → 1.29.
-AUC_BUDGET = 1.10
-AUC_BUDGET_COARSE = 1.50
+#: AUC budget of the approximate paths on the fixed synthetic scene, as the share of the gap
+#: between the exact network and PKRN alone (the cheap measure they fall back on) that they may
+#: lose: (AUC − AUC_exact) / (AUC_pkrn − AUC_exact). A ratio to the exact AUC would depend on how
+#: good the shipped weights are (the GPU-trained census_bm weights made every ratio 1.2–3.0× on
+#: this scene, where PKRN alone is 3.4×); the share of the gap does not. Measured with those
+#: weights (seed 7, 24×160): stride 2/4/8 0.08/0.26/0.41, pkrn 0.5 → 0.40, pkrn 0.25 with
+#: stride 2 → 0.79, with stride 8 → 0.84.
+AUC_BUDGET = 0.35
+AUC_BUDGET_COARSE = 0.90
 APPROXIMATE = (
     SparseConfig(stride=2),
     SparseConfig(stride=4),
@@ -274,9 +276,11 @@ def test_auc_budget_on_fixed_scene(scene, config):
     result = sparse_confidence(
         lambda _volume, _mask: exact, volume, sample.left, disparity, config, cheap
     )
-    ratio = roc_auc(result.confidence, wrong) / roc_auc(exact, wrong)
+    auc_exact, auc_cheap = roc_auc(exact, wrong), roc_auc(cheap, wrong)
+    assert auc_cheap > 1.5 * auc_exact  # the scene separates the network from its fallback
+    lost = (roc_auc(result.confidence, wrong) - auc_exact) / (auc_cheap - auc_exact)
     fine = config.cascade == 'none' and config.stride <= 4
-    assert ratio <= (AUC_BUDGET if fine else AUC_BUDGET_COARSE)
+    assert lost <= (AUC_BUDGET if fine else AUC_BUDGET_COARSE)
     assert result.network_share < 0.6
 
 

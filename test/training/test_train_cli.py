@@ -126,6 +126,20 @@ def test_dense_mode_counts_labelled_outputs(tmp_path):
     assert record['samples'] >= 100 and record['train_loss'] > 0
 
 
+def test_bf16_mixed_precision_trains_and_says_so_on_the_card(tmp_path):
+    out, weights = tmp_path / 'bf16', tmp_path / 'cvanet_census_bm_d16.pt'
+    args = [*TINY, '--out', str(out), '--weights-out', str(weights), '--precision', 'bf16']
+    assert main([*args, '--mode', 'dense', '--crop-size', '8', '--epochs', '1',
+                 '--epochs-low-lr', '0']) == 0
+    (record,) = _history(out)
+    assert record['train_loss'] > 0 and record['val_auc'] is not None
+    net, meta = load_weights(weights, matcher='census_bm', max_disparity=16)
+    assert meta['precision'] == 'bf16'
+    # The weights stay float32: autocast changes the arithmetic, not the parameters.
+    assert all(p.dtype == torch.float32 for p in net.parameters())
+    assert 'arithmetic: bf16 autocast' in weights.with_suffix('.md').read_text()
+
+
 def test_bad_settings_exit_2(tmp_path, capsys):
     assert main(['--max-disparity', '16', '--out', str(tmp_path)]) == 2
     assert 'no training data' in capsys.readouterr().err
@@ -150,6 +164,8 @@ def test_config_validation():
         TrainConfig(synthetic=1, mode='fancy')
     with pytest.raises(ConfigError, match='2·D'):
         TrainConfig(synthetic=1, max_disparity=64, synthetic_size=(64, 100))
+    with pytest.raises(ConfigError, match="precision must be one of.*'fp16'"):
+        TrainConfig(synthetic=1, precision='fp16')
     with pytest.raises(ConfigError, match="unknown arch 'resnet'.*cvanet"):
         TrainConfig(synthetic=1, arch='resnet')
     config = TrainConfig(synthetic=1, epochs=2, epochs_low_lr=1, lr=1e-3)
