@@ -628,15 +628,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.exit(2, f'cva-benchmark: error: {error}\n')
     print(format_table(records, os.cpu_count() or 1))
     if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        extra_keys = ('extrapolated', 'note')
-        rows = [
-            {key: record[key] for key in RECORD_KEYS + extra_keys if key in record}
-            for record in records
-        ]
-        args.json.write_text(json.dumps(rows, indent=2) + '\n', encoding='utf-8')
-        print(f'wrote {args.json}', file=sys.stderr)
+        write_records(args.json, records, ('extrapolated', 'note'))
     return 0
+
+
+def write_records(
+    path: Path, records: Sequence[dict[str, Any]], extra_keys: Sequence[str] = ()
+) -> None:
+    """Write the records as a JSON list: :data:`RECORD_KEYS`, then ``extra_keys`` where set."""
+    keys = (*RECORD_KEYS, *extra_keys)
+    rows = [{key: record[key] for key in keys if key in record} for record in records]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(rows, indent=2) + '\n', encoding='utf-8')
+    print(f'wrote {path}', file=sys.stderr)
 
 
 if __name__ == '__main__':

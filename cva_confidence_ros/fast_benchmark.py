@@ -34,7 +34,6 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-import json
 import os
 from pathlib import Path
 import statistics
@@ -46,7 +45,6 @@ import numpy as np
 
 from cva_confidence_ros.benchmark import (
     NETWORK_MATCHER,
-    RECORD_KEYS,
     BenchSettings,
     _gemm_gflops,
     _network,
@@ -54,6 +52,7 @@ from cva_confidence_ros.benchmark import (
     _reset_peak,
     make_pairs,
     memory_kb,
+    write_records,
 )
 from cva_confidence_ros.errors import ConfigError
 
@@ -501,12 +500,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.exit(2, f'cva-benchmark: error: {error}\n')
     print(format_fast_table(records))
     if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
         extra = ('network_share', 'extrapolated', 'threads', 'cheap_ms', 'stages_ms', 'note',
                  'arch')
-        rows_out = [{k: r[k] for k in RECORD_KEYS + extra if k in r} for r in records]
-        args.json.write_text(json.dumps(rows_out, indent=2) + '\n', encoding='utf-8')
-        print(f'wrote {args.json}', file=sys.stderr)
+        write_records(args.json, records, extra)
     return 0
 
 

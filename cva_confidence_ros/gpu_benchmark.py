@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable, Sequence
-import json
 from pathlib import Path
 import statistics
 import sys
@@ -37,11 +36,11 @@ import numpy as np
 
 from cva_confidence_ros.benchmark import (
     NETWORK_MATCHER,
-    RECORD_KEYS,
     BenchSettings,
     _gemm_gflops,
     _network,
     make_pairs,
+    write_records,
 )
 from cva_confidence_ros.errors import ConfigError
 
@@ -322,10 +321,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.exit(2, f'cva-benchmark: error: {error}\n')
     print(format_gpu_table(records))
     if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        rows = [{k: r[k] for k in RECORD_KEYS + _EXTRA_KEYS if k in r} for r in records]
-        args.json.write_text(json.dumps(rows, indent=2) + '\n', encoding='utf-8')
-        print(f'wrote {args.json}', file=sys.stderr)
+        write_records(args.json, records, _EXTRA_KEYS)
     return 0
 
 
