@@ -320,11 +320,7 @@ def _run_epoch(
                 count = len(step)
             else:
                 volumes, targets, mask = gather_crops(scenes, crops, step, config.crop_size)
-                volumes, targets, mask = (
-                    volumes.to(device, non_blocking=True),
-                    targets.to(device, non_blocking=True),
-                    mask.to(device, non_blocking=True),
-                )
+                volumes, targets, mask = volumes.to(device), targets.to(device), mask.to(device)
                 with autocast:
                     logits = model(volumes).float()
                 count = int(mask.sum())
