@@ -3,7 +3,13 @@ weights) and its WTA-aligned inputs (compiled kernel = torch ops)."""
 
 from __future__ import annotations
 
-from light_net_test_utils import adam_losses, peaked_volume, with_data_bn
+from light_net_test_utils import (
+    check_confidence_method,
+    check_registered_saved_and_loaded,
+    gradient_step_losses,
+    peaked_volume,
+    with_data_bn,
+)
 import numpy as np
 import pytest
 import torch
@@ -11,19 +17,14 @@ import torch
 from cva_confidence_ros.confidence import CONFIDENCE_METHODS, ConfidenceInputs
 from cva_confidence_ros.errors import ConfigError, InputError, ModelError
 from cva_confidence_ros.model import (
-    ARCHITECTURES,
     PATCH_SIZE,
-    CVANet,
     CVANetFast,
     FoldedCVANetFast,
     SparseEvaluator,
     default_weights_path,
-    load_weights,
     predict_confidence,
     predict_confidence_at,
-    save_weights,
     tile_shape,
-    weights_file_name,
 )
 from cva_confidence_ros.model.fast import FAST_ALIGN, FAST_INPUTS, aligned_curve
 from cva_confidence_ros.model.inference import activations_per_pixel
@@ -158,59 +159,18 @@ def test_every_sparse_way_equals_exact(net, path):
 
 def test_gradient_step_lowers_the_loss():
     torch.manual_seed(1)
-    model = CVANetFast(DEPTH, dropout=0.0).train()
-    volume = torch.from_numpy(
-        np.stack([np.pad(_volume(s), ((0, 0), (6, 6), (6, 6))) for s in range(2)])
-    )[:, None]
-    target = (torch.rand(2, HEIGHT, WIDTH) > 0.5).float()
-    losses = adam_losses(model, volume, target)
+    losses = gradient_step_losses(CVANetFast(DEPTH, dropout=0.0).train(), _volume, HEIGHT, WIDTH)
     assert losses[-1] < losses[0]
 
 
 def test_registered_saved_and_loaded(net, tmp_path):
-    assert 'cvanet_fast' in ARCHITECTURES and CVANetFast.arch == 'cvanet_fast'
-    assert weights_file_name('census_bm', 64, 'cvanet_fast') == 'cvanet_fast_census_bm_d64.pt'
-    path = save_weights(net, tmp_path / 'fast.pt', {'matcher': 'census_bm'})
-    loaded, meta = load_weights(path, matcher='census_bm', max_disparity=DEPTH, arch='cvanet_fast')
-    assert isinstance(loaded, CVANetFast) and meta['arch'] == 'cvanet_fast'
-    volume = _volume(5)
-    np.testing.assert_allclose(
-        predict_confidence(loaded, volume), predict_confidence(net, volume), atol=1e-6
-    )
-    with pytest.raises(ModelError, match="arch 'cvanet_fast'; expected 'cvanet'"):
-        load_weights(path)
-
-
-def _inputs(depth: int = DEPTH, matcher: str = 'census_bm') -> ConfidenceInputs:
-    volume = _volume(7, depth)
-    return ConfidenceInputs(
-        cost_volume=volume,
-        disparity=volume.argmin(axis=0).astype(np.float32),
-        image=np.zeros((HEIGHT, WIDTH), np.uint8),
-        matcher=matcher,
-    )
+    check_registered_saved_and_loaded(net, 'cvanet_fast', DEPTH, tmp_path, _volume(5))
 
 
 def test_confidence_method(net, tmp_path):
-    path = save_weights(net, tmp_path / 'cvanet_fast_census_bm_d24.pt', {'matcher': 'census_bm'})
-    factory = CONFIDENCE_METHODS.get('cva_net_fast')
-    method = factory(
-        matcher='census_bm', max_disparity=DEPTH, weights=str(path), device='cpu',
-        tile_budget_mb=1.0,
-    )  # fmt: skip
-    inputs = _inputs()
-    expected = predict_confidence(net, inputs.cost_volume)
-    np.testing.assert_allclose(method(inputs), expected, atol=1e-5)
-    ys, xs = np.array([1, 2]), np.array([3, 20])
-    np.testing.assert_allclose(method.confidence_at(inputs, ys, xs), expected[ys, xs], atol=1e-5)
-    with pytest.raises(InputError, match='cvanet_fast weights .* depth D = 24'):
-        method(_inputs(depth=DEPTH + 8))
-    with pytest.raises(InputError, match="for matcher 'census_bm'"):
-        method(_inputs(matcher='census_sgm'))
-    cva_net_path = tmp_path / 'cvanet.pt'
-    save_weights(CVANet(DEPTH), cva_net_path, {'matcher': 'census_bm'})
-    with pytest.raises(ModelError, match="expected 'cvanet_fast'"):
-        factory(matcher='census_bm', max_disparity=DEPTH, weights=str(cva_net_path))
+    check_confidence_method(
+        net, 'cvanet_fast', 'cva_net_fast', DEPTH, tmp_path, lambda depth: _volume(7, depth)
+    )
 
 
 def test_missing_shipped_weights_say_how_to_train():
