@@ -231,6 +231,7 @@ def run(args: argparse.Namespace) -> int:
                     plot_dir=plot_dir,
                     log=lambda message, p=prefix: _log(f'{p} {message}'),
                     method_order=methods,
+                    progress=True,
                 )
             )
 

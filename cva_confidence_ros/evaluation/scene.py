@@ -12,7 +12,8 @@ the same pixels, so every method is scored on exactly the same pixels.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+import contextlib
 from dataclasses import dataclass
 from pathlib import Path
 import time
@@ -175,6 +176,34 @@ def confidence_at(
     return dense[ys, xs], dense
 
 
+@contextlib.contextmanager
+def _network_progress(method: Any, label: str) -> Iterator[None]:
+    """A tqdm bar fed by the ``progress`` hook of ``method.evaluator`` (CVA-Net and the
+    networks run like it) while the block runs; nothing for other methods."""
+    evaluator = getattr(method, 'evaluator', None)
+    if evaluator is None or not hasattr(evaluator, 'progress'):
+        yield
+        return
+    from tqdm import tqdm
+
+    bar = None
+
+    def update(done: int, total: int) -> None:
+        nonlocal bar
+        if bar is None:
+            bar = tqdm(total=total, desc=label, unit='px', unit_scale=True, leave=False,
+                       dynamic_ncols=True, mininterval=1.0)
+        bar.update(done - bar.n)
+
+    evaluator.progress = update
+    try:
+        yield
+    finally:
+        evaluator.progress = None
+        if bar is not None:
+            bar.close()
+
+
 def _map_range(values: np.ndarray) -> tuple[float | None, float | None]:
     finite = values[np.isfinite(values)]
     if finite.size == 0 or (finite.min() >= 0.0 and finite.max() <= 1.0):
@@ -233,6 +262,7 @@ def evaluate_scene(
     plot_dir: str | Path | None = None,
     log: Logger | None = None,
     method_order: Sequence[str] | None = None,
+    progress: bool = False,
 ) -> list[EvalRecord]:
     """Score confidence methods on one scene for one matcher.
 
@@ -255,6 +285,8 @@ def evaluate_scene(
             scored pixels; the rest of its confidence map is drawn in ``plots.UNKNOWN_RGB``.
         log: Receives one progress line per stage (matching, each method), with seconds.
         method_order: Order of the records; default the order of ``methods``.
+        progress: Show a progress bar on stderr (pixels) while a network method runs: on a
+            CPU, CVA-Net on a whole Middlebury v3 image takes minutes.
 
     Returns:
         One :class:`EvalRecord` per method, in ``method_order``.
@@ -308,11 +340,13 @@ def evaluate_scene(
     scores: dict[str, ScoredMethod] = {}
     for name in names:
         tic = time.perf_counter()
-        if subset:
-            values, dense = confidence_at(methods[name], inputs, ys, xs)
-        else:
-            dense = np.asarray(methods[name](inputs), dtype=np.float32)
-            values = None
+        bar = _network_progress(methods[name], f'{matcher} {name}') if progress else None
+        with bar or contextlib.nullcontext():
+            if subset:
+                values, dense = confidence_at(methods[name], inputs, ys, xs)
+            else:
+                dense = np.asarray(methods[name](inputs), dtype=np.float32)
+                values = None
         if dense is not None and dense.shape != disparity.shape:
             raise InputError(
                 f'confidence method {name!r} must return shape {disparity.shape}; '

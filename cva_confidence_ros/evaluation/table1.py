@@ -558,7 +558,7 @@ def run(args: argparse.Namespace) -> int:
                 for record in evaluate_scene(
                     sample, matcher, built[matcher], max_disparity=args.max_disparity,
                     max_pixels=args.max_pixels, seed=args.seed, method_order=todo,
-                    log=lambda message, p=prefix: _log(f'{p} {message}'),
+                    log=lambda message, p=prefix: _log(f'{p} {message}'), progress=True,
                 )
             }
             check = next(iter(fresh.values()))

@@ -280,6 +280,9 @@ class SparseEvaluator:
         self.path_counts: dict[str, int] = {'tile': 0, 'fused': 0, 'extracts': 0}
         #: Floating-point operations run since construction (counted, not timed).
         self.flops_done = 0.0
+        #: Called as ``progress(done, total)``, in pixels, after each tile or batch of extracts
+        #: of a call (for a progress bar over a long whole-image evaluation); None = silent.
+        self.progress: Callable[[int, int], None] | None = None
 
     # -- operation counts ---------------------------------------------------------------------
     def _flops(self, kind: str, rows: int, columns: int) -> float:
@@ -362,6 +365,7 @@ class SparseEvaluator:
         padded_np = pad_cost_volume(volume)
         padded = torch.from_numpy(padded_np)
         windows = None
+        total, done = int(np.count_nonzero(mask)), 0
         with contextlib.ExitStack() as stack:
             stack.enter_context(torch.inference_mode())
             stack.enter_context(precision_context(self.device, self.precision))
@@ -378,12 +382,15 @@ class SparseEvaluator:
                             windows = sliding_window_view(
                                 padded_np, (PATCH_SIZE, PATCH_SIZE), axis=(1, 2)
                             )
-                        values = self._extracts(windows, ys + y0, xs + x0)
+                        values = self._extracts(windows, ys + y0, xs + x0, (done, total))
                     else:
                         tile = padded[:, y0 : y1 + 2 * PAD, x0 : x1 + 2 * PAD]
                         tile = tile.to(self.device)[None, None]
                         values = self._dense(tile, way, ys, xs)
                     result[ys + y0, xs + x0] = values
+                    done += ys.size
+                    if self.progress is not None:
+                        self.progress(done, total)
         return result
 
     def at(self, cost_volume: np.ndarray, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
@@ -407,7 +414,7 @@ class SparseEvaluator:
         self.path_counts['extracts'] += 1
         self.flops_done += ys.size * self._flops('tile', 1, 1)
         with torch.inference_mode(), precision_context(self.device, self.precision):
-            return self._extracts(windows, ys, xs)
+            return self._extracts(windows, ys, xs, (0, ys.size))
 
     def _dense(self, tile: torch.Tensor, way: str, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
         index_y = torch.from_numpy(ys).to(self.device)
@@ -420,14 +427,25 @@ class SparseEvaluator:
         logits = self.net.head_logits(curves)  # type: ignore[operator]
         return torch.sigmoid(logits.float()).cpu().numpy()
 
-    def _extracts(self, windows: np.ndarray, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
+    def _extracts(
+        self,
+        windows: np.ndarray,
+        ys: np.ndarray,
+        xs: np.ndarray,
+        progress: tuple[int, int],
+    ) -> np.ndarray:
+        """The network on batched 13×13×D extracts; ``progress`` = (pixels done before this
+        call, pixels of the whole call), reported on after each batch."""
         out = np.empty(ys.size, dtype=np.float32)
+        done_before, total = progress
         for start in range(0, ys.size, _EXTRACT_BATCH):
             stop = min(ys.size, start + _EXTRACT_BATCH)
             # (D, n, 13, 13) → (n, 1, D, 13, 13)
             batch = np.ascontiguousarray(windows[:, ys[start:stop], xs[start:stop]].swapaxes(0, 1))
             extracts = torch.from_numpy(batch)[:, None].to(self.device)
             out[start:stop] = self.net(extracts)[:, 0, 0].float().cpu().numpy()
+            if self.progress is not None:
+                self.progress(done_before + stop, total)
         return out
 
     def confidence(

@@ -131,3 +131,24 @@ def test_cva_net_patch_mode_equals_dense_mode(tmp_path) -> None:
     )
     assert patch[0].n_pixels == dense[0].n_pixels == 24 * 44
     assert patch[0].auc == pytest.approx(dense[0].auc, abs=1e-6)
+
+
+def test_progress_bar_follows_the_network_and_is_removed(tmp_path, capsys) -> None:
+    import torch
+
+    from cva_confidence_ros.confidence import CONFIDENCE_METHODS
+    from cva_confidence_ros.model import CVANet, save_weights
+
+    torch.manual_seed(1)
+    weights = save_weights(CVANet(16), tmp_path / 'w.pt', {'matcher': 'census_bm'})
+    method = CONFIDENCE_METHODS.get('cva_net')(
+        matcher='census_bm', max_disparity=16, weights=weights, tile_budget_mb=1.0
+    )
+    quiet = evaluate_scene(_shifted_sample(), 'census_bm', {'cva_net': method}, max_disparity=16)
+    assert capsys.readouterr().err == ''
+    shown = evaluate_scene(
+        _shifted_sample(), 'census_bm', {'cva_net': method}, max_disparity=16, progress=True
+    )
+    err = capsys.readouterr().err
+    assert 'census_bm cva_net' in err and 'px' in err
+    assert shown[0].auc == quiet[0].auc and method.evaluator.progress is None

@@ -142,6 +142,24 @@ def test_auto_path_follows_operation_counts(net):
         SparseEvaluator(_PlainNet(net), path='fused')
 
 
+@pytest.mark.parametrize('path', ['tile', 'extracts'])
+def test_progress_reports_pixels_up_to_the_total(net, path):
+    volume = _volume()
+    evaluator = SparseEvaluator(net, tile_budget_mb=2.0, path=path)  # several tiles
+    reports: list[tuple[int, int]] = []
+    evaluator.progress = lambda done, total: reports.append((done, total))
+    mask = np.zeros((HEIGHT, WIDTH), bool)
+    mask[::3, ::2] = True
+    evaluator(volume, mask)
+    done = [d for d, _ in reports]
+    assert len(reports) > 1 and done == sorted(done)
+    assert {t for _, t in reports} == {int(mask.sum())} and done[-1] == int(mask.sum())
+    reports.clear()
+    ys, xs = np.nonzero(np.ones((HEIGHT, WIDTH), bool))
+    evaluator.at(volume, ys, xs)
+    assert reports[-1] == (ys.size, ys.size) and len(reports) == -(-ys.size // 512)
+
+
 def test_bf16_within_tolerance(net):
     volume = _volume(2)[:, :12, :12]
     exact = predict_confidence(net, volume)
