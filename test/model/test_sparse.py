@@ -164,9 +164,13 @@ def test_bf16_within_tolerance(net):
     volume = _volume(2)[:, :12, :12]
     exact = predict_confidence(net, volume)
     bf16 = SparseEvaluator(net, precision='bf16')(volume)
-    # bfloat16 keeps 8 bits of mantissa; through 18 layers the confidence moves by < 0.05.
-    np.testing.assert_allclose(bf16, exact, atol=0.05, rtol=0)
-    assert np.corrcoef(bf16.ravel(), exact.ravel())[0, 1] > 0.95
+    # bfloat16 keeps 8 bits of mantissa; through 18 layers of this random network the
+    # confidence moves by ≈ 0.01 on average and single pixels by up to ≈ 0.06 where the CPU has
+    # native bf16 dot products (AVX512-BF16: other rounding than the float32 fallback), so the
+    # bound is on the mean, with a loose one on each pixel.
+    difference = np.abs(bf16 - exact)
+    assert difference.mean() < 0.02 and difference.max() < 0.1
+    assert np.corrcoef(bf16.ravel(), exact.ravel())[0, 1] > 0.98
 
 
 def test_fp16_needs_cuda(net):
