@@ -177,11 +177,11 @@ def confidence_at(
 
 
 @contextlib.contextmanager
-def _network_progress(method: Any, label: str) -> Iterator[None]:
+def _network_progress(method: Any, label: str, enabled: bool) -> Iterator[None]:
     """A tqdm bar fed by the ``progress`` hook of ``method.evaluator`` (CVA-Net and the
-    networks run like it) while the block runs; nothing for other methods."""
+    networks run like it) while the block runs; nothing for other methods or if not enabled."""
     evaluator = getattr(method, 'evaluator', None)
-    if evaluator is None or not hasattr(evaluator, 'progress'):
+    if not enabled or evaluator is None or not hasattr(evaluator, 'progress'):
         yield
         return
     from tqdm import tqdm
@@ -340,8 +340,7 @@ def evaluate_scene(
     scores: dict[str, ScoredMethod] = {}
     for name in names:
         tic = time.perf_counter()
-        bar = _network_progress(methods[name], f'{matcher} {name}') if progress else None
-        with bar or contextlib.nullcontext():
+        with _network_progress(methods[name], f'{matcher} {name}', progress):
             if subset:
                 values, dense = confidence_at(methods[name], inputs, ys, xs)
             else:
