@@ -74,6 +74,8 @@ __all__ = [
     'make_pairs',
     'run_case',
     'run_network',
+    'run_suite',
+    'write_records',
 ]
 
 #: Keys of every record written by ``--json``.
@@ -629,6 +631,31 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(format_table(records, os.cpu_count() or 1))
     if args.json is not None:
         write_records(args.json, records, ('extrapolated', 'note'))
+    return 0
+
+
+def run_suite(
+    parser: argparse.ArgumentParser,
+    argv: Sequence[str] | None,
+    measure: Callable[[argparse.Namespace, BenchSettings], list[dict[str, Any]]],
+    table: Callable[[list[dict[str, Any]]], str],
+    extra_keys: Sequence[str] = (),
+) -> int:
+    """Run one benchmark suite's command line: parse, measure, print the table, write the JSON.
+
+    ``parser`` needs the ``--width``, ``--height``, ``--max-disparity``, ``--repeat`` and
+    ``--json`` options; ``measure(args, settings)`` returns the records. A
+    :class:`ConfigError` from either ends the process with code 2 and one line on stderr.
+    """
+    args = parser.parse_args(argv)
+    try:
+        settings = BenchSettings(args.width, args.height, args.max_disparity, args.repeat)
+        records = measure(args, settings)
+    except ConfigError as error:
+        parser.exit(2, f'cva-benchmark: error: {error}\n')
+    print(table(records))
+    if args.json is not None:
+        write_records(args.json, records, extra_keys)
     return 0
 
 

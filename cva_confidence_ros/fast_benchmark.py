@@ -52,7 +52,7 @@ from cva_confidence_ros.benchmark import (
     _reset_peak,
     make_pairs,
     memory_kb,
-    write_records,
+    run_suite,
 )
 from cva_confidence_ros.errors import ConfigError
 
@@ -479,10 +479,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``cva-benchmark --suite fast``; returns the exit code."""
-    parser = _parser()
-    args = parser.parse_args(argv)
-    try:
-        settings = BenchSettings(args.width, args.height, args.max_disparity, args.repeat)
+    def measure(args: argparse.Namespace, settings: BenchSettings) -> list[dict[str, Any]]:
         by_name = {c.name: c for c in FAST_CONFIGS}
         names = args.configs or list(by_name)
         unknown = [n for n in names if n not in by_name]
@@ -494,16 +491,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise ConfigError(f'--auc-crop must be ROWSxCOLUMNS; got {args.auc_crop!r}') from exc
         if args.crop < 4 or rows < 16 or columns < 16:
             raise ConfigError('--crop must be ≥ 4 and --auc-crop at least 16x16')
-        records = run_fast(settings, [by_name[n] for n in names], args.crop, args.data_root,
-                           (rows, columns))
-    except ConfigError as error:
-        parser.exit(2, f'cva-benchmark: error: {error}\n')
-    print(format_fast_table(records))
-    if args.json is not None:
-        extra = ('network_share', 'extrapolated', 'threads', 'cheap_ms', 'stages_ms', 'note',
-                 'arch')
-        write_records(args.json, records, extra)
-    return 0
+        return run_fast(settings, [by_name[n] for n in names], args.crop, args.data_root,
+                        (rows, columns))
+
+    extra = ('network_share', 'extrapolated', 'threads', 'cheap_ms', 'stages_ms', 'note', 'arch')
+    return run_suite(_parser(), argv, measure, format_fast_table, extra)
 
 
 if __name__ == '__main__':

@@ -40,7 +40,7 @@ from cva_confidence_ros.benchmark import (
     _gemm_gflops,
     _network,
     make_pairs,
-    write_records,
+    run_suite,
 )
 from cva_confidence_ros.errors import ConfigError
 
@@ -311,18 +311,11 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``cva-benchmark --suite gpu``; returns the exit code."""
-    parser = _parser()
-    args = parser.parse_args(argv)
-    try:
-        settings = BenchSettings(args.width, args.height, args.max_disparity, args.repeat)
-        records = run_gpu(settings, args.networks, args.precisions, args.device, args.data_root,
-                          not args.no_channels_last, args.warmup)
-    except ConfigError as error:
-        parser.exit(2, f'cva-benchmark: error: {error}\n')
-    print(format_gpu_table(records))
-    if args.json is not None:
-        write_records(args.json, records, _EXTRA_KEYS)
-    return 0
+    def measure(args: argparse.Namespace, settings: BenchSettings) -> list[dict[str, Any]]:
+        return run_gpu(settings, args.networks, args.precisions, args.device, args.data_root,
+                       not args.no_channels_last, args.warmup)
+
+    return run_suite(_parser(), argv, measure, format_gpu_table, _EXTRA_KEYS)
 
 
 if __name__ == '__main__':
