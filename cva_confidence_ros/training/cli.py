@@ -128,7 +128,10 @@ def build_parser() -> argparse.ArgumentParser:
         help='A: loss = (1-A)*BCE(label) + A*BCE(teacher probability), labelled pixels',
     )
     run.add_argument(
-        '--init-weights', default=None, help='start from these weights (same --arch and D)'
+        '--init-weights',
+        default=None,
+        help='start from these weights (same --arch; of another D, the first fully-connected '
+        'layer is transferred on the shared disparities, zeros beyond)',
     )
     run.add_argument(
         '--fusion-split',

@@ -12,8 +12,12 @@ dense-mode crop stay out of the loss, as in plain training: the shipped teachers
 than the labels (see the model cards), so the labels should keep the last word, and sparse and
 dense mode then train on the same pixels.
 
-Warm start (``--init-weights PATH``): weights of the same architecture and depth D are
-copied into the network before the first epoch (continued training, e.g. of CVA-Net).
+Warm start (``--init-weights PATH``): weights of the same architecture are copied into the
+network before the first epoch (continued training, e.g. of CVA-Net). Weights of another depth
+D are transferred (:func:`transfer_state`): the convolutions act the same way at every
+disparity and are copied; the first fully-connected layer spans the whole fused depth, so the
+disparities both depths share get the source's kernel and the rest zeros — at the start the
+network decides from the disparities the source saw, and training teaches it the others.
 """
 
 from __future__ import annotations
@@ -25,10 +29,16 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
-from cva_confidence_ros.errors import ConfigError
+from cva_confidence_ros.errors import ConfigError, ModelError
 from cva_confidence_ros.model import CVANet, fold_batchnorm, load_weights
 
-__all__ = ['distillation_loss', 'load_init_weights', 'load_teacher', 'teacher_logits']
+__all__ = [
+    'distillation_loss',
+    'load_init_weights',
+    'load_teacher',
+    'teacher_logits',
+    'transfer_state',
+]
 
 
 def load_teacher(
@@ -98,15 +108,56 @@ def distillation_loss(
     return (1.0 - weight) * hard + weight * soft
 
 
+def transfer_state(
+    source: dict[str, torch.Tensor], target: dict[str, torch.Tensor]
+) -> dict[str, torch.Tensor]:
+    """The tensors of ``source`` shaped for a network whose state is ``target``.
+
+    Tensors of equal shape are taken as they are. A tensor that differs only along its depth
+    axis (axis 2, the disparity axis of the kernels that span the fused depth) gets the
+    source's values on the depth indices both have — index i is the same disparity in any D —
+    and zeros beyond them (or is cut, from a deeper source).
+
+    Raises:
+        ModelError: Other tensor names, or shapes that differ elsewhere than the depth axis.
+    """
+    if set(source) != set(target):
+        missing = sorted(set(target) - set(source))
+        extra = sorted(set(source) - set(target))
+        raise ModelError(f'the weights do not fit this network: missing {missing}, extra {extra}')
+    state = {}
+    for key, value in source.items():
+        want = target[key]
+        if value.shape == want.shape:
+            state[key] = value
+            continue
+        same_elsewhere = (
+            value.dim() == want.dim() >= 3
+            and value.shape[:2] == want.shape[:2]
+            and value.shape[3:] == want.shape[3:]
+        )
+        if not same_elsewhere:
+            raise ModelError(
+                f'{key}: stored shape {tuple(value.shape)} does not fit {tuple(want.shape)}'
+            )
+        depth = min(value.shape[2], want.shape[2])
+        moved = torch.zeros_like(want)
+        moved[:, :, :depth] = value[:, :, :depth]
+        state[key] = moved
+    return state
+
+
 def load_init_weights(net: nn.Module, path: str, arch: str) -> dict[str, Any]:
-    """Copy the weights of ``path`` into ``net`` (same architecture and depth D).
+    """Copy the weights of ``path`` into ``net`` (same architecture; D may differ).
+
+    Weights of another depth D are transferred by :func:`transfer_state`.
 
     Returns:
         The stored meta of the weights (for the training summary).
 
     Raises:
-        ModelError: Missing or corrupt file, other architecture or other D.
+        ModelError: Missing or corrupt file or other architecture.
     """
-    source, meta = load_weights(Path(path), max_disparity=net.max_disparity, arch=arch)
-    net.load_state_dict(source.state_dict())
+    source, meta = load_weights(Path(path), arch=arch)
+    net.load_state_dict(transfer_state(source.state_dict(), net.state_dict()))
     return meta

@@ -16,6 +16,7 @@ from cva_confidence_ros.training.distill import (
     distillation_loss,
     load_init_weights,
     load_teacher,
+    transfer_state,
 )
 
 TINY = [
@@ -158,3 +159,46 @@ def test_init_weights_warm_start(tmp_path, teacher_path, capsys):
     wrong_arch = [*TINY, '--arch', 'cvanet_lite', '--init-weights', str(teacher_path)]
     assert main([*wrong_arch, '--out', str(tmp_path / 'other')]) == 2
     assert "expected 'cvanet_lite'" in capsys.readouterr().err
+
+
+def test_transfer_state_across_depths():
+    torch.manual_seed(0)
+    shallow, deep = CVANet(16), CVANet(24)
+    moved = transfer_state(shallow.state_dict(), deep.state_dict())
+    key = 'classification.fc1.weight'
+    assert moved[key].shape == deep.state_dict()[key].shape == (16, 32, 12, 1)
+    # Depth index i is the same disparity at any D: D = 16 keeps indices 0…3, zeros beyond.
+    assert torch.equal(moved[key][:, :, :4], shallow.state_dict()[key])
+    assert not moved[key][:, :, 4:].any()
+    for name, value in shallow.state_dict().items():
+        if name != key:
+            assert torch.equal(moved[name], value)
+
+    cut = transfer_state(deep.state_dict(), shallow.state_dict())  # a deeper source is cut
+    assert torch.equal(cut[key], deep.state_dict()[key][:, :, :4])
+
+
+def test_transfer_state_refuses_other_shapes():
+    state = CVANet(16).state_dict()
+    target = {**state, 'classification.fc2.weight': torch.zeros(2, 16, 1, 1)}
+    with pytest.raises(
+        ModelError, match=r'classification.fc2.weight: stored shape \(1, 16, 1, 1\)'
+    ):
+        transfer_state(state, target)
+    with pytest.raises(ModelError, match='missing'):
+        transfer_state({k: v for k, v in state.items() if 'fc2' not in k}, state)
+
+
+def test_init_weights_of_another_depth(tmp_path, teacher_path):
+    net = CVANet(24)
+    meta = load_init_weights(net, str(teacher_path), 'cvanet')
+    assert meta['max_disparity'] == 16
+    source = load_weights(teacher_path)[0].state_dict()
+    assert torch.equal(net.state_dict()['fusion.convs.0.weight'], source['fusion.convs.0.weight'])
+
+    weights = tmp_path / 'deeper.pt'
+    args = [*TINY, '--max-disparity', '24', '--synthetic-size', '24x48']  # later flags win
+    args += ['--init-weights', str(teacher_path)]
+    assert main([*args, '--out', str(tmp_path / 'run'), '--weights-out', str(weights)]) == 0
+    meta = load_weights(weights, max_disparity=24)[1]
+    assert meta['init_meta']['max_disparity'] == 16
