@@ -393,6 +393,11 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
         raise ConfigError(
             f'--arch {config.arch} trains in one process; run it without torchrun'
         )
+    if config.init_weights or config.teacher:
+        raise ConfigError(
+            f'--arch {config.arch} trains from scratch: --init-weights and --teacher are for '
+            'the cost-volume networks (cvanet, cvanet_lite, cvanet_fast)'
+        )
     check_matcher_and_threads(config)
     device = resolve_device(config.device)
     out = Path(config.out)

@@ -80,7 +80,8 @@ class TrainConfig:
         teacher: Weights file of a trained network that the trained one learns to imitate
             (knowledge distillation, see ``training.distill``); None = labels only.
         distill_weight: A in [0, 1]: loss = (1 − A)·BCE(label) + A·BCE(teacher probability).
-        init_weights: Weights file of the same architecture and D to start from (warm start).
+        init_weights: Weights file of the same architecture to start from (warm start; another D is
+            transferred, see ``training.distill``).
         fusion_split: LGC-Net only: which training scenes each stage sees (see
             :data:`FUSION_SPLITS`; ``alternate``: the parts learn from one half of the scenes and
             the fusion from the other, ``none``: both stages from all scenes).

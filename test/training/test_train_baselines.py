@@ -111,6 +111,14 @@ def test_resume_refuses_other_arch(tmp_path):
         train_baseline(config)
 
 
+def test_warm_start_and_teacher_are_refused(tmp_path, capsys):
+    common = [*TINY, '--arch', 'ccnn', '--out', str(tmp_path)]
+    assert main([*common, '--init-weights', str(tmp_path / 'any.pt')]) == 2
+    assert '--arch ccnn trains from scratch' in capsys.readouterr().err
+    assert main([*common, '--teacher', str(tmp_path / 'any.pt'), '--distill-weight', '0.5']) == 2
+    assert '--arch ccnn trains from scratch' in capsys.readouterr().err
+
+
 def test_crop_side_rules():
     class _Scene:
         def __init__(self, shape):
