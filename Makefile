@@ -10,7 +10,7 @@ STAMP := $(VENV)/.installed
 TORCH := torch==2.13.0
 DEPS := numpy scipy opencv-python-headless scikit-image numba matplotlib tqdm \
 	rosbags 'ros-jazzy-rclpy[fastrtps]' ros-jazzy-common-interfaces mccnn
-TEST_DEPS := pytest pytest-timeout colcon-core colcon-python-setup-py colcon-ros ruff
+TEST_DEPS := pytest pyyaml pytest-timeout colcon-core colcon-python-setup-py colcon-ros ruff
 DEMO_OUT ?= out/demo
 
 .PHONY: setup test demo bench bench-fast lint clean
