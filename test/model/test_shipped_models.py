@@ -9,11 +9,15 @@ import re
 import pytest
 import yaml
 
-from cva_confidence_ros.model import load_weights, weights_file_name
+from cva_confidence_ros.matching import MATCHERS
+from cva_confidence_ros.model import ARCHITECTURES, load_weights, weights_file_name
 
 MODELS = Path(__file__).resolve().parents[2] / 'models'
 SHIPPED = sorted(MODELS.glob('*.pt'))
-NAME = re.compile(r'^(?P<arch>[a-z_]+?)_(?P<matcher>census_bm|census_sgm|mccnn_fast)_d(?P<d>\d+)$')
+NAME = re.compile(
+    f'^(?P<arch>{"|".join(ARCHITECTURES.names())})_(?P<matcher>{"|".join(MATCHERS.names())})'
+    r'_d(?P<d>\d+)$'
+)
 MACHINE_PATH = re.compile(r'(?<![\w.])/(?:tmp|home|work|root|Users|mnt)/')
 
 
