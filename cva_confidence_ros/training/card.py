@@ -160,7 +160,8 @@ def write_model_card(
             f' (crops of {facts.get("crop_size")}² outputs)'
             if facts.get('mode') == 'dense'
             else ''
-        ),
+        )
+        + ('; half of them turned upside down (--vflip)' if facts.get('vflip') else ''),
         f'- epochs: {facts.get("epochs")} at lr {_fmt(facts.get("lr"))} + '
         f'{facts.get("epochs_low_lr")} at lr {_fmt(facts.get("lr_low"))}',
         f'- batch size: {facts.get("batch_size")}, samples per epoch: '

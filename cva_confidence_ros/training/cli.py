@@ -100,6 +100,11 @@ def build_parser() -> argparse.ArgumentParser:
         default=defaults['crop_size'].default,
         help='dense mode: outputs per crop side',
     )
+    run.add_argument(
+        '--vflip',
+        action='store_true',
+        help='turn half of the training samples upside down (augmentation, not in the paper)',
+    )
     run.add_argument('--epochs', type=int, default=defaults['epochs'].default)
     run.add_argument('--epochs-low-lr', type=int, default=defaults['epochs_low_lr'].default)
     run.add_argument('--batch-size', type=int, default=defaults['batch_size'].default)
@@ -176,6 +181,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         val_pixels=args.val_pixels,
         mode=args.mode,
         crop_size=args.crop_size,
+        vflip=args.vflip,
         epochs=args.epochs,
         epochs_low_lr=args.epochs_low_lr,
         batch_size=args.batch_size,

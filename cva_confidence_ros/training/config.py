@@ -62,6 +62,8 @@ class TrainConfig:
         val_pixels: Size of the fixed pixel subset the validation AUC is computed on.
         mode: ``sparse`` or ``dense`` (see :data:`MODES`).
         crop_size: Output side of a dense-mode crop (input is crop + 12).
+        vflip: Turn half of the training extracts or crops upside down (augmentation; see
+            ``training.data.flip_draws``). Not in the paper.
         epochs: Epochs at learning rate ``lr`` (paper: 10).
         epochs_low_lr: Further epochs at ``lr × low_lr_factor`` (paper: 3).
         batch_size: Samples per step (paper: 256). Dense mode uses ceil(batch / crop²) crops.
@@ -101,6 +103,7 @@ class TrainConfig:
     val_pixels: int = 2000
     mode: str = 'sparse'
     crop_size: int = 32
+    vflip: bool = False
     epochs: int = 10
     epochs_low_lr: int = 3
     batch_size: int = 256

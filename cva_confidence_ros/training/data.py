@@ -204,7 +204,10 @@ def epoch_order(n_total: int, n_samples: int, seed: int, epoch: int) -> np.ndarr
 
 
 def gather_extracts(
-    scenes: Sequence[PreparedScene], index: SampleIndex, chosen: np.ndarray
+    scenes: Sequence[PreparedScene],
+    index: SampleIndex,
+    chosen: np.ndarray,
+    flip: np.ndarray | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """13×13×D extracts centred on the chosen samples.
 
@@ -212,6 +215,7 @@ def gather_extracts(
         scenes: The prepared scenes.
         index: Their :class:`SampleIndex`.
         chosen: (B,) indices into ``index``.
+        flip: Optional (B,) bool: turn these extracts upside down (see :func:`flip_draws`).
 
     Returns:
         ``(volumes, targets)``: (B, 1, D, 13, 13) float32 and (B,) float32.
@@ -226,7 +230,27 @@ def gather_extracts(
         windows = scenes[number].volume.unfold(1, PATCH_SIZE, 1).unfold(2, PATCH_SIZE, 1)
         patch = windows[:, torch.from_numpy(index.ys[picked]), torch.from_numpy(index.xs[picked])]
         out[torch.from_numpy(rows), 0] = patch.permute(1, 0, 2, 3).float()
+    if flip is not None and flip.any():
+        upside = torch.from_numpy(np.nonzero(flip)[0])
+        out[upside] = out[upside].flip(-2)
     return out, torch.from_numpy(index.target[chosen])
+
+
+def flip_draws(count: int, seed: int, epoch: int, enabled: bool) -> np.ndarray:
+    """Which of ``count`` training samples of an epoch are turned upside down.
+
+    A vertical flip is a valid augmentation of a cost volume: the pair with both images turned
+    upside down is still rectified, and its cost volume is the original turned upside down
+    (exactly for Census block matching, whose window and transform are symmetric). A horizontal
+    flip is not: it would swap which image is the reference and where occlusions fall.
+
+    Returns:
+        (count,) bool; all False unless ``enabled``. Drawn from their own stream, so switching
+        flips on changes no other draw of the run.
+    """
+    if not enabled:
+        return np.zeros(count, dtype=bool)
+    return np.random.default_rng([seed, epoch, 3]).random(count) < 0.5
 
 
 @dataclass(frozen=True)
@@ -293,7 +317,11 @@ def dense_crops(
 
 
 def gather_crops(
-    scenes: Sequence[PreparedScene], crops: CropBatch, rows: np.ndarray, crop_size: int
+    scenes: Sequence[PreparedScene],
+    crops: CropBatch,
+    rows: np.ndarray,
+    crop_size: int,
+    flip: np.ndarray | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Input crops, targets and loss masks of the chosen dense-mode crops.
 
@@ -302,6 +330,7 @@ def gather_crops(
         crops: All crops of the epoch.
         rows: (B,) indices into ``crops``.
         crop_size: Requested output side (clipped as in :func:`dense_crops`).
+        flip: Optional (B,) bool: turn these crops (volume, targets and mask) upside down.
 
     Returns:
         ``(volumes, targets, mask)``: (B, 1, D, c + 12, c + 12) float32, (B, c, c) float32
@@ -319,6 +348,10 @@ def gather_crops(
         volumes[out_row, 0] = scene.volume[:, y0 : y0 + span, x0 : x0 + span].float()
         targets[out_row] = scene.correct[y0 : y0 + side, x0 : x0 + side]
         mask[out_row] = scene.labelled[y0 : y0 + side, x0 : x0 + side]
+        if flip is not None and flip[out_row]:
+            volumes[out_row] = volumes[out_row].flip(-2)
+            targets[out_row] = targets[out_row, ::-1]
+            mask[out_row] = mask[out_row, ::-1]
     return volumes, torch.from_numpy(targets), torch.from_numpy(mask)
 
 

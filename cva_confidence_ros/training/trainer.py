@@ -42,6 +42,7 @@ from cva_confidence_ros.training.data import (
     batches,
     dense_crops,
     epoch_order,
+    flip_draws,
     gather_crops,
     gather_extracts,
     prepare_scene,
@@ -71,6 +72,7 @@ _RESUME_KEYS = (
     'synthetic_seed',
     'mode',
     'crop_size',
+    'vflip',
     'batch_size',
     'samples_per_epoch',
     'seed',
@@ -80,7 +82,13 @@ _RESUME_KEYS = (
     'init_weights',
 )
 # Values of keys added after the first checkpoints were written, for those checkpoints.
-_RESUME_DEFAULTS = {'arch': 'cvanet', 'teacher': None, 'distill_weight': 0.0, 'init_weights': None}
+_RESUME_DEFAULTS = {
+    'arch': 'cvanet',
+    'teacher': None,
+    'distill_weight': 0.0,
+    'init_weights': None,
+    'vflip': False,
+}
 
 
 @dataclass(frozen=True)
@@ -298,20 +306,23 @@ def _run_epoch(
     seen = 0
     if config.mode == 'sparse':
         order = _share(epoch_order(len(index), n_samples, config.seed, epoch), dist)
-        steps = list(batches(order, config.batch_size))
+        flips = _share(flip_draws(n_samples, config.seed, epoch, config.vflip), dist)
+        steps = list(batches(np.arange(len(order)), config.batch_size))
         total = len(order)
     else:
         crops = dense_crops(scenes, index, n_samples, config.crop_size, config.seed, epoch)
-        rows = _share(np.arange(len(crops.scene)), dist)
+        order = _share(np.arange(len(crops.scene)), dist)
+        flips = _share(flip_draws(len(crops.scene), config.seed, epoch, config.vflip), dist)
         side = min([config.crop_size] + [min(s.shape) for s in scenes])
-        steps = list(batches(rows, max(1, math.ceil(config.batch_size / side**2))))
-        total = int(crops.n_labelled[rows].sum())
+        per_step = max(1, math.ceil(config.batch_size / side**2))
+        steps = list(batches(np.arange(len(order)), per_step))
+        total = int(crops.n_labelled[order].sum())
     description = f'epoch {epoch + 1}/{config.total_epochs}'
     with _progress(total, description, config.progress and dist.main) as bar:
         for step in steps:
             autocast = _autocast(config.precision, device)
             if config.mode == 'sparse':
-                volumes, targets = gather_extracts(scenes, index, step)
+                volumes, targets = gather_extracts(scenes, index, order[step], flips[step])
                 volumes, targets = volumes.to(device), targets.to(device)
                 with autocast:
                     logits = model(volumes)[:, 0, 0].float()
@@ -319,7 +330,9 @@ def _run_epoch(
                 loss = distillation_loss(logits, targets, soft, config.distill_weight)
                 count = len(step)
             else:
-                volumes, targets, mask = gather_crops(scenes, crops, step, config.crop_size)
+                volumes, targets, mask = gather_crops(
+                    scenes, crops, order[step], config.crop_size, flips[step]
+                )
                 volumes, targets, mask = volumes.to(device), targets.to(device), mask.to(device)
                 with autocast:
                     logits = model(volumes).float()
@@ -478,6 +491,7 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         'max_disparity': config.max_disparity,
         'mode': config.mode,
         'crop_size': config.crop_size,
+        'vflip': config.vflip,
         'datasets': list(config.datasets),
         'synthetic': config.synthetic,
         'synthetic_size': list(config.synthetic_hw),

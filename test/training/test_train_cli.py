@@ -126,6 +126,24 @@ def test_dense_mode_counts_labelled_outputs(tmp_path):
     assert record['samples'] >= 100 and record['train_loss'] > 0
 
 
+@pytest.mark.parametrize('mode', ['sparse', 'dense'])
+def test_vflip_changes_the_samples_and_is_recorded(tmp_path, mode, capsys):
+    base = [*TINY, '--mode', mode, '--crop-size', '8', '--epochs', '1', '--epochs-low-lr', '0']
+    base += ['--samples-per-epoch', '320']  # dense: enough crops that some are flipped
+    plain, flipped = tmp_path / 'plain', tmp_path / 'flipped'
+    weights = tmp_path / 'cvanet_census_bm_d16.pt'
+    assert main([*base, '--out', str(plain)]) == 0
+    assert main([*base, '--out', str(flipped), '--vflip', '--weights-out', str(weights)]) == 0
+    # Same seed, same samples and initialisation: only the flips make the loss differ.
+    assert _history(flipped)[0]['train_loss'] != _history(plain)[0]['train_loss']
+    meta = load_weights(weights)[1]
+    assert meta['vflip'] is True and '--vflip' in meta['command']
+    assert 'upside down' in weights.with_suffix('.md').read_text()
+    # A run started without flips cannot be resumed with them.
+    assert main([*base, '--out', str(plain), '--vflip', '--epochs-low-lr', '1', '--resume']) == 2
+    assert 'vflip' in capsys.readouterr().err
+
+
 def test_bf16_mixed_precision_trains_and_says_so_on_the_card(tmp_path):
     out, weights = tmp_path / 'bf16', tmp_path / 'cvanet_census_bm_d16.pt'
     args = [*TINY, '--out', str(out), '--weights-out', str(weights), '--precision', 'bf16']

@@ -12,6 +12,7 @@ from cva_confidence_ros.training.data import (
     PreparedScene,
     dense_crops,
     epoch_order,
+    flip_draws,
     gather_crops,
     gather_extracts,
     prepare_scene,
@@ -97,6 +98,70 @@ def test_crop_outputs_equal_extract_outputs(scenes):
             window = scenes[scene_number].volume[:, y0 + i : y0 + i + 13, x0 + j : x0 + j + 13]
             single = net.forward_logits(window.float()[None, None])[0, 0, 0]
             torch.testing.assert_close(dense[i, j], single, atol=1e-5, rtol=1e-5)
+
+
+def _upside_down(scene: PreparedScene) -> PreparedScene:
+    return PreparedScene(
+        scene.name,
+        scene.factor,
+        scene.volume.flip(1),
+        scene.labelled[::-1].copy(),
+        scene.correct[::-1].copy(),
+    )
+
+
+def test_flipped_crops_are_crops_of_the_flipped_scene(scenes):
+    index = sample_index(scenes)
+    crops = dense_crops(scenes, index, n_samples=200, crop_size=8, seed=0, epoch=0)
+    rows = np.arange(min(6, len(crops.scene)))
+    flip = np.array([True, False] * 3)[: rows.size]
+    volumes, targets, mask = gather_crops(scenes, crops, rows, 8, flip)
+    plain, plain_targets, plain_mask = gather_crops(scenes, crops, rows, 8)
+    for row in rows:
+        if not flip[row]:
+            torch.testing.assert_close(volumes[row], plain[row])
+            continue
+        scene = scenes[crops.scene[row]]
+        upside = _upside_down(scene)
+        # The crop at rows y0 … y0 + 7 of the scene is at rows H − y0 − 8 … of the flipped one.
+        y0, x0 = scene.shape[0] - 8 - crops.y0[row], crops.x0[row]
+        expected = upside.volume[:, y0 : y0 + 20, x0 : x0 + 20].float()
+        torch.testing.assert_close(volumes[row, 0], expected)
+        np.testing.assert_array_equal(targets[row], upside.correct[y0 : y0 + 8, x0 : x0 + 8])
+        np.testing.assert_array_equal(mask[row], upside.labelled[y0 : y0 + 8, x0 : x0 + 8])
+        assert int(mask[row].sum()) == int(plain_mask[row].sum())
+
+
+def test_flipped_extracts_are_upside_down_windows(scenes):
+    index = sample_index(scenes)
+    chosen = np.array([0, 7, 11])
+    flip = np.array([True, False, True])
+    volumes, _ = gather_extracts(scenes, index, chosen, flip)
+    plain, _ = gather_extracts(scenes, index, chosen)
+    torch.testing.assert_close(volumes[0], plain[0].flip(-2))
+    torch.testing.assert_close(volumes[1], plain[1])
+    torch.testing.assert_close(volumes[2], plain[2].flip(-2))
+    assert not torch.equal(volumes[0], plain[0])
+
+
+def test_flip_draws_are_seeded_and_off_by_default():
+    assert not flip_draws(50, seed=0, epoch=0, enabled=False).any()
+    drawn = flip_draws(1000, seed=0, epoch=0, enabled=True)
+    np.testing.assert_array_equal(drawn, flip_draws(1000, seed=0, epoch=0, enabled=True))
+    assert not np.array_equal(drawn, flip_draws(1000, seed=0, epoch=1, enabled=True))
+    assert 400 < drawn.sum() < 600
+
+
+def test_census_bm_volume_of_upside_down_pair_is_upside_down():
+    """Why the vertical flip is a valid augmentation: it commutes with the matcher."""
+    from cva_confidence_ros.matching import compute_cost_volume
+
+    rng = np.random.default_rng(4)
+    left = rng.integers(0, 256, size=(24, 40), dtype=np.uint8)
+    right = np.roll(left, -3, axis=1)
+    volume = compute_cost_volume(left, right, 'census_bm', DEPTH)
+    upside = compute_cost_volume(left[::-1].copy(), right[::-1].copy(), 'census_bm', DEPTH)
+    np.testing.assert_allclose(upside, volume[:, ::-1], atol=1e-6)
 
 
 def test_validation_subset_is_fixed(scenes):
