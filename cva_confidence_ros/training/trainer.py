@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 import contextlib
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 import datetime
 from functools import partial
 import json
@@ -81,13 +81,11 @@ _RESUME_KEYS = (
     'distill_weight',
     'init_weights',
 )
-# Values of keys added after the first checkpoints were written, for those checkpoints.
+# Keys added after the first checkpoints were written: those checkpoints ran with the defaults.
 _RESUME_DEFAULTS = {
-    'arch': 'cvanet',
-    'teacher': None,
-    'distill_weight': 0.0,
-    'init_weights': None,
-    'vflip': False,
+    field.name: field.default
+    for field in fields(TrainConfig)
+    if field.name in ('arch', 'teacher', 'distill_weight', 'init_weights', 'vflip')
 }
 
 
