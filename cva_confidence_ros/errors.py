@@ -6,7 +6,15 @@ Every message says what was expected and what came, e.g.
 
 from __future__ import annotations
 
-__all__ = ['BagError', 'CVAError', 'ConfigError', 'DataError', 'InputError', 'ModelError']
+__all__ = [
+    'BagError',
+    'CVAError',
+    'ConfigError',
+    'DataError',
+    'InputError',
+    'ModelError',
+    'reason',
+]
 
 
 class CVAError(Exception):
@@ -31,3 +39,18 @@ class ModelError(CVAError):
 
 class BagError(CVAError):
     """A rosbag2 cannot be read or written as expected."""
+
+
+def reason(exc: BaseException, limit: int = 200) -> str:
+    """``'Type: first sentence of the message'``, at most ``limit`` characters of message.
+
+    For wrapping a third-party exception into one of ours: torch's loader, for one, explains a
+    damaged file over a dozen lines and suggests ``weights_only=False``, which is not advice to
+    pass on for a file that is simply broken.
+    """
+    lines = str(exc).strip().splitlines()
+    first = lines[0].strip() if lines else ''
+    first = first.split('. ', 1)[0]
+    if len(first) > limit:
+        first = first[: limit - 1] + '…'
+    return f'{type(exc).__name__}: {first}' if first else type(exc).__name__

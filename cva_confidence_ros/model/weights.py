@@ -22,7 +22,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from cva_confidence_ros.errors import ModelError
+from cva_confidence_ros.errors import ModelError, reason
 from cva_confidence_ros.model.fast import CVANetFast
 from cva_confidence_ros.model.inference import resolve_device
 from cva_confidence_ros.model.lite import CVANetLite
@@ -153,7 +153,7 @@ def load_weights(
         blob = torch.load(path, map_location='cpu', weights_only=True)
     except Exception as exc:  # torch raises many unrelated types for a damaged file
         raise ModelError(
-            f'cannot read weights file {path} ({type(exc).__name__}: {exc}); '
+            f'cannot read weights file {path} ({reason(exc)}); '
             'expected a torch.save dict with state_dict and meta'
         ) from exc
     if not isinstance(blob, dict) or 'state_dict' not in blob or 'meta' not in blob:

@@ -26,7 +26,7 @@ from torch import nn
 
 from cva_confidence_ros.datasets import StereoSample, list_scenes, load_scene
 from cva_confidence_ros.datasets.synthetic import synthetic_pair
-from cva_confidence_ros.errors import ConfigError, ModelError
+from cva_confidence_ros.errors import ConfigError, ModelError, reason
 from cva_confidence_ros.model import (
     ARCHITECTURES,
     CVANet,
@@ -214,7 +214,7 @@ def _load_checkpoint(path: Path, config: TrainConfig) -> dict[str, Any]:
     try:
         state = torch.load(path, map_location='cpu', weights_only=True)
     except Exception as exc:  # torch raises many unrelated types for a damaged file
-        raise ModelError(f'cannot read checkpoint {path} ({type(exc).__name__}: {exc})') from exc
+        raise ModelError(f'cannot read checkpoint {path} ({reason(exc)})') from exc
     # Checkpoints written before ``arch`` existed are CVA-Net runs.
     saved = {**_RESUME_DEFAULTS, **state.get('config', {})}
     current = config.to_dict()
