@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from cva_confidence_ros.errors import ConfigError, ModelError
+from cva_confidence_ros.errors import ConfigError, ModelError, reason
 
 __all__ = [
     'FEATURES',
@@ -110,8 +110,8 @@ def _cached_network(path: str, device: str) -> McCnnFastFeatures:
         state = torch.load(path, map_location='cpu', weights_only=True)
     except FileNotFoundError:
         raise ModelError(f'MC-CNN weights file not found: {path}') from None
-    except (RuntimeError, OSError, ValueError) as error:
-        raise ModelError(f'cannot read MC-CNN weights {path}: {error}') from error
+    except Exception as error:  # torch raises many unrelated types for a damaged file
+        raise ModelError(f'cannot read MC-CNN weights {path} ({reason(error)})') from error
     # The package saves a training checkpoint; the network weights sit under 'model'.
     if isinstance(state, dict) and 'model' in state:
         state = state['model']

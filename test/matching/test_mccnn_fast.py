@@ -128,6 +128,7 @@ def test_cuda_without_cuda_is_a_config_error(pair: tuple[np.ndarray, np.ndarray]
         compute_cost_volume(*pair, 'mccnn_fast', 4, device='cuda')
 
 
+@pytest.mark.filterwarnings('ignore:Detected pickle protocol')
 def test_missing_or_foreign_weights(tmp_path: Path, pair: tuple[np.ndarray, np.ndarray]) -> None:
     with pytest.raises(ModelError, match='not found'):
         compute_cost_volume(*pair, 'mccnn_fast', 4, weights=str(tmp_path / 'none.pt'))
@@ -135,3 +136,7 @@ def test_missing_or_foreign_weights(tmp_path: Path, pair: tuple[np.ndarray, np.n
     torch.save({'layer.weight': torch.zeros(3)}, foreign)
     with pytest.raises(ModelError, match='MC-CNN fast weights'):
         compute_cost_volume(*pair, 'mccnn_fast', 4, weights=str(foreign))
+    garbage = tmp_path / 'garbage.pt'
+    garbage.write_bytes(b'\x80\x04 not a torch file')
+    with pytest.raises(ModelError, match='cannot read MC-CNN weights'):
+        compute_cost_volume(*pair, 'mccnn_fast', 4, weights=str(garbage))
