@@ -145,6 +145,8 @@ def load_weights(
             weights for another matcher or depth than asked.
     """
     path = Path(path)
+    if path.is_dir():
+        raise ModelError(f'weights file {path} is a directory; expected a .pt file')
     if not path.is_file():
         raise ModelError(f'weights file {path} does not exist')
     if path.stat().st_size == 0:
@@ -184,7 +186,19 @@ def load_weights(
         net = ARCHITECTURES.get(stored)(meta)
         net.load_state_dict(blob['state_dict'])
     except (KeyError, TypeError, ValueError, RuntimeError) as exc:
-        raise ModelError(f'{path}: the stored tensors do not fit arch {stored!r} ({exc})') from exc
+        raise ModelError(
+            f'{path}: the stored tensors do not fit arch {stored!r} ({reason(exc)})'
+        ) from exc
+    broken = [
+        name
+        for name, tensor in net.state_dict().items()
+        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all())
+    ]
+    if broken:
+        raise ModelError(
+            f'{path} holds NaN or infinite values in {len(broken)} tensors '
+            f'(first: {broken[0]}); the training that wrote it diverged'
+        )
     net.to(resolve_device(device)).eval()
     return net, meta
 

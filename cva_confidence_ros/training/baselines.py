@@ -386,6 +386,7 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
         _progress,
         _save_checkpoint,
         _scene_facts,
+        check_finite_loss,
         check_matcher_and_threads,
     )
 
@@ -523,6 +524,7 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
                 elapsed = time.perf_counter() - tic
                 bar.set_postfix(loss=f'{loss_sum / max(1, seen):.4f}', sps=f'{seen / elapsed:.0f}')
         seconds = time.perf_counter() - tic
+        check_finite_loss(loss_sum / max(1, seen), epoch, lr, out)
         record: dict[str, Any] = {
             'epoch': epoch + 1,
             'lr': lr,

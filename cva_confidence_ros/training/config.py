@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields
+import math
 from typing import Any
 
 from cva_confidence_ros.errors import ConfigError
@@ -165,9 +166,10 @@ class TrainConfig:
             raise ConfigError(
                 f'precision must be one of {TRAIN_PRECISIONS}; got {self.precision!r}'
             )
-        if not (self.lr > 0 and 0 < self.low_lr_factor <= 1):
+        if not (math.isfinite(self.lr) and self.lr > 0 and 0 < self.low_lr_factor <= 1):
             raise ConfigError(
-                f'lr must be > 0 and low_lr_factor in (0, 1]; got {self.lr}, {self.low_lr_factor}'
+                f'lr must be finite and > 0, low_lr_factor in (0, 1]; got {self.lr}, '
+                f'{self.low_lr_factor}'
             )
         if not 0.0 <= self.distill_weight <= 1.0:
             raise ConfigError(f'distill_weight must be in [0, 1]; got {self.distill_weight}')

@@ -204,6 +204,20 @@ def _scene_facts(scenes: list[PreparedScene]) -> list[dict[str, Any]]:
     ]
 
 
+def check_finite_loss(loss: float, epoch: int, lr: float, out: Path) -> None:
+    """Stop a diverged run before it overwrites the last good checkpoint with NaN weights.
+
+    Raises:
+        ModelError: ``loss`` is NaN or infinite (the same on every process: it is summed).
+    """
+    if not math.isfinite(loss):
+        raise ModelError(
+            f'training diverged: the loss of epoch {epoch + 1} is {loss} (lr {lr:g}); '
+            'lower --lr. No weights were written'
+            + (f'; the checkpoint in {out} still holds epoch {epoch}' if epoch else '')
+        )
+
+
 def _save_checkpoint(path: Path, state: dict[str, Any]) -> None:
     tmp = path.with_name(path.name + '.tmp')
     torch.save(state, tmp)
@@ -443,6 +457,7 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         loss, seen, seconds = _run_epoch(
             config, model, optimiser, scenes, index, n_samples, epoch, dist, teacher
         )
+        check_finite_loss(loss, epoch, config.lr_at(epoch), out)
         record: dict[str, Any] = {
             'epoch': epoch + 1,
             'lr': lr,

@@ -85,6 +85,17 @@ def test_corrupt_empty_missing_and_foreign_files(tmp_path):
     torch.save(blob, mismatched)
     with pytest.raises(ModelError, match='do not fit'):
         load_weights(mismatched)
+    with pytest.raises(ModelError, match='is a directory'):
+        load_weights(tmp_path)
+
+
+def test_weights_of_a_diverged_training_are_refused(tmp_path):
+    net = _trained_like()
+    with torch.no_grad():
+        net.classification.fc2.weight.view(-1)[0] = float('nan')
+    path = save_weights(net, tmp_path / 'w.pt', {'matcher': 'census_bm'})
+    with pytest.raises(ModelError, match=r'NaN or infinite values in 1 tensors .*diverged'):
+        load_weights(path)
 
 
 def test_save_needs_matcher(tmp_path):

@@ -169,6 +169,17 @@ def test_bad_settings_exit_2(tmp_path, capsys):
     assert 'held apart' in capsys.readouterr().err
 
 
+@pytest.mark.parametrize('arch', ['cvanet', 'ccnn'])
+def test_diverged_training_stops_without_writing_weights(tmp_path, capsys, arch):
+    out, weights = tmp_path / 'run', tmp_path / 'w.pt'
+    args = [*TINY, '--arch', arch, '--out', str(out), '--weights-out', str(weights)]
+    assert main([*args, '--epochs', '1', '--epochs-low-lr', '0', '--lr', '1e30']) == 2
+    assert 'training diverged: the loss of epoch 1 is nan' in capsys.readouterr().err
+    assert not weights.exists() and not (out / 'checkpoint.pt').exists()
+    assert main([*args, '--lr', 'inf']) == 2
+    assert 'lr must be finite' in capsys.readouterr().err
+
+
 def test_resume_with_other_settings_is_refused(tmp_path, capsys):
     out = tmp_path / 'run'
     assert main([*TINY, '--out', str(out), '--epochs', '1', '--epochs-low-lr', '0']) == 0
