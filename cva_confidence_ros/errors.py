@@ -50,6 +50,8 @@ def reason(exc: BaseException, limit: int = 200) -> str:
     """
     lines = str(exc).strip().splitlines()
     first = lines[0].strip() if lines else ''
+    if first.endswith(':') and len(lines) > 1:  # a heading, e.g. torch's load_state_dict
+        first = f'{first} {lines[1].strip()}'
     first = first.split('. ', 1)[0]
     if len(first) > limit:
         first = first[: limit - 1] + '…'

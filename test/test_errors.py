@@ -10,6 +10,10 @@ def test_reason_keeps_type_and_first_sentence_only():
     assert reason(exc) == 'RuntimeError: Weights only load failed'
     assert reason(ValueError('no sentence end')) == 'ValueError: no sentence end'
     assert reason(KeyError()) == 'KeyError'
+    text = 'Error(s) in loading state_dict for Net:\n\tsize mismatch for w: 2 vs 3.'
+    heading = RuntimeError(text)
+    assert reason(heading) == 'RuntimeError: Error(s) in loading state_dict for Net: size ' \
+        'mismatch for w: 2 vs 3.'
     long = reason(OSError('x' * 500), limit=50)
     assert long.startswith('OSError: ') and long.endswith('…')
     assert len(long) == len('OSError: ') + 50

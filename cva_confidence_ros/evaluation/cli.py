@@ -27,12 +27,14 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable, Sequence
+import math
 from pathlib import Path
 import sys
 import time
 from typing import Any
 
 from cva_confidence_ros.errors import ConfigError, CVAError, DataError
+from cva_confidence_ros.outputs import check_output_dir, check_output_file
 
 __all__ = ['exit_code', 'main', 'parse_dataset_names', 'parse_weights']
 
@@ -150,8 +152,13 @@ def _check_args(args: argparse.Namespace) -> None:
         raise ConfigError(f'--max-scenes must be ≥ 1; got {args.max_scenes}')
     if args.downsample < 1:
         raise ConfigError(f'--downsample must be ≥ 1; got {args.downsample}')
-    if args.tile_budget_mb <= 0:
-        raise ConfigError(f'--tile-budget-mb must be > 0; got {args.tile_budget_mb}')
+    if not (math.isfinite(args.tile_budget_mb) and args.tile_budget_mb > 0):
+        raise ConfigError(f'--tile-budget-mb must be finite and > 0; got {args.tile_budget_mb}')
+    if args.seed < 0:
+        raise ConfigError(f'--seed must be ≥ 0; got {args.seed}')
+    check_output_file(args.json, '--json')
+    if args.out is not None:
+        check_output_dir(args.out, '--out')
 
 
 def _build_methods(

@@ -68,6 +68,10 @@ class EvalRecord:
         Raises:
             InputError: A key is missing or a value has the wrong type.
         """
+        if not isinstance(item, Mapping):
+            raise InputError(
+                f'an evaluation record must be a JSON object; got {type(item).__name__}'
+            )
         missing = [key for key in RECORD_KEYS if key not in item]
         if missing:
             raise InputError(f'evaluation record lacks keys {missing}; got {sorted(item)}')

@@ -41,6 +41,7 @@ import time
 from typing import Any
 
 from cva_confidence_ros.errors import ConfigError, DataError, ModelError
+from cva_confidence_ros.outputs import check_output_dir
 
 __all__ = [
     'COLUMNS',
@@ -461,6 +462,11 @@ def _load_reusable(
     except (OSError, json.JSONDecodeError) as exc:
         raise DataError(f'cannot read --reuse records {path}: {exc}') from None
     items = data.get('records', []) if isinstance(data, dict) else data
+    if not isinstance(items, list):
+        raise DataError(
+            f'--reuse {path}: expected a list of records (or a table1.json with "records"); '
+            f'got {type(items).__name__}'
+        )
     found: dict[tuple[str, str, str], dict[str, dict[str, Any]]] = {}
     for item in items:
         record = EvalRecord.from_mapping(item).as_dict()
@@ -481,6 +487,19 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f'--max-pixels must be ≥ 1; got {args.max_pixels}')
     if not 0 < args.train_scale <= 1e3:
         raise ConfigError(f'--train-scale must be in (0, 1000]; got {args.train_scale}')
+    if not 1 <= args.max_disparity <= 1024:
+        raise ConfigError(f'--max-disparity must be in [1, 1024]; got {args.max_disparity}')
+    if args.seed < 0:
+        raise ConfigError(f'--seed must be ≥ 0; got {args.seed}')
+    if args.max_scenes is not None and args.max_scenes < 1:
+        raise ConfigError(f'--max-scenes must be ≥ 1; got {args.max_scenes}')
+    if args.kitti2012_train < 0:
+        raise ConfigError(f'--kitti2012-train must be ≥ 0; got {args.kitti2012_train}')
+    if args.threads is not None and args.threads < 1:
+        raise ConfigError(f'--threads must be ≥ 1; got {args.threads}')
+    check_output_dir(args.out, '--out')
+    if args.weights_dir is not None:
+        check_output_dir(args.weights_dir, '--weights-dir')
     if not args.data_root.is_dir():
         raise DataError(f'--data-root {args.data_root} is not a folder')
     if args.threads:

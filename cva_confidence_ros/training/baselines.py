@@ -48,7 +48,7 @@ from torch import nn
 import torch.nn.functional as F
 
 from cva_confidence_ros.datasets import StereoSample
-from cva_confidence_ros.errors import ConfigError
+from cva_confidence_ros.errors import ConfigError, ModelError, reason
 from cva_confidence_ros.model import ARCHITECTURES, resolve_device, save_weights
 from cva_confidence_ros.model.baselines import (
     CONFNET_FACTOR,
@@ -387,7 +387,7 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
         _save_checkpoint,
         _scene_facts,
         check_finite_loss,
-        check_matcher_and_threads,
+        check_run_setup,
     )
 
     if int(os.environ.get('WORLD_SIZE', '1')) > 1:
@@ -399,7 +399,7 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
             f'--arch {config.arch} trains from scratch: --init-weights and --teacher are for '
             'the cost-volume networks (cvanet, cvanet_lite, cvanet_fast)'
         )
-    check_matcher_and_threads(config)
+    check_run_setup(config)
     device = resolve_device(config.device)
     out = Path(config.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -460,7 +460,12 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
     best: dict[str, Any] | None = None  # LGC-Net: the fusion epoch with the best val AUC
     if config.resume and checkpoint.is_file():
         state = _load_checkpoint(checkpoint, config)
-        net.load_state_dict(state['model'])
+        try:
+            net.load_state_dict(state['model'])
+        except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+            raise ModelError(
+                f'checkpoint {checkpoint} does not fit this network ({reason(exc)})'
+            ) from exc
         history = list(state['history'])
         start_epoch = int(state['epoch'])
         previous_wall = float(state.get('wall_time_s', 0.0))

@@ -34,6 +34,7 @@ from cva_confidence_ros.model import (
     resolve_device,
     save_weights,
 )
+from cva_confidence_ros.outputs import check_output_dir, check_output_file
 from cva_confidence_ros.training.card import hardware_facts, write_model_card
 from cva_confidence_ros.training.config import TrainConfig, parse_dataset_spec
 from cva_confidence_ros.training.data import (
@@ -229,8 +230,24 @@ def _load_checkpoint(path: Path, config: TrainConfig) -> dict[str, Any]:
         state = torch.load(path, map_location='cpu', weights_only=True)
     except Exception as exc:  # torch raises many unrelated types for a damaged file
         raise ModelError(f'cannot read checkpoint {path} ({reason(exc)})') from exc
+    if isinstance(state, dict) and 'state_dict' in state and 'meta' in state:
+        raise ModelError(
+            f'{path} is a weights file, not a training checkpoint; to start from weights use '
+            '--init-weights'
+        )
+    expected = {'epoch': int, 'model': dict, 'optimizer': dict, 'history': list, 'config': dict}
+    wrong = (
+        [name for name, kind in expected.items() if not isinstance(state.get(name), kind)]
+        if isinstance(state, dict)
+        else list(expected)
+    )
+    if wrong:
+        raise ModelError(
+            f'{path} is not a cva-train checkpoint: expected a dict with '
+            f'{", ".join(expected)}; missing or wrong: {", ".join(wrong)}'
+        )
     # Checkpoints written before ``arch`` existed are CVA-Net runs.
-    saved = {**_RESUME_DEFAULTS, **state.get('config', {})}
+    saved = {**_RESUME_DEFAULTS, **state['config']}
     current = config.to_dict()
     changed = [k for k in _RESUME_KEYS if saved.get(k) != current.get(k)]
     if changed:
@@ -389,7 +406,7 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         from cva_confidence_ros.training.baselines import train_baseline
 
         return train_baseline(config, command)
-    check_matcher_and_threads(config)
+    check_run_setup(config)
     dist = _setup_distributed(config.device)
     if dist.device.type == 'cuda':
         # Fixed crop shapes: let cuDNN time its kernels once and keep the fastest.
@@ -435,12 +452,21 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
     checkpoint = out / CHECKPOINT_NAME
     if config.resume and checkpoint.is_file():
         state = _load_checkpoint(checkpoint, config)
-        net.load_state_dict(state['model'])
-        optimiser.load_state_dict(state['optimizer'])
+        try:
+            net.load_state_dict(state['model'])
+            optimiser.load_state_dict(state['optimizer'])
+        except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+            raise ModelError(
+                f'checkpoint {checkpoint} does not fit this network ({reason(exc)})'
+            ) from exc
         history = list(state['history'])
         start_epoch = int(state['epoch'])
         previous_wall = float(state.get('wall_time_s', 0.0))
         log(f'resumed from {checkpoint} after epoch {start_epoch}')
+        started_with = state['config'].get('data_root')
+        if started_with != config.data_root:
+            log(f'note: the run was started with --data-root {started_with}, now '
+                f'{config.data_root}: the same data sets are read from the new place')
     elif config.resume:
         log(f'--resume: no checkpoint in {out}, starting from scratch')
     model: nn.Module = _Logits(net)
@@ -556,11 +582,13 @@ def _weights_facts(meta: dict[str, Any]) -> dict[str, Any]:
     return {key: meta.get(key) for key in keys if key in meta}
 
 
-def check_matcher_and_threads(config: TrainConfig) -> None:
-    """Refuse an unknown matcher; apply ``config.threads`` to numba and torch.
+def check_run_setup(config: TrainConfig) -> None:
+    """Refuse an unknown matcher or output paths that cannot be written (before hours of
+    training, not after them); apply ``config.threads`` to numba and torch.
 
     Raises:
-        ConfigError: The matcher is not registered.
+        ConfigError: The matcher is not registered, or ``out`` / ``weights_out`` cannot be
+            written.
     """
     from cva_confidence_ros.matching import MATCHERS
 
@@ -568,6 +596,12 @@ def check_matcher_and_threads(config: TrainConfig) -> None:
         raise ConfigError(
             f'unknown matcher {config.matcher!r}; expected one of {MATCHERS.names()}'
         )
+    out = check_output_dir(config.out, '--out')
+    checkpoint = out / CHECKPOINT_NAME
+    if checkpoint.exists() and not checkpoint.is_file():
+        raise ConfigError(f'--out {out}: {checkpoint} is not a file; cannot keep checkpoints')
+    if config.weights_out:
+        check_output_file(config.weights_out, '--weights-out')
     if config.threads:
         # numba's OpenMP layer resets the OpenMP thread count that torch also uses: numba first.
         _limit_numba_threads(config.threads)

@@ -124,3 +124,25 @@ def test_parse_weights() -> None:
     assert parse_weights('mccnn_fast=a.pt', matchers) == {'census_bm': None, 'mccnn_fast': 'a.pt'}
     assert parse_weights('census_bm=a.pt, mccnn_fast=b.pt', matchers) == {
         'census_bm': 'a.pt', 'mccnn_fast': 'b.pt'}
+
+
+def test_output_paths_and_options_are_checked_before_any_work(tmp_path, capsys) -> None:
+    afile = tmp_path / 'afile'
+    afile.write_text('not a folder')
+    base = ['--dataset', 'motorcycle', '--matchers', 'census_bm', '--methods', 'pkrn',
+            '--max-pixels', '10']
+    records = ['--json', str(tmp_path / 'r.json')]
+    cases = [
+        (['--json', str(tmp_path)], '--json', 'is a folder; expected a file'),
+        (['--json', str(afile / 'r.json')], '--json', 'is a file, not a folder'),
+        ([*records, '--out', str(afile)], '--out', 'is a file; expected a folder'),
+        ([*records, '--seed', '-1'], '--seed', 'must be ≥ 0'),
+        ([*records, '--tile-budget-mb', 'nan'], '--tile-budget-mb', 'finite'),
+    ]
+    for extra, option, message in cases:
+        assert main([*base, *extra]) == 2
+        err = capsys.readouterr().err
+        # One line, and before the scene was loaded (that would log a 'loaded' line first).
+        assert err.count('\n') == 1 and err.startswith(f'cva-evaluate: error: {option}')
+        assert message in err
+    assert not (tmp_path / 'r.json').exists()

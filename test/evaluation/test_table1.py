@@ -169,3 +169,32 @@ def test_paper_protocol_on_a_tiny_root(data_root, tmp_path):
     scored = {(r['row'], r['scene']) for r in summary['records']}
     assert scored == {('KITTI 2012', '000001'), ('KITTI 2015', '000000'),
                       ('KITTI 2015', '000001'), ('Middlebury v3', 'Synth')}
+
+
+def test_bad_options_and_reuse_files_exit_2_before_any_work(data_root, tmp_path, capsys):
+    afile = tmp_path / 'afile'
+    afile.write_text('not a folder')
+    base = ['--data-root', str(data_root), '--matchers', 'census_bm', '--methods', 'pkrn',
+            '--max-disparity', str(D), '--max-pixels', '50']
+    out = ['--out', str(tmp_path / 'out')]
+    cases = [
+        (['--out', str(afile)], '--out', 'is a file'),
+        ([*out, '--weights-dir', str(afile)], '--weights-dir', 'is a file'),
+        ([*out, '--threads', '0'], '--threads', 'must be ≥ 1'),
+        ([*out, '--max-scenes', '0'], '--max-scenes', 'must be ≥ 1'),
+        ([*out, '--kitti2012-train', '-1'], '--kitti2012-train', 'must be ≥ 0'),
+        ([*out, '--seed', '-1'], '--seed', 'must be ≥ 0'),
+        ([*out, '--max-disparity', '0'], '--max-disparity', 'must be in [1, 1024]'),
+    ]
+    for extra, option, message in cases:
+        assert main([*base, *extra]) == 2
+        err = capsys.readouterr().err
+        assert err == f'cva-table1: error: {err.split("error: ", 1)[1]}'
+        assert err.count('\n') == 1 and option in err and message in err
+    reuse = tmp_path / 'reuse.json'
+    for text, message in [('[1, 2]', 'must be a JSON object; got int'),
+                          ('{"records": 5}', 'expected a list of records')]:
+        reuse.write_text(text)
+        assert main([*base, *out, '--reuse', str(reuse)]) == 2
+        assert message in capsys.readouterr().err.splitlines()[-1]
+    assert not (tmp_path / 'out' / 'table1.md').exists()

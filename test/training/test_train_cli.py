@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from cva_confidence_ros.errors import ConfigError
-from cva_confidence_ros.model import load_weights
+from cva_confidence_ros.model import CVANet, load_weights, save_weights
 from cva_confidence_ros.training import TrainConfig
 from cva_confidence_ros.training.cli import main
 
@@ -220,3 +220,39 @@ def test_train_on_real_data_sets(tmp_path):
     assert scene['factor'] == 8  # KITTI disparities reach ~230 px: 230 / 8 < 16
     assert meta['val_scenes'][0]['name'].startswith('eth3d/')
     assert meta['datasets'] == ['kitti2012'] and meta['val_pixels'] == 20
+
+
+def test_unwritable_outputs_are_refused_before_training(tmp_path, capsys):
+    afile = tmp_path / 'afile'
+    afile.write_text('not a folder')
+    one = ['--epochs', '1', '--epochs-low-lr', '0']
+    assert main([*TINY, *one, '--out', str(afile)]) == 2
+    assert '--out' in capsys.readouterr().err
+    out = tmp_path / 'run'
+    assert main([*TINY, *one, '--out', str(out), '--weights-out', str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert 'error: --weights-out' in err and 'is a folder' in err
+    assert not out.exists()  # refused before the run folder, its log or any scene
+
+
+def test_resume_from_something_that_is_not_a_checkpoint(tmp_path, capsys):
+    out = tmp_path / 'run'
+    args = [*TINY, '--out', str(out), '--epochs', '1', '--epochs-low-lr', '0', '--resume']
+    out.mkdir()
+    checkpoint = out / 'checkpoint.pt'
+    save_weights(CVANet(16), checkpoint, {'matcher': 'census_bm'})
+    assert main(args) == 2
+    assert 'is a weights file, not a training checkpoint; to start from weights use ' \
+        '--init-weights' in capsys.readouterr().err
+    torch.save([1, 2, 3], checkpoint)
+    assert main(args) == 2
+    assert 'not a cva-train checkpoint' in capsys.readouterr().err
+    # A real checkpoint of a network of another depth, relabelled: the tensors do not fit.
+    other = tmp_path / 'other'
+    assert main([*TINY, '--out', str(other), '--epochs', '1', '--epochs-low-lr', '0']) == 0
+    state = torch.load(other / 'checkpoint.pt', weights_only=True)
+    state['model'] = CVANet(20).state_dict()
+    torch.save(state, checkpoint)
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert 'does not fit this network' in err.splitlines()[-1] and 'size mismatch' in err
