@@ -6,6 +6,8 @@ disparities float32 (H, W) with NaN where unknown.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 import re
@@ -24,6 +26,9 @@ __all__ = [
     'read_pfm',
     'write_pfm',
 ]
+
+#: Bytes at the end of a JPEG searched for its end-of-image marker (some writers pad after it).
+_JPEG_TAIL = 4096
 
 
 @dataclass(frozen=True)
@@ -91,9 +96,10 @@ def read_pfm(path: str | Path) -> np.ndarray:
     except OSError as exc:
         raise DataError(f'cannot read PFM file {path}: {exc}') from exc
     if magic not in (b'PF', b'Pf') or len(tokens) != 3:
+        got = repr(magic) + ' ' + repr(tokens)
         raise DataError(
             f'{path} is not a PFM file; expected header "PF|Pf", "W H", "scale"; '
-            f'got {magic!r} {tokens!r}'
+            f'got {got[:60] + "…" if len(got) > 60 else got}'
         )
     try:
         width, height, scale = int(tokens[0]), int(tokens[1]), float(tokens[2])
@@ -137,17 +143,47 @@ def write_pfm(path: str | Path, array: np.ndarray, scale: float = 1.0) -> None:
         raise DataError(f'cannot write PFM file {path}: {exc}') from exc
 
 
+@contextmanager
+def _quiet_opencv() -> Iterator[None]:
+    """OpenCV's own log lines off while it decodes: our error says what went wrong."""
+    logging = cv2.utils.logging
+    level = logging.getLogLevel()
+    logging.setLogLevel(logging.LOG_LEVEL_SILENT)
+    try:
+        yield
+    finally:
+        logging.setLogLevel(level)
+
+
+def _imread(path: str | Path) -> np.ndarray | None:
+    with _quiet_opencv():
+        return cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+
+
+def _check_jpeg_complete(path: Path) -> None:
+    """A truncated JPEG decodes without an error in OpenCV (the missing rows come out grey),
+    so look for the end-of-image marker that every complete JPEG ends with."""
+    if path.suffix.lower() not in ('.jpg', '.jpeg'):
+        return
+    with path.open('rb') as stream:
+        stream.seek(max(0, path.stat().st_size - _JPEG_TAIL))
+        tail = stream.read()
+    if b'\xff\xd9' not in tail:
+        raise DataError(f'{path} is a truncated JPEG: no end-of-image marker at its end')
+
+
 def read_image(path: str | Path) -> np.ndarray:
     """Read an image file as uint8 RGB (H, W, 3) or gray (H, W).
 
     Alpha channels are dropped; 16-bit images are reduced to 8 bits.
 
     Raises:
-        DataError: The file is missing or not an image.
+        DataError: The file is missing or not an image, or a truncated JPEG.
     """
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    image = _imread(path)
     if image is None:
         raise DataError(f'cannot read image {path}; expected a PNG/JPEG/PPM/PGM file')
+    _check_jpeg_complete(Path(path))
     if image.dtype == np.uint16:
         image = np.right_shift(image, 8).astype(np.uint8)
     elif image.dtype != np.uint8:
@@ -158,20 +194,23 @@ def read_image(path: str | Path) -> np.ndarray:
     return np.ascontiguousarray(image)
 
 
-def read_disparity_png(path: str | Path, scale: float) -> np.ndarray:
+def read_disparity_png(path: str | Path, scale: float, bits: int | None = None) -> np.ndarray:
     """Read a disparity stored as integer image, ``d = value / scale``, 0 = unknown.
 
     Args:
         path: 8- or 16-bit single-channel PNG/PGM (KITTI: 16 bit, scale 256).
         scale: Divisor of the stored values.
+        bits: 8 or 16: the bit depth the data set stores (a map saved at the other depth
+            would be read with the wrong scale); None = either.
 
     Returns:
         (H, W) float32 disparity, NaN where the stored value is 0.
 
     Raises:
-        DataError: The file is missing or not a single-channel integer image.
+        DataError: The file is missing, not a single-channel integer image, or not of
+            ``bits`` bits.
     """
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    raw = _imread(path)
     if raw is None:
         raise DataError(f'cannot read disparity image {path}')
     if raw.ndim == 3:
@@ -184,6 +223,11 @@ def read_disparity_png(path: str | Path, scale: float) -> np.ndarray:
         raw = raw[..., 0]
     if raw.dtype not in (np.uint8, np.uint16):
         raise DataError(f'{path}: expected an 8- or 16-bit disparity image; got {raw.dtype}')
+    if bits is not None and raw.dtype.itemsize * 8 != bits:
+        raise DataError(
+            f'{path}: expected a {bits}-bit disparity image (disparity × {scale:g}); got '
+            f'{raw.dtype.itemsize * 8}-bit, which would be read at the wrong scale'
+        )
     disparity = raw.astype(np.float32) / np.float32(scale)
     disparity[raw == 0] = np.nan
     return disparity

@@ -28,7 +28,7 @@ from cva_confidence_ros.datasets.io import (
     read_middlebury_calibration,
     read_pfm,
 )
-from cva_confidence_ros.errors import ConfigError, DataError
+from cva_confidence_ros.errors import ConfigError, DataError, reason
 from cva_confidence_ros.registry import Registry
 
 __all__ = [
@@ -249,7 +249,7 @@ class _Kitti(StereoDataset):
         noc_path = base / self.noc_dir / f'{scene}_10.png'
         nonocc = None
         if noc_path.is_file():
-            nonocc = np.isfinite(read_disparity_png(noc_path, 256.0))
+            nonocc = np.isfinite(read_disparity_png(noc_path, 256.0, bits=16))
         calib = None
         calib_path = base / self.calib_dir / f'{scene}.txt'
         if calib_path.is_file():
@@ -259,7 +259,7 @@ class _Kitti(StereoDataset):
             scene=scene,
             left=read_image(left_path),
             right=read_image(right_path),
-            disparity=_clean_disparity(read_disparity_png(gt_path, 256.0)),
+            disparity=_clean_disparity(read_disparity_png(gt_path, 256.0, bits=16)),
             nonocc=nonocc,
             calib=calib,
         )
@@ -356,6 +356,9 @@ class _FolderPerScene(StereoDataset):
 
     patterns: tuple[_Pattern, ...] = ()
     size_scales: dict[str, float] = {}
+    #: Split → (min, max) image width of the data set's own files at that size: a split
+    #: named for files of another size would read their disparities at the wrong scale.
+    split_widths: dict[str, tuple[int, int]] = {}
 
     def _base(self, root: Path, split: str | None) -> Path:
         if split is not None and (root / split).is_dir():
@@ -389,6 +392,18 @@ class _FolderPerScene(StereoDataset):
             scale = pattern.scale
         elif split is not None:
             scale = self.size_scales[split]
+            width = left.shape[1]
+            other = [
+                name
+                for name, (low, high) in self.split_widths.items()
+                if name != split and low <= width <= high
+            ]
+            if other:
+                raise DataError(
+                    f'split {split!r} stores disparity × {scale:g}, but {left_path} is {width} px '
+                    f'wide, the width of split {other[0]!r} (disparity × '
+                    f'{self.size_scales[other[0]]:g}); pick that split'
+                )
         else:
             scale = self._width_scale(left.shape[1])
         nonocc = None
@@ -401,7 +416,7 @@ class _FolderPerScene(StereoDataset):
             scene=scene,
             left=left,
             right=read_image(right_path),
-            disparity=_clean_disparity(read_disparity_png(gt_path, scale)),
+            disparity=_clean_disparity(read_disparity_png(gt_path, scale, bits=8)),
             nonocc=nonocc,
         )
 
@@ -450,6 +465,7 @@ class Middlebury2003(_FolderPerScene):
     )
     splits = ('quarter', 'half', 'full')
     size_scales = {'quarter': 4.0, 'half': 2.0, 'full': 1.0}
+    split_widths = {'quarter': (440, 460), 'half': (880, 920), 'full': (1760, 1840)}
     patterns = (
         _Pattern(
             ('{scene}_image_02.png',),
@@ -482,6 +498,7 @@ class Middlebury2005(_FolderPerScene):
     )
     splits = ('ThirdSize', 'HalfSize', 'FullSize')
     size_scales = {'ThirdSize': 3.0, 'HalfSize': 2.0, 'FullSize': 1.0}
+    split_widths = {'ThirdSize': (413, 465), 'HalfSize': (620, 698), 'FullSize': (1240, 1396)}
     patterns: tuple[_Pattern, ...] = (
         _Pattern(('view1.png',), ('view5.png',), ('disp1.png',), None),
         _Pattern(('img0.png',), ('img1.png',), ('disp1.png',), None),
@@ -727,9 +744,13 @@ class TartanAir(StereoDataset):
             raise self.missing(root, scene)
         left, right, gt, is_depth = files
         try:
-            values = np.load(gt).astype(np.float32)
-        except (OSError, ValueError) as exc:
-            raise DataError(f'cannot read {gt} as a float array: {exc}') from exc
+            raw = np.load(gt)
+        except (OSError, ValueError, EOFError) as exc:  # EOFError: an empty or cut file
+            raise DataError(f'cannot read {gt} as a float array ({reason(exc)})') from exc
+        if not isinstance(raw, np.ndarray) or raw.dtype.kind not in 'fiu' or raw.ndim != 2:
+            got = f'{raw.dtype} {raw.shape}' if isinstance(raw, np.ndarray) else type(raw).__name__
+            raise DataError(f'{gt}: expected an (H, W) real-valued array; got {got}')
+        values = raw.astype(np.float32)
         if is_depth:
             with np.errstate(divide='ignore'):
                 values = np.float32(_TARTANAIR_CALIB.fx * _TARTANAIR_CALIB.baseline) / values

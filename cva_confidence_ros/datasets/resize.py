@@ -23,6 +23,9 @@ from cva_confidence_ros.errors import ConfigError, DataError
 
 __all__ = ['fit_disparity_range', 'resize_disparity', 'resize_image', 'resize_sample']
 
+#: Smallest image side :func:`fit_disparity_range` shrinks a pair to.
+_MIN_FITTED_SIDE = 1
+
 
 def _check_factor(factor: int) -> int:
     if isinstance(factor, bool) or not isinstance(factor, (int, np.integer)) or factor < 1:
@@ -150,12 +153,21 @@ def fit_disparity_range(sample: StereoSample, max_disparity: int) -> tuple[Stere
 
     Raises:
         ConfigError: ``max_disparity`` < 1.
-        DataError: The image would shrink below one pixel.
+        DataError: The image would shrink below one pixel (an outlier or a ground truth
+            stored at another scale).
     """
     if isinstance(max_disparity, bool) or int(max_disparity) != max_disparity or max_disparity < 1:
         raise ConfigError(f'max_disparity must be an integer ≥ 1; got {max_disparity!r}')
     largest = sample.max_disparity
     factor = 1
+    height, width = sample.left.shape[:2]
     while largest / factor >= max_disparity:
         factor *= 2
+        if min(height, width) / factor < _MIN_FITTED_SIDE:
+            raise DataError(
+                f'{sample.dataset}/{sample.scene}: ground truth reaches {largest:.4g} px; '
+                f'fitting it into D = {max_disparity} would shrink the {width}×{height} pair '
+                f'to nothing (check the ground truth and its scale, or use '
+                'a larger D)'
+            )
     return resize_sample(sample, factor), factor

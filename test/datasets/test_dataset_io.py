@@ -119,3 +119,40 @@ def test_kitti_calibration(tmp_path: Path) -> None:
     assert read_kitti_calibration(tmp_path / 'r.txt', 'P_rect_02', 'P_rect_03') == calib
     with pytest.raises(DataError, match='P_rect_02'):
         read_kitti_calibration(tmp_path / 'c.txt', 'P_rect_02', 'P_rect_03')
+
+
+def test_disparity_png_of_the_wrong_bit_depth_is_refused(tmp_path: Path) -> None:
+    cv2.imwrite(str(tmp_path / 'd8.png'), np.array([[0, 3, 255]], np.uint8))
+    with pytest.raises(DataError, match=r'expected a 16-bit .* got 8-bit.*wrong scale'):
+        read_disparity_png(tmp_path / 'd8.png', 256.0, bits=16)
+    cv2.imwrite(str(tmp_path / 'd16.png'), np.array([[0, 3, 255]], np.uint16))
+    with pytest.raises(DataError, match='expected a 8-bit'):
+        read_disparity_png(tmp_path / 'd16.png', 4.0, bits=8)
+
+
+def test_truncated_jpeg_is_refused_quietly(tmp_path: Path, capfd) -> None:
+    rng = np.random.default_rng(0)
+    image = rng.integers(0, 256, (64, 96, 3), dtype=np.uint8)
+    whole = tmp_path / 'whole.jpg'
+    assert cv2.imwrite(str(whole), image)
+    assert read_image(whole).shape == (64, 96, 3)
+    cut = tmp_path / 'cut.jpg'
+    cut.write_bytes(whole.read_bytes()[: whole.stat().st_size // 3])
+    # OpenCV alone decodes it, the missing rows grey, and only libjpeg's warning says so.
+    with pytest.raises(DataError, match='truncated JPEG'):
+        read_image(cut)
+    # A truncated PPM: our one error, not OpenCV's log line beside it.
+    ppm = tmp_path / 'cut.ppm'
+    assert cv2.imwrite(str(tmp_path / 'whole.ppm'), image)
+    ppm.write_bytes((tmp_path / 'whole.ppm').read_bytes()[:200])
+    capfd.readouterr()
+    with pytest.raises(DataError, match='cannot read image'):
+        read_image(ppm)
+    assert capfd.readouterr().err == ''
+
+
+def test_bad_pfm_header_is_quoted_short(tmp_path: Path) -> None:
+    (tmp_path / 'noise.pfm').write_bytes(bytes(range(256)) * 8)
+    with pytest.raises(DataError, match='is not a PFM file') as caught:
+        read_pfm(tmp_path / 'noise.pfm')
+    assert len(str(caught.value)) < len(str(tmp_path)) + 200

@@ -315,6 +315,42 @@ def test_tartanair_flat_and_original_layout(tmp_path: Path) -> None:
     check_sample(from_depth, 'tartanair', scenes[1], nested, np.full((H, W), D, np.float32))
 
 
+def test_tartanair_empty_or_complex_ground_truth(tmp_path: Path) -> None:
+    folder = tmp_path / 'OldTown' / 'EasyP000'
+    pair = make_pair(20)
+    write_image(folder / '000001_left.png', pair[0])
+    write_image(folder / '000001_right.png', pair[1])
+    gt = folder / '000001_left_disp.npy'
+    gt.write_bytes(b'')
+    with pytest.raises(DataError, match='cannot read .* as a float array'):
+        load_scene('tartanair', tmp_path, 'OldTown/EasyP000/000001')
+    np.save(gt, np.full((H, W), D, np.complex64))
+    with pytest.raises(DataError, match='real-valued array; got complex64'):
+        load_scene('tartanair', tmp_path, 'OldTown/EasyP000/000001')
+
+
+def test_kitti_ground_truth_must_be_16_bit(tmp_path: Path) -> None:
+    base = tmp_path / 'training'
+    pair = make_pair(21)
+    write_image(base / 'image_2' / '000000_10.png', pair[0])
+    write_image(base / 'image_3' / '000000_10.png', pair[1])
+    write_encoded(base / 'disp_occ_0' / '000000_10.png', 1.0, np.uint8)  # saved as 8 bit
+    with pytest.raises(DataError, match='expected a 16-bit disparity image'):
+        load_scene('kitti2015', tmp_path, '000000')
+
+
+def test_split_of_another_size_than_the_files_is_refused(tmp_path: Path) -> None:
+    folder = tmp_path / 'cones'
+    rng = np.random.default_rng(22)
+    for name in ('im2.png', 'im6.png'):
+        write_image(folder / name, rng.integers(0, 256, (375, 450, 3), dtype=np.uint8))
+    write_image(folder / 'disp2.png', np.full((375, 450), 40, np.uint8))
+    assert np.nanmax(load_scene('middlebury2003', tmp_path, 'cones').disparity) == 10.0
+    with pytest.raises(DataError, match="split 'full' .* 450 px wide, the width of split "
+                       "'quarter'"):
+        load_scene('middlebury2003', tmp_path, 'cones', split='full')
+
+
 def test_motorcycle_needs_no_root() -> None:
     assert list_scenes('motorcycle', None) == ['motorcycle']
     sample = load_scene('motorcycle', None, 'motorcycle')

@@ -12,7 +12,7 @@ from cva_confidence_ros.datasets import (
     resize_disparity,
     resize_sample,
 )
-from cva_confidence_ros.errors import ConfigError
+from cva_confidence_ros.errors import ConfigError, DataError
 
 nan = np.nan
 
@@ -108,6 +108,15 @@ def test_fit_disparity_range(max_disparity: int, factor: int) -> None:
     assert fitted.shape == (16 // factor, 32 // factor)
     finite = fitted.disparity[np.isfinite(fitted.disparity)]
     assert finite.size == 0 or finite.max() < max_disparity
+
+
+def test_fit_disparity_range_refuses_to_shrink_to_nothing() -> None:
+    sample = shifted_sample(16, 32, 4)
+    disparity = sample.disparity.copy()
+    disparity[0, 0] = 1e30  # an outlier, or ground truth stored at another scale
+    sample = StereoSample('t', 's', sample.left, sample.right, disparity)
+    with pytest.raises(DataError, match=r't/s: ground truth reaches 1e\+30 px'):
+        fit_disparity_range(sample, 64)
 
 
 def test_fit_disparity_range_without_ground_truth() -> None:
