@@ -7,6 +7,7 @@ messages and parameters into :class:`PipelineConfig` and arrays.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
+import math
 import time
 from typing import Any
 
@@ -72,18 +73,25 @@ class PipelineConfig:
                 f'unknown confidence_method {self.confidence_method!r}; '
                 f'expected one of {CONFIDENCE_METHODS.names()}'
             )
-        if not 1 <= int(self.max_disparity) <= 1024:
-            raise ConfigError(f'max_disparity must be in [1, 1024]; got {self.max_disparity}')
+        if not _is_int(self.max_disparity) or not 1 <= self.max_disparity <= 1024:
+            raise ConfigError(
+                f'max_disparity must be an integer in [1, 1024]; got {self.max_disparity!r}'
+            )
         if self.device not in _DEVICES:
             raise ConfigError(f'device must be one of {_DEVICES}; got {self.device!r}')
-        if not 0.0 <= float(self.confidence_threshold) <= 1.0:
+        if not _is_real(self.confidence_threshold) or not 0 <= self.confidence_threshold <= 1:
             raise ConfigError(
-                f'confidence_threshold must be in [0, 1]; got {self.confidence_threshold}'
+                f'confidence_threshold must be a number in [0, 1]; '
+                f'got {self.confidence_threshold!r}'
             )
-        if self.downsample not in (1, 2, 4):
-            raise ConfigError(f'downsample must be 1, 2 or 4; got {self.downsample}')
-        if self.tile_budget_mb <= 0:
-            raise ConfigError(f'tile_budget_mb must be > 0; got {self.tile_budget_mb}')
+        if not _is_int(self.downsample) or self.downsample not in (1, 2, 4):
+            raise ConfigError(f'downsample must be 1, 2 or 4; got {self.downsample!r}')
+        if not _is_real(self.tile_budget_mb) or not (
+            math.isfinite(self.tile_budget_mb) and self.tile_budget_mb > 0
+        ):
+            raise ConfigError(
+                f'tile_budget_mb must be a finite number > 0; got {self.tile_budget_mb!r}'
+            )
         from cva_confidence_ros.model import SparseConfig
 
         # Raises ConfigError naming the cva_* field.
@@ -138,18 +146,14 @@ class PipelineResult:
         return np.where(self.valid, self.disparity, np.float32(np.nan)).astype(np.float32)
 
 
-def _check_pair(left: np.ndarray, right: np.ndarray) -> None:
-    for side, image in (('left', left), ('right', right)):
-        if not isinstance(image, np.ndarray):
-            raise InputError(f'{side} image must be a numpy array; got {type(image).__name__}')
-        if image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] != 3):
-            raise InputError(f'{side} image must be H×W or H×W×3; got shape {image.shape}')
-        if image.size == 0:
-            raise InputError(f'{side} image is empty (shape {image.shape})')
-    if left.shape != right.shape:
-        raise InputError(
-            f'left and right images must have the same shape; got {left.shape} and {right.shape}'
-        )
+def _is_int(value: object) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+
+
+def _is_real(value: object) -> bool:
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
+        value, bool
+    )
 
 
 class StereoPipeline:
@@ -219,13 +223,20 @@ class StereoPipeline:
         from cva_confidence_ros.confidence import ConfidenceInputs
         from cva_confidence_ros.datasets.resize import resize_image
         from cva_confidence_ros.matching import (
+            check_image_pair,
             compute_cost_volume,
             left_right_check,
             wta_disparity,
         )
 
-        _check_pair(left, right)
+        # Checked before resizing: OpenCV's resize has its own, less clear, view of bad arrays.
+        left, right = check_image_pair(left, right)
         cfg = self.config
+        if min(left.shape[:2]) < cfg.downsample:
+            raise InputError(
+                f'images of {left.shape[1]}×{left.shape[0]} px cannot be shrunk by '
+                f'downsample = {cfg.downsample}'
+            )
         timings: dict[str, float] = {}
         start = time.perf_counter()
         # Crop to a multiple of the factor first, so that images and a ground truth shrunk with

@@ -1,0 +1,68 @@
+"""``StereoPipeline`` and ``PipelineConfig``: a small real pair, and bad configs and images."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cva_confidence_ros.errors import ConfigError, InputError
+from cva_confidence_ros.pipeline import PipelineConfig, StereoPipeline
+
+
+def _pair(height: int = 32, width: int = 64, shift: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(0)
+    left = rng.integers(0, 256, (height, width), dtype=np.uint8)
+    return left, np.roll(left, -shift, axis=1)
+
+
+def _pipeline(**changes: object) -> StereoPipeline:
+    config = PipelineConfig(matcher='census_bm', max_disparity=16, confidence_method='pkrn')
+    return StereoPipeline(config.replace(**changes))
+
+
+def test_downsampled_pair_through_the_real_matcher():
+    result = _pipeline(downsample=2).process(*_pair())
+    assert result.disparity.shape == result.confidence.shape == (16, 32)
+    assert result.scale == 0.5
+    inner = result.disparity[4:-4, 8:-8]
+    assert np.nanmedian(inner) == 2.0  # the 4 px shift at half size
+
+
+@pytest.mark.parametrize(
+    ('changes', 'message'),
+    [
+        ({'max_disparity': 'abc'}, 'max_disparity must be an integer'),
+        ({'max_disparity': None}, 'max_disparity must be an integer'),
+        ({'max_disparity': 64.7}, 'max_disparity must be an integer'),
+        ({'max_disparity': True}, 'max_disparity must be an integer'),
+        ({'downsample': 2.0}, 'downsample must be 1, 2 or 4'),
+        ({'confidence_threshold': 'x'}, 'confidence_threshold must be a number'),
+        ({'confidence_threshold': float('nan')}, 'confidence_threshold must be a number'),
+        ({'tile_budget_mb': 'x'}, 'tile_budget_mb must be a finite number'),
+        ({'tile_budget_mb': float('nan')}, 'tile_budget_mb must be a finite number'),
+        ({'tile_budget_mb': float('inf')}, 'tile_budget_mb must be a finite number'),
+    ],
+)
+def test_config_refuses_wrong_types_and_non_finite_values(changes, message):
+    with pytest.raises(ConfigError, match=message):
+        PipelineConfig(confidence_method='pkrn').replace(**changes)
+
+
+@pytest.mark.parametrize('dtype', [np.int64, np.bool_])
+def test_bad_images_are_named_before_the_resize(dtype):
+    left, right = _pair()
+    with pytest.raises(InputError, match='image must be uint8'):
+        _pipeline(downsample=2).process(left.astype(dtype), right.astype(dtype))
+
+
+def test_float_images_in_0_255_are_taken_as_intensities_before_the_resize():
+    left, right = _pair()
+    pipeline = _pipeline(downsample=2)
+    as_float = pipeline.process(left.astype(np.float16), right.astype(np.float16))
+    np.testing.assert_array_equal(as_float.disparity, pipeline.process(left, right).disparity)
+
+
+def test_images_smaller_than_the_downsample_factor():
+    left, right = _pair(3, 64)
+    with pytest.raises(InputError, match='cannot be shrunk by downsample = 4'):
+        _pipeline(downsample=4).process(left, right)
