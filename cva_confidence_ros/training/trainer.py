@@ -436,6 +436,9 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
     if config.init_weights:
         init_meta = load_init_weights(net, config.init_weights, config.arch)
         log(f'initialised from {config.init_weights} ({_weights_facts(init_meta)})')
+        if init_meta.get('matcher') != config.matcher:
+            log(f'note: {config.init_weights} was trained on {init_meta.get("matcher")} cost '
+                f'volumes; this run trains for {config.matcher} (a transfer across matchers)')
     teacher, teacher_meta = None, None
     if config.teacher:
         teacher, teacher_meta = load_teacher(

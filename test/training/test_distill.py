@@ -156,9 +156,17 @@ def test_init_weights_warm_start(tmp_path, teacher_path, capsys):
     assert meta['init_meta']['samples_seen'] == 123
     assert 'initialised from `cvanet_census_bm_d16.pt`' in weights.with_suffix('.md').read_text()
 
+    assert 'across matchers' not in capsys.readouterr().err
     wrong_arch = [*TINY, '--arch', 'cvanet_lite', '--init-weights', str(teacher_path)]
     assert main([*wrong_arch, '--out', str(tmp_path / 'other')]) == 2
     assert "expected 'cvanet_lite'" in capsys.readouterr().err
+
+    # Weights of another matcher are a legitimate start, but not a silent one.
+    sgm = [a if a != 'census_bm' else 'census_sgm' for a in args]
+    assert main([*sgm[:-1], str(tmp_path / 'sgm'), '--epochs', '1', '--epochs-low-lr', '0']) == 0
+    assert 'trained on census_bm cost volumes; this run trains for census_sgm' in (
+        capsys.readouterr().err
+    )
 
 
 def test_transfer_state_across_depths():
