@@ -107,6 +107,11 @@ def _check_image(side: str, image: object) -> np.ndarray:
             raise InputError(
                 f'{side} float image must lie in [0, 255]; got values in [{low:g}, {high:g}]'
             )
+        if 0.0 < high <= 1.0:
+            raise InputError(
+                f'{side} float image lies in [0, 1] (max {high:g}): it looks normalised, but '
+                'the matchers take intensities in [0, 255]; multiply it by 255'
+            )
         # Float input is a convenience for callers holding 0..255 intensities in float arrays;
         # the contract of every matcher is uint8.
         return np.rint(image).astype(np.uint8)
@@ -120,7 +125,8 @@ def check_image_pair(left: object, right: object) -> tuple[np.ndarray, np.ndarra
 
     Args:
         left: (H, W) or (H, W, 3) image, uint8, or float with finite values in [0, 255]
-            (rounded to uint8).
+            (rounded to uint8; a float image whose values all lie in (0, 1] is refused as
+            one normalised to [0, 1] by mistake).
         right: Same shape as ``left``.
 
     Returns:

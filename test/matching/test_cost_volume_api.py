@@ -104,6 +104,7 @@ BAD_IMAGES = {
     'inf': (_pair()[0].astype(np.float32), _with(_pair()[1], (0, 0), np.inf), 'NaN/inf'),
     'float above 255': (_with(_pair()[0], (1, 1), 256.0), _pair()[1], r'\[0, 255\]'),
     'negative float': (_with(_pair()[0], (1, 1), -1.0), _pair()[1], r'\[0, 255\]'),
+    'float in [0, 1]': (_pair()[0] / 255.0, _pair()[1] / 255.0, 'looks normalised'),
     'list': ([[0, 1], [2, 3]], np.zeros((2, 2), np.uint8), 'numpy array'),
 }
 
