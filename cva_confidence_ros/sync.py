@@ -17,12 +17,20 @@ older than the ones just emitted can never be part of a later set (streams are t
 they are evicted, as is anything that arrives with a stamp at or before the last emitted one of
 its key, and the oldest message of a key whose queue is full. Every evicted message counts once
 in :attr:`StampSynchronizer.dropped`.
+
+Time going backwards (``ros2 bag play --loop``, a driver restart, a simulator reset) is told from
+a late straggler by whether the old messages form a set: those before the last emitted stamp of
+their key are kept aside (bounded like the queues, and counted as dropped); a single
+straggler, whose partners have long gone, never completes a set, but once the old messages do,
+the streams have jumped back. The synchroniser then starts over from them: the set is emitted
+with :attr:`MatchedSet.jumped_from_ns` set, the messages still waiting from before the jump are
+dropped, and :attr:`StampSynchronizer.jumps` counts one.
 """
 
 from __future__ import annotations
 
 from collections.abc import Hashable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import threading
 from typing import Any
 
@@ -42,11 +50,14 @@ class MatchedSet:
             the first key's message in approximate mode.
         items: key → message, one entry per key of the synchroniser.
         stamps_ns: key → stamp of that message in nanoseconds.
+        jumped_from_ns: None, or the stamp of the set emitted before this one when this set is
+            older: the stamps jumped back and the synchroniser started over.
     """
 
     stamp_ns: int
     items: dict[Hashable, Any]
     stamps_ns: dict[Hashable, int] = field(default_factory=dict)
+    jumped_from_ns: int | None = None
 
 
 class StampSynchronizer:
@@ -59,6 +70,11 @@ class StampSynchronizer:
         approximate: Use the approximate policy instead of exact stamp equality.
         tolerance_ns: Largest spread of stamps in one set, in nanoseconds (≥ 0). Only used
             when ``approximate`` is True; the exact policy always uses 0.
+
+    Attributes:
+        dropped: Messages evicted without being part of a set.
+        matched: Sets emitted.
+        jumps: Times the stamps jumped back and the synchroniser started over.
 
     Raises:
         ConfigError: Empty or repeated keys, ``queue_size`` < 1 or ``tolerance_ns`` < 0.
@@ -88,8 +104,13 @@ class StampSynchronizer:
         self.tolerance_ns = tolerance_ns if self.approximate else 0
         self.dropped = 0
         self.matched = 0
+        self.jumps = 0
         self._queues: dict[Hashable, list[tuple[int, Any]]] = {key: [] for key in keys}
+        # Messages before the last emitted stamp of their key: late stragglers, or the first
+        # messages after a jump back in time (see the module docstring).
+        self._stale: dict[Hashable, list[tuple[int, Any]]] = {key: [] for key in keys}
         self._last: dict[Hashable, int | None] = {key: None for key in keys}
+        self._last_set_ns: int | None = None
         self._lock = threading.Lock()
 
     def add(self, key: Hashable, stamp_ns: int, msg: Any) -> list[MatchedSet]:
@@ -101,7 +122,9 @@ class StampSynchronizer:
             msg: Any object; handed back untouched inside a :class:`MatchedSet`.
 
         Returns:
-            The completed sets, oldest first (at most one per call with eager emission).
+            The completed sets, oldest first (at most one per call with eager emission). A set
+            older than the one before it (the stamps jumped back) has
+            :attr:`MatchedSet.jumped_from_ns` set.
 
         Raises:
             ConfigError: ``key`` is not one of :attr:`keys`.
@@ -117,30 +140,65 @@ class StampSynchronizer:
             last = self._last[key]
             if last is not None and stamp_ns <= last:
                 self.dropped += 1
-                return []
+                if stamp_ns == last:
+                    # A repeat of what was just emitted (a second publisher, a resent message).
+                    return []
+                return self._add_stale(key, stamp_ns, msg)
             queue = self._queues[key]
-            if any(stamp == stamp_ns for stamp, _ in queue):
-                # A repeated stamp on one stream: keep the first, the newcomer is a duplicate.
-                self.dropped += 1
+            if not self._insert(queue, stamp_ns, msg):
                 return []
-            queue.append((stamp_ns, msg))
-            queue.sort(key=lambda entry: entry[0])
-            if len(queue) > self.queue_size:
-                queue.pop(0)
-                self.dropped += 1
-            if all(entry[0] != stamp_ns for entry in queue):
-                return []
-            chosen = self._best_set(key, stamp_ns)
+            chosen = self._best_set(self._queues, key, stamp_ns)
             if chosen is None:
                 return []
             return [self._emit(chosen)]
 
-    def _best_set(self, key: Hashable, stamp_ns: int) -> dict[Hashable, int] | None:
-        """The tightest set that holds the new message, as key → stamp, or None."""
+    def _insert(self, queue: list[tuple[int, Any]], stamp_ns: int, msg: Any) -> bool:
+        """Put a message into a queue (sorted, bounded); False if it did not stay there."""
+        if any(stamp == stamp_ns for stamp, _ in queue):
+            # A repeated stamp on one stream: keep the first, the newcomer is a duplicate.
+            self.dropped += 1
+            return False
+        queue.append((stamp_ns, msg))
+        queue.sort(key=lambda entry: entry[0])
+        if len(queue) > self.queue_size:
+            queue.pop(0)
+            self.dropped += 1
+        return any(entry[0] == stamp_ns for entry in queue)
+
+    def _add_stale(self, key: Hashable, stamp_ns: int, msg: Any) -> list[MatchedSet]:
+        """Keep a message older than the last set aside; start over if the old ones pair up.
+
+        The message has already been counted as dropped, and so has everything held aside: what
+        a jump brings back is taken off :attr:`dropped` again.
+        """
+        before = self.dropped
+        kept = self._insert(self._stale[key], stamp_ns, msg)
+        # Held-aside messages were counted when they came; evicting or refusing one is no news.
+        self.dropped = before
+        if not kept:
+            return []
+        chosen = self._best_set(self._stale, key, stamp_ns)
+        if chosen is None:
+            return []
+        # A whole set older than the last one: the streams went back in time, not astray.
+        jumped_from = self._last_set_ns
+        self.jumps += 1
+        self.dropped += sum(len(queue) for queue in self._queues.values())
+        self.dropped -= sum(len(queue) for queue in self._stale.values())
+        self._queues = self._stale
+        self._stale = {other: [] for other in self.keys}
+        self._last = dict.fromkeys(self.keys)
+        matched = self._emit(chosen)
+        return [replace(matched, jumped_from_ns=jumped_from)]
+
+    def _best_set(
+        self, queues: dict[Hashable, list[tuple[int, Any]]], key: Hashable, stamp_ns: int
+    ) -> dict[Hashable, int] | None:
+        """The tightest set in ``queues`` that holds the new message, as key → stamp, or None."""
         tol = self.tolerance_ns
         # Only the new message can complete a set: before it came none was complete.
         candidates = {
-            other: [s for s, _ in self._queues[other] if abs(s - stamp_ns) <= tol]
+            other: [s for s, _ in queues[other] if abs(s - stamp_ns) <= tol]
             for other in self.keys
             if other != key
         }
@@ -184,6 +242,7 @@ class StampSynchronizer:
             self._last[key] = stamp
         self.matched += 1
         ordered = {key: chosen[key] for key in self.keys}
+        self._last_set_ns = ordered[self.keys[0]]
         return MatchedSet(stamp_ns=ordered[self.keys[0]], items=items, stamps_ns=ordered)
 
     def pending(self) -> dict[Hashable, int]:
@@ -196,4 +255,6 @@ class StampSynchronizer:
         with self._lock:
             for key in self.keys:
                 self._queues[key] = []
+                self._stale[key] = []
                 self._last[key] = None
+            self._last_set_ns = None

@@ -236,3 +236,116 @@ def test_invalid_key_and_stamp() -> None:
         sync.add('c', 1, None)
     with pytest.raises(InputError, match='integer'):
         sync.add('a', 1.5, None)  # type: ignore[arg-type]
+
+
+def _total(sync: StampSynchronizer) -> int:
+    """Every message offered ends up matched, dropped or pending, exactly once."""
+    return len(sync.keys) * sync.matched + sync.dropped + sum(sync.pending().values())
+
+
+def test_stamps_jumping_back_start_over() -> None:
+    # ros2 bag play --loop, a driver restart or a simulator reset: a whole frame, older.
+    sync = StampSynchronizer()
+    (first,) = _feed_frame(sync, 10)
+    assert first.jumped_from_ns is None
+    (after_jump,) = _feed_frame(sync, 5)
+    assert after_jump.stamp_ns == 5
+    assert after_jump.jumped_from_ns == 10
+    assert after_jump.items['left'] == 'left@5'
+    assert sync.jumps == 1
+    # Pairing goes on from the new time, with no further jump.
+    (following,) = _feed_frame(sync, 6)
+    assert following.stamp_ns == 6 and following.jumped_from_ns is None
+    assert sync.jumps == 1
+    assert sync.dropped == 0
+    assert _total(sync) == 12
+
+
+def test_jump_back_far_into_the_past_in_nanoseconds() -> None:
+    sync = StampSynchronizer()
+    t = 2_000_000_000 * 10**9
+    sets = _feed_frame(sync, t) + _feed_frame(sync, t - 100 * 10**9)
+    sets += _feed_frame(sync, t - 99 * 10**9)
+    assert [s.stamp_ns for s in sets] == [t, t - 100 * 10**9, t - 99 * 10**9]
+    assert [s.jumped_from_ns for s in sets] == [None, t, None]
+
+
+def test_jump_back_drops_what_waited_from_before() -> None:
+    sync = StampSynchronizer()
+    _feed_frame(sync, 10)
+    # Half of frame 11 came before the jump; its other half never will.
+    sync.add('left', 11, 'l11')
+    sync.add('right', 11, 'r11')
+    (matched,) = _feed_frame(sync, 3)
+    assert matched.jumped_from_ns == 10
+    assert sync.pending() == dict.fromkeys(DEFAULT_KEYS, 0)
+    assert sync.dropped == 2
+    assert _total(sync) == 10
+
+
+def test_late_straggler_is_still_dropped_and_is_no_jump() -> None:
+    sync = StampSynchronizer()
+    _feed_frame(sync, 10)
+    _feed_frame(sync, 20)
+    # One message of frame 15 delivered out of order, after frame 20 went out.
+    assert sync.add('left', 15, 'late') == []
+    assert sync.add('right_info', 10, 'repeat') == []
+    assert sync.dropped == 2
+    assert sync.jumps == 0
+    (matched,) = _feed_frame(sync, 30)
+    assert matched.jumped_from_ns is None
+    assert sync.jumps == 0
+    assert _total(sync) == 14
+
+
+def test_stragglers_of_many_frames_never_make_a_jump() -> None:
+    sync = StampSynchronizer()
+    sets: list[MatchedSet] = []
+    late: list[tuple[str, int]] = []
+    for frame in range(1, 41):
+        for index, key in enumerate(DEFAULT_KEYS):
+            if frame % 4 == index and frame % 2:
+                late.append((key, frame))  # delivered after the next frame
+            else:
+                sets += sync.add(key, frame, f'{key}@{frame}')
+        while late and late[0][1] < frame:
+            key, stamp = late.pop(0)
+            sets += sync.add(key, stamp, f'{key}@{stamp}')
+    assert sync.jumps == 0
+    assert all(s.jumped_from_ns is None for s in sets)
+    # Every even frame pairs; an odd one misses its straggler.
+    assert [s.stamp_ns for s in sets] == list(range(2, 41, 2))
+    assert all(n <= sync.queue_size for n in sync.pending().values())
+
+
+def test_approximate_stream_survives_a_jump_back() -> None:
+    period = 33 * MS
+    sync = StampSynchronizer(approximate=True, tolerance_ns=3 * MS)
+    sets = []
+    for start in (1000 * period, 0):  # a second pass from an earlier time
+        for frame in range(10):
+            base = start + frame * period
+            jitter = (frame % 5 - 2) * MS
+            sets += sync.add('left', base, ('L', frame))
+            sets += sync.add('left_info', base, ('LI', frame))
+            sets += sync.add('right_info', base + jitter, ('RI', frame))
+            sets += sync.add('right', base + jitter, ('R', frame))
+    assert len(sets) == 20
+    assert [s.jumped_from_ns for s in sets].count(None) == 19
+    assert sets[10].jumped_from_ns == 1009 * period
+    assert sets[10].stamp_ns == 0
+    assert sync.jumps == 1
+    assert sync.dropped == 0
+
+
+def test_reset_forgets_messages_held_aside() -> None:
+    sync = StampSynchronizer(keys=('a', 'b'))
+    sync.add('a', 10, 'a10')
+    sync.add('b', 10, 'b10')
+    sync.add('a', 5, 'a5')  # held aside as a possible jump back
+    sync.reset()
+    sync.add('a', 20, 'a20')
+    sync.add('b', 20, 'b20')
+    # b@5 after the reset is late again; it must not pair with the a@5 from before it.
+    assert sync.add('b', 5, 'b5') == []
+    assert sync.jumps == 0

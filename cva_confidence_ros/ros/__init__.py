@@ -1,4 +1,4 @@
-"""rclpy side of the package: message ⇄ numpy conversions and the node's parameters.
+"""rclpy side of the package: message ⇄ numpy conversions, the node's parameters, the node.
 
 Only :mod:`cva_confidence_ros.node` and this subpackage import rclpy or ROS message types; the
 core (matching, confidence, pipeline, point cloud, sync) stays ROS-free.
@@ -6,4 +6,4 @@ core (matching, confidence, pipeline, point cloud, sync) stays ROS-free.
 
 from __future__ import annotations
 
-__all__ = ['convert', 'params']
+__all__ = ['confidence_node', 'convert', 'params']

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import rclpy
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
@@ -31,6 +31,12 @@ def domain_id(offset: int) -> int:
     """A ROS domain (101–220) for one test module (offset 0–3): from the pid, so that parallel
     runs do not cross-talk; ``test_colcon_layout`` uses offset 3 with the same formula."""
     return 101 + (os.getpid() % 30) * 4 + offset
+
+
+def spare_domain_id() -> int:
+    """A ROS domain (221–232) apart from :func:`domain_id`'s and the msg_tools tests' (1–90),
+    for a module whose tests each bring up and shut down a context of their own."""
+    return 221 + os.getpid() % 12
 
 
 def first_stamp() -> int:
@@ -239,7 +245,10 @@ class Spinner:
 
     def _spin(self) -> None:
         while not self._stop.is_set() and rclpy.ok(context=self.executor.context):
-            self.executor.spin_once(timeout_sec=0.05)
+            try:
+                self.executor.spin_once(timeout_sec=0.05)
+            except ExternalShutdownException:
+                return  # the context was shut down under the wait (a test stopping the node)
 
     def stop(self) -> None:
         self._stop.set()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
+import time
 
 from node_test_utils import (
     Spinner,
@@ -17,8 +18,10 @@ from node_test_utils import (
 )
 import numpy as np
 import pytest
+from rcl_interfaces.msg import Log
 from rclpy.context import Context
 from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile
 
 from cva_confidence_ros.node import ConfidenceNode
 
@@ -40,6 +43,7 @@ class _Running:
             ],
         )
         self.client = StereoClient(context)
+        self.client.subscribe('/rosout', Log, QoSProfile(depth=100))
         self.spinner = Spinner(context, self.node, self.client.node)
         self.stamp = first_stamp()
         assert self.client.wait_connected(), 'the node and the client did not discover'
@@ -47,6 +51,23 @@ class _Running:
     def next_stamp(self) -> int:
         self.stamp += 1_000_000_000
         return self.stamp
+
+    def warnings(self, text: str) -> list[str]:
+        """The node's ``/rosout`` warnings that contain ``text``."""
+        return [
+            msg.msg
+            for msg in list(self.client.received['/rosout'])
+            if msg.name == 'cva_confidence' and msg.level == Log.WARN and text in msg.msg
+        ]
+
+    def send_bad(self, msgs: tuple) -> None:
+        """Publish one bad frame (left, right, left info, right info); wait for its rejection."""
+        invalid = self.node.stats()['frames_invalid']
+        for key, msg in zip(('left', 'right', 'left_info', 'right_info'), msgs, strict=True):
+            self.client.pubs[key].publish(msg)
+        assert self.client.wait_for(lambda: self.node.stats()['frames_invalid'] > invalid, 10), (
+            f'the bad frame {msgs[0].header.stamp} was not rejected'
+        )
 
 
 @pytest.fixture(scope='module')
@@ -159,4 +180,69 @@ def test_malformed_frames_are_dropped_and_good_ones_still_come_out(running: _Run
         good_stamps.append(good)
         assert client.by_stamp('disparity', stamp) is None
     assert node.stats()['frames_invalid'] >= bad
+    assert node._worker.is_alive()
+
+
+def _other_bad_frames(stamp: int) -> dict[str, tuple]:
+    """Bad frames of reasons that :func:`_bad_frames` does not use."""
+    left, right = textured_pair(64, 96, seed=8)
+    infos = info_msgs(stamp)
+    yuv = image_msg(np.zeros((64, 192), np.uint8), stamp, 'yuv422')
+    rgb16 = image_msg(np.zeros((64, 96 * 6), np.uint8), stamp, '16UC3')
+    bad_step = image_msg(left, stamp)
+    bad_step.step = 50
+    empty = image_msg(left, stamp)
+    empty.height, empty.data = 0, b''
+    zero_focal = info_msgs(stamp)
+    zero_focal[0].p[0] = zero_focal[1].p[0] = 0.0
+    right_msg = image_msg(right, stamp)
+    return {
+        'yuv422': (yuv, right_msg, *infos),
+        '16UC3': (rgb16, right_msg, *infos),
+        'step below the width': (bad_step, right_msg, *infos),
+        'no rows': (empty, right_msg, *infos),
+        'zero focal length': (image_msg(left, stamp), right_msg, *zero_focal),
+    }
+
+
+def test_each_kind_of_bad_frame_is_logged_and_repeats_are_counted(running: _Running) -> None:
+    node = running.node
+    throttle = node._log_throttle
+    period, throttle.period_s = throttle.period_s, 2.0
+    try:
+        stamps: dict[str, int] = {}
+        repeats: list[int] = []
+        for name in _other_bad_frames(0):
+            stamps[name] = running.next_stamp()
+            running.send_bad(_other_bad_frames(stamps[name])[name])
+            if name == 'yuv422':
+                # The same fault again, at once: held back.
+                repeats += [running.next_stamp() for _ in range(2)]
+                for stamp in repeats:
+                    running.send_bad(_other_bad_frames(stamp)[name])
+        first_logged = stamps['yuv422']
+
+        def all_logged() -> bool:
+            return all(running.warnings(f'dropped frame {s}:') for s in stamps.values())
+
+        assert running.client.wait_for(all_logged, 10), (
+            'not every kind of bad frame was logged: '
+            + str([n for n, s in stamps.items() if not running.warnings(f'dropped frame {s}:')])
+        )
+        for stamp in repeats:
+            assert not running.warnings(f'dropped frame {stamp}:')
+        (first,) = running.warnings(f'dropped frame {first_logged}:')
+        assert "'yuv422'" in first and 'more like it' not in first
+
+        # After the period the fault is reported again, with the count of those held back.
+        time.sleep(throttle.period_s)
+        again = running.next_stamp()
+        running.send_bad(_other_bad_frames(again)['yuv422'])
+        assert running.client.wait_for(
+            lambda: bool(running.warnings(f'dropped frame {again}:')), 10
+        )
+        (report,) = running.warnings(f'dropped frame {again}:')
+        assert '(2 more like it' in report, report
+    finally:
+        throttle.period_s = period
     assert node._worker.is_alive()

@@ -21,11 +21,12 @@ from node_test_utils import (
 )
 import numpy as np
 import pytest
-from rcl_interfaces.msg import SetParametersResult
+from rcl_interfaces.msg import Log, SetParametersResult
 from rcl_interfaces.srv import SetParameters
 import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile
 from sensor_msgs.msg import CameraInfo
 
 from cva_confidence_ros.node import ConfidenceNode
@@ -55,6 +56,7 @@ class _Running:
         self.client = StereoClient(context)
         self.client.subscribe('/diagnostics', DiagnosticArray)
         self.client.subscribe('camera_info', CameraInfo)
+        self.client.subscribe('/rosout', Log, QoSProfile(depth=100))
         self.spinner = Spinner(context, self.node, self.client.node)
         self.stamp = first_stamp()
         assert self.client.wait_connected(), 'the node and the client did not discover'
@@ -69,6 +71,31 @@ class _Running:
         return self.node.set_parameters_atomically(
             [Parameter(k, value=v) for k, v in values.items()]
         )
+
+    def set_by_service(self, **values: object) -> list[SetParametersResult]:
+        """Set parameters over the node's ``set_parameters`` service (``ros2 param set``)."""
+        service = self.client.node.create_client(SetParameters, '/cva_confidence/set_parameters')
+        try:
+            assert service.wait_for_service(timeout_sec=20.0)
+            request = SetParameters.Request(
+                parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()]
+            )
+            future = service.call_async(request)
+            deadline = time.monotonic() + 20.0
+            while not future.done() and time.monotonic() < deadline:
+                time.sleep(0.02)
+            assert future.done(), 'no answer from the parameter service'
+            return list(future.result().results)
+        finally:
+            self.client.node.destroy_client(service)
+
+    def logged(self, text: str, level: int = Log.WARN) -> list[str]:
+        """The node's ``/rosout`` messages of ``level`` that contain ``text``."""
+        return [
+            msg.msg
+            for msg in list(self.client.received['/rosout'])
+            if msg.name == 'cva_confidence' and msg.level == level and text in msg.msg
+        ]
 
 
 @pytest.fixture(scope='module')
@@ -328,3 +355,49 @@ def test_approximate_sync(running: _Running) -> None:
     finally:
         result = running.set(approximate_sync=False)
         assert result.successful
+
+
+def test_stamps_jumping_back_are_logged_and_pairing_goes_on(running: _Running) -> None:
+    # ros2 bag play --loop, a driver restart or a simulator reset: time starts over, earlier.
+    client, node = running.client, running.node
+    left, right = textured_pair(seed=7)
+    stamp = running.next_stamp()
+    client.send_until_output(left, right, stamp, topics=('disparity',))
+    jumps_before = node.stats()['stamp_jumps']
+    back = stamp - 100 * 10**9
+    for attempt in range(5):
+        # Resent 1 ms later should a message of the first try be lost (best-effort input).
+        earlier = back + attempt * 1_000_000
+        client.publish_frame(left, right, earlier)
+        if client.wait_for(lambda s=earlier: client.by_stamp('disparity', s) is not None, 2.0):
+            break
+    else:
+        pytest.fail('no output after the stamps jumped back 100 s')
+    following = earlier + 10**9
+    client.publish_frame(left, right, following)
+    assert client.wait_for(lambda: client.by_stamp('disparity', following) is not None, 5.0)
+    assert node.stats()['stamp_jumps'] == jumps_before + 1
+    assert client.wait_for(lambda: bool(running.logged('jumped back 100.')), 5.0)
+    (warning,) = running.logged('jumped back 100.')
+    assert f'{earlier // 10**9}.{earlier % 10**9:09d}' in warning
+    # Later frames, newer again, pair as before.
+    client.send_until_output(left, right, running.next_stamp(), topics=('disparity',))
+
+
+def test_rclpy_parameters_are_left_to_rclpy(running: _Running) -> None:
+    client, node = running.client, running.node
+    left, right = textured_pair(seed=8)
+    try:
+        for value in (True, False):
+            (result,) = running.set_by_service(use_sim_time=value)
+            assert result.successful, result.reason
+            assert node.get_parameter('use_sim_time').value is value
+            assert node.get_clock().ros_time_is_active is value
+            client.send_until_output(left, right, running.next_stamp(), topics=('disparity',))
+        assert running.set(use_sim_time=True).successful
+        # Parameters no one declared are still refused, by rclpy.
+        (result,) = running.set_by_service(no_such_parameter=1)
+        assert not result.successful
+    finally:
+        assert running.set(use_sim_time=False).successful
+    assert node.pipeline_config.max_disparity == MAX_DISPARITY

@@ -160,6 +160,14 @@ def test_cva_net_with_given_weights_and_sigterm(client: StereoClient, tmp_path: 
         (('-p', 'matcher:=no_such_matcher'), 'no_such_matcher'),
         (('-p', 'max_disparity:=5000'), 'max_disparity'),
         (('-p', 'confidence_method:=cva_net', '-p', 'model_path:=/nonexistent.pt'), 'cannot'),
+        # Refused by rcl itself, in rclpy.init.
+        pytest.param(
+            ('--params-file', '/nonexistent.yaml'),
+            "parse params file: '--params-file /nonexistent.yaml'",
+            id='missing-params-file',
+        ),
+        pytest.param(('--no-such-ros-flag',), '--no-such-ros-flag', id='unknown-ros-flag'),
+        pytest.param(('-p',), 'trailing -p', id='trailing-p'),
     ],
 )
 def test_invalid_start_configuration_exits_cleanly(args: tuple[str, ...], message: str) -> None:
@@ -171,3 +179,22 @@ def test_invalid_start_configuration_exits_cleanly(args: tuple[str, ...], messag
     assert code == 2, node.output
     assert message in node.output
     assert 'Traceback' not in node.output, node.output
+    (line,) = [line for line in node.lines if 'cannot start' in line]
+    assert message in line and '[FATAL]' in line
+
+
+@pytest.mark.parametrize('delay', [0.15, 0.5, 1.2])
+def test_early_ctrl_c_exits_quietly(delay: float) -> None:
+    # Within the imports of rclpy, torch and the pipeline (0.15, 0.5 s), or while the node is
+    # built and warmed up (about 1.2 s here: numba compiles then).
+    if not CVA_NODE.exists():
+        pytest.skip('cva-node is not installed')
+    node = NodeProcess('-p', 'max_disparity:=16', '-p', 'confidence_method:=mlm')
+    time.sleep(delay)
+    code = node.stop(signal.SIGINT)
+    assert 'Traceback' not in node.output, node.output
+    assert 'KeyboardInterrupt' not in node.output, node.output
+    if delay < 1.0:
+        assert 'ready:' not in node.output, 'the node came up before the signal: nothing tested'
+    # Interrupted before the node is up (130), or stopped once it is (0).
+    assert code == (0 if 'ready:' in node.output else 130), node.output

@@ -1,0 +1,612 @@
+"""The rclpy node behind :mod:`cva_confidence_ros.node` (topics and threads are described there).
+
+Kept apart from the entry point so that ``cva-node`` can import rclpy, the message types and the
+pipeline inside its ``try``: a Ctrl-C during that second of imports then ends the program quietly.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from functools import partial
+import re
+import signal
+import sys
+import threading
+import time
+from typing import Any
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+import numpy as np
+from rcl_interfaces.msg import SetParametersResult
+import rclpy
+from rclpy.context import Context
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+import rclpy.logging
+from rclpy.logging import LoggingSeverity
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from stereo_msgs.msg import DisparityImage
+
+from cva_confidence_ros.errors import CVAError, InputError, reason
+from cva_confidence_ros.pipeline import PipelineConfig, PipelineResult, StereoPipeline
+from cva_confidence_ros.pointcloud import (
+    StereoGeometry,
+    disparity_to_points,
+    make_cloud,
+    pack_rgb,
+)
+from cva_confidence_ros.ros.convert import (
+    array_to_image,
+    camera_info_to_geometry,
+    cloud_to_message,
+    disparity_to_message,
+    image_to_array,
+    pair_to_uint8,
+    scale_camera_info,
+    stamp_to_ns,
+)
+from cva_confidence_ros.ros.params import (
+    PARAMETERS,
+    NodeConfig,
+    build_configs,
+    declare_parameters,
+    parameter_values,
+)
+from cva_confidence_ros.sync import MatchedSet, StampSynchronizer
+
+__all__ = ['NODE_NAME', 'ConfidenceNode', 'run']
+
+NODE_NAME = 'cva_confidence'
+_LOG_THROTTLE_S = 5.0
+_READY = 'ready'
+_OWN_PARAMETERS = frozenset(spec.name for spec in PARAMETERS)
+_EXIT_BAD_START = 2
+_EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a Ctrl-C
+
+
+def _qos(name: str) -> QoSProfile:
+    if name == 'sensor_data':
+        return qos_profile_sensor_data
+    return QoSProfile(depth=10)
+
+
+class _Mailbox:
+    """A one-slot hand-over between the executor and the worker: the newest item wins."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._item: MatchedSet | None = None
+        self._closed = False
+
+    def put(self, item: MatchedSet) -> bool:
+        """Store ``item``; return True if it overwrote one that was never taken."""
+        with self._cond:
+            replaced = self._item is not None
+            self._item = item
+            self._cond.notify()
+            return replaced
+
+    def take(self) -> MatchedSet | None:
+        """Wait for an item; None once closed."""
+        with self._cond:
+            while self._item is None and not self._closed:
+                self._cond.wait()
+            if self._closed:
+                return None
+            item, self._item = self._item, None
+            return item
+
+    @property
+    def closed(self) -> bool:
+        """Whether :meth:`close` was called."""
+        return self._closed
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+
+class _ReasonThrottle:
+    """Throttle log messages per reason: the first of each is let through, repeats once a period.
+
+    rclpy throttles per call site, so one steady fault (a wrong encoding on every frame) would
+    hide every other one behind it.
+
+    Args:
+        period_s: Least time between two messages of one reason, seconds.
+        max_reasons: Reasons remembered; the one logged longest ago is forgotten first.
+    """
+
+    def __init__(self, period_s: float = _LOG_THROTTLE_S, max_reasons: int = 64) -> None:
+        self.period_s = period_s
+        self.max_reasons = max_reasons
+        self._lock = threading.Lock()
+        # reason → [monotonic time it was last logged, repeats held back since]
+        self._reasons: OrderedDict[str, list[float]] = OrderedDict()
+
+    @staticmethod
+    def key(reason: str) -> str:
+        """The reason without its numbers: sizes, steps and stamps vary, the fault does not."""
+        return re.sub(r'\d+', '#', reason)
+
+    def admit(self, reason: str) -> int | None:
+        """Whether to log a message of ``reason`` now.
+
+        Returns:
+            None to stay silent; else how many of this reason were held back since it was last
+            logged (0 the first time).
+        """
+        key = self.key(reason)
+        now = time.monotonic()
+        with self._lock:
+            entry = self._reasons.get(key)
+            if entry is None:
+                self._reasons[key] = [now, 0]
+                if len(self._reasons) > self.max_reasons:
+                    self._reasons.popitem(last=False)
+                return 0
+            if now - entry[0] < self.period_s:
+                entry[1] += 1
+                return None
+            held_back = int(entry[1])
+            entry[0], entry[1] = now, 0
+            self._reasons.move_to_end(key)
+            return held_back
+
+
+def _seconds(stamp_ns: int) -> str:
+    return f'{stamp_ns // 1_000_000_000}.{stamp_ns % 1_000_000_000:09d}'
+
+
+@dataclass
+class _Stats:
+    """Counters and timings shown in ``/diagnostics`` (guarded by the node's lock)."""
+
+    messages: int = 0
+    pairs: int = 0
+    processed: int = 0
+    dropped: int = 0
+    unmatched: int = 0
+    invalid: int = 0
+    failed: int = 0
+    jumps: int = 0
+    last_error: str = ''
+    last_timings_ms: dict[str, float] = field(default_factory=dict)
+    mean_timings_ms: dict[str, float] = field(default_factory=dict)
+    window_messages: int = 0
+    window_pairs: int = 0
+    window_processed: int = 0
+    window_invalid: int = 0
+    window_start: float = field(default_factory=time.monotonic)
+
+    def record_timings(self, timings: dict[str, float]) -> None:
+        self.last_timings_ms = dict(timings)
+        for key, value in timings.items():
+            previous = self.mean_timings_ms.get(key)
+            # Exponential moving average: recent frames dominate, one spike does not.
+            self.mean_timings_ms[key] = value if previous is None else 0.9 * previous + 0.1 * value
+
+
+class ConfidenceNode(Node):
+    """rclpy node around :class:`StereoPipeline`; see the module docstring for topics.
+
+    Args:
+        context: rclpy context (tests use one per node); None = the global one.
+        parameter_overrides: Start-up parameter values, as with ``--ros-args -p``.
+        **kwargs: Passed on to :class:`rclpy.node.Node`.
+
+    Raises:
+        CVAError: The start-up parameters give an invalid configuration or weights that cannot
+            be loaded.
+    """
+
+    def __init__(
+        self,
+        *,
+        context: Context | None = None,
+        parameter_overrides: list[Parameter] | None = None,
+        **kwargs: Any,
+    ) -> None:
+        super().__init__(
+            NODE_NAME, context=context, parameter_overrides=parameter_overrides, **kwargs
+        )
+        declare_parameters(self)
+        pipeline_config, node_config = build_configs(parameter_values(self))
+        self._lock = threading.Lock()
+        self._pipeline = StereoPipeline(pipeline_config)
+        self._pipeline.warm_up()
+        self._pipeline_config = pipeline_config
+        self._node_config = node_config
+        self._sync = self._make_sync(node_config)
+        self._stats = _Stats()
+        self._log_throttle = _ReasonThrottle()
+        self._mailbox = _Mailbox()
+        # rclpy.shutdown() from another thread: the worker must not publish on a dead context.
+        # (Ctrl-C shuts the context down in C without these callbacks; see _work.)
+        self.context.on_shutdown(self._mailbox.close)
+
+        in_qos, out_qos = _qos(node_config.input_qos), _qos(node_config.output_qos)
+        for key, msg_type, topic in (
+            ('left', Image, 'left/image_rect'),
+            ('right', Image, 'right/image_rect'),
+            ('left_info', CameraInfo, 'left/camera_info'),
+            ('right_info', CameraInfo, 'right/camera_info'),
+        ):
+            self.create_subscription(msg_type, topic, partial(self._on_message, key), in_qos)
+        self._pub_disparity = self.create_publisher(DisparityImage, 'disparity', out_qos)
+        self._pub_filtered = self.create_publisher(DisparityImage, 'disparity_filtered', out_qos)
+        self._pub_confidence = self.create_publisher(Image, 'confidence', out_qos)
+        self._pub_points = self.create_publisher(PointCloud2, 'points2', out_qos)
+        self._pub_info = self.create_publisher(CameraInfo, 'camera_info', out_qos)
+        self._pub_diagnostics = self.create_publisher(
+            DiagnosticArray, '/diagnostics', QoSProfile(depth=10)
+        )
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._diag_timer = self.create_timer(
+            node_config.diagnostics_period_seconds, self._publish_diagnostics
+        )
+        self._worker = threading.Thread(target=self._work, name='cva_confidence_worker')
+        self._worker.daemon = True
+        self._worker.start()
+        self.get_logger().info(
+            f'{_READY}: matcher={pipeline_config.matcher} '
+            f'max_disparity={pipeline_config.max_disparity} '
+            f'confidence_method={pipeline_config.confidence_method} '
+            f'downsample={pipeline_config.downsample} '
+            f'sync={"approximate" if node_config.approximate_sync else "exact"}'
+        )
+
+    # Configuration -------------------------------------------------------------------------
+
+    @property
+    def pipeline_config(self) -> PipelineConfig:
+        """The configuration the next frame is processed with."""
+        with self._lock:
+            return self._pipeline_config
+
+    @property
+    def node_config(self) -> NodeConfig:
+        """The node-side configuration in force."""
+        with self._lock:
+            return self._node_config
+
+    @staticmethod
+    def _make_sync(config: NodeConfig) -> StampSynchronizer:
+        return StampSynchronizer(
+            queue_size=config.queue_size,
+            approximate=config.approximate_sync,
+            tolerance_ns=config.tolerance_ns,
+        )
+
+    def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        # rclpy's own parameters (use_sim_time, …) are for rclpy to accept or refuse.
+        params = [param for param in params if param.name in _OWN_PARAMETERS]
+        if not params:
+            return SetParametersResult(successful=True)
+        try:
+            pipeline_config, node_config = build_configs(parameter_values(self), params)
+            pipeline = None
+            if pipeline_config != self.pipeline_config:
+                # Built here, before accepting, so that e.g. missing weights reject the change.
+                pipeline = StereoPipeline(pipeline_config)
+        except CVAError as error:
+            return SetParametersResult(successful=False, reason=str(error))
+        with self._lock:
+            if pipeline is not None:
+                self._pipeline, self._pipeline_config = pipeline, pipeline_config
+            old = self._node_config
+            self._node_config = node_config
+            sync_keys = ('queue_size', 'approximate_sync', 'approximate_sync_tolerance_seconds')
+            if any(getattr(old, key) != getattr(node_config, key) for key in sync_keys):
+                self._stats.unmatched += sum(self._sync.pending().values())
+                self._sync = self._make_sync(node_config)
+        self.get_logger().info(
+            'parameters set: ' + ', '.join(f'{p.name}={p.value!r}' for p in params)
+        )
+        return SetParametersResult(successful=True)
+
+    # Executor side ------------------------------------------------------------------------
+
+    def _on_message(self, key: str, msg: Any) -> None:
+        stamp = stamp_to_ns(msg.header.stamp)
+        with self._lock:
+            self._stats.messages += 1
+            self._stats.window_messages += 1
+            sync = self._sync
+            before = sync.dropped
+            matched = sync.add(key, stamp, msg)
+            self._stats.unmatched += sync.dropped - before
+            jumps = [
+                (item.jumped_from_ns, item.stamp_ns)
+                for item in matched
+                if item.jumped_from_ns is not None
+            ]
+            self._stats.jumps += len(jumps)
+            for item in matched:
+                self._stats.pairs += 1
+                self._stats.window_pairs += 1
+                if self._mailbox.put(item):
+                    self._stats.dropped += 1
+        for previous, now in jumps:
+            self._log_throttled(
+                self.get_logger().warning,
+                'input stamps jumped back',
+                f'input stamps jumped back {(previous - now) / 1e9:.3f} s, from '
+                f'{_seconds(previous)} to {_seconds(now)} (bag loop, driver restart or simulator '
+                'reset?): pairing starts over from there',
+            )
+
+    def _log_throttled(self, log: Callable[[str], Any], why: str, message: str) -> None:
+        """Log ``message`` unless one for the same ``why`` was logged within the period."""
+        held_back = self._log_throttle.admit(why)
+        if held_back is None:
+            return
+        if held_back:
+            message += f' ({held_back} more like it held back since the last one logged)'
+        log(message)
+
+    # Worker side --------------------------------------------------------------------------
+
+    def _stopping(self) -> bool:
+        """Whether the node is being stopped: its worker closed or its context shut down."""
+        return self._mailbox.closed or not self.context.ok()
+
+    def _work(self) -> None:
+        while True:
+            item = self._mailbox.take()
+            if item is None or self._stopping():
+                return
+            try:
+                self._process(item)
+            except CVAError as error:
+                with self._lock:
+                    self._stats.invalid += 1
+                    self._stats.window_invalid += 1
+                    self._stats.last_error = str(error)
+                self._log_throttled(
+                    self.get_logger().warning,
+                    str(error),
+                    f'dropped frame {item.stamp_ns}: {error}',
+                )
+            except Exception as error:  # noqa: BLE001  (the worker must outlive any frame)
+                if self._stopping():
+                    # Ctrl-C shuts the context down (in C, before any Python runs), and the
+                    # frame in progress then fails to publish: that is the stop, not a fault.
+                    return
+                what = f'{type(error).__name__}: {error}'
+                with self._lock:
+                    self._stats.failed += 1
+                    self._stats.last_error = what
+                self._log_throttled(
+                    self.get_logger().error,
+                    what,
+                    f'processing failed on frame {item.stamp_ns}: {what}',
+                )
+
+    def _process(self, item: MatchedSet) -> None:
+        start = time.perf_counter()
+        left_msg, right_msg = item.items['left'], item.items['right']
+        left, right = image_to_array(left_msg), image_to_array(right_msg)
+        if left.shape[:2] != right.shape[:2]:
+            raise InputError(
+                f'left and right images must have the same size; got '
+                f'{left.shape[1]}×{left.shape[0]} and {right.shape[1]}×{right.shape[0]}'
+            )
+        left, right = pair_to_uint8(left, right)
+        height, width = left.shape[:2]
+        geometry = camera_info_to_geometry(
+            item.items['left_info'], item.items['right_info'], width, height
+        )
+        with self._lock:
+            pipeline, config, node_config = (
+                self._pipeline,
+                self._pipeline_config,
+                self._node_config,
+            )
+        convert_ms = (time.perf_counter() - start) * 1e3
+
+        result = pipeline.process(left, right)
+
+        tic = time.perf_counter()
+        self._publish(result, left_msg.header, geometry, config, node_config)
+        if self._pub_info.get_subscription_count():
+            info = item.items['left_info']
+            self._pub_info.publish(scale_camera_info(info, config.downsample, left_msg.header))
+        timings = dict(result.timings_ms)
+        timings['convert'] = convert_ms
+        timings['publish'] = (time.perf_counter() - tic) * 1e3
+        timings['frame'] = (time.perf_counter() - start) * 1e3
+        with self._lock:
+            self._stats.processed += 1
+            self._stats.window_processed += 1
+            self._stats.record_timings(timings)
+
+    def _publish(
+        self,
+        result: PipelineResult,
+        header: Any,
+        geometry: StereoGeometry,
+        config: PipelineConfig,
+        node_config: NodeConfig,
+    ) -> None:
+        disparity = result.disparity
+        if result.scale != 1.0:
+            # The pipeline crops the bottom/right rest and shrinks by exactly 1/downsample.
+            geometry = geometry.scaled(result.scale)
+        # Already in [0, 1] by the method's fixed map; NaN (none expected) would break that.
+        confidence = np.clip(np.nan_to_num(result.confidence, nan=0.0), 0.0, 1.0)
+        keep = result.valid
+        if self._pub_disparity.get_subscription_count():
+            self._pub_disparity.publish(
+                disparity_to_message(disparity, header, geometry, config.max_disparity)
+            )
+        if self._pub_confidence.get_subscription_count():
+            self._pub_confidence.publish(array_to_image(confidence, header))
+        if self._pub_filtered.get_subscription_count():
+            filtered = np.where(keep, disparity, np.float32(np.nan)).astype(np.float32)
+            self._pub_filtered.publish(
+                disparity_to_message(filtered, header, geometry, config.max_disparity)
+            )
+        if node_config.publish_points and self._pub_points.get_subscription_count():
+            points = disparity_to_points(disparity, geometry, keep)
+            cloud = make_cloud(points, pack_rgb(result.left), node_config.points_organized)
+            self._pub_points.publish(cloud_to_message(cloud, header))
+
+    # Diagnostics --------------------------------------------------------------------------
+
+    def diagnostics(self) -> DiagnosticStatus:
+        """The node's current ``DiagnosticStatus`` (counters since start, rates per window)."""
+        now = time.monotonic()
+        with self._lock:
+            stats = self._stats
+            elapsed = max(now - stats.window_start, 1e-9)
+            rate = stats.window_processed / elapsed
+            level, message = DiagnosticStatus.OK, f'processing at {rate:.1f} Hz'
+            if stats.window_invalid:
+                level = DiagnosticStatus.WARN
+                message = f'{stats.window_invalid} bad frame(s) dropped: {stats.last_error}'
+            if stats.window_messages and not stats.window_pairs:
+                level = DiagnosticStatus.WARN
+                message = 'messages arrive but none pair up: check stamps and camera_info'
+            if stats.failed and stats.window_pairs and not stats.window_processed:
+                level, message = DiagnosticStatus.ERROR, f'processing fails: {stats.last_error}'
+            values = {
+                'messages_received': stats.messages,
+                'frames_received': stats.pairs,
+                'frames_processed': stats.processed,
+                'frames_dropped': stats.dropped,
+                'messages_unmatched': stats.unmatched,
+                'frames_invalid': stats.invalid,
+                'frames_failed': stats.failed,
+                'stamp_jumps': stats.jumps,
+                'processing_rate_hz': f'{rate:.3f}',
+                'matcher': self._pipeline_config.matcher,
+                'confidence_method': self._pipeline_config.confidence_method,
+                'max_disparity': self._pipeline_config.max_disparity,
+                'downsample': self._pipeline_config.downsample,
+            }
+            for key, value in stats.last_timings_ms.items():
+                values[f'last_{key}_ms'] = f'{value:.2f}'
+            for key, value in stats.mean_timings_ms.items():
+                values[f'mean_{key}_ms'] = f'{value:.2f}'
+            stats.window_messages = stats.window_pairs = 0
+            stats.window_processed = stats.window_invalid = 0
+            stats.window_start = now
+        return DiagnosticStatus(
+            level=level,
+            name=f'{self.get_name()}: stereo confidence',
+            message=message,
+            hardware_id=self.get_fully_qualified_name(),
+            values=[KeyValue(key=key, value=str(value)) for key, value in values.items()],
+        )
+
+    def _publish_diagnostics(self) -> None:
+        status = self.diagnostics()
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self._pub_diagnostics.publish(array)
+        summary = {kv.key: kv.value for kv in status.values}
+        self.get_logger().info(
+            f'{status.message}; received {summary["frames_received"]}, processed '
+            f'{summary["frames_processed"]}, dropped {summary["frames_dropped"]}, invalid '
+            f'{summary["frames_invalid"]}, frame {summary.get("mean_frame_ms", "-")} ms',
+            throttle_duration_sec=_LOG_THROTTLE_S,
+        )
+
+    def stats(self) -> dict[str, int]:
+        """Counters since start.
+
+        ``frames_received`` counts synchronised sets; each is then processed, dropped (replaced
+        by a newer one before the worker took it), invalid (bad input) or failed.
+        ``messages_unmatched`` counts single messages the synchroniser evicted unpaired;
+        ``stamp_jumps`` the times the input stamps went back and pairing started over.
+        """
+        with self._lock:
+            s = self._stats
+            return {
+                'messages_received': s.messages,
+                'frames_received': s.pairs,
+                'frames_processed': s.processed,
+                'frames_dropped': s.dropped,
+                'messages_unmatched': s.unmatched,
+                'frames_invalid': s.invalid,
+                'frames_failed': s.failed,
+                'stamp_jumps': s.jumps,
+            }
+
+    # Life cycle ---------------------------------------------------------------------------
+
+    def stop(self, timeout: float = 10.0) -> None:
+        """Stop the worker thread (waits for the frame in progress, up to ``timeout`` s)."""
+        self._mailbox.close()
+        if self._worker.is_alive() and self._worker is not threading.current_thread():
+            self._worker.join(timeout)
+
+    def destroy_node(self) -> None:
+        """Stop the worker, then destroy the node."""
+        self.stop()
+        super().destroy_node()
+
+
+def _init(args: list[str]) -> None:
+    """``rclpy.init`` without rcl's own log line on a bad argument: the exception says more."""
+    rclpy.logging.set_logger_level('rcl', LoggingSeverity.FATAL)
+    try:
+        rclpy.init(args=args)
+    finally:
+        # Back to the default, unless ``--log-level rcl:=…`` has just set a level of its own.
+        if rclpy.logging.get_logger_level('rcl') == LoggingSeverity.FATAL:
+            rclpy.logging.set_logger_level('rcl', LoggingSeverity.UNSET)
+
+
+def run(argv: Sequence[str] | None = None) -> int:
+    """Run the node until Ctrl-C or SIGTERM (what :func:`cva_confidence_ros.node.main` calls).
+
+    Args:
+        argv: Command line including ROS arguments (``--ros-args -p max_disparity:=128 -r
+            left/image_rect:=/cam/left/image``); None = ``sys.argv``.
+
+    Returns:
+        0 on a clean stop, 2 when the ROS arguments or the start-up configuration are invalid,
+        130 when interrupted before the node is up.
+    """
+    args = list(sys.argv if argv is None else argv)
+    logger = rclpy.logging.get_logger(NODE_NAME)
+    node: ConfidenceNode | None = None
+    code = 0
+    try:
+        try:
+            _init(args)
+        except RuntimeError as error:
+            # rcl's RCLError and UnknownROSArgsError: an unreadable --params-file, a bad flag.
+            logger.fatal(f'cannot start: {reason(error, limit=300)}')
+            return _EXIT_BAD_START
+        node = ConfidenceNode()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        # Ctrl-C stops a running node cleanly; before it is up, it interrupts the start.
+        code = 0 if node is not None else _EXIT_INTERRUPTED
+    except (CVAError, ParameterException) as error:
+        logger.fatal(f'cannot start: {error}')
+        code = _EXIT_BAD_START
+    except Exception:
+        # A signal during start-up shuts the context down under the constructor; the error
+        # that follows is that interruption, not a fault worth a traceback.
+        if rclpy.ok():
+            raise
+        code = 0 if node is not None else _EXIT_INTERRUPTED
+    finally:
+        # A second Ctrl-C while the worker finishes its frame must not print a traceback.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
