@@ -33,7 +33,14 @@ import numpy as np
 
 from cva_confidence_ros.errors import ConfigError, CVAError
 from cva_confidence_ros.pointcloud import StereoGeometry
-from msg_tools.bagio import BAG_VERSION, COMPRESSIONS, STORAGES, OutputBag, remove_bag
+from msg_tools.bagio import (
+    BAG_VERSION,
+    COMPRESSIONS,
+    STORAGES,
+    OutputBag,
+    check_topic_name,
+    remove_bag,
+)
 from msg_tools.convert import (
     CAMERA_INFO,
     DISPARITY_IMAGE,
@@ -52,6 +59,11 @@ Logger = Callable[[str], None]
 # Stamps start at a fixed instant by default, so the same data set always gives the same bag.
 DEFAULT_START_TIME_S = 1_700_000_000.0
 DEFAULT_BASELINE_M = 0.1
+#: Header stamps (builtin_interfaces/Time) hold int32 seconds: the last one is in 2038.
+MAX_STAMP_S = 2**31 - 1
+_STAMP_LIMIT_NS = (MAX_STAMP_S + 1) * 1_000_000_000
+#: One frame per nanosecond, the resolution of the stamps.
+MAX_RATE_HZ = 1e9
 
 
 def _log_stderr(message: str) -> None:
@@ -65,11 +77,14 @@ class BagSpec:
     Attributes:
         storage: ``mcap`` or ``sqlite3``.
         compression: ``none``, ``file`` or ``message`` (zstd, as ``ros2 bag record`` does).
-        rate_hz: Frames per second of the stamps (> 0).
-        start_time_s: Stamp of the first frame, seconds since the epoch (≥ 0).
+        rate_hz: Frames per second of the stamps (> 0, at most :data:`MAX_RATE_HZ`; low
+            enough a rate puts the second frame past :data:`MAX_STAMP_S` and is refused).
+        start_time_s: Stamp of the first frame, seconds since the epoch (0 to
+            :data:`MAX_STAMP_S`).
         focal: Focal length in pixels overriding the data set's calibration (None = keep).
         baseline: Baseline in metres overriding the calibration (None = keep).
-        topic_prefix: Namespace of every topic ('' = root), e.g. ``/stereo``.
+        topic_prefix: Namespace of every topic ('' = root), e.g. ``/stereo``; with the topic
+            names it must make valid ROS 2 topic names (``bagio.check_topic_name``).
         left_frame: frame_id of the left camera (images, infos, ground truth).
         right_frame: frame_id of the right camera.
         gt_topic: Topic of the ground truth, relative to the prefix.
@@ -93,16 +108,36 @@ class BagSpec:
             raise ConfigError(
                 f'compression must be one of {COMPRESSIONS}; got {self.compression!r}'
             )
-        if not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
-            raise ConfigError(f'rate must be a positive number of Hz; got {self.rate_hz}')
-        if not (math.isfinite(self.start_time_s) and self.start_time_s >= 0):
-            raise ConfigError(f'start time must be >= 0 s; got {self.start_time_s}')
+        if not (math.isfinite(self.rate_hz) and 0 < self.rate_hz <= MAX_RATE_HZ):
+            raise ConfigError(
+                f'rate must be a positive number of Hz, at most {MAX_RATE_HZ:g} (one frame per '
+                f'ns); got {self.rate_hz}'
+            )
+        if not (math.isfinite(self.start_time_s) and 0 <= self.start_time_s <= MAX_STAMP_S):
+            raise ConfigError(
+                f'start time must be 0 to {MAX_STAMP_S} s (header stamps hold int32 seconds); '
+                f'got {self.start_time_s}'
+            )
+        if self._raw_stamp_ns(1) >= _STAMP_LIMIT_NS:
+            raise ConfigError(
+                f'rate {self.rate_hz} Hz puts frame 1 at {self._raw_stamp_ns(1) / 1e9:.0f} s, '
+                f'past the last header stamp ({MAX_STAMP_S} s, int32 seconds); raise the rate '
+                f'or lower the start time'
+            )
         if self.focal is not None and not self.focal > 0:
             raise ConfigError(f'focal must be > 0 pixels; got {self.focal}')
         if self.baseline is not None and not self.baseline > 0:
             raise ConfigError(f'baseline must be > 0 m; got {self.baseline}')
         if not self.left_frame or not self.right_frame:
             raise ConfigError('frame ids must not be empty')
+        prefix = self.topic_prefix.strip('/')
+        if prefix:
+            check_topic_name(f'/{prefix}', 'topic prefix')
+        if not self.gt_topic.strip('/'):
+            raise ConfigError(
+                f'ground-truth topic must be a non-empty name; got {self.gt_topic!r}'
+            )
+        check_topic_name(self.topic(self.gt_topic.strip('/')), 'ground-truth topic')
 
     def topic(self, name: str) -> str:
         """Absolute topic of a relative ``name`` under :attr:`topic_prefix`."""
@@ -110,7 +145,22 @@ class BagSpec:
         return f'/{prefix}/{name}' if prefix else f'/{name}'
 
     def stamp_ns(self, index: int) -> int:
-        """Header stamp of frame ``index`` in nanoseconds."""
+        """Header stamp of frame ``index`` in nanoseconds.
+
+        Raises:
+            ConfigError: The stamp lies past :data:`MAX_STAMP_S` (too many frames for the
+                rate and start time).
+        """
+        stamp = self._raw_stamp_ns(index)
+        if stamp >= _STAMP_LIMIT_NS:
+            raise ConfigError(
+                f'frame {index} would be stamped {stamp / 1e9:.0f} s, past the last header '
+                f'stamp ({MAX_STAMP_S} s, int32 seconds); raise the rate, lower the start time '
+                f'or write fewer frames'
+            )
+        return stamp
+
+    def _raw_stamp_ns(self, index: int) -> int:
         return int(round(self.start_time_s * 1e9)) + int(round(index * 1e9 / self.rate_hz))
 
 
@@ -307,9 +357,9 @@ def main(argv: list[str] | None = None) -> int:
         root = args.data_root
         if root is None and args.dataset != 'motorcycle':
             raise ConfigError(f'--data-root is needed for data set {args.dataset!r}')
+        samples = load_dataset(args.dataset, root, split=args.split, max_scenes=args.max_frames)
         if args.overwrite:
             remove_bag(args.out)
-        samples = load_dataset(args.dataset, root, split=args.split, max_scenes=args.max_frames)
         summary = write_dataset_bag(samples, args.out, spec)
     except CVAError as err:
         print(f'cva-bag-from-dataset: error: {err}', file=sys.stderr)

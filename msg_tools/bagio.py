@@ -9,22 +9,41 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 from pathlib import Path
+import re
 import shutil
 import sqlite3
 import struct
 from typing import Any
 
-from cva_confidence_ros.errors import BagError
+from cva_confidence_ros.errors import BagError, ConfigError, reason
 from msg_tools.convert import jazzy_typestore
 
-__all__ = ['BAG_VERSION', 'COMPRESSIONS', 'STORAGES', 'InputBag', 'OutputBag', 'remove_bag']
+try:
+    from apsw import Error as _SqliteReadError
+except ImportError:  # rosbags before 0.10 read sqlite3 bags through the standard module
+    _SqliteReadError = sqlite3.Error
+
+__all__ = [
+    'BAG_VERSION',
+    'COMPRESSIONS',
+    'STORAGES',
+    'TOPIC_MAX_LENGTH',
+    'InputBag',
+    'OutputBag',
+    'check_topic_name',
+    'remove_bag',
+]
 
 BAG_VERSION = 8
 STORAGES = ('mcap', 'sqlite3')
 #: rosbag2 compression modes (zstd), as ``ros2 bag record --compression-mode`` names them.
 COMPRESSIONS = ('none', 'file', 'message')
+#: Longest fully qualified topic name rmw accepts (``RMW_TOPIC_MAX_NAME_LENGTH``).
+TOPIC_MAX_LENGTH = 247
 
-# Low-level failures a damaged file raises from inside rosbags' storage plugins.
+# Low-level failures a damaged file raises from inside rosbags' storage plugins: the MCAP
+# reader seeks by record lengths read from the file (a garbage length overflows the seek),
+# and the sqlite3 reader goes through apsw, whose errors are not sqlite3's.
 _STORAGE_FAULTS = (
     OSError,
     EOFError,
@@ -33,9 +52,50 @@ _STORAGE_FAULTS = (
     IndexError,
     TypeError,
     AssertionError,
+    OverflowError,
+    MemoryError,
     struct.error,
     sqlite3.Error,
+    _SqliteReadError,
 )
+# What the first bytes of a single-file bag hold, per suffix.
+_STORAGE_MAGIC = {'.mcap': b'\x89MCAP0\r\n', '.db3': b'SQLite format 3\x00'}
+_TOPIC_CHARACTERS = re.compile(r'[A-Za-z0-9_/]*')
+
+
+def check_topic_name(name: str, what: str = 'topic') -> str:
+    """Check a fully qualified topic name against ROS 2's rules.
+
+    The rules of ``rmw_validate_full_topic_name``: it starts with ``/``, holds only ASCII
+    letters, digits, ``_`` and ``/``, has no empty part (``//``, a trailing ``/``), no part
+    that starts with a digit, and at most :data:`TOPIC_MAX_LENGTH` characters. ``ros2 bag
+    play`` cannot advertise a topic that breaks one of them.
+
+    Args:
+        name: The absolute topic name, e.g. ``/stereo/left/image_rect``.
+        what: What the name is, for the message (``'topic left'``, ``'topic prefix'``).
+
+    Returns:
+        ``name``.
+
+    Raises:
+        ConfigError: The rule it breaks, and the name.
+    """
+    problem = ''
+    if not name.startswith('/'):
+        problem = 'it must start with /'
+    elif not _TOPIC_CHARACTERS.fullmatch(name):
+        bad = ''.join(sorted({c for c in name if not _TOPIC_CHARACTERS.fullmatch(c)}))
+        problem = f'only letters, digits, _ and / are allowed; it has {bad!r}'
+    elif '//' in name or name.endswith('/'):
+        problem = 'no part of it may be empty (// or a trailing /)'
+    elif any(part[:1].isdigit() for part in name.split('/')):
+        problem = 'no part of it may start with a digit'
+    elif len(name) > TOPIC_MAX_LENGTH:
+        problem = f'at most {TOPIC_MAX_LENGTH} characters; it has {len(name)}'
+    if problem:
+        raise ConfigError(f'{what} must be a valid ROS 2 topic name ({problem}); got {name!r}')
+    return name
 
 
 def _reliable_qos() -> Any:
@@ -87,9 +147,14 @@ class InputBag:
             reader = Reader(self.path)
             reader.open()
         except FileNotFoundError as err:
-            raise BagError(f'{self.path} is not a rosbag2 (no metadata.yaml): {err}') from None
+            raise BagError(
+                f'{self.path} is not a rosbag2 (no metadata.yaml): {reason(err)}'
+            ) from None
         except (ReaderError, *_STORAGE_FAULTS) as err:
-            raise BagError(f'cannot open bag {self.path} (corrupt or truncated?): {err}') from None
+            # One clause: a YAML parser explains a bad metadata.yaml over several lines.
+            raise BagError(
+                f'cannot open bag {self.path} (corrupt or truncated?): {reason(err)}'
+            ) from None
         self._reader = reader
         return self
 
@@ -167,7 +232,8 @@ class InputBag:
                 return
             except (ReaderError, *_STORAGE_FAULTS) as err:
                 raise BagError(
-                    f'bag {self.path} is corrupt or truncated after {count} messages: {err}'
+                    f'bag {self.path} is corrupt or truncated after {count} messages: '
+                    f'{reason(err)}'
                 ) from None
             conn, timestamp, data = item
             count += 1
@@ -175,20 +241,39 @@ class InputBag:
 
 
 def remove_bag(path: str | Path) -> None:
-    """Delete an existing output bag; refuse anything that does not look like one.
+    """Delete an existing output bag; refuse anything that is not recognisably one.
+
+    A bag is a folder with a ``metadata.yaml``, or a single ``.mcap`` / ``.db3`` file that
+    starts with its format's magic bytes; a symbolic link is never followed.
 
     Raises:
-        BagError: ``path`` exists but is neither a bag folder nor a bag file.
+        BagError: ``path`` exists but is not a bag, or cannot be removed.
     """
     target = Path(path)
-    if not target.exists():
+    if not target.exists() and not target.is_symlink():
         return
-    if target.is_dir() and (target / 'metadata.yaml').exists():
-        shutil.rmtree(target)
-    elif target.is_file() and target.suffix in ('.mcap', '.db3'):
-        target.unlink()
-    else:
-        raise BagError(f'refusing to overwrite {target}: it is not a rosbag2 folder')
+    if target.is_symlink():
+        raise BagError(f'refusing to overwrite {target}: it is a symbolic link, not a rosbag2')
+    try:
+        if target.is_dir() and (target / 'metadata.yaml').is_file():
+            shutil.rmtree(target)
+        elif target.is_file() and target.suffix in _STORAGE_MAGIC:
+            magic = _STORAGE_MAGIC[target.suffix]
+            with target.open('rb') as stream:
+                head = stream.read(len(magic))
+            if head != magic:
+                raise BagError(
+                    f'refusing to overwrite {target}: it does not start like a '
+                    f'{target.suffix} bag file (expected {magic!r}; got {head!r})'
+                )
+            target.unlink()
+        else:
+            raise BagError(
+                f'refusing to overwrite {target}: it is not a rosbag2 folder '
+                f'(with metadata.yaml) or a .mcap/.db3 bag file'
+            )
+    except OSError as err:
+        raise BagError(f'cannot remove the old output bag {target}: {reason(err)}') from None
 
 
 class OutputBag:

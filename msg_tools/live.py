@@ -28,7 +28,7 @@ import threading
 import time
 from typing import Any
 
-from cva_confidence_ros.errors import BagError, ConfigError, InputError
+from cva_confidence_ros.errors import BagError, ConfigError, InputError, reason
 from msg_tools.bagio import InputBag
 from msg_tools.convert import camera_geometry, disparity_from_msg, jazzy_typestore, stamp_to_ns
 from msg_tools.progress import Progress
@@ -138,6 +138,10 @@ class NodeProcess:
         log_path: File that receives the node's stdout and stderr.
     """
 
+    #: Exit codes of a node that ended on :meth:`stop`'s SIGINT: 0 once it is up, 130 while
+    #: it is still importing, −SIGINT before its Python handles signals at all.
+    STOPPED_CODES = (0, 130, -signal.SIGINT)
+
     def __init__(self, options: ReplayOptions, log_path: Path) -> None:
         self.name = f'cva_confidence_replay_{os.getpid()}'
         command, self.env = _node_command()
@@ -146,14 +150,27 @@ class NodeProcess:
         self.process: subprocess.Popen[bytes] | None = None
 
     def start(self) -> NodeProcess:
-        """Start the node (returns at once; it is ready when its topics connect)."""
-        self.log_path.parent.mkdir(parents=True, exist_ok=True)
+        """Start the node (returns at once; it is ready when its topics connect).
+
+        The node runs in a session of its own: a Ctrl-C in the terminal goes to the replay
+        only, which then stops the node itself (:meth:`stop`), instead of reaching the node
+        too, possibly half-way through its imports.
+
+        Raises:
+            ConfigError: The log file cannot be written or the node cannot be started.
+        """
         env = dict(os.environ, PYTHONUNBUFFERED='1', **self.env)
-        with self.log_path.open('wb') as log:
-            self.process = subprocess.Popen(
-                self.command, stdout=log, stderr=subprocess.STDOUT, env=env,
-                stdin=subprocess.DEVNULL,
-            )
+        try:
+            self.log_path.parent.mkdir(parents=True, exist_ok=True)
+            with self.log_path.open('wb') as log:
+                self.process = subprocess.Popen(
+                    self.command, stdout=log, stderr=subprocess.STDOUT, env=env,
+                    stdin=subprocess.DEVNULL, start_new_session=True,
+                )
+        except OSError as err:
+            raise ConfigError(
+                f'cannot start cva-node with its log in {self.log_path}: {reason(err)}'
+            ) from None
         return self
 
     @property
@@ -170,22 +187,29 @@ class NodeProcess:
         return ' | '.join(line.strip() for line in lines[-count:])
 
     def stop(self, timeout: float = 10.0) -> int | None:
-        """Ctrl-C the node, then terminate and kill it if it does not exit."""
+        """Ctrl-C the node, then terminate and kill it if it does not exit.
+
+        Returns:
+            None when the node was never started; 0 when it was running and ended on the
+            Ctrl-C (with one of :attr:`STOPPED_CODES`); else its exit code: it had failed
+            before, failed on the way out, or had to be terminated or killed.
+        """
         process = self.process
         if process is None:
             return None
-        if process.poll() is None:
-            process.send_signal(signal.SIGINT)
+        if process.poll() is not None:
+            return process.returncode
+        process.send_signal(signal.SIGINT)
+        try:
+            code = process.wait(timeout)
+        except subprocess.TimeoutExpired:
+            process.terminate()
             try:
-                process.wait(timeout)
+                return process.wait(timeout)
             except subprocess.TimeoutExpired:
-                process.terminate()
-                try:
-                    process.wait(timeout)
-                except subprocess.TimeoutExpired:
-                    process.kill()
-                    process.wait()
-        return process.returncode
+                process.kill()
+                return process.wait()
+        return 0 if code in self.STOPPED_CODES else code
 
 
 @dataclass

@@ -14,17 +14,18 @@ from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 import importlib
+import math
 from pathlib import Path
 import sys
 from typing import Any
 
 import numpy as np
 
-from cva_confidence_ros.errors import BagError, ConfigError, InputError
+from cva_confidence_ros.errors import BagError, ConfigError, CVAError, InputError
 from cva_confidence_ros.pipeline import PipelineConfig, PipelineResult
 from cva_confidence_ros.pointcloud import StereoGeometry
 from cva_confidence_ros.sync import DEFAULT_KEYS
-from msg_tools.bagio import STORAGES, InputBag, OutputBag, remove_bag
+from msg_tools.bagio import STORAGES, InputBag, OutputBag, check_topic_name, remove_bag
 from msg_tools.convert import (
     CAMERA_INFO,
     DISPARITY_IMAGE,
@@ -62,6 +63,8 @@ _INPUT_TYPES = {'left': IMAGE, 'right': IMAGE, 'left_info': CAMERA_INFO, 'right_
 GT_TYPES = (DISPARITY_IMAGE, IMAGE)
 # Skips are counted always but logged only this often, so a bag of bad frames stays readable.
 _MAX_SKIP_LOGS = 20
+# Longest span rosbag2 timestamps (int64 nanoseconds) can express, in seconds.
+_MAX_SPAN_S = (2**63 - 1) / 1e9
 
 
 def log_stderr(message: str) -> None:
@@ -75,7 +78,8 @@ class TopicNames:
 
     Defaults are stereo_image_proc's names. A bag recorded under a camera namespace (e.g.
     ``/stereo/left/image_rect``) needs only ``prefix='/stereo'``; a name given absolute (with
-    a leading ``/``) is used as it is.
+    a leading ``/``) is used as it is. Every resolved name must be a valid ROS 2 topic name
+    (``bagio.check_topic_name``), or the node and ``ros2 bag play`` could not use it.
 
     Attributes:
         prefix: Namespace of every relative name ('' = root).
@@ -97,11 +101,15 @@ class TopicNames:
     disparity_filtered: str = 'disparity_filtered'
 
     def __post_init__(self) -> None:
+        prefix = str(self.prefix).strip('/')
+        if prefix:
+            check_topic_name(f'/{prefix}', 'topic prefix')
         for name, value in asdict(self).items():
-            if name != 'prefix' and not str(value).strip('/'):
+            if name == 'prefix':
+                continue
+            if not str(value).strip('/'):
                 raise ConfigError(f'topic {name} must be a non-empty name; got {value!r}')
-            if any(c.isspace() for c in str(value)):
-                raise ConfigError(f'topic {name} must not contain spaces; got {value!r}')
+            check_topic_name(self.resolve(name), f'topic {name}')
 
     def resolve(self, name: str) -> str:
         """The absolute topic name of ``name`` (which may be one of the attribute names)."""
@@ -128,8 +136,8 @@ class ReplayOptions:
 
     Attributes:
         bag: Input bag (folder, ``.mcap`` or ``.db3``).
-        out: Output bag folder to create.
-        report: Report folder.
+        out: Output bag folder to create; it must neither be nor hold nor lie in the input.
+        report: Report folder; not the output bag or the input bag, nor inside either.
         pipeline: The node's processing settings.
         topics: Topic names.
         gt_required: The ground-truth topic was asked for explicitly, so it must exist.
@@ -180,21 +188,61 @@ class ReplayOptions:
             raise ConfigError(f'storage must be one of {STORAGES}; got {self.storage!r}')
         if self.queue_size < 1:
             raise ConfigError(f'queue_size must be >= 1; got {self.queue_size}')
-        if self.sync_tolerance_s < 0:
-            raise ConfigError(f'sync tolerance must be >= 0 s; got {self.sync_tolerance_s}')
+        if not 0 <= self.sync_tolerance_s <= _MAX_SPAN_S:
+            raise ConfigError(
+                f'sync tolerance must be a finite number of seconds >= 0 (at most '
+                f'{_MAX_SPAN_S:.3g}, the span of int64 ns stamps); got {self.sync_tolerance_s}'
+            )
         if self.max_pixels is not None and self.max_pixels < 1:
             raise ConfigError(f'max_pixels must be >= 1; got {self.max_pixels}')
         if self.max_plots < 0:
             raise ConfigError(f'max_plots must be >= 0; got {self.max_plots}')
-        if not self.rate_scale > 0:
-            raise ConfigError(f'rate_scale must be > 0; got {self.rate_scale}')
-        if self.startup_timeout_s <= 0 or self.drain_timeout_s <= 0:
+        if not (math.isfinite(self.rate_scale) and self.rate_scale > 0):
+            raise ConfigError(f'rate_scale must be a finite number > 0; got {self.rate_scale}')
+        if not all(math.isfinite(t) and t > 0
+                   for t in (self.startup_timeout_s, self.drain_timeout_s)):
             raise ConfigError(
-                f'timeouts must be > 0 s; got startup {self.startup_timeout_s}, '
-                f'drain {self.drain_timeout_s}'
+                f'timeouts must be a finite number of seconds > 0; got startup '
+                f'{self.startup_timeout_s}, drain {self.drain_timeout_s}'
             )
-        if Path(self.out).resolve() == Path(self.bag).resolve():
-            raise ConfigError(f'the output bag must differ from the input bag {self.bag}')
+        self._check_paths()
+
+    def _check_paths(self) -> None:
+        """Refuse outputs that would write over the input or over each other, and a report
+        folder that cannot be made because a file is in the way.
+
+        ``--overwrite`` deletes the output bag first, so an output that is the input, holds
+        it or lies in it would destroy the input; a report folder in the output bag would
+        make the bag's folder exist before the bag is created.
+        """
+        bag, out, report = (Path(p).resolve() for p in (self.bag, self.out, self.report))
+        if out == bag or bag in out.parents:
+            raise ConfigError(
+                f'the output bag must lie outside the input bag; got --out {self.out} for the '
+                f'input {self.bag}'
+            )
+        if out in bag.parents:
+            raise ConfigError(
+                f'the output bag must not contain the input bag (--overwrite would delete '
+                f'it); got --out {self.out} for the input {self.bag}'
+            )
+        if report == out or out in report.parents:
+            raise ConfigError(
+                f'the report folder must lie outside the output bag; got --report '
+                f'{self.report} and --out {self.out}'
+            )
+        if report == bag or bag in report.parents:
+            raise ConfigError(
+                f'the report folder must lie outside the input bag; got --report '
+                f'{self.report} for the input {self.bag}'
+            )
+        existing = next(p for p in (report, *report.parents) if p.exists())
+        if existing == report and not report.is_dir():
+            raise ConfigError(f'the report folder {self.report} is a file; expected a folder')
+        if not existing.is_dir():
+            raise ConfigError(
+                f'cannot create the report folder {self.report}: {existing} is a file'
+            )
 
     def config_record(self) -> dict[str, Any]:
         """The ``config`` block of ``report.json``."""
@@ -226,6 +274,8 @@ class TopicPlan:
         ground_truth: Ground-truth topic, or None when the bag has none.
         ground_truth_type: Its message type ('' without one).
         pairs_expected: Number of left images in the bag (for the progress line).
+        input_counts: Absolute input topic → number of messages (as the bag's metadata
+            states).
     """
 
     inputs: dict[str, str]
@@ -233,6 +283,7 @@ class TopicPlan:
     ground_truth: str | None
     ground_truth_type: str
     pairs_expected: int
+    input_counts: dict[str, int] = field(default_factory=dict)
 
     @property
     def key_of(self) -> dict[str, str]:
@@ -263,12 +314,14 @@ def plan_topics(bag: InputBag, options: ReplayOptions, log: Logger = log_stderr)
     else:
         log(f'no ground-truth topic {gt_topic} in the bag: frames are processed, not scored')
         gt_topic = None
+    counts = bag.message_counts
     return TopicPlan(
         inputs=inputs,
         input_types=types,
         ground_truth=gt_topic,
         ground_truth_type=gt_type,
-        pairs_expected=bag.message_counts.get(inputs['left'], 0),
+        pairs_expected=counts.get(inputs['left'], 0),
+        input_counts={topic: counts.get(topic, 0) for topic in inputs.values()},
     )
 
 
@@ -485,11 +538,13 @@ class ReplaySession:
         self._skip_logs = 0
 
     def __enter__(self) -> ReplaySession:
+        # The report folder first: a --report that cannot be created must not cost the old
+        # output bag that --overwrite was about to delete.
+        self.writer = ReportWriter(self.options.report, self.options.max_plots)
         if self.options.overwrite:
             remove_bag(self.options.out)
         self.interrupts.__enter__()
         try:
-            self.writer = ReportWriter(self.options.report, self.options.max_plots)
             self.out = OutputBag(self.options.out, self.options.storage)
             self.out.open()
         except BaseException:
@@ -643,7 +698,14 @@ class ReplaySession:
                 f'{self.report.error}; {done} frames were done before ({where})',
             )
         if done == 0:
-            if counts['pairs'] == 0:
+            empty = [topic for topic, n in self.plan.input_counts.items() if n == 0]
+            if counts['pairs'] == 0 and empty:
+                reason = (
+                    f'the input topic{"s" if len(empty) > 1 else ""} {", ".join(empty)} '
+                    f'hold{"" if len(empty) > 1 else "s"} no messages in bag '
+                    f'{self.options.bag}: there is nothing to pair'
+                )
+            elif counts['pairs'] == 0:
                 reason = (
                     'no stereo pair matched by stamp: left/right images and camera infos '
                     'must share header stamps (or use --approximate-sync with '
@@ -679,7 +741,7 @@ _PRELOAD = (
     'cva_confidence_ros.datasets',
     'cva_confidence_ros.pointcloud',
     'cva_confidence_ros.ros.convert',
-    'cva_confidence_ros.node',
+    'cva_confidence_ros.ros.confidence_node',
     'rclpy.serialization',
     'rosbags.serde',
 )
@@ -716,7 +778,8 @@ def run_offline(options: ReplayOptions, log: Logger = log_stderr) -> ReplayOutco
 
     Raises:
         BagError: The bag cannot be opened or lacks an input topic (nothing is written).
-        ConfigError, ModelError: The pipeline cannot be built (nothing is written).
+        ConfigError, ModelError: The pipeline cannot be built, or the report folder cannot be
+            created (nothing is written).
     """
     from rosbags.serde import SerdeError
 
@@ -761,7 +824,9 @@ def _process_pair(session: ReplaySession, pipeline: Any, matched: Any, frame: in
     try:
         left, right, geometry = stereo_inputs(items)
         result = pipeline.process(left, right)
-    except InputError as err:
+    except CVAError as err:
+        # As the node does: whatever the pipeline refuses for one frame's data (bad images,
+        # or a frame narrower than max_disparity, a ConfigError) drops that frame only.
         session.skip(f'frame {frame} (stamp {matched.stamp_ns} ns)', err)
         return
     outputs = node_outputs(

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from cva_confidence_ros.errors import InputError
+from cva_confidence_ros.errors import ConfigError, InputError, reason
 
 __all__ = [
     'FrameScore',
@@ -214,15 +214,25 @@ class ReportWriter:
     frames (written as frames come, while their arrays exist), and ``auc_over_time.png``.
 
     Args:
-        folder: Report folder (created).
+        folder: Report folder (created, with its parents, if it does not exist).
         max_plots: Number of frames that get per-frame PNGs (0 = none).
+
+    Raises:
+        ConfigError: ``folder`` is an existing file, or cannot be created.
     """
 
     def __init__(self, folder: str | Path, max_plots: int = 10) -> None:
         self.folder = Path(folder)
         self.max_plots = max_plots
         self._plotted = 0
-        self.folder.mkdir(parents=True, exist_ok=True)
+        if self.folder.exists() and not self.folder.is_dir():
+            raise ConfigError(f'the report folder {self.folder} is a file; expected a folder')
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise ConfigError(
+                f'cannot create the report folder {self.folder}: {reason(err)}'
+            ) from None
 
     def frame_plots(
         self, score: FrameScore, confidence: np.ndarray, label: str

@@ -157,3 +157,85 @@ def write_stereo_bag(
                     continue
                 bag.write(f'{prefix}/{topic}', msgtype, message, stamp)
     return path
+
+
+def write_topics_without_messages(path: Path, topics: dict[str, str]) -> Path:
+    """A bag that declares ``topics`` (name → type) but holds no message on them, as
+    ``ros2 bag record`` leaves one that saw the topics advertised and nothing published."""
+    from rosbags.rosbag2 import Writer
+
+    store = jazzy_typestore()
+    writer = Writer(path, version=8)
+    writer.open()
+    for topic, msgtype in topics.items():
+        writer.add_connection(topic, msgtype, typestore=store)
+    writer.close()
+    return path
+
+
+def _mcap_message_records(data: bytes) -> list[int]:
+    """Offsets of the message records (opcode 0x05) inside the uncompressed chunks."""
+    offsets = []
+    position = 8  # after the magic
+    while position + 9 <= len(data):
+        opcode = data[position]
+        length = int.from_bytes(data[position + 1 : position + 9], 'little')
+        if opcode == 0x06:  # chunk: start, end, uncompressed size, crc, compression, records
+            field = position + 9 + 8 + 8 + 8 + 4
+            compression = int.from_bytes(data[field : field + 4], 'little')
+            field += 4 + compression
+            size = int.from_bytes(data[field : field + 8], 'little')
+            record = field + 8
+            while record < field + 8 + size:
+                if data[record] == 0x05:
+                    offsets.append(record)
+                record += 9 + int.from_bytes(data[record + 1 : record + 9], 'little')
+        elif opcode == 0x0F:  # footer
+            break
+        position += 9 + length
+    return offsets
+
+
+def break_storage(bag: Path) -> int:
+    """Damage a bag's storage file so that it opens but fails while its messages are read.
+
+    MCAP: a message record in the middle of the first chunk gets the length 2**64 − 1 (the
+    reader overflows seeking past it). sqlite3: the overflow-page pointer of one page in the
+    second half of the file becomes 0xffffffff, the first such page that ``rosbags`` fails on
+    after some messages (SQLite reports the file as malformed).
+
+    Returns:
+        The number of messages ``rosbags`` reads before the failure.
+    """
+    from rosbags.rosbag2 import Reader
+
+    def read_count() -> tuple[int, bool]:
+        count = 0
+        try:
+            with Reader(bag) as reader:
+                for _ in reader.messages():
+                    count += 1
+        except Exception:  # noqa: BLE001  (whatever the damage makes the library raise)
+            return count, True
+        return count, False
+
+    [storage] = [p for p in bag.iterdir() if p.suffix in ('.mcap', '.db3')]
+    original = storage.read_bytes()
+    if storage.suffix == '.mcap':
+        records = _mcap_message_records(original)
+        damaged = bytearray(original)
+        middle = records[len(records) // 2]
+        damaged[middle + 1 : middle + 9] = b'\xff' * 8
+        storage.write_bytes(damaged)
+        count, failed = read_count()
+        assert failed
+        return count
+    page_size = 4096
+    for page in range(len(original) // page_size // 2, len(original) // page_size):
+        damaged = bytearray(original)
+        damaged[page * page_size : page * page_size + 4] = b'\xff' * 4
+        storage.write_bytes(damaged)
+        count, failed = read_count()
+        if failed and count > 0:
+            return count
+    raise AssertionError(f'no page of {storage} fails part-way when damaged')

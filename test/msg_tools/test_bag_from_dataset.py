@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from cva_confidence_ros.datasets import load_dataset
-from msg_tools.bag_from_dataset import DEFAULT_START_TIME_S, main
+from cva_confidence_ros.errors import ConfigError
+from msg_tools.bag_from_dataset import DEFAULT_START_TIME_S, MAX_STAMP_S, BagSpec, main
 from msg_tools.convert import disparity_from_msg, stamp_to_ns
 from msg_tools.replay import stereo_inputs
 
@@ -100,6 +101,14 @@ def test_motorcycle_needs_no_root(tmp_path: Path) -> None:
         (['--dataset', 'kitti2015'], '--data-root'),
         (['--dataset', 'motorcycle', '--rate', '0'], 'rate'),
         (['--dataset', 'motorcycle', '--max-frames', '0'], 'max-frames'),
+        # Header stamps hold int32 seconds: these would not serialise.
+        (['--dataset', 'motorcycle', '--start-time', '3e9'], 'start time must be 0 to'),
+        (['--dataset', 'motorcycle', '--rate', '1e-9'], 'rate 1e-09 Hz puts frame 1 at'),
+        (['--dataset', 'motorcycle', '--rate', '1e12'], 'at most 1e+09'),
+        # Topics ROS 2 could not play.
+        (['--dataset', 'motorcycle', '--topic-prefix', 'a b'], 'topic prefix must be a valid'),
+        (['--dataset', 'motorcycle', '--topic-prefix', '/1bad//x'], "got '/1bad//x'"),
+        (['--dataset', 'motorcycle', '--topic-prefix', '/stereo/2'], 'start with a digit'),
         (['--dataset', 'middlebury2014', '--data-root', 'EMPTY'], 'middlebury2014'),
     ],
 )
@@ -124,3 +133,39 @@ def test_existing_output_is_refused_unless_overwritten(
     assert 'exists already' in capsys.readouterr().err
     assert main([*args, '--overwrite', '--storage', 'sqlite3']) == 0
     assert 'sqlite3' in (bag / 'metadata.yaml').read_text()
+
+
+@pytest.mark.parametrize('name', ['notes.mcap', 'notes.db3', 'plain_folder'])
+def test_overwrite_refuses_what_is_not_a_bag(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], name: str
+) -> None:
+    target = tmp_path / name
+    if name == 'plain_folder':
+        target.mkdir()
+        (target / 'keep.txt').write_text('mine\n')
+    else:
+        target.write_text('mine\n')
+    code = main(['--dataset', 'motorcycle', '--out', str(target), '--overwrite'])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert f'refusing to overwrite {target}' in err and len(err.strip().splitlines()) == 1
+    assert (target / 'keep.txt' if target.is_dir() else target).read_text() == 'mine\n'
+
+
+def test_stamps_past_int32_seconds_are_refused() -> None:
+    spec = BagSpec(start_time_s=MAX_STAMP_S - 10, rate_hz=1.0)
+    assert spec.stamp_ns(10) == MAX_STAMP_S * 10**9
+    with pytest.raises(ConfigError, match='frame 11 would be stamped 2147483648 s'):
+        spec.stamp_ns(11)
+    for bad in ({'start_time_s': MAX_STAMP_S + 1}, {'start_time_s': MAX_STAMP_S, 'rate_hz': 1},
+                {'rate_hz': 1e-9}, {'start_time_s': float('nan')}):
+        with pytest.raises(ConfigError):
+            BagSpec(**bad)
+
+
+def test_topic_names_are_checked_like_ros2() -> None:
+    assert BagSpec(topic_prefix='/stereo/').topic('left/image_rect') == '/stereo/left/image_rect'
+    for bad in ({'topic_prefix': 'a b'}, {'topic_prefix': '/1bad//x'},
+                {'gt_topic': 'ground truth'}, {'gt_topic': '/'}):
+        with pytest.raises(ConfigError):
+            BagSpec(**bad)

@@ -10,12 +10,20 @@ import subprocess
 import sys
 import time
 
-from msg_test_utils import MAX_DISPARITY, read_bag, textured_pair, write_stereo_bag
+from msg_test_utils import (
+    MAX_DISPARITY,
+    break_storage,
+    read_bag,
+    textured_pair,
+    write_stereo_bag,
+    write_topics_without_messages,
+)
 import numpy as np
 import pytest
 
 import msg_tools
 from msg_tools.bag_replay import main
+from msg_tools.convert import CAMERA_INFO, IMAGE
 
 ROOT = Path(msg_tools.__file__).resolve().parents[1]
 
@@ -63,6 +71,29 @@ def test_corrupt_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str], damage:
             'processed']
 
 
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_storage_that_fails_part_way(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], storage: str
+) -> None:
+    # Images large enough that SQLite chains overflow pages, which it reads only on iteration.
+    frames = [dict(zip(('left', 'right'), textured_pair(100, 120, 4, i), strict=True))
+              for i in range(6)]
+    bag = write_stereo_bag(tmp_path / 'in', frames, storage=storage)
+    read = break_storage(bag)
+    code, err, report = _run(bag, tmp_path, capsys)
+    assert code == 2
+    line = _last_line(err)
+    assert line.startswith(f'cva-bag-replay: error: bag {bag} is corrupt or truncated after '
+                           f'{read} messages: ')
+    assert ('OverflowError' if storage == 'mcap' else 'CorruptError') in line
+    # The frames done before the fault are in a readable output bag and in the report.
+    summary = report['summary']
+    assert 'corrupt or truncated' in summary['error']
+    assert len(read_bag(tmp_path / 'out').get('/disparity', [])) == summary['processed']
+    if storage == 'sqlite3':
+        assert summary['processed'] > 0
+
+
 def test_missing_topic(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     bag = write_stereo_bag(tmp_path / 'in', [{}], skip_topics=('right/camera_info',))
     code, err, _ = _run(bag, tmp_path, capsys)
@@ -105,6 +136,63 @@ def test_single_bad_frames_are_skipped_and_counted(
     assert len(read_bag(tmp_path / 'out')['/disparity']) == 2
 
 
+def test_frame_narrower_than_max_disparity_is_skipped(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    tiny = np.full((1, 1), 7, np.uint8)
+    bag = write_stereo_bag(tmp_path / 'in', [{'left': tiny, 'right': tiny}, {}, {}])
+    code, err, report = _run(bag, tmp_path, capsys)
+    assert code == 0
+    summary = report['summary']
+    assert (summary['pairs'], summary['processed'], summary['skipped']) == (3, 2, 1)
+    assert [f['frame'] for f in report['frames']] == [1, 2]
+    assert 'skipped frame 0' in err and 'smaller than the image width 1' in err
+    assert len(read_bag(tmp_path / 'out')['/disparity']) == 2
+
+
+@pytest.mark.parametrize('empty', [
+    ('/left/image_rect', '/right/image_rect', '/left/camera_info', '/right/camera_info'),
+    ('/right/image_rect',),
+])
+def test_input_topics_without_messages(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], empty: tuple[str, ...]
+) -> None:
+    types = {'/left/image_rect': IMAGE, '/right/image_rect': IMAGE,
+             '/left/camera_info': CAMERA_INFO, '/right/camera_info': CAMERA_INFO}
+    if len(empty) == len(types):
+        bag = write_topics_without_messages(tmp_path / 'in', types)
+    else:
+        bag = write_stereo_bag(tmp_path / 'in', [{}, {}], skip_topics=('right/image_rect',))
+        # The topic is declared (its connection exists) but carries nothing.
+        bag = _with_declared_topics(bag, tmp_path / 'in2', {'/right/image_rect': IMAGE})
+    code, err, _ = _run(bag, tmp_path, capsys)
+    assert code == 2
+    line = _last_line(err)
+    topics = ', '.join(empty)
+    verb = 'hold' if len(empty) > 1 else 'holds'
+    assert f'{topics} {verb} no messages in bag {bag}' in line
+    assert 'matched by stamp' not in line
+
+
+def _with_declared_topics(bag: Path, out: Path, extra: dict[str, str]) -> Path:
+    """A copy of ``bag`` that also declares ``extra`` topics, without messages on them."""
+    from rosbags.rosbag2 import Reader, Writer
+
+    from msg_tools.convert import jazzy_typestore
+
+    store = jazzy_typestore()
+    with Reader(bag) as reader, Writer(out, version=8) as writer:
+        connections = {
+            conn.id: writer.add_connection(conn.topic, conn.msgtype, typestore=store)
+            for conn in reader.connections
+        }
+        for topic, msgtype in extra.items():
+            writer.add_connection(topic, msgtype, typestore=store)
+        for conn, timestamp, data in reader.messages():
+            writer.write(connections[conn.id], timestamp, data)
+    return out
+
+
 def test_unpaired_stamps(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     frames = [{'stamp_right': 1_700_000_000 * 10**9 + i * 100_000_000 + 2_000_000}
               for i in range(3)]
@@ -124,13 +212,97 @@ def test_bad_options(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None
     for extra, message in (
         (('--matcher', 'nope'), "unknown matcher 'nope'"),
         (('--downsample', '3'), 'downsample must be 1, 2 or 4'),
-        (('--rate-scale', '0'), 'rate_scale must be > 0'),
+        (('--rate-scale', '0'), 'rate_scale must be a finite number > 0'),
+        (('--rate-scale', 'inf'), 'rate_scale must be a finite number > 0'),
+        (('--approximate-sync', '--sync-tolerance', 'nan'), 'sync tolerance must be a finite'),
+        (('--approximate-sync', '--sync-tolerance', 'inf'), 'sync tolerance must be a finite'),
+        (('--approximate-sync', '--sync-tolerance', '1e300'), 'sync tolerance must be a finite'),
+        (('--mode', 'live', '--no-start-node', '--startup-timeout', 'nan'), 'timeouts must be'),
+        (('--mode', 'live', '--drain-timeout', 'inf'), 'timeouts must be'),
+        (('--topic-prefix', 'a b'), 'topic prefix must be a valid ROS 2 topic name'),
+        (('--left-topic', '1cam/image'), 'topic left must be a valid ROS 2 topic name'),
     ):
         code, err, _ = _run(bag, tmp_path, capsys, *extra)
         assert code == 2 and message in err and len(err.strip().splitlines()) == 1
+        assert not (tmp_path / 'out').exists() and not (tmp_path / 'report').exists()
     assert _run(bag, tmp_path, capsys)[0] == 0
     code, err, _ = _run(bag, tmp_path, capsys)
     assert code == 2 and 'exists already' in err
+
+
+def _replay_into(bag: Path, out: Path, report: Path, *extra: str) -> int:
+    return main([str(bag), '--out', str(out), '--report', str(report), '--max-disparity',
+                 str(MAX_DISPARITY), '--confidence-method', 'pkrn', *extra])
+
+
+def test_overwrite_never_deletes_the_input(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bag = write_stereo_bag(tmp_path / 'in', [{}])
+    storage = bag / 'in.mcap'
+    before = {p.name: p.read_bytes() for p in bag.iterdir()}
+    for bag_arg, out, message in (
+        (bag, bag, 'must lie outside the input bag'),
+        (bag, storage, 'must lie outside the input bag'),  # --out in the input folder
+        (bag, bag / 'sub' / 'out', 'must lie outside the input bag'),
+        (storage, bag, 'must not contain the input bag'),  # --out holds the input file
+        (storage, tmp_path, 'must not contain the input bag'),
+        (tmp_path / 'link' / 'in.mcap', bag, 'must not contain the input bag'),
+    ):
+        if not (tmp_path / 'link').exists():
+            (tmp_path / 'link').symlink_to(bag)  # the same folder under another name
+        code = _replay_into(bag_arg, out, tmp_path / 'report', '--overwrite')
+        err = capsys.readouterr().err
+        assert code == 2 and 'Traceback' not in err
+        assert message in err and len(err.strip().splitlines()) == 1
+        assert {p.name: p.read_bytes() for p in bag.iterdir()} == before
+    assert not (tmp_path / 'report').exists()
+
+
+def test_overwrite_refuses_what_is_not_a_bag(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bag = write_stereo_bag(tmp_path / 'in', [{}])
+    text = tmp_path / 'notes.mcap'
+    text.write_text('not a bag\n')
+    code = _replay_into(bag, text, tmp_path / 'report', '--overwrite')
+    assert code == 2
+    assert 'refusing to overwrite' in capsys.readouterr().err
+    assert text.read_text() == 'not a bag\n'
+
+
+@pytest.mark.parametrize('mode', ['offline', 'live'])
+def test_bad_report_path(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], mode: str
+) -> None:
+    bag = write_stereo_bag(tmp_path / 'in', [{}])
+    plain = tmp_path / 'plain.txt'
+    plain.write_text('x')
+    for report, message in (
+        (plain, f'the report folder {plain} is a file; expected a folder'),
+        (plain / 'sub', f'cannot create the report folder {plain / "sub"}: {plain} is a file'),
+    ):
+        code = _replay_into(bag, tmp_path / 'out', report, '--mode', mode, '--no-start-node',
+                            '--startup-timeout', '1')
+        err = capsys.readouterr().err
+        assert code == 2 and 'Traceback' not in err
+        assert err.strip() == f'cva-bag-replay: error: {message}'
+        assert not (tmp_path / 'out').exists()
+
+
+def test_report_and_output_must_not_overlap(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bag = write_stereo_bag(tmp_path / 'in', [{}])
+    for report in (tmp_path / 'out', tmp_path / 'out' / 'report'):
+        code = _replay_into(bag, tmp_path / 'out', report)
+        err = capsys.readouterr().err
+        assert code == 2 and len(err.strip().splitlines()) == 1
+        assert 'the report folder must lie outside the output bag' in err
+        assert not (tmp_path / 'out').exists()
+    # The output bag may go inside the report folder.
+    assert _replay_into(bag, tmp_path / 'run' / 'bag', tmp_path / 'run') == 0
+    assert len(read_bag(tmp_path / 'run' / 'bag')['/disparity']) == 1
 
 
 def test_ctrl_c_leaves_a_readable_bag(tmp_path: Path) -> None:

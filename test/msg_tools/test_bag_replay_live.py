@@ -3,7 +3,12 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
+import signal
+import subprocess
+import sys
+import time
 
 from msg_test_utils import MAX_DISPARITY, dataset_bag, domain_id, read_bag
 import numpy as np
@@ -14,8 +19,11 @@ from cva_confidence_ros.ros.convert import (
     disparity_from_message,
     float_image_to_array,
 )
+import msg_tools
 from msg_tools.bag_replay import main
 from msg_tools.convert import stamp_to_ns
+
+ROOT = Path(msg_tools.__file__).resolve().parents[1]
 
 METRICS = ('error_rate', 'auc', 'auc_opt', 'kept_density', 'kept_error_rate', 'n_pixels')
 
@@ -82,3 +90,50 @@ def test_no_node_to_connect_to(tmp_path: Path, capsys: pytest.CaptureFixture[str
     assert err.startswith('cva-bag-replay: error: no node connected to /left/image_rect')
     assert 'drop --no-start-node' in err
     assert not (tmp_path / 'live_bag').exists()
+
+
+def _processes_with(argument: str) -> list[int]:
+    """Pids of the running processes whose command line holds ``argument``."""
+    found = []
+    for entry in Path('/proc').iterdir():
+        try:
+            if entry.name.isdigit() and argument in entry.joinpath('cmdline').read_bytes().decode(
+                errors='replace'
+            ).split('\0'):
+                found.append(int(entry.name))
+        except OSError:
+            pass  # ended meanwhile
+    return found
+
+
+def _restore_sigint() -> None:
+    # As a terminal's foreground job has it, even when the tests run with SIGINT ignored.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+@pytest.mark.timeout(90)
+def test_ctrl_c_during_start_up_reaches_the_replay_only(tmp_path: Path) -> None:
+    bag = dataset_bag(tmp_path, 'mcap', 1)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        p for p in (str(ROOT), os.environ.get('PYTHONPATH', '')) if p))
+    replay = subprocess.Popen(
+        [sys.executable, '-m', 'msg_tools.bag_replay', str(bag), '--mode', 'live',
+         '--out', str(tmp_path / 'out'), '--report', str(tmp_path / 'report'),
+         '--max-disparity', str(MAX_DISPARITY), '--confidence-method', 'pkrn'],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+        start_new_session=True, preexec_fn=_restore_sigint,
+    )
+    assert replay.stderr is not None
+    for line in replay.stderr:
+        if 'started cva-node' in line:
+            break
+    [node] = _processes_with(f'__node:=cva_confidence_replay_{replay.pid}')
+    assert os.getsid(node) != os.getsid(replay.pid)  # a session (and process group) of its own
+    time.sleep(0.5)  # the node is still starting
+    os.killpg(replay.pid, signal.SIGINT)  # Ctrl-C in a terminal: the foreground process group
+    _, err = replay.communicate(timeout=60)
+    assert replay.returncode == 130, err
+    assert 'Traceback' not in err and 'cva-node exited' not in err, err
+    assert err.strip().endswith('cva-bag-replay: interrupted')
+    assert 'Traceback' not in (tmp_path / 'report' / 'node.log').read_text()
+    assert not _processes_with(f'__node:=cva_confidence_replay_{replay.pid}')  # stopped
