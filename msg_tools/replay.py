@@ -330,9 +330,8 @@ def stereo_inputs(
 ) -> tuple[np.ndarray, np.ndarray, StereoGeometry]:
     """Decode one matched set of messages into the pipeline's inputs, as the node does.
 
-    The node's own decoders are used (``ros.convert.image_to_array``, ``pair_to_uint8``,
-    ``camera_info_to_geometry``; they read the message fields only, so ``rosbags`` messages
-    work), with the node's checks in the node's order, so a frame the node would drop is
+    The node's own decoder is used (``ros.convert.stereo_pair_from_messages``; it reads the
+    message fields only, so ``rosbags`` messages work), so a frame the node would drop is
     skipped here for the same reason.
 
     Args:
@@ -345,22 +344,11 @@ def stereo_inputs(
     Raises:
         InputError: Unknown encoding, camera infos that do not fit, or size mismatches.
     """
-    from cva_confidence_ros.ros.convert import (
-        camera_info_to_geometry,
-        image_to_array,
-        pair_to_uint8,
-    )
+    from cva_confidence_ros.ros.convert import stereo_pair_from_messages
 
-    left, right = image_to_array(items['left']), image_to_array(items['right'])
-    if left.shape[:2] != right.shape[:2]:
-        raise InputError(
-            f'left and right images must have the same size; got '
-            f'{left.shape[1]}×{left.shape[0]} and {right.shape[1]}×{right.shape[0]}'
-        )
-    left, right = pair_to_uint8(left, right)
-    height, width = left.shape[:2]
-    geometry = camera_info_to_geometry(items['left_info'], items['right_info'], width, height)
-    return left, right, geometry
+    return stereo_pair_from_messages(
+        items['left'], items['right'], items['left_info'], items['right_info']
+    )
 
 
 @dataclass

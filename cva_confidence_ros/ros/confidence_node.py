@@ -32,7 +32,7 @@ from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
-from cva_confidence_ros.errors import CVAError, InputError, reason
+from cva_confidence_ros.errors import CVAError, reason
 from cva_confidence_ros.pipeline import PipelineConfig, PipelineResult, StereoPipeline
 from cva_confidence_ros.pointcloud import (
     StereoGeometry,
@@ -42,13 +42,11 @@ from cva_confidence_ros.pointcloud import (
 )
 from cva_confidence_ros.ros.convert import (
     array_to_image,
-    camera_info_to_geometry,
     cloud_to_message,
     disparity_to_message,
-    image_to_array,
-    pair_to_uint8,
     scale_camera_info,
     stamp_to_ns,
+    stereo_pair_from_messages,
 )
 from cva_confidence_ros.ros.params import (
     PARAMETERS,
@@ -391,17 +389,9 @@ class ConfidenceNode(Node):
 
     def _process(self, item: MatchedSet) -> None:
         start = time.perf_counter()
-        left_msg, right_msg = item.items['left'], item.items['right']
-        left, right = image_to_array(left_msg), image_to_array(right_msg)
-        if left.shape[:2] != right.shape[:2]:
-            raise InputError(
-                f'left and right images must have the same size; got '
-                f'{left.shape[1]}×{left.shape[0]} and {right.shape[1]}×{right.shape[0]}'
-            )
-        left, right = pair_to_uint8(left, right)
-        height, width = left.shape[:2]
-        geometry = camera_info_to_geometry(
-            item.items['left_info'], item.items['right_info'], width, height
+        left_msg = item.items['left']
+        left, right, geometry = stereo_pair_from_messages(
+            left_msg, item.items['right'], item.items['left_info'], item.items['right_info']
         )
         with self._lock:
             pipeline, config, node_config = (

@@ -11,6 +11,8 @@ Conventions follow ``stereo_image_proc`` so that the node drops into existing pi
 
 from __future__ import annotations
 
+from typing import Any
+
 from builtin_interfaces.msg import Time
 import numpy as np
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField, RegionOfInterest
@@ -34,6 +36,7 @@ __all__ = [
     'pair_to_uint8',
     'scale_camera_info',
     'stamp_to_ns',
+    'stereo_pair_from_messages',
 ]
 
 # encoding → (channels, bytes per channel, index order to RGB or None for gray)
@@ -202,6 +205,34 @@ def camera_info_to_geometry(
                 f'got {info.width}×{info.height}'
             )
     return StereoGeometry.from_projections(left_info.p, right_info.p)
+
+
+def stereo_pair_from_messages(
+    left_msg: Any, right_msg: Any, left_info: Any, right_info: Any
+) -> tuple[np.ndarray, np.ndarray, StereoGeometry]:
+    """Decode a matched set of stereo messages into the pipeline's inputs.
+
+    The node and the bag replay both use it, so a frame the node would drop is dropped by the
+    replay for the same reason. Only message fields are read: rclpy and ``rosbags`` messages
+    both work.
+
+    Returns:
+        ``(left, right, geometry)``: uint8 images (RGB or gray) and the stereo geometry at
+        their resolution.
+
+    Raises:
+        InputError: Unknown encoding, images of different sizes or bit depths, or camera
+            infos that do not fit them.
+    """
+    left, right = image_to_array(left_msg), image_to_array(right_msg)
+    if left.shape[:2] != right.shape[:2]:
+        raise InputError(
+            f'left and right images must have the same size; got '
+            f'{left.shape[1]}×{left.shape[0]} and {right.shape[1]}×{right.shape[0]}'
+        )
+    left, right = pair_to_uint8(left, right)
+    height, width = left.shape[:2]
+    return left, right, camera_info_to_geometry(left_info, right_info, width, height)
 
 
 def scale_camera_info(info: CameraInfo, factor: int, header: Header) -> CameraInfo:

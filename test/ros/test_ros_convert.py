@@ -24,6 +24,7 @@ from cva_confidence_ros.ros.convert import (
     pair_to_uint8,
     scale_camera_info,
     stamp_to_ns,
+    stereo_pair_from_messages,
 )
 
 RGB = np.array([[[10, 20, 30], [40, 50, 60], [70, 80, 90]]], np.uint8)  # 1×3 pixels
@@ -130,6 +131,25 @@ def test_camera_info_geometry_and_size_check() -> None:
     right_info.p[3] = np.nan
     with pytest.raises(InputError, match='finite'):
         camera_info_to_geometry(left_info, right_info, 96, 64)
+
+
+def test_stereo_pair_from_messages() -> None:
+    rng = np.random.default_rng(0)
+    mono16 = rng.integers(0, 4096, (64, 96), dtype=np.uint16)  # a 12-bit camera
+    infos = info_msgs(0, height=64, width=96, fx=100.0, baseline=0.1)
+    left, right, geometry = stereo_pair_from_messages(
+        image_msg(mono16, 0), image_msg(mono16 // 2, 0), *infos
+    )
+    assert left.dtype == right.dtype == np.uint8 and left.max() == 255
+    assert geometry.baseline == pytest.approx(0.1)
+    narrow = image_msg(np.zeros((64, 95), np.uint16), 0)
+    with pytest.raises(InputError, match='same size; got 96×64 and 95×64'):
+        stereo_pair_from_messages(image_msg(mono16, 0), narrow, *infos)
+    with pytest.raises(InputError, match='must both be 8-bit or both 16-bit'):
+        stereo_pair_from_messages(image_msg(mono16, 0), image_msg(left, 0), *infos)
+    with pytest.raises(InputError, match='camera info must be for 48×32'):
+        small = image_msg(mono16[::2, ::2].copy(), 0)
+        stereo_pair_from_messages(small, small, *infos)
 
 
 def test_disparity_message_like_stereo_image_proc() -> None:
