@@ -7,6 +7,7 @@ import math
 
 import pytest
 import torch
+from train_test_utils import TINY as TINY_RUN
 
 from cva_confidence_ros.errors import ConfigError, ModelError
 from cva_confidence_ros.model import CVANet, CVANetLite, load_weights, save_weights
@@ -19,21 +20,7 @@ from cva_confidence_ros.training.distill import (
     transfer_state,
 )
 
-TINY = [
-    '--matcher', 'census_bm',
-    '--max-disparity', '16',
-    '--synthetic', '2',
-    '--synthetic-size', '24x40',
-    '--val-synthetic', '1',
-    '--val-pixels', '40',
-    '--batch-size', '16',
-    '--samples-per-epoch', '32',
-    '--epochs', '1',
-    '--epochs-low-lr', '0',
-    '--seed', '7',
-    '--threads', '1',
-    '--no-progress',
-]  # fmt: skip
+TINY = [*TINY_RUN, '--epochs', '1', '--epochs-low-lr', '0']
 
 
 @pytest.fixture(autouse=True)

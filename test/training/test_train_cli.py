@@ -8,25 +8,12 @@ from pathlib import Path
 
 import pytest
 import torch
+from train_test_utils import TINY
 
 from cva_confidence_ros.errors import ConfigError
 from cva_confidence_ros.model import CVANet, load_weights, save_weights
 from cva_confidence_ros.training import TrainConfig
 from cva_confidence_ros.training.cli import main
-
-TINY = [
-    '--matcher', 'census_bm',
-    '--max-disparity', '16',
-    '--synthetic', '2',
-    '--synthetic-size', '24x40',
-    '--val-synthetic', '1',
-    '--val-pixels', '40',
-    '--batch-size', '16',
-    '--samples-per-epoch', '32',
-    '--seed', '7',
-    '--threads', '1',
-    '--no-progress',
-]  # fmt: skip
 
 
 @pytest.fixture(autouse=True)

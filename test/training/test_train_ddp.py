@@ -12,28 +12,18 @@ import subprocess
 import sys
 
 import torch
+from train_test_utils import TINY
 
 from cva_confidence_ros.model import load_weights
 
-TINY = [
-    '--matcher', 'census_bm',
-    '--max-disparity', '16',
-    '--synthetic', '2',
-    '--synthetic-size', '24x40',
-    '--val-synthetic', '1',
-    '--val-pixels', '40',
-    '--batch-size', '16',
-    '--samples-per-epoch', '64',
-    '--seed', '7',
-    '--threads', '1',
-    '--no-progress',
-]  # fmt: skip
+# 64 samples an epoch: 32 for each of the two processes.
+RUN = [*TINY, '--samples-per-epoch', '64']
 
 
 def _torchrun(*args: str) -> subprocess.CompletedProcess[str]:
     command = [
         sys.executable, '-m', 'torch.distributed.run', '--standalone', '--nproc-per-node', '2',
-        '-m', 'cva_confidence_ros.training.cli', *TINY, *args,
+        '-m', 'cva_confidence_ros.training.cli', *RUN, *args,
     ]  # fmt: skip
     env = {**os.environ, 'OMP_NUM_THREADS': '1'}
     done = subprocess.run(command, capture_output=True, text=True, timeout=300, env=env)
