@@ -556,16 +556,8 @@ def _init(args: list[str]) -> None:
 
 
 def run(argv: Sequence[str] | None = None) -> int:
-    """Run the node until Ctrl-C or SIGTERM (what :func:`cva_confidence_ros.node.main` calls).
-
-    Args:
-        argv: Command line including ROS arguments (``--ros-args -p max_disparity:=128 -r
-            left/image_rect:=/cam/left/image``); None = ``sys.argv``.
-
-    Returns:
-        0 on a clean stop, 2 when the ROS arguments or the start-up configuration are invalid,
-        130 when interrupted before the node is up.
-    """
+    """Run the node until Ctrl-C or SIGTERM: the body of :func:`cva_confidence_ros.node.main`,
+    with its arguments and exit codes (imported by it once a Ctrl-C can be caught)."""
     args = list(sys.argv if argv is None else argv)
     logger = rclpy.logging.get_logger(NODE_NAME)
     node: ConfidenceNode | None = None
