@@ -27,6 +27,7 @@ from cva_confidence_ros.model import (
     load_weights,
     resolve_device,
 )
+from cva_confidence_ros.model.inference import _check_pixels
 
 __all__ = ['CVANetConfidence']
 
@@ -87,6 +88,12 @@ class CVANetConfidence(ConfidenceMethod):
         # An instance attribute: the pipeline asks for the right view only for LRD.
         self.needs_right = self.sparse.cascade == 'lrd'  # type: ignore[misc]
         self.matcher = matcher
+        if (
+            isinstance(max_disparity, bool)
+            or not isinstance(max_disparity, (int, np.integer))
+            or max_disparity < 1
+        ):
+            raise ConfigError(f'max_disparity must be an integer ≥ 1; got {max_disparity!r}')
         self.max_disparity = int(max_disparity)
         self.device = resolve_device(device)
         self.tile_budget_mb = float(tile_budget_mb)
@@ -172,7 +179,8 @@ class CVANetConfidence(ConfidenceMethod):
         """
         self._check(inputs)
         if not self.sparse.exact:
-            ys, xs = np.asarray(ys), np.asarray(xs)
+            # Checked here too: numpy would read a negative index from the other side.
+            ys, xs = _check_pixels(ys, xs, inputs.cost_volume.shape[1:])
             return self(inputs)[ys, xs]
         return self._evaluator.at(inputs.cost_volume, ys, xs)
 

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from cva_confidence_ros.confidence import CONFIDENCE_METHODS, ConfidenceInputs, compute_confidence
-from cva_confidence_ros.errors import InputError, ModelError
+from cva_confidence_ros.errors import ConfigError, InputError, ModelError
 from cva_confidence_ros.model import CVANet, predict_confidence, save_weights
 
 DEPTH = 16
@@ -67,6 +67,21 @@ def test_depth_and_matcher_checks(weights):
         CONFIDENCE_METHODS.get('cva_net')(matcher='census_bm', max_disparity=32, weights=path)
     with pytest.raises(ModelError, match="asked for matcher 'census_sgm'"):
         CONFIDENCE_METHODS.get('cva_net')(matcher='census_sgm', max_disparity=DEPTH, weights=path)
+    with pytest.raises(ConfigError, match='max_disparity must be an integer ≥ 1; got 16.5'):
+        CONFIDENCE_METHODS.get('cva_net')(matcher='census_bm', max_disparity=16.5, weights=path)
+
+
+@pytest.mark.parametrize('stride', [1, 2])
+def test_pixels_outside_the_image_are_refused(weights, stride):
+    # With a stride the map is computed whole and indexed: -1 must not read the last pixel.
+    method = CONFIDENCE_METHODS.get('cva_net')(
+        matcher='census_bm', max_disparity=DEPTH, weights=weights[1], cva_stride=stride
+    )
+    for ys, xs in [([-1], [0]), ([14], [0]), ([0], [15])]:
+        with pytest.raises(InputError, match=r'pixel indices must lie in \[0, 14\) × \[0, 15\)'):
+            method.confidence_at(_inputs(), np.array(ys), np.array(xs))
+    with pytest.raises(InputError, match='integer pixel indices'):
+        method.confidence_at(_inputs(), np.array([0.5]), np.array([1.0]))
 
 
 def test_missing_shipped_weights_say_how_to_train():
