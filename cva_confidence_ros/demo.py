@@ -21,6 +21,9 @@ import time
 
 import numpy as np
 
+from cva_confidence_ros.errors import ConfigError, CVAError
+from cva_confidence_ros.outputs import check_output_dir
+
 __all__ = ['main']
 
 _SUMMARY_KEYS = ('error_rate', 'auc', 'auc_opt', 'kept_density', 'kept_error_rate')
@@ -30,12 +33,14 @@ def _log(message: str) -> None:
     print(f'[demo] {message}', file=sys.stderr, flush=True)
 
 
-def _match_all(out: Path, max_disparity: int, downsample: int) -> list[dict[str, object]]:
-    """Run every matcher on the Motorcycle pair; write disparity PNGs; return a summary."""
+def _match_all(
+    out: Path, matchers: list[str], max_disparity: int, downsample: int
+) -> list[dict[str, object]]:
+    """Run the matchers on the Motorcycle pair; write disparity PNGs; return a summary."""
     import cv2
 
     from cva_confidence_ros.datasets import fit_disparity_range, load_scene, resize_sample
-    from cva_confidence_ros.matching import MATCHERS, compute_cost_volume, wta_disparity
+    from cva_confidence_ros.matching import compute_cost_volume, wta_disparity
     from cva_confidence_ros.metrics import kitti_error
 
     sample = load_scene('motorcycle', None, 'motorcycle')
@@ -43,7 +48,7 @@ def _match_all(out: Path, max_disparity: int, downsample: int) -> list[dict[str,
         sample = resize_sample(sample, downsample)
     sample, _ = fit_disparity_range(sample, max_disparity)
     rows = []
-    for name in MATCHERS.names():
+    for name in matchers:
         tic = time.perf_counter()
         volume = compute_cost_volume(sample.left, sample.right, name, max_disparity)
         seconds = time.perf_counter() - tic
@@ -72,6 +77,27 @@ def _match_all(out: Path, max_disparity: int, downsample: int) -> list[dict[str,
     return rows
 
 
+def _check_args(args: argparse.Namespace) -> tuple[list[str], list[str]]:
+    """Everything the three steps need, checked before the first: (matchers, methods)."""
+    from cva_confidence_ros.confidence import CONFIDENCE_METHODS
+    from cva_confidence_ros.matching import MATCHERS
+
+    if args.downsample not in (1, 2, 4):
+        raise ConfigError(f'--downsample must be 1, 2 or 4; got {args.downsample}')
+    if not 1 <= args.max_disparity <= 1024:
+        raise ConfigError(f'--max-disparity must be in [1, 1024]; got {args.max_disparity}')
+    matchers = [name.strip() for name in args.matchers.split(',') if name.strip()]
+    methods = [name.strip() for name in args.methods.split(',') if name.strip()]
+    if not matchers or not methods:
+        raise ConfigError('--matchers and --methods must each name at least one')
+    for name in matchers:
+        MATCHERS.get(name)
+    for name in methods:
+        CONFIDENCE_METHODS.get(name)
+    check_output_dir(args.out, '--out')
+    return matchers, methods
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``cva-demo``."""
     parser = argparse.ArgumentParser(prog='cva-demo', description=__doc__.split('\n\n')[0])
@@ -90,6 +116,10 @@ def main(argv: list[str] | None = None) -> int:
         help='confidence methods to replay',
     )
     args = parser.parse_args(argv)
+    try:
+        matchers, methods = _check_args(args)
+    except CVAError as err:
+        parser.error(str(err))
 
     from msg_tools import bag_from_dataset, bag_replay
 
@@ -97,7 +127,11 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     _log(f'step 1/3: matching the scikit-image Motorcycle pair at 1/{args.downsample} size')
-    _match_all(out, args.max_disparity, args.downsample)
+    try:
+        _match_all(out, matchers, args.max_disparity, args.downsample)
+    except CVAError as err:  # e.g. a depth too wide for the pair at this size
+        print(f'cva-demo: error: {err}', file=sys.stderr)
+        return 2
 
     bag = out / 'motorcycle_bag'
     _log(f'step 2/3: writing the pair as a rosbag2 (MCAP) to {bag}')
@@ -111,8 +145,8 @@ def main(argv: list[str] | None = None) -> int:
 
     _log('step 3/3: replaying the bag through the pipeline (matcher x confidence method)')
     table: list[tuple[str, str, dict[str, float]]] = []
-    for matcher in args.matchers.split(','):
-        for method in args.methods.split(','):
+    for matcher in matchers:
+        for method in methods:
             name = f'{matcher}__{method}'
             replay_out = out / 'replay' / name
             if replay_out.exists():
