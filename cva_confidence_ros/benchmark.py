@@ -61,7 +61,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from cva_confidence_ros.errors import ConfigError, ModelError
+from cva_confidence_ros.errors import ConfigError, CVAError, ModelError
+from cva_confidence_ros.outputs import check_output_file
 from cva_confidence_ros.registry import Registry
 
 __all__ = [
@@ -167,10 +168,22 @@ def _matcher_case(name: str) -> Callable[[BenchSettings], Case]:
     return factory
 
 
+_SGBM_BLOCK = 5
+
+
+def _sgbm_disparities(max_disparity: int) -> int:
+    """OpenCV's numDisparities for D: a multiple of 16."""
+    return -(-max_disparity // 16) * 16
+
+
+def _sgbm_min_width(max_disparity: int) -> int:
+    """Narrowest image OpenCV's SGBM accepts for D (numDisparities + half a block + 1)."""
+    return _sgbm_disparities(max_disparity) + _SGBM_BLOCK // 2 + 1
+
+
 def _sgbm_case(settings: BenchSettings) -> Case:
-    block = 5
-    # numDisparities must be a multiple of 16 in OpenCV.
-    disparities = -(-settings.max_disparity // 16) * 16
+    block = _SGBM_BLOCK
+    disparities = _sgbm_disparities(settings.max_disparity)
     sgbm = cv2.StereoSGBM_create(
         minDisparity=0,
         numDisparities=disparities,
@@ -298,7 +311,8 @@ def run_case(name: str, settings: BenchSettings) -> dict[str, Any]:
     pairs = make_pairs(settings)
     # A frame on a small crop loads what every frame shares (libraries imported lazily, JIT
     # code, weights), so that the memory measured below is the frames' own.
-    small = slice(0, 16), slice(0, min(settings.width, settings.max_disparity + 16))
+    wide = max(settings.max_disparity, _sgbm_disparities(settings.max_disparity)) + 16
+    small = slice(0, 16), slice(0, min(settings.width, wide))
     for runner in (case, baseline):
         if runner is not None:
             left, right = pairs['synthetic']
@@ -617,6 +631,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         for name in names:
             CASES.get(name)
         names = [name for name in names if name != _BASELINE] + [_BASELINE]
+        if settings.width < _sgbm_min_width(settings.max_disparity):
+            raise ConfigError(
+                f'the OpenCV SGBM baseline needs images at least '
+                f'{_sgbm_min_width(settings.max_disparity)} px wide at D = '
+                f'{settings.max_disparity} (its disparity count is a multiple of 16); got '
+                f'--width {settings.width}'
+            )
+        if args.json is not None:
+            check_output_file(args.json, '--json')
         records = []
         for name in names:
             print(f'measuring {name} …', file=sys.stderr, flush=True)
@@ -626,7 +649,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f'measuring {name} …', file=sys.stderr, flush=True)
             crop = ['--network-crop', str(args.network_crop)]
             records.append(_run_in_subprocess(name, settings, crop))
-    except ConfigError as error:
+    except CVAError as error:
         parser.exit(2, f'cva-benchmark: error: {error}\n')
     print(format_table(records, os.cpu_count() or 1))
     if args.json is not None:
@@ -644,14 +667,17 @@ def run_suite(
     """Run one benchmark suite's command line: parse, measure, print the table, write the JSON.
 
     ``parser`` needs the ``--width``, ``--height``, ``--max-disparity``, ``--repeat`` and
-    ``--json`` options; ``measure(args, settings)`` returns the records. A
-    :class:`ConfigError` from either ends the process with code 2 and one line on stderr.
+    ``--json`` options; ``measure(args, settings)`` returns the records. A bad ``--json``
+    path is refused before measuring; a :class:`CVAError` from either ends the process with
+    code 2 and one line on stderr.
     """
     args = parser.parse_args(argv)
     try:
         settings = BenchSettings(args.width, args.height, args.max_disparity, args.repeat)
+        if args.json is not None:
+            check_output_file(args.json, '--json')
         records = measure(args, settings)
-    except ConfigError as error:
+    except CVAError as error:
         parser.exit(2, f'cva-benchmark: error: {error}\n')
     print(table(records))
     if args.json is not None:

@@ -118,3 +118,38 @@ def test_network_crop_must_be_positive(capsys: pytest.CaptureFixture[str]) -> No
         benchmark.main(['--network-crop', '0'])
     assert exit_info.value.code == 2
     assert 'network-crop' in capsys.readouterr().err
+
+
+def test_depths_that_are_not_a_multiple_of_16(capsys: pytest.CaptureFixture[str]) -> None:
+    # OpenCV rounds SGBM's disparity count up to a multiple of 16: D = 17 searches 32.
+    code = benchmark.main(['--width', '48', '--height', '8', '--max-disparity', '17',
+                           '--repeat', '1', '--matchers', 'census_bm', '--no-network'])
+    assert code == 0 and 'opencv_sgbm' in capsys.readouterr().out
+    with pytest.raises(SystemExit) as exit_info:
+        benchmark.main(['--width', '34', '--height', '8', '--max-disparity', '17',
+                        '--repeat', '1', '--matchers', 'census_bm', '--no-network'])
+    assert exit_info.value.code == 2
+    assert 'at least 35 px wide at D = 17' in capsys.readouterr().err
+
+
+@pytest.mark.parametrize('suite', [[], ['--suite', 'fast']])
+def test_json_path_is_checked_before_measuring(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], suite: list[str]
+) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        benchmark.main([*suite, '--width', '64', '--height', '8', '--max-disparity', '8',
+                        '--repeat', '1', '--json', str(tmp_path)])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith('cva-benchmark: error: --json') and 'measuring' not in err
+
+
+def test_data_errors_of_a_suite_are_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        benchmark.main(['--suite', 'fast', '--width', '32', '--height', '16', '--max-disparity',
+                        '16', '--configs', 'exact', '--data-root', '/nonexistent/data'])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    last = err.splitlines()[-1]
+    assert last.startswith('cva-benchmark: error:') and 'is not a folder' in last
+    assert 'Traceback' not in err
