@@ -27,7 +27,7 @@ from cva_confidence_ros.model import (
     load_weights,
     resolve_device,
 )
-from cva_confidence_ros.model.inference import _check_pixels
+from cva_confidence_ros.model.inference import _check_pixels, _check_tile_budget
 
 __all__ = ['CVANetConfidence']
 
@@ -77,8 +77,7 @@ class CVANetConfidence(ConfidenceMethod):
         cva_precision: str = 'fp32',
         **_: Any,
     ) -> None:
-        if tile_budget_mb <= 0:
-            raise ConfigError(f'tile_budget_mb must be > 0; got {tile_budget_mb}')
+        budget = _check_tile_budget(tile_budget_mb)
         self.sparse = SparseConfig(
             stride=cva_stride,
             cascade=cva_cascade,
@@ -96,7 +95,7 @@ class CVANetConfidence(ConfidenceMethod):
             raise ConfigError(f'max_disparity must be an integer ≥ 1; got {max_disparity!r}')
         self.max_disparity = int(max_disparity)
         self.device = resolve_device(device)
-        self.tile_budget_mb = float(tile_budget_mb)
+        self.tile_budget_mb = budget
         path = (
             Path(weights)
             if weights

@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 import contextlib
 import math
+import numbers
 from typing import cast
 
 import numpy as np
@@ -236,6 +237,33 @@ def pad_cost_volume(cost_volume: np.ndarray, dtype: np.dtype | type = np.float32
     return np.pad(cost_volume.astype(dtype, copy=False), ((0, 0), (PAD, PAD), (PAD, PAD)))
 
 
+def _check_tile_budget(tile_budget_mb: object) -> float:
+    """``tile_budget_mb`` as a float; ConfigError unless it is a finite real number > 0."""
+    if (
+        isinstance(tile_budget_mb, bool)
+        or not isinstance(tile_budget_mb, numbers.Real)
+        or not (math.isfinite(tile_budget_mb) and tile_budget_mb > 0)
+    ):
+        raise ConfigError(
+            f'tile_budget_mb must be a finite number > 0 (megabytes); '
+            f'got {type(tile_budget_mb).__name__} {tile_budget_mb!r}'
+        )
+    return float(tile_budget_mb)
+
+
+def _check_batch_size(batch_size: object) -> int:
+    """``batch_size`` as an int; ConfigError unless it is an integer >= 1 (not a bool)."""
+    if (
+        isinstance(batch_size, bool)
+        or not isinstance(batch_size, (int, np.integer))
+        or batch_size < 1
+    ):
+        raise ConfigError(
+            f'batch_size must be an integer >= 1; got {type(batch_size).__name__} {batch_size!r}'
+        )
+    return int(batch_size)
+
+
 def tile_shape(
     height: int,
     width: int,
@@ -249,9 +277,12 @@ def tile_shape(
     tile (default CVA-Net's 32-channel fusion output, 32 · D), over
     (rows + 12) · (columns + 12) pixels, counted :data:`_LIVE_COPIES` times. Networks give
     their own figure by :func:`activations_per_pixel`.
+
+    Raises:
+        ConfigError: ``tile_budget_mb`` not a finite number > 0, or ``activations_per_pixel``
+            below 1.
     """
-    if tile_budget_mb <= 0:
-        raise ConfigError(f'tile_budget_mb must be > 0; got {tile_budget_mb}')
+    tile_budget_mb = _check_tile_budget(tile_budget_mb)
     values = 32 * max_disparity if activations_per_pixel is None else activations_per_pixel
     if values < 1:
         raise ConfigError(f'activations_per_pixel must be >= 1; got {values}')
@@ -301,10 +332,11 @@ def predict_confidence(
 
     Raises:
         InputError: Wrong shape, depth, dtype or values of ``cost_volume``.
-        ConfigError: Bad device or budget.
+        ConfigError: Bad device, or ``tile_budget_mb`` not a finite number > 0.
     """
     net = _unwrap(net)
     volume = _check_volume(net, cost_volume)
+    tile_budget_mb = _check_tile_budget(tile_budget_mb)
     torch_device = resolve_device(device)
     depth, height, width = volume.shape
     rows, columns = tile_shape(
@@ -379,12 +411,12 @@ def predict_confidence_at(
 
     Raises:
         InputError: Bad volume, or coordinates of the wrong shape or outside the image.
+        ConfigError: Bad device, or ``batch_size`` not an integer >= 1.
     """
     net = _unwrap(net)
     volume = _check_volume(net, cost_volume)
     ys, xs = _check_pixels(ys, xs, volume.shape[1:])
-    if batch_size < 1:
-        raise ConfigError(f'batch_size must be >= 1; got {batch_size}')
+    batch_size = _check_batch_size(batch_size)
     torch_device = resolve_device(device)
     windows = sliding_window_view(pad_cost_volume(volume), (PATCH_SIZE, PATCH_SIZE), axis=(1, 2))
     result = np.empty(len(ys), dtype=np.float32)

@@ -25,8 +25,10 @@ kernel. It is applied with an explicit ``F.pad`` (:func:`pad_depth`) so that the
 from __future__ import annotations
 
 import math
+import numbers
 from typing import ClassVar
 
+import numpy as np
 import torch
 from torch import nn
 import torch.nn.functional as F
@@ -153,7 +155,8 @@ class CVANet(nn.Module):
         dropout: Dropout rate of the classification stage (paper: 0.5).
 
     Raises:
-        ConfigError: ``max_disparity`` below 13 (nothing left after the fusion).
+        ConfigError: ``max_disparity`` not an integer or below 13 (nothing left after the
+            fusion), or ``dropout`` not a real number in [0, 1).
     """
 
     #: Architecture name in weights files (``model.weights.ARCHITECTURES``).
@@ -240,14 +243,26 @@ def check_network_options(
         dropout: Dropout rate of the classification stage.
 
     Raises:
-        ConfigError: D not an integer or below ``minimum``, or dropout outside [0, 1).
+        ConfigError: D not an integer (a bool, a float or None included) or below ``minimum``,
+            or dropout not a real number in [0, 1).
     """
-    if int(max_disparity) != max_disparity or max_disparity < minimum:
+    if isinstance(max_disparity, bool) or not isinstance(max_disparity, (int, np.integer)):
+        raise ConfigError(
+            f'max_disparity must be an integer >= {minimum} ({reason}); '
+            f'got {type(max_disparity).__name__} {max_disparity!r}'
+        )
+    if max_disparity < minimum:
         raise ConfigError(
             f'max_disparity must be an integer >= {minimum} ({reason}); got {max_disparity}'
         )
-    if not 0.0 <= dropout < 1.0:
-        raise ConfigError(f'dropout must be in [0, 1); got {dropout}')
+    if (
+        isinstance(dropout, bool)
+        or not isinstance(dropout, numbers.Real)
+        or not 0.0 <= float(dropout) < 1.0
+    ):
+        raise ConfigError(
+            f'dropout must be a real number in [0, 1); got {type(dropout).__name__} {dropout!r}'
+        )
     return int(max_disparity)
 
 

@@ -57,6 +57,7 @@ import contextlib
 import copy
 from dataclasses import dataclass
 import math
+import numbers
 
 import numba
 import numpy as np
@@ -69,6 +70,7 @@ from cva_confidence_ros.model.inference import (
     PAD,
     CVANet,
     _check_pixels,
+    _check_tile_budget,
     _check_volume,
     _unwrap,
     activations_per_pixel,
@@ -141,13 +143,29 @@ class SparseConfig:
     path: str = 'auto'
 
     def __post_init__(self) -> None:
-        if self.stride not in STRIDES:
-            raise ConfigError(f'cva_stride must be one of {STRIDES}; got {self.stride!r}')
+        stride = self.stride
+        # 2.0 == 2 and True == 1 would pass the membership test and fail later as an index.
+        if (
+            isinstance(stride, bool)
+            or not isinstance(stride, (int, np.integer))
+            or stride not in STRIDES
+        ):
+            raise ConfigError(
+                f'cva_stride must be an integer, one of {STRIDES}; '
+                f'got {type(stride).__name__} {stride!r}'
+            )
         if self.cascade not in CASCADES:
             raise ConfigError(f'cva_cascade must be one of {CASCADES}; got {self.cascade!r}')
         fraction = self.cascade_fraction
-        if not (isinstance(fraction, (int, float)) and 0.0 < float(fraction) <= 1.0):
-            raise ConfigError(f'cva_cascade_fraction must be in (0, 1]; got {fraction!r}')
+        if (
+            isinstance(fraction, bool)
+            or not isinstance(fraction, numbers.Real)
+            or not 0.0 < float(fraction) <= 1.0
+        ):
+            raise ConfigError(
+                f'cva_cascade_fraction must be a real number in (0, 1]; '
+                f'got {type(fraction).__name__} {fraction!r}'
+            )
         if self.precision not in PRECISIONS:
             raise ConfigError(
                 f'cva_precision must be one of {PRECISIONS}; got {self.precision!r}'
@@ -255,15 +273,14 @@ class SparseEvaluator:
                 f'expected a cost-volume network with an integer max_disparity; '
                 f'got {type(net).__name__}'
             )
-        if tile_budget_mb <= 0:
-            raise ConfigError(f'tile_budget_mb must be > 0; got {tile_budget_mb}')
+        tile_budget = _check_tile_budget(tile_budget_mb)
         if path not in PATHS:
             raise ConfigError(f'path must be one of {PATHS}; got {path!r}')
         self.device = resolve_device(device)
         precision_context(self.device, precision)  # validates
         self.net = net.to(self.device).eval()
         self.max_disparity: int = net.max_disparity
-        self.tile_budget_mb = float(tile_budget_mb)
+        self.tile_budget_mb = tile_budget
         self.precision = precision
         self.splittable = callable(getattr(net, 'fusion_features', None)) and callable(
             getattr(net, 'head_logits', None)

@@ -13,16 +13,18 @@ untrained instance from ``meta``.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+import contextlib
 import json
 import os
 from pathlib import Path
 import sys
 from typing import Any
 
+import numpy as np
 import torch
 from torch import nn
 
-from cva_confidence_ros.errors import ModelError, reason
+from cva_confidence_ros.errors import ConfigError, ModelError, reason
 from cva_confidence_ros.model.fast import CVANetFast
 from cva_confidence_ros.model.inference import resolve_device
 from cva_confidence_ros.model.lite import CVANetLite
@@ -79,6 +81,15 @@ def architecture_of(net: nn.Module) -> str:
     return arch
 
 
+def _weights_path(path: object) -> Path:
+    """``path`` as a :class:`Path`; ConfigError unless it is a str or an ``os.PathLike``."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise ConfigError(
+            f'weights path must be a str or os.PathLike; got {type(path).__name__} {path!r}'
+        )
+    return Path(path)
+
+
 def save_weights(net: nn.Module, path: str | os.PathLike[str], meta: Mapping[str, Any]) -> Path:
     """Write ``net``'s weights and ``meta`` to ``path`` (parent folders are created).
 
@@ -92,11 +103,18 @@ def save_weights(net: nn.Module, path: str | os.PathLike[str], meta: Mapping[str
         The written path.
 
     Raises:
-        ModelError: ``net`` of no registered architecture; ``meta`` lacks ``matcher`` or
-            contradicts the network's depth.
+        ModelError: ``net`` of no registered architecture; ``meta`` not a mapping, lacking
+            ``matcher`` or contradicting the network's depth; ``path`` a directory or not
+            writable (no temporary file is left behind).
+        ConfigError: ``path`` neither a str nor an ``os.PathLike``.
     """
     arch = architecture_of(net)
     model = _unwrap(net)
+    path = _weights_path(path)
+    if not isinstance(meta, Mapping):
+        raise ModelError(
+            f'meta must be a mapping with at least matcher; got {type(meta).__name__} {meta!r}'
+        )
     meta = dict(meta)
     if not meta.get('matcher'):
         raise ModelError(
@@ -112,11 +130,18 @@ def save_weights(net: nn.Module, path: str | os.PathLike[str], meta: Mapping[str
     # tuples into lists and anything exotic (versions, paths) into strings.
     meta = json.loads(json.dumps(meta, default=str))
     state = {k: v.detach().cpu() for k, v in model.state_dict().items()}
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    if path.is_dir():
+        raise ModelError(f'weights file {path} is a directory; expected a .pt file path')
     tmp = path.with_name(path.name + '.tmp')
-    torch.save({'state_dict': state, 'meta': meta}, tmp)
-    os.replace(tmp, path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        torch.save({'state_dict': state, 'meta': meta}, tmp)
+        os.replace(tmp, path)
+    except (OSError, RuntimeError) as exc:  # torch.save reports a missing folder as Runtime
+        raise ModelError(f'cannot write weights file {path} ({reason(exc)})') from exc
+    finally:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)  # gone after a successful rename
     return path
 
 
@@ -141,10 +166,24 @@ def load_weights(
         ``(net, meta)``; ``net`` is a :class:`CVANet` unless ``arch`` says otherwise.
 
     Raises:
-        ModelError: Missing, empty or corrupt file; weights of another architecture; or
-            weights for another matcher or depth than asked.
+        ModelError: Missing, empty or corrupt file; a stored ``meta`` that is not a dict or
+            whose ``arch`` or ``max_disparity`` has the wrong type; weights of another
+            architecture; or weights for another matcher or depth than asked.
+        ConfigError: ``path`` not a str or ``os.PathLike``, ``max_disparity`` not an integer,
+            or ``arch`` neither None nor a str.
     """
-    path = Path(path)
+    path = _weights_path(path)
+    if max_disparity is not None and (
+        isinstance(max_disparity, bool) or not isinstance(max_disparity, (int, np.integer))
+    ):
+        raise ConfigError(
+            f'max_disparity must be an integer or None; '
+            f'got {type(max_disparity).__name__} {max_disparity!r}'
+        )
+    if arch is not None and not isinstance(arch, str):
+        raise ConfigError(
+            f'arch must be an architecture name or None; got {type(arch).__name__} {arch!r}'
+        )
     if path.is_dir():
         raise ModelError(f'weights file {path} is a directory; expected a .pt file')
     if not path.is_file():
@@ -163,13 +202,29 @@ def load_weights(
         raise ModelError(
             f'{path} is not a CVA-Net weights file: expected state_dict and meta; got {keys}'
         )
+    if not isinstance(blob['meta'], dict):
+        raise ModelError(
+            f'{path} is not a CVA-Net weights file: expected meta to be a dict; '
+            f"got {type(blob['meta']).__name__}"
+        )
     meta = dict(blob['meta'])
     stored = meta.get('arch')
+    if not isinstance(stored, str):
+        raise ModelError(
+            f"{path}: meta['arch'] must be an architecture name (str); "
+            f'got {type(stored).__name__} {stored!r}'
+        )
     if arch is not None and stored != arch:
         raise ModelError(f'{path} holds weights of arch {stored!r}; expected {arch!r}')
     if stored not in ARCHITECTURES:
         raise ModelError(
             f'{path} holds weights of arch {stored!r}; expected one of {ARCHITECTURES.names()}'
+        )
+    depth = meta.get('max_disparity')
+    if isinstance(depth, bool) or not isinstance(depth, int):
+        raise ModelError(
+            f"{path}: meta['max_disparity'] must be an integer; "
+            f'got {type(depth).__name__} {depth!r}'
         )
     for_what = f'matcher {meta.get("matcher")!r} and D = {meta.get("max_disparity")}'
     if matcher is not None and meta.get('matcher') != matcher:

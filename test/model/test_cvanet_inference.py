@@ -118,6 +118,35 @@ def test_bad_inputs(net):
         predict_confidence(net, volume, device='tpu')
 
 
+BAD_BUDGETS = [0, -1.0, float('nan'), float('inf'), '1', None, True]
+
+
+@pytest.mark.parametrize('budget', BAD_BUDGETS, ids=repr)
+def test_tile_budget_must_be_a_finite_positive_number(net, budget):
+    with pytest.raises(ConfigError, match='tile_budget_mb must be a finite number > 0'):
+        tile_shape(HEIGHT, WIDTH, DEPTH, budget)
+    with pytest.raises(ConfigError, match='tile_budget_mb must be a finite number > 0'):
+        predict_confidence(net, _volume(), tile_budget_mb=budget)
+
+
+@pytest.mark.parametrize('batch_size', [0, 1.5, 4.0, float('nan'), '4', None, True], ids=repr)
+def test_batch_size_must_be_a_positive_integer(net, batch_size):
+    ys, xs = np.array([0, 5]), np.array([1, 7])
+    with pytest.raises(ConfigError, match='batch_size must be an integer >= 1'):
+        predict_confidence_at(net, _volume(), ys, xs, batch_size=batch_size)
+
+
+def test_numpy_budget_and_batch_size_are_accepted(net):
+    assert tile_shape(HEIGHT, WIDTH, DEPTH, np.float32(0.5)) == tile_shape(
+        HEIGHT, WIDTH, DEPTH, 0.5
+    )
+    ys, xs = np.array([0, 5, 19]), np.array([1, 7, 23])
+    np.testing.assert_array_equal(
+        predict_confidence_at(net, _volume(), ys, xs, batch_size=np.int64(2)),
+        predict_confidence_at(net, _volume(), ys, xs, batch_size=2),
+    )
+
+
 def test_empty_pixel_list(net):
     assert predict_confidence_at(net, _volume(), np.array([], int), np.array([], int)).shape == (
         0,

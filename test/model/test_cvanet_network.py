@@ -4,13 +4,20 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 import torch
 from torch import nn
 import torch.nn.functional as F
 
 from cva_confidence_ros.errors import ConfigError, InputError
-from cva_confidence_ros.model import CVANet, expected_parameter_count, keras_parameter_count
+from cva_confidence_ros.model import (
+    CVANet,
+    CVANetFast,
+    CVANetLite,
+    expected_parameter_count,
+    keras_parameter_count,
+)
 from cva_confidence_ros.model.network import CONV_INIT_STD, DEPTH_KERNELS, pad_depth
 
 pytestmark = pytest.mark.usefixtures('one_torch_thread')
@@ -87,6 +94,31 @@ def test_wrong_input_raises():
         net(torch.rand(1, 1, 16, 12, 13))
     with pytest.raises(ConfigError, match='>= 13'):
         CVANet(12)
+
+
+NETWORKS = [CVANet, CVANetLite, CVANetFast]
+
+
+@pytest.mark.parametrize('cls', NETWORKS)
+@pytest.mark.parametrize(
+    'depth', [float('nan'), float('inf'), None, 16.0, 16.7, True, '16'], ids=repr
+)
+def test_depth_must_be_an_integer(cls, depth):
+    with pytest.raises(ConfigError, match='max_disparity must be an integer'):
+        cls(depth)
+
+
+@pytest.mark.parametrize('cls', NETWORKS)
+@pytest.mark.parametrize('dropout', ['x', None, float('nan'), True, -0.1, 1.0], ids=repr)
+def test_dropout_must_be_a_real_in_unit_interval(cls, dropout):
+    with pytest.raises(ConfigError, match=r'dropout must be a real number in \[0, 1\)'):
+        cls(16, dropout=dropout)
+
+
+@pytest.mark.parametrize('cls', NETWORKS)
+def test_numpy_depth_and_dropout_are_accepted(cls):
+    net = cls(np.int64(16), dropout=np.float32(0.25))
+    assert net.max_disparity == 16 and type(net.max_disparity) is int
 
 
 def test_initialisation_statistics():

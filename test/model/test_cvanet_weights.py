@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import re
+
+import numpy as np
 import pytest
 import torch
 
-from cva_confidence_ros.errors import ModelError
+from cva_confidence_ros.errors import ConfigError, ModelError
 from cva_confidence_ros.model import (
     CVANet,
     default_weights_path,
@@ -103,6 +106,86 @@ def test_save_needs_matcher(tmp_path):
         save_weights(_trained_like(), tmp_path / 'w.pt', {})
     with pytest.raises(ModelError, match='contradicts'):
         save_weights(_trained_like(), tmp_path / 'w.pt', {'matcher': 'x', 'max_disparity': 8})
+
+
+def test_save_to_an_unwritable_path(tmp_path):
+    blocker = tmp_path / 'file'
+    blocker.write_text('not a folder')
+    target = blocker / 'w.pt'
+    written = re.escape(str(target))
+    with pytest.raises(ModelError, match=rf'cannot write weights file {written} \('):
+        save_weights(_trained_like(), target, {'matcher': 'census_bm'})
+    folder = tmp_path / 'folder'
+    folder.mkdir()
+    with pytest.raises(ModelError, match=rf'{re.escape(str(folder))} is a directory'):
+        save_weights(_trained_like(), folder, {'matcher': 'census_bm'})
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['file', 'folder']
+
+
+def test_save_leaves_no_temporary_file_when_the_rename_fails(tmp_path, monkeypatch):
+    def refuse(src, dst):
+        raise PermissionError(13, 'Permission denied', str(dst))
+
+    monkeypatch.setattr(weights_module.os, 'replace', refuse)
+    with pytest.raises(ModelError, match=r'cannot write weights file .*PermissionError'):
+        save_weights(_trained_like(), tmp_path / 'w.pt', {'matcher': 'census_bm'})
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize('meta', [None, 'census_bm', [('matcher', 'census_bm')]], ids=repr)
+def test_save_needs_a_mapping_meta(tmp_path, meta):
+    with pytest.raises(ModelError, match='meta must be a mapping'):
+        save_weights(_trained_like(), tmp_path / 'w.pt', meta)
+
+
+@pytest.mark.parametrize(
+    'meta, match',
+    [
+        (5, 'expected meta to be a dict; got int'),
+        ([1], 'expected meta to be a dict; got list'),
+        ({'arch': ['cvanet'], 'matcher': 'census_bm', 'max_disparity': 16}, "'arch'.*list"),
+        ({'matcher': 'census_bm', 'max_disparity': 16}, "'arch'.*NoneType"),
+        ({'arch': 'cvanet', 'matcher': 'census_bm', 'max_disparity': 16.7}, 'float 16.7'),
+        ({'arch': 'cvanet', 'matcher': 'census_bm', 'max_disparity': '16'}, "str '16'"),
+    ],
+    ids=['int', 'list', 'list-arch', 'no-arch', 'float-depth', 'str-depth'],
+)
+@pytest.mark.parametrize('arch', ['cvanet', None])
+def test_load_refuses_a_malformed_meta(tmp_path, meta, match, arch):
+    path = tmp_path / 'w.pt'
+    torch.save({'state_dict': _trained_like().state_dict(), 'meta': meta}, path)
+    with pytest.raises(ModelError, match=match):
+        load_weights(path, arch=arch)
+
+
+@pytest.mark.parametrize(
+    'options, match',
+    [
+        ({'max_disparity': 16.7}, 'max_disparity must be an integer or None; got float'),
+        ({'max_disparity': 16.0}, 'max_disparity must be an integer or None; got float'),
+        ({'max_disparity': 'x'}, 'max_disparity must be an integer or None; got str'),
+        ({'max_disparity': True}, 'max_disparity must be an integer or None; got bool'),
+        ({'arch': ['cvanet']}, 'arch must be an architecture name or None; got list'),
+    ],
+    ids=repr,
+)
+def test_load_refuses_bad_options(tmp_path, options, match):
+    path = save_weights(_trained_like(), tmp_path / 'w.pt', {'matcher': 'census_bm'})
+    with pytest.raises(ConfigError, match=match):
+        load_weights(path, **options)
+
+
+@pytest.mark.parametrize('path', [None, 5])
+def test_weights_path_must_be_path_like(tmp_path, path):
+    with pytest.raises(ConfigError, match='weights path must be a str or os.PathLike'):
+        load_weights(path)
+    with pytest.raises(ConfigError, match='weights path must be a str or os.PathLike'):
+        save_weights(_trained_like(), path, {'matcher': 'census_bm'})
+
+
+def test_load_takes_a_numpy_depth(tmp_path):
+    path = save_weights(_trained_like(), str(tmp_path / 'w.pt'), {'matcher': 'census_bm'})
+    assert load_weights(path, max_disparity=np.int64(16))[0].max_disparity == 16
 
 
 def test_default_weights_path(tmp_path, monkeypatch):

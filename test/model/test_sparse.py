@@ -205,6 +205,43 @@ def test_bad_config_names_field(changes, field):
         SparseConfig(**changes)
 
 
+@pytest.mark.parametrize(
+    'changes, field',
+    [
+        ({'stride': 2.0}, 'cva_stride'),
+        ({'stride': True}, 'cva_stride'),
+        ({'stride': '2'}, 'cva_stride'),
+        ({'cascade_fraction': True}, 'cva_cascade_fraction'),
+        ({'cascade_fraction': '0.5'}, 'cva_cascade_fraction'),
+        ({'cascade_fraction': float('nan')}, 'cva_cascade_fraction'),
+        ({'cascade_fraction': None}, 'cva_cascade_fraction'),
+    ],
+    ids=repr,
+)
+def test_config_refuses_wrong_types(changes, field):
+    with pytest.raises(ConfigError, match=field):
+        SparseConfig(**changes)
+
+
+def test_config_takes_numpy_numbers():
+    config = SparseConfig(stride=np.int64(4), cascade='pkrn', cascade_fraction=np.float32(0.5))
+    assert config.stride == 4 and config.cascade_fraction == 0.5
+    assert SparseConfig(cascade_fraction=1).cascade_fraction == 1
+
+
+@pytest.mark.parametrize(
+    'budget', [0, -1.0, float('nan'), float('inf'), '1', None, True], ids=repr
+)
+def test_evaluator_checks_tile_budget_at_construction(net, budget):
+    with pytest.raises(ConfigError, match='tile_budget_mb must be a finite number > 0'):
+        SparseEvaluator(net, tile_budget_mb=budget)
+
+
+def test_evaluator_takes_a_numpy_tile_budget(net):
+    evaluator = SparseEvaluator(net, tile_budget_mb=np.float32(64.0))
+    assert evaluator.tile_budget_mb == 64.0 and type(evaluator.tile_budget_mb) is float
+
+
 def test_step_edge_is_respected():
     height, width, stride = 24, 40, 4
     image = np.zeros((height, width), np.uint8)
