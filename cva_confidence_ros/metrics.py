@@ -17,6 +17,9 @@ pixels.
 
 from __future__ import annotations
 
+from numbers import Real
+from typing import Any
+
 import numpy as np
 
 from cva_confidence_ros.errors import InputError
@@ -39,6 +42,20 @@ REL_THRESHOLD = 0.05
 #: Number of density samples: q = 1/20, 2/20, ..., 20/20.
 DENSITY_STEPS = 20
 
+#: dtype kinds of real numbers: float, signed and unsigned int (bool, complex, str excluded).
+_REAL_KINDS = 'fiu'
+
+
+def _real_array(name: str, values: Any) -> np.ndarray:
+    """``values`` as an array of a real dtype, without converting it (complex would lose its
+    imaginary part, a str array would fail deep inside numpy)."""
+    array = np.asarray(values)
+    if array.dtype.kind not in _REAL_KINDS:
+        raise InputError(
+            f'{name} must hold real numbers (float or int); got dtype {array.dtype}'
+        )
+    return array
+
 
 def kitti_error(d_est: np.ndarray, d_gt: np.ndarray) -> np.ndarray:
     """Label every disparity as wrong or right with the KITTI criterion.
@@ -55,10 +72,10 @@ def kitti_error(d_est: np.ndarray, d_gt: np.ndarray) -> np.ndarray:
         ``np.isfinite(d_gt)``.
 
     Raises:
-        InputError: The shapes differ.
+        InputError: A dtype that is not real (float or int), or the shapes differ.
     """
-    d_est = np.asarray(d_est, dtype=np.float64)
-    d_gt = np.asarray(d_gt, dtype=np.float64)
+    d_est = _real_array('d_est', d_est).astype(np.float64, copy=False)
+    d_gt = _real_array('d_gt', d_gt).astype(np.float64, copy=False)
     if d_est.shape != d_gt.shape:
         raise InputError(
             f'd_est and d_gt must have the same shape; got {d_est.shape} and {d_gt.shape}'
@@ -73,6 +90,13 @@ def kitti_error(d_est: np.ndarray, d_gt: np.ndarray) -> np.ndarray:
 
 def _flatten_pair(confidence: np.ndarray, error: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     confidence = np.asarray(confidence)
+    if confidence.dtype.kind not in _REAL_KINDS:
+        hint = ''
+        if confidence.dtype == np.bool_:
+            hint = ' (convert a binary confidence with astype(float))'
+        raise InputError(
+            f'confidence must hold real numbers (float or int){hint}; got dtype {confidence.dtype}'
+        )
     error = np.asarray(error)
     if confidence.shape != error.shape:
         raise InputError(
@@ -112,7 +136,8 @@ def roc_curve(confidence: np.ndarray, error: np.ndarray) -> tuple[np.ndarray, np
         increasing in (0, 1] and ending at 1, error rate in [0, 1].
 
     Raises:
-        InputError: Shapes differ, ``error`` is not bool, the input is empty or holds NaN.
+        InputError: Shapes differ, ``confidence`` is not real (float or int), ``error`` is not
+            bool, the input is empty or holds NaN.
     """
     confidence, error = _flatten_pair(confidence, error)
     n = confidence.size
@@ -174,14 +199,26 @@ def optimal_auc(error_rate: float) -> float:
     """AUC of a perfect confidence map: ``ε + (1 − ε) ln(1 − ε)`` (paper, Eq. 1).
 
     Args:
-        error_rate: Overall error rate ε of the disparity map, in [0, 1].
+        error_rate: Overall error rate ε of the disparity map, in [0, 1]: a real scalar (Python
+            or numpy number, or a 0-d real array); bool is refused, as it is no rate.
 
     Returns:
         The optimal AUC in [0, 1] (1 for ε = 1, the limit of the formula).
 
     Raises:
-        InputError: ``error_rate`` is outside [0, 1] or NaN.
+        InputError: ``error_rate`` is not a real scalar, is outside [0, 1] or is NaN.
     """
+    scalar = isinstance(error_rate, (Real, np.integer)) or (
+        isinstance(error_rate, np.ndarray)
+        and error_rate.ndim == 0
+        and error_rate.dtype.kind in _REAL_KINDS
+    )
+    if not scalar or isinstance(error_rate, (bool, np.bool_)):
+        shape = f' of shape {error_rate.shape}' if isinstance(error_rate, np.ndarray) else ''
+        raise InputError(
+            'error_rate must be a real number in [0, 1]; '
+            f'got {type(error_rate).__name__}{shape} {error_rate!r}'
+        )
     eps = float(error_rate)
     if not 0.0 <= eps <= 1.0:
         raise InputError(f'error_rate must be in [0, 1]; got {error_rate}')

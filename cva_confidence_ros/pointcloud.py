@@ -20,11 +20,13 @@ float32 field called ``rgb``.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
+from numbers import Real
+from typing import Any
 
 import numpy as np
 
-from cva_confidence_ros.errors import InputError
+from cva_confidence_ros.errors import ConfigError, InputError
 
 __all__ = [
     'CLOUD_DTYPE',
@@ -37,6 +39,11 @@ __all__ = [
 
 #: One point as ``stereo_image_proc`` lays it out: x, y, z, rgb, all float32, 16 bytes.
 CLOUD_DTYPE = np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('rgb', '<f4')])
+
+
+def _is_real(value: Any) -> bool:
+    """A real scalar (Python or numpy), bool excluded: ``True`` is an int but never a length."""
+    return isinstance(value, (Real, np.integer)) and not isinstance(value, (bool, np.bool_))
 
 
 def _projection(matrix: Sequence[float] | np.ndarray, name: str) -> np.ndarray:
@@ -71,6 +78,13 @@ class StereoGeometry:
     baseline: float
 
     def __post_init__(self) -> None:
+        for field in fields(self):
+            value = getattr(self, field.name)
+            if not _is_real(value):
+                raise InputError(
+                    f'stereo geometry field {field.name} must be a real number; '
+                    f'got {type(value).__name__} {value!r}'
+                )
         values = (self.fx, self.fy, self.cx, self.cy, self.cx_right, self.baseline)
         if not all(np.isfinite(values)):
             raise InputError(f'stereo geometry must be finite; got {self}')
@@ -126,9 +140,14 @@ class StereoGeometry:
                 ``factor`` when a size does not divide evenly (e.g. 375 rows halved to 187).
 
         Raises:
-            InputError: A factor ≤ 0.
+            InputError: A factor that is not a real number, or one ≤ 0.
         """
         factor_y = factor if factor_y is None else factor_y
+        for name, value in (('factor', factor), ('factor_y', factor_y)):
+            if not _is_real(value):
+                raise InputError(
+                    f'scale {name} must be a real number; got {type(value).__name__} {value!r}'
+                )
         if not (factor > 0 and factor_y > 0):
             raise InputError(f'scale factors must be > 0; got {factor} and {factor_y}')
 
@@ -153,9 +172,12 @@ def disparity_to_points(
     """Triangulate every pixel of a left-reference disparity map.
 
     Args:
-        disparity: (H, W) float32 raw disparity ``x_left − x_right`` in pixels; NaN = invalid.
+        disparity: (H, W) float32 (any real dtype) raw disparity ``x_left − x_right`` in
+            pixels; NaN = invalid.
         geometry: Intrinsics at the disparity map's resolution.
-        mask: Optional (H, W) bool, True = keep. Pixels outside it become NaN.
+        mask: Optional (H, W) bool, True = keep. Pixels outside it become NaN. Only a bool
+            array is accepted: a float mask (a confidence map, say) would make every non-zero
+            value, NaN included, True.
 
     Returns:
         (H, W, 3) float32 points (X, Y, Z) in the left camera frame (x right, y down, z
@@ -163,21 +185,32 @@ def disparity_to_points(
         where ``d + Δ ≤ 0`` or where ``mask`` is False.
 
     Raises:
-        InputError: ``disparity`` is not 2-D or ``mask`` has another shape.
+        InputError: ``disparity`` is not a 2-D real array, ``geometry`` is not a
+            :class:`StereoGeometry`, or ``mask`` is not bool or has another shape.
     """
+    if not isinstance(geometry, StereoGeometry):
+        raise InputError(f'geometry must be a StereoGeometry; got {type(geometry).__name__}')
     disparity = np.asarray(disparity)
+    if disparity.dtype.kind not in 'fiu':
+        raise InputError(
+            f'disparity must hold real numbers (float or int); got dtype {disparity.dtype}'
+        )
     if disparity.ndim != 2:
         raise InputError(f'disparity must be (H, W); got shape {disparity.shape}')
-    if mask is not None and np.shape(mask) != disparity.shape:
-        raise InputError(
-            f'mask must have the disparity shape {disparity.shape}; got {np.shape(mask)}'
-        )
+    if mask is not None:
+        mask = np.asarray(mask)
+        if mask.shape != disparity.shape:
+            raise InputError(
+                f'mask must have the disparity shape {disparity.shape}; got {mask.shape}'
+            )
+        if mask.dtype != np.bool_:
+            raise InputError(f'mask must be a bool array (True = keep); got dtype {mask.dtype}')
     height, width = disparity.shape
     shifted = disparity.astype(np.float64) + geometry.disparity_offset
     with np.errstate(invalid='ignore'):
         keep = np.isfinite(shifted) & (shifted > 0)
     if mask is not None:
-        keep &= np.asarray(mask, dtype=bool)
+        keep &= mask
     depth = np.full((height, width), np.nan)
     np.divide(geometry.fx * geometry.baseline, shifted, out=depth, where=keep)
     columns = np.arange(width, dtype=np.float64)[None, :]
@@ -225,8 +258,10 @@ def make_cloud(points: np.ndarray, colours: np.ndarray, organized: bool = True) 
     """Assemble XYZ and packed colours into a point array with :data:`CLOUD_DTYPE`.
 
     Args:
-        points: (H, W, 3) float32 from :func:`disparity_to_points`; NaN rows are dropped points.
-        colours: (H, W) float32 from :func:`pack_rgb`.
+        points: (H, W, 3) float32 (any float dtype) from :func:`disparity_to_points`; NaN rows
+            are dropped points.
+        colours: (H, W) float32 from :func:`pack_rgb`: packed bits, not intensities, so a
+            uint8 image (or any other dtype) is refused rather than stored as a number.
         organized: Keep the (H, W) grid with NaN points (``stereo_image_proc`` style); if False,
             return only the finite points, row-major, as (N,).
 
@@ -234,8 +269,24 @@ def make_cloud(points: np.ndarray, colours: np.ndarray, organized: bool = True) 
         (H, W) or (N,) structured array of :data:`CLOUD_DTYPE`.
 
     Raises:
-        InputError: Shapes that do not fit together.
+        InputError: Not numpy arrays, points not float, colours not float32, or shapes that do
+            not fit together.
+        ConfigError: ``organized`` is not a bool.
     """
+    if not isinstance(organized, (bool, np.bool_)):
+        raise ConfigError(
+            f'organized must be a bool; got {type(organized).__name__} {organized!r}'
+        )
+    for name, array in (('points', points), ('colours', colours)):
+        if not isinstance(array, np.ndarray):
+            raise InputError(f'{name} must be a numpy array; got {type(array).__name__}')
+    if points.dtype.kind != 'f':
+        raise InputError(f'points must be a float array (NaN = dropped); got dtype {points.dtype}')
+    if colours.dtype.kind != 'f' or colours.dtype.itemsize != 4:
+        raise InputError(
+            'colours must be float32 packed by pack_rgb (bits of 0x00RRGGBB); '
+            f'got dtype {colours.dtype}'
+        )
     if points.ndim != 3 or points.shape[2] != 3:
         raise InputError(f'points must be (H, W, 3); got {points.shape}')
     if colours.shape != points.shape[:2]:

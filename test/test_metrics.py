@@ -213,3 +213,47 @@ def test_evaluate_confidence_excludes_unknown_and_masked_pixels() -> None:
 def test_evaluate_confidence_without_ground_truth_fails() -> None:
     with pytest.raises(InputError, match='ground truth'):
         evaluate_confidence(np.zeros((2, 2)), np.zeros((2, 2)), np.full((2, 2), np.nan))
+
+
+@pytest.mark.parametrize(
+    ('confidence', 'dtype'),
+    [
+        (np.array(['0.1', '0.2']), '<U3'),
+        (np.array([0.1 + 1j, 0.2]), 'complex128'),
+        (np.array([True, False]), 'bool'),
+        (np.array([0.1, None]), 'object'),
+    ],
+)
+def test_roc_curve_needs_real_confidence(confidence: np.ndarray, dtype: str) -> None:
+    error = np.array([True, False])
+    with pytest.raises(InputError, match=f'confidence must hold real numbers.*{dtype}'):
+        roc_curve(confidence, error)
+    with pytest.raises(InputError, match='confidence must hold real numbers'):
+        roc_auc(confidence, error)
+    assert roc_auc(np.array([2, 1], np.int32), error) == roc_auc(np.array([0.2, 0.1]), error)
+
+
+@pytest.mark.parametrize('name', ['d_est', 'd_gt'])
+@pytest.mark.parametrize('bad', [np.array(['1', '2']), np.array([1 + 1j, 2]), np.ones(2, bool)])
+def test_kitti_error_needs_real_disparities(name: str, bad: np.ndarray) -> None:
+    arrays = {'d_est': np.array([1.0, 2.0]), 'd_gt': np.array([1.0, 2.0])}
+    arrays[name] = bad
+    with pytest.raises(InputError, match=f'{name} must hold real numbers.*{bad.dtype}'):
+        kitti_error(**arrays)
+    with pytest.raises(InputError, match=f'{name} must hold real numbers'):
+        evaluate_confidence(np.array([0.1, 0.2]), **arrays)
+    assert kitti_error(np.array([1, 9], np.uint8), np.array([1, 2])).tolist() == [False, True]
+
+
+@pytest.mark.parametrize(
+    'error_rate', ['x', None, np.array([0.1, 0.2]), True, np.bool_(False), np.array(True), 0.5j]
+)
+def test_optimal_auc_needs_a_real_scalar(error_rate: object) -> None:
+    with pytest.raises(InputError, match='error_rate must be a real number in'):
+        optimal_auc(error_rate)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize('error_rate', [np.float32(0.5), np.array(0.5), Fraction(1, 2)])
+def test_optimal_auc_accepts_real_scalars(error_rate: object) -> None:
+    assert optimal_auc(error_rate) == pytest.approx(0.5 + 0.5 * math.log(0.5))  # type: ignore[arg-type]
+    assert optimal_auc(1) == 1.0 and optimal_auc(np.int64(0)) == 0.0

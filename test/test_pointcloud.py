@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cva_confidence_ros.errors import InputError
+from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.pointcloud import (
     CLOUD_DTYPE,
     StereoGeometry,
@@ -156,3 +156,91 @@ def test_invalid_arrays() -> None:
         pack_rgb(np.zeros((2, 2, 4), np.uint8))
     with pytest.raises(InputError, match='> 0'):
         geometry.scaled(0.0)
+
+
+@pytest.mark.parametrize(
+    'mask',
+    [np.array([[np.nan, 0.2]]), np.array([[1, 0]]), [[1.0, 0.0]], np.array([['a', 'b']])],
+    ids=['nan-float', 'int', 'list-float', 'str'],
+)
+def test_mask_must_be_bool(mask: object) -> None:
+    geometry = StereoGeometry.from_projections(P_LEFT, P_RIGHT)
+    with pytest.raises(InputError, match='mask must be a bool array'):
+        disparity_to_points(np.full((1, 2), 10.0, np.float32), geometry, mask)
+    kept = disparity_to_points(np.full((1, 2), 10.0, np.float32), geometry, [[True, False]])
+    assert np.isfinite(kept[0, 0]).all() and np.isnan(kept[0, 1]).all()
+
+
+@pytest.mark.parametrize(
+    'disparity',
+    [np.ones((2, 2), complex), np.full((2, 2), '1'), np.ones((2, 2), bool)],
+    ids=['complex', 'str', 'bool'],
+)
+def test_disparity_must_be_real(disparity: np.ndarray) -> None:
+    geometry = StereoGeometry.from_projections(P_LEFT, P_RIGHT)
+    with pytest.raises(InputError, match=f'disparity must hold real numbers.*{disparity.dtype}'):
+        disparity_to_points(disparity, geometry)
+
+
+@pytest.mark.parametrize('geometry', [None, P_LEFT, {'fx': 100.0}])
+def test_disparity_to_points_needs_a_geometry(geometry: object) -> None:
+    with pytest.raises(InputError, match=f'StereoGeometry; got {type(geometry).__name__}'):
+        disparity_to_points(np.ones((2, 2), np.float32), geometry)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    'colours',
+    [np.full((2, 2), 255, np.uint8), np.zeros((2, 2), np.float64), np.zeros((2, 2), np.uint32)],
+    ids=['uint8', 'float64', 'uint32'],
+)
+def test_make_cloud_needs_packed_float32_colours(colours: np.ndarray) -> None:
+    points = np.zeros((2, 2, 3), np.float32)
+    with pytest.raises(InputError, match=f'colours must be float32 packed.*{colours.dtype}'):
+        make_cloud(points, colours)
+
+
+def test_make_cloud_needs_arrays_and_float_points() -> None:
+    points = np.zeros((2, 2, 3), np.float32)
+    colours = pack_rgb(np.zeros((2, 2), np.uint8))
+    with pytest.raises(InputError, match='points must be a numpy array; got list'):
+        make_cloud(points.tolist(), colours)  # type: ignore[arg-type]
+    with pytest.raises(InputError, match='colours must be a numpy array; got list'):
+        make_cloud(points, colours.tolist())  # type: ignore[arg-type]
+    with pytest.raises(InputError, match='points must be a float array.*complex64'):
+        make_cloud(points.astype(np.complex64), colours)
+    big_endian = make_cloud(points, colours.astype('>f4'))
+    assert big_endian['rgb'].view(np.uint32).tolist() == [[0, 0], [0, 0]]
+
+
+@pytest.mark.parametrize('organized', ['no', 0, 1, None])
+def test_make_cloud_organized_must_be_bool(organized: object) -> None:
+    points = np.zeros((2, 2, 3), np.float32)
+    colours = pack_rgb(np.zeros((2, 2), np.uint8))
+    expected = f'organized must be a bool; got {type(organized).__name__}'
+    with pytest.raises(ConfigError, match=expected):
+        make_cloud(points, colours, organized)  # type: ignore[arg-type]
+    assert make_cloud(points, colours, np.bool_(False)).shape == (4,)
+
+
+@pytest.mark.parametrize(
+    ('field', 'value'),
+    [('fx', 'a'), ('fx', None), ('fx', True), ('baseline', np.bool_(True)), ('cy', 1 + 2j)],
+)
+def test_geometry_fields_must_be_real_numbers(field: str, value: object) -> None:
+    values: dict[str, object] = {
+        'fx': 100.0, 'fy': 100.0, 'cx': 2.0, 'cy': 1.0, 'cx_right': 2.0, 'baseline': 0.5
+    }
+    values[field] = value
+    with pytest.raises(InputError, match=f'field {field} must be a real number'):
+        StereoGeometry(**values)  # type: ignore[arg-type]
+    values[field] = np.float32(2.0) if field != 'fx' else np.int64(100)
+    StereoGeometry(**values)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(('factor', 'factor_y'), [('a', None), (None, None), (True, None),
+                                                  (0.5, 'b'), (0.5, False)])
+def test_scaled_factors_must_be_real_numbers(factor: object, factor_y: object) -> None:
+    geometry = StereoGeometry.from_projections(P_LEFT, P_RIGHT)
+    with pytest.raises(InputError, match='must be a real number'):
+        geometry.scaled(factor, factor_y)  # type: ignore[arg-type]
+    assert geometry.scaled(np.float32(0.5), 1).fx == 50.0

@@ -43,17 +43,36 @@ GENERIC_OPTIONS = frozenset(
 )
 
 
+#: dtype kinds accepted for cost volumes and disparities: float, signed and unsigned int.
+_REAL_KINDS = 'fiu'
+#: Slack around [0, 1] for costs, so that float rounding in a matcher is not an error.
+_COST_TOLERANCE = 1e-4
+
+
 def _as_volume(name: str, volume: Any) -> np.ndarray:
     if not isinstance(volume, np.ndarray):
         raise InputError(f'{name} must be a numpy array; got {type(volume).__name__}')
+    if volume.dtype.kind not in _REAL_KINDS:
+        raise InputError(f'{name} must hold real numbers (float or int); got dtype {volume.dtype}')
     if volume.ndim != 3 or 0 in volume.shape:
         raise InputError(f'{name} must be a non-empty (D, H, W) array; got shape {volume.shape}')
-    return np.ascontiguousarray(volume, dtype=np.float32)
+    volume = np.ascontiguousarray(volume, dtype=np.float32)
+    # Two reductions per frame; NaN propagates into both, and ±inf falls outside the range.
+    low, high = float(volume.min()), float(volume.max())
+    if not (-_COST_TOLERANCE <= low and high <= 1.0 + _COST_TOLERANCE):
+        raise InputError(
+            f'{name} must hold finite costs in [0, 1]; got values in [{low:g}, {high:g}]'
+        )
+    return volume
 
 
 def _as_disparity(name: str, disparity: Any, shape: tuple[int, int]) -> np.ndarray:
     if not isinstance(disparity, np.ndarray):
         raise InputError(f'{name} must be a numpy array; got {type(disparity).__name__}')
+    if disparity.dtype.kind not in _REAL_KINDS:
+        raise InputError(
+            f'{name} must hold real numbers (float or int); got dtype {disparity.dtype}'
+        )
     if disparity.shape != shape:
         raise InputError(f'{name} must have shape {shape} (H, W); got {disparity.shape}')
     return np.asarray(disparity, dtype=np.float32)
@@ -64,6 +83,8 @@ class ConfidenceInputs:
     """Everything a confidence method may look at for one stereo pair.
 
     Arrays are checked on construction and converted to float32 (no copy if they already are).
+    Cost volumes must be real (float or int) and lie in [0, 1] (a rounding slack of 1e-4 is
+    allowed), which also excludes NaN and ±inf; disparities must be real (NaN = invalid).
 
     Attributes:
         cost_volume: (D, H, W) float32 left-reference costs in [0, 1], 0 = perfect match;
@@ -73,7 +94,12 @@ class ConfidenceInputs:
         cost_volume_right: Optional (D, H, W) float32 right-reference costs; ``[d, y, x]``
             matches right ``(y, x)`` with left ``(y, x + d)``.
         disparity_right: Optional (H, W) float32 right disparity, NaN = invalid.
-        matcher: Name of the matcher that produced the volume (learned methods check it).
+        matcher: Name of the matcher that produced the volume (learned methods check it);
+            ``''`` = unknown.
+
+    Raises:
+        InputError: A wrong type, dtype or shape, costs outside [0, 1] (NaN included), an image
+            that is not uint8, or a matcher that is not a str.
     """
 
     cost_volume: np.ndarray
@@ -94,6 +120,13 @@ class ConfidenceInputs:
         ):
             got = image.shape if isinstance(image, np.ndarray) else type(image).__name__
             raise InputError(f'image must be {shape} or {shape + (3,)}; got {got}')
+        if image.dtype != np.uint8:
+            raise InputError(f'image must be uint8 (intensities 0..255); got dtype {image.dtype}')
+        if not isinstance(self.matcher, str):
+            raise InputError(
+                "matcher must be a str (a matcher name, or '' if unknown); "
+                f'got {type(self.matcher).__name__}'
+            )
         if self.cost_volume_right is not None:
             right = _as_volume('cost_volume_right', self.cost_volume_right)
             if right.shape != volume.shape:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from numbers import Real
 
 import numba
 import numpy as np
@@ -41,6 +42,9 @@ __all__ = [
 
 # Temporaries per block of rows stay below about this many float32 values (~32 MB).
 _BLOCK_VALUES = 8 * 1024 * 1024
+
+# Smallest sigma whose 1/(2σ²) is finite in float32 (about 3.8e-20).
+_MIN_SIGMA = float(np.sqrt(0.5 / np.finfo(np.float32).max))
 
 
 def _row_blocks(volume: np.ndarray) -> list[slice]:
@@ -102,6 +106,10 @@ def two_smallest(volume: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 
 def _check_positive(name: str, value: float) -> None:
+    # bool is an int to Python but never a meaningful eps or sigma; a str or None would reach
+    # np.isfinite and come back as a bare TypeError.
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (Real, np.integer)):
+        raise ConfigError(f'{name} must be a real number; got {type(value).__name__} {value!r}')
     if not (np.isfinite(value) and value > 0):
         raise ConfigError(f'{name} must be a finite number > 0; got {value}')
 
@@ -157,15 +165,29 @@ class MaximumLikelihood(ConfidenceMethod):
 
     def __post_init__(self) -> None:
         _check_positive('sigma', self.sigma)
+        # The costs are scaled in float32: a sigma so small that 1/(2σ²) overflows would turn
+        # every weight into NaN (0 · inf) and the map into NaN.
+        if not np.isfinite(self._scale()):
+            raise ConfigError(
+                f'sigma must be large enough that 1/(2 sigma^2) is finite in float32 '
+                f'(sigma ≥ about {_MIN_SIGMA:.1e}); got {self.sigma}'
+            )
+
+    def _scale(self) -> np.float32:
+        """``-1 / (2σ²)`` in float32; -inf where it overflows (numpy, not Python, arithmetic:
+        Python raises for ``1e-200 ** 2`` in the denominator or ``1e200 ** 2``)."""
+        with np.errstate(over='ignore', divide='ignore', under='ignore'):
+            return np.float32(-1.0 / (2.0 * np.float64(self.sigma) ** 2))
 
     def __call__(self, inputs: ConfidenceInputs) -> np.ndarray:
         """Return (H, W) float32 in (0, 1]; 1/D for a flat cost curve."""
-        scale = np.float32(-1.0 / (2.0 * self.sigma**2))
+        scale = self._scale()
 
         def block_mlm(block: np.ndarray) -> np.ndarray:
             # Shifting by the minimum keeps every exponent ≤ 0: no overflow, and the sum ≥ 1.
             weights = block - block.min(axis=0)
-            weights *= scale
+            with np.errstate(over='ignore'):  # a tiny sigma: -inf, whose exp is the right 0
+                weights *= scale
             np.exp(weights, out=weights)
             return 1.0 / weights.sum(axis=0, dtype=np.float64)
 
