@@ -147,7 +147,7 @@ def run_gpu(
         The records.
 
     Raises:
-        ConfigError: Unknown network or precision, or fp16 on a CPU.
+        ConfigError: Unknown network or precision, fp16 on a CPU, or a negative warmup.
     """
     import torch
 
@@ -156,6 +156,8 @@ def run_gpu(
     from cva_confidence_ros.model import SparseEvaluator, pad_cost_volume, resolve_device
     from cva_confidence_ros.model.sparse import precision_context
 
+    if warmup < 0:
+        raise ConfigError(f'warmup must be ≥ 0 untimed frames; got {warmup}')
     unknown = [n for n in networks if n not in GPU_NETWORKS]
     if unknown:
         raise ConfigError(f'unknown networks {unknown}; expected some of {list(GPU_NETWORKS)}')

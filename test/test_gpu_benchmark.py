@@ -37,6 +37,8 @@ def test_bad_rows_are_refused():
         run_gpu(settings, ['fast'], ['fp16'], device='cpu')
     with pytest.raises(ConfigError, match="unknown networks \\['resnet'\\]"):
         run_gpu(settings, ['resnet'], ['fp32'], device='cpu')
+    with pytest.raises(ConfigError, match='warmup must be ≥ 0 untimed frames; got -3'):
+        run_gpu(settings, ['fast'], ['fp32'], device='cpu', warmup=-3)
 
 
 def test_cli_writes_json(tmp_path):
