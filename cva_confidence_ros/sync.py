@@ -19,11 +19,12 @@ its key, and the oldest message of a key whose queue is full. Every evicted mess
 in :attr:`StampSynchronizer.dropped`.
 
 Time going backwards (``ros2 bag play --loop``, a driver restart, a simulator reset) is told from
-a late straggler by whether the old messages form a set: those before the last emitted stamp of
-their key are kept aside (bounded like the queues, and counted as dropped); a single
-straggler, whose partners have long gone, never completes a set, but once the old messages do,
-the streams have jumped back. The synchroniser then starts over from them: the set is emitted
-with :attr:`MatchedSet.jumped_from_ns` set, the messages still waiting from before the jump are
+a late straggler by how far back it goes (``min_jump_ns``, 1 s by default) and by whether the
+old messages form a set: those that far before the last emitted stamp of their key are kept
+aside (bounded like the queues, and counted as dropped); a single straggler, whose partners have
+long gone, never completes a set, but once the old messages do, the streams have jumped back.
+The synchroniser then starts over from them: the set is emitted with
+:attr:`MatchedSet.jumped_from_ns` set, the messages still waiting from before the jump are
 dropped, and :attr:`StampSynchronizer.jumps` counts one.
 """
 
@@ -70,6 +71,11 @@ class StampSynchronizer:
         approximate: Use the approximate policy instead of exact stamp equality.
         tolerance_ns: Largest spread of stamps in one set, in nanoseconds (≥ 0). Only used
             when ``approximate`` is True; the exact policy always uses 0.
+        min_jump_ns: How far before the last emitted stamp a message must lie to count as a
+            possible jump back in time (≥ 1; default 1 s). Nearer ones are late stragglers and
+            dropped: a complete frame delivered after a newer one never resets the streams,
+            and a jump back by less than this heals by itself once the stamps pass the old
+            ones.
 
     Attributes:
         dropped: Messages evicted without being part of a set.
@@ -77,7 +83,8 @@ class StampSynchronizer:
         jumps: Times the stamps jumped back and the synchroniser started over.
 
     Raises:
-        ConfigError: Empty or repeated keys, ``queue_size`` < 1 or ``tolerance_ns`` < 0.
+        ConfigError: Empty or repeated keys, ``queue_size`` < 1, ``tolerance_ns`` < 0 or
+            ``min_jump_ns`` < 1.
 
     Thread-safe: :meth:`add` may be called from several threads.
     """
@@ -88,6 +95,7 @@ class StampSynchronizer:
         queue_size: int = 10,
         approximate: bool = False,
         tolerance_ns: int = 0,
+        min_jump_ns: int = 1_000_000_000,
     ) -> None:
         keys = tuple(keys)
         if not keys:
@@ -98,7 +106,10 @@ class StampSynchronizer:
             raise ConfigError(f'queue_size must be an integer >= 1; got {queue_size!r}')
         if isinstance(tolerance_ns, bool) or not isinstance(tolerance_ns, int) or tolerance_ns < 0:
             raise ConfigError(f'tolerance_ns must be an integer >= 0; got {tolerance_ns!r}')
+        if isinstance(min_jump_ns, bool) or not isinstance(min_jump_ns, int) or min_jump_ns < 1:
+            raise ConfigError(f'min_jump_ns must be an integer >= 1; got {min_jump_ns!r}')
         self.keys = keys
+        self.min_jump_ns = min_jump_ns
         self.queue_size = queue_size
         self.approximate = bool(approximate)
         self.tolerance_ns = tolerance_ns if self.approximate else 0
@@ -140,8 +151,9 @@ class StampSynchronizer:
             last = self._last[key]
             if last is not None and stamp_ns <= last:
                 self.dropped += 1
-                if stamp_ns == last:
-                    # A repeat of what was just emitted (a second publisher, a resent message).
+                if last - stamp_ns < self.min_jump_ns:
+                    # A repeat of what was just emitted (a second publisher, a resent
+                    # message) or a late straggler.
                     return []
                 return self._add_stale(key, stamp_ns, msg)
             queue = self._queues[key]

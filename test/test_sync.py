@@ -245,7 +245,7 @@ def _total(sync: StampSynchronizer) -> int:
 
 def test_stamps_jumping_back_start_over() -> None:
     # ros2 bag play --loop, a driver restart or a simulator reset: a whole frame, older.
-    sync = StampSynchronizer()
+    sync = StampSynchronizer(min_jump_ns=1)  # stamps in ns here: any step back counts
     (first,) = _feed_frame(sync, 10)
     assert first.jumped_from_ns is None
     (after_jump,) = _feed_frame(sync, 5)
@@ -271,7 +271,7 @@ def test_jump_back_far_into_the_past_in_nanoseconds() -> None:
 
 
 def test_jump_back_drops_what_waited_from_before() -> None:
-    sync = StampSynchronizer()
+    sync = StampSynchronizer(min_jump_ns=1)  # stamps in ns here: any step back counts
     _feed_frame(sync, 10)
     # Half of frame 11 came before the jump; its other half never will.
     sync.add('left', 11, 'l11')
@@ -284,7 +284,7 @@ def test_jump_back_drops_what_waited_from_before() -> None:
 
 
 def test_late_straggler_is_still_dropped_and_is_no_jump() -> None:
-    sync = StampSynchronizer()
+    sync = StampSynchronizer(min_jump_ns=1)  # stamps in ns here: any step back counts
     _feed_frame(sync, 10)
     _feed_frame(sync, 20)
     # One message of frame 15 delivered out of order, after frame 20 went out.
@@ -299,7 +299,7 @@ def test_late_straggler_is_still_dropped_and_is_no_jump() -> None:
 
 
 def test_stragglers_of_many_frames_never_make_a_jump() -> None:
-    sync = StampSynchronizer()
+    sync = StampSynchronizer(min_jump_ns=1)  # stamps in ns here: any step back counts
     sets: list[MatchedSet] = []
     late: list[tuple[str, int]] = []
     for frame in range(1, 41):
@@ -339,7 +339,7 @@ def test_approximate_stream_survives_a_jump_back() -> None:
 
 
 def test_reset_forgets_messages_held_aside() -> None:
-    sync = StampSynchronizer(keys=('a', 'b'))
+    sync = StampSynchronizer(keys=('a', 'b'), min_jump_ns=1)
     sync.add('a', 10, 'a10')
     sync.add('b', 10, 'b10')
     sync.add('a', 5, 'a5')  # held aside as a possible jump back
@@ -349,3 +349,24 @@ def test_reset_forgets_messages_held_aside() -> None:
     # b@5 after the reset is late again; it must not pair with the a@5 from before it.
     assert sync.add('b', 5, 'b5') == []
     assert sync.jumps == 0
+
+
+def test_a_frame_delivered_late_is_no_jump_back() -> None:
+    # With the default threshold (1 s) a whole frame that comes in after a newer one (reordered
+    # delivery) is dropped as stragglers, and does not reset the streams.
+    sync = StampSynchronizer()
+    period = 33 * MS
+    sets = _feed_frame(sync, 1000 * period) + _feed_frame(sync, 1002 * period)
+    sets += _feed_frame(sync, 1001 * period)  # complete, but older than the last set
+    sets += _feed_frame(sync, 1003 * period)
+    assert [s.stamp_ns for s in sets] == [1000 * period, 1002 * period, 1003 * period]
+    assert sync.jumps == 0 and sync.dropped == 4
+    # A jump back by less than the threshold heals by itself once the stamps pass the old ones.
+    late = [s.stamp_ns for k in range(995, 1006) for s in _feed_frame(sync, k * period)]
+    assert late == [1004 * period, 1005 * period] and sync.jumps == 0
+
+
+def test_min_jump_must_be_a_positive_integer() -> None:
+    for bad in (0, -1, 1.5, True):
+        with pytest.raises(ConfigError, match='min_jump_ns must be an integer >= 1'):
+            StampSynchronizer(min_jump_ns=bad)  # type: ignore[arg-type]
