@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from cva_confidence_ros.checks import is_int, is_real
 from cva_confidence_ros.errors import ConfigError, InputError
 
 __all__ = ['PipelineConfig', 'PipelineResult', 'StereoPipeline']
@@ -73,20 +74,20 @@ class PipelineConfig:
                 f'unknown confidence_method {self.confidence_method!r}; '
                 f'expected one of {CONFIDENCE_METHODS.names()}'
             )
-        if not _is_int(self.max_disparity) or not 1 <= self.max_disparity <= 1024:
+        if not is_int(self.max_disparity) or not 1 <= self.max_disparity <= 1024:
             raise ConfigError(
                 f'max_disparity must be an integer in [1, 1024]; got {self.max_disparity!r}'
             )
         if self.device not in _DEVICES:
             raise ConfigError(f'device must be one of {_DEVICES}; got {self.device!r}')
-        if not _is_real(self.confidence_threshold) or not 0 <= self.confidence_threshold <= 1:
+        if not is_real(self.confidence_threshold) or not 0 <= self.confidence_threshold <= 1:
             raise ConfigError(
                 f'confidence_threshold must be a number in [0, 1]; '
                 f'got {self.confidence_threshold!r}'
             )
-        if not _is_int(self.downsample) or self.downsample not in (1, 2, 4):
+        if not is_int(self.downsample) or self.downsample not in (1, 2, 4):
             raise ConfigError(f'downsample must be 1, 2 or 4; got {self.downsample!r}')
-        if not _is_real(self.tile_budget_mb) or not (
+        if not is_real(self.tile_budget_mb) or not (
             math.isfinite(self.tile_budget_mb) and self.tile_budget_mb > 0
         ):
             raise ConfigError(
@@ -144,16 +145,6 @@ class PipelineResult:
     def filtered_disparity(self) -> np.ndarray:
         """Disparity with NaN wherever :attr:`valid` is False."""
         return np.where(self.valid, self.disparity, np.float32(np.nan)).astype(np.float32)
-
-
-def _is_int(value: object) -> bool:
-    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
-
-
-def _is_real(value: object) -> bool:
-    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
-        value, bool
-    )
 
 
 class StereoPipeline:

@@ -21,11 +21,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
-from numbers import Real
-from typing import Any
 
 import numpy as np
 
+from cva_confidence_ros.checks import is_real
 from cva_confidence_ros.errors import ConfigError, InputError
 
 __all__ = [
@@ -39,11 +38,6 @@ __all__ = [
 
 #: One point as ``stereo_image_proc`` lays it out: x, y, z, rgb, all float32, 16 bytes.
 CLOUD_DTYPE = np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('rgb', '<f4')])
-
-
-def _is_real(value: Any) -> bool:
-    """A real scalar (Python or numpy), bool excluded: ``True`` is an int but never a length."""
-    return isinstance(value, (Real, np.integer)) and not isinstance(value, (bool, np.bool_))
 
 
 def _projection(matrix: Sequence[float] | np.ndarray, name: str) -> np.ndarray:
@@ -80,7 +74,7 @@ class StereoGeometry:
     def __post_init__(self) -> None:
         for field in fields(self):
             value = getattr(self, field.name)
-            if not _is_real(value):
+            if not is_real(value):
                 raise InputError(
                     f'stereo geometry field {field.name} must be a real number; '
                     f'got {type(value).__name__} {value!r}'
@@ -144,7 +138,7 @@ class StereoGeometry:
         """
         factor_y = factor if factor_y is None else factor_y
         for name, value in (('factor', factor), ('factor_y', factor_y)):
-            if not _is_real(value):
+            if not is_real(value):
                 raise InputError(
                     f'scale {name} must be a real number; got {type(value).__name__} {value!r}'
                 )

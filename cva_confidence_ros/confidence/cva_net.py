@@ -14,6 +14,7 @@ from typing import Any, ClassVar
 import numpy as np
 from torch import nn
 
+from cva_confidence_ros.checks import is_int
 from cva_confidence_ros.confidence.base import (
     CONFIDENCE_METHODS,
     ConfidenceInputs,
@@ -87,11 +88,7 @@ class CVANetConfidence(ConfidenceMethod):
         # An instance attribute: the pipeline asks for the right view only for LRD.
         self.needs_right = self.sparse.cascade == 'lrd'  # type: ignore[misc]
         self.matcher = matcher
-        if (
-            isinstance(max_disparity, bool)
-            or not isinstance(max_disparity, (int, np.integer))
-            or max_disparity < 1
-        ):
+        if not is_int(max_disparity) or max_disparity < 1:
             raise ConfigError(f'max_disparity must be an integer ≥ 1; got {max_disparity!r}')
         self.max_disparity = int(max_disparity)
         self.device = resolve_device(device)

@@ -18,11 +18,11 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from numbers import Real
 
 import numba
 import numpy as np
 
+from cva_confidence_ros.checks import is_real
 from cva_confidence_ros.confidence.base import (
     CONFIDENCE_METHODS,
     ConfidenceInputs,
@@ -108,7 +108,7 @@ def two_smallest(volume: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
 def _check_positive(name: str, value: float) -> None:
     # bool is an int to Python but never a meaningful eps or sigma; a str or None would reach
     # np.isfinite and come back as a bare TypeError.
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (Real, np.integer)):
+    if not is_real(value):
         raise ConfigError(f'{name} must be a real number; got {type(value).__name__} {value!r}')
     if not (np.isfinite(value) and value > 0):
         raise ConfigError(f'{name} must be a finite number > 0; got {value}')

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cva_confidence_ros.checks import is_int
 from cva_confidence_ros.errors import ConfigError
 from cva_confidence_ros.matching.base import Matcher
 from cva_confidence_ros.matching.census import CENSUS_BITS, census_views
@@ -15,10 +16,6 @@ __all__ = ['CensusSGMConfig', 'CensusSGMMatcher']
 
 #: Largest P2 for which S ≤ 8·(24 + P2) still fits the uint16 accumulator.
 MAX_P2 = MAX_ACCUMULATED // SGM_PATHS - CENSUS_BITS
-
-
-def _is_int(value: object) -> bool:
-    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
 
 
 @dataclass(frozen=True)
@@ -34,7 +31,7 @@ class CensusSGMConfig:
     p2: int = 32
 
     def __post_init__(self) -> None:
-        if not _is_int(self.p1) or not _is_int(self.p2):
+        if not is_int(self.p1) or not is_int(self.p2):
             raise ConfigError(f'p1 and p2 must be integers; got p1={self.p1!r}, p2={self.p2!r}')
         if not 0 <= self.p1 <= self.p2 <= MAX_P2:
             raise ConfigError(

@@ -11,7 +11,6 @@ from __future__ import annotations
 from collections.abc import Iterator
 import contextlib
 import math
-import numbers
 from typing import cast
 
 import numpy as np
@@ -20,6 +19,7 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
+from cva_confidence_ros.checks import is_int, is_real
 from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.model.network import (
     DEPTH_KERNELS,
@@ -240,8 +240,7 @@ def pad_cost_volume(cost_volume: np.ndarray, dtype: np.dtype | type = np.float32
 def _check_tile_budget(tile_budget_mb: object) -> float:
     """``tile_budget_mb`` as a float; ConfigError unless it is a finite real number > 0."""
     if (
-        isinstance(tile_budget_mb, bool)
-        or not isinstance(tile_budget_mb, numbers.Real)
+        not is_real(tile_budget_mb)
         or not (math.isfinite(tile_budget_mb) and tile_budget_mb > 0)
     ):
         raise ConfigError(
@@ -254,8 +253,7 @@ def _check_tile_budget(tile_budget_mb: object) -> float:
 def _check_batch_size(batch_size: object) -> int:
     """``batch_size`` as an int; ConfigError unless it is an integer >= 1 (not a bool)."""
     if (
-        isinstance(batch_size, bool)
-        or not isinstance(batch_size, (int, np.integer))
+        not is_int(batch_size)
         or batch_size < 1
     ):
         raise ConfigError(

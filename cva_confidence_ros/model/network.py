@@ -25,14 +25,13 @@ kernel. It is applied with an explicit ``F.pad`` (:func:`pad_depth`) so that the
 from __future__ import annotations
 
 import math
-import numbers
 from typing import ClassVar
 
-import numpy as np
 import torch
 from torch import nn
 import torch.nn.functional as F
 
+from cva_confidence_ros.checks import is_int, is_real
 from cva_confidence_ros.errors import ConfigError, InputError
 
 __all__ = [
@@ -246,7 +245,7 @@ def check_network_options(
         ConfigError: D not an integer (a bool, a float or None included) or below ``minimum``,
             or dropout not a real number in [0, 1).
     """
-    if isinstance(max_disparity, bool) or not isinstance(max_disparity, (int, np.integer)):
+    if not is_int(max_disparity):
         raise ConfigError(
             f'max_disparity must be an integer >= {minimum} ({reason}); '
             f'got {type(max_disparity).__name__} {max_disparity!r}'
@@ -256,8 +255,7 @@ def check_network_options(
             f'max_disparity must be an integer >= {minimum} ({reason}); got {max_disparity}'
         )
     if (
-        isinstance(dropout, bool)
-        or not isinstance(dropout, numbers.Real)
+        not is_real(dropout)
         or not 0.0 <= float(dropout) < 1.0
     ):
         raise ConfigError(

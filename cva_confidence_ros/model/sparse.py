@@ -57,7 +57,6 @@ import contextlib
 import copy
 from dataclasses import dataclass
 import math
-import numbers
 
 import numba
 import numpy as np
@@ -65,6 +64,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 import torch
 from torch import nn
 
+from cva_confidence_ros.checks import is_int, is_real
 from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.model.inference import (
     PAD,
@@ -146,8 +146,7 @@ class SparseConfig:
         stride = self.stride
         # 2.0 == 2 and True == 1 would pass the membership test and fail later as an index.
         if (
-            isinstance(stride, bool)
-            or not isinstance(stride, (int, np.integer))
+            not is_int(stride)
             or stride not in STRIDES
         ):
             raise ConfigError(
@@ -158,8 +157,7 @@ class SparseConfig:
             raise ConfigError(f'cva_cascade must be one of {CASCADES}; got {self.cascade!r}')
         fraction = self.cascade_fraction
         if (
-            isinstance(fraction, bool)
-            or not isinstance(fraction, numbers.Real)
+            not is_real(fraction)
             or not 0.0 < float(fraction) <= 1.0
         ):
             raise ConfigError(

@@ -20,10 +20,10 @@ from pathlib import Path
 import sys
 from typing import Any
 
-import numpy as np
 import torch
 from torch import nn
 
+from cva_confidence_ros.checks import is_int
 from cva_confidence_ros.errors import ConfigError, ModelError, reason
 from cva_confidence_ros.model.fast import CVANetFast
 from cva_confidence_ros.model.inference import resolve_device
@@ -173,9 +173,7 @@ def load_weights(
             or ``arch`` neither None nor a str.
     """
     path = _weights_path(path)
-    if max_disparity is not None and (
-        isinstance(max_disparity, bool) or not isinstance(max_disparity, (int, np.integer))
-    ):
+    if max_disparity is not None and not is_int(max_disparity):
         raise ConfigError(
             f'max_disparity must be an integer or None; '
             f'got {type(max_disparity).__name__} {max_disparity!r}'
