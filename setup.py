@@ -19,6 +19,7 @@ PACKAGE = 'cva_confidence_ros'
 # (ros2 run name, pip console-script name, module:function)
 ENTRY_POINTS = [
     ('node', 'cva-node', 'cva_confidence_ros.node:main'),
+    ('cloud_filter', 'cva-cloud-filter', 'cva_confidence_ros.cloud_filter:main'),
     ('train', 'cva-train', 'cva_confidence_ros.training.cli:main'),
     ('evaluate', 'cva-evaluate', 'cva_confidence_ros.evaluation.cli:main'),
     ('table1', 'cva-table1', 'cva_confidence_ros.evaluation.table1:main'),

@@ -30,13 +30,14 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from functools import partial
+import importlib
 import sys
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from cva_confidence_ros.ros.confidence_node import NODE_NAME, ConfidenceNode
 
-__all__ = ['NODE_NAME', 'ConfidenceNode', 'main']
+__all__ = ['NODE_NAME', 'ConfidenceNode', 'main', 'run_entry']
 
 _EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a Ctrl-C
 
@@ -52,14 +53,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         0 on a clean stop, 2 when the ROS arguments or the start-up configuration are invalid,
         130 when interrupted before the node is up.
     """
+    return run_entry('cva_confidence_ros.ros.confidence_node', argv)
+
+
+def run_entry(module: str, argv: Sequence[str] | None = None) -> int:
+    """Import ``module`` and return its ``run(argv)``, a Ctrl-C at any point ending quietly.
+
+    rclpy, the message types and the pipeline take most of a second to import: a Ctrl-C in that
+    time must end the program as quietly as one a moment later, so the import happens here,
+    inside the ``try``. Every node entry point of the package goes through this.
+    """
     hook = sys.unraisablehook
     sys.unraisablehook = partial(_unraisable, hook)
     try:
-        # rclpy, the message types and the pipeline take most of a second to import: a Ctrl-C
-        # in that time must end the program as quietly as one a moment later.
-        from cva_confidence_ros.ros.confidence_node import run
-
-        return run(argv)
+        return importlib.import_module(module).run(argv)
     except KeyboardInterrupt:
         return _EXIT_INTERRUPTED
     finally:

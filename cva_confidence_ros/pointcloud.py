@@ -14,7 +14,9 @@ where ``d = x_left − x_right`` is the matcher's disparity at left pixel ``(v, 
 fy is the same for a rectified pair, and the general form is kept here.
 
 Colours are packed like ``stereo_image_proc``/PCL: the bits of ``0x00RRGGBB`` reinterpreted as a
-float32 field called ``rgb``.
+float32 field called ``rgb``. A cloud may carry each point's confidence in a fifth float32 field,
+``confidence`` (:data:`CLOUD_CONFIDENCE_DTYPE`), so that a consumer can choose its own threshold
+(:func:`filter_cloud`).
 """
 
 from __future__ import annotations
@@ -28,16 +30,22 @@ from cva_confidence_ros.checks import is_real
 from cva_confidence_ros.errors import ConfigError, InputError
 
 __all__ = [
+    'CLOUD_CONFIDENCE_DTYPE',
     'CLOUD_DTYPE',
     'StereoGeometry',
     'disparity_to_points',
+    'filter_cloud',
     'make_cloud',
     'pack_rgb',
+    'stereo_cloud',
     'unpack_rgb',
 ]
 
 #: One point as ``stereo_image_proc`` lays it out: x, y, z, rgb, all float32, 16 bytes.
 CLOUD_DTYPE = np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('rgb', '<f4')])
+
+#: :data:`CLOUD_DTYPE` and the point's confidence in [0, 1] as a fifth float32, 20 bytes.
+CLOUD_CONFIDENCE_DTYPE = np.dtype(CLOUD_DTYPE.descr + [('confidence', '<f4')])
 
 
 def _projection(matrix: Sequence[float] | np.ndarray, name: str) -> np.ndarray:
@@ -248,8 +256,13 @@ def unpack_rgb(packed: np.ndarray) -> np.ndarray:
     )
 
 
-def make_cloud(points: np.ndarray, colours: np.ndarray, organized: bool = True) -> np.ndarray:
-    """Assemble XYZ and packed colours into a point array with :data:`CLOUD_DTYPE`.
+def make_cloud(
+    points: np.ndarray,
+    colours: np.ndarray,
+    organized: bool = True,
+    confidence: np.ndarray | None = None,
+) -> np.ndarray:
+    """Assemble XYZ and packed colours (and confidence) into a structured point array.
 
     Args:
         points: (H, W, 3) float32 (any float dtype) from :func:`disparity_to_points`; NaN rows
@@ -258,20 +271,26 @@ def make_cloud(points: np.ndarray, colours: np.ndarray, organized: bool = True) 
             uint8 image (or any other dtype) is refused rather than stored as a number.
         organized: Keep the (H, W) grid with NaN points (``stereo_image_proc`` style); if False,
             return only the finite points, row-major, as (N,).
+        confidence: Optional (H, W) real confidence map in [0, 1] (NaN allowed where the point
+            is NaN); given, each point carries its value in a ``confidence`` field.
 
     Returns:
-        (H, W) or (N,) structured array of :data:`CLOUD_DTYPE`.
+        (H, W) or (N,) structured array of :data:`CLOUD_DTYPE`, or of
+        :data:`CLOUD_CONFIDENCE_DTYPE` when ``confidence`` is given.
 
     Raises:
-        InputError: Not numpy arrays, points not float, colours not float32, or shapes that do
-            not fit together.
+        InputError: Not numpy arrays, points not float, colours not float32, confidence not
+            real or outside [0, 1] at a kept point, or shapes that do not fit together.
         ConfigError: ``organized`` is not a bool.
     """
     if not isinstance(organized, (bool, np.bool_)):
         raise ConfigError(
             f'organized must be a bool; got {type(organized).__name__} {organized!r}'
         )
-    for name, array in (('points', points), ('colours', colours)):
+    arrays = [('points', points), ('colours', colours)]
+    if confidence is not None:
+        arrays.append(('confidence', confidence))
+    for name, array in arrays:
         if not isinstance(array, np.ndarray):
             raise InputError(f'{name} must be a numpy array; got {type(array).__name__}')
     if points.dtype.kind != 'f':
@@ -285,11 +304,138 @@ def make_cloud(points: np.ndarray, colours: np.ndarray, organized: bool = True) 
         raise InputError(f'points must be (H, W, 3); got {points.shape}')
     if colours.shape != points.shape[:2]:
         raise InputError(f'colours must be {points.shape[:2]}; got {colours.shape}')
-    cloud = np.empty(points.shape[:2], dtype=CLOUD_DTYPE)
+    finite = np.isfinite(points[..., 2])
+    if confidence is not None:
+        _check_confidence(confidence, points.shape[:2], finite)
+    cloud = np.empty(
+        points.shape[:2], dtype=CLOUD_DTYPE if confidence is None else CLOUD_CONFIDENCE_DTYPE
+    )
     cloud['x'] = points[..., 0]
     cloud['y'] = points[..., 1]
     cloud['z'] = points[..., 2]
     cloud['rgb'] = colours
+    if confidence is not None:
+        cloud['confidence'] = confidence
     if organized:
         return cloud
-    return cloud[np.isfinite(points[..., 2])]
+    return cloud[finite]
+
+
+def _check_confidence(confidence: np.ndarray, shape: tuple[int, ...], kept: np.ndarray) -> None:
+    if confidence.dtype.kind not in 'fiu':
+        raise InputError(f'confidence must hold real numbers; got dtype {confidence.dtype}')
+    if confidence.shape != shape:
+        raise InputError(f'confidence must be {shape}; got {confidence.shape}')
+    values = confidence[kept]
+    with np.errstate(invalid='ignore'):
+        bad = ~((values >= 0) & (values <= 1))
+    if bad.any():
+        raise InputError(
+            f'confidence must lie in [0, 1] at every kept point; {int(bad.sum())} do not '
+            f'(e.g. {values[bad][0]})'
+        )
+
+
+def stereo_cloud(
+    disparity: np.ndarray,
+    confidence: np.ndarray,
+    left: np.ndarray,
+    geometry: StereoGeometry,
+    threshold: float,
+    *,
+    organized: bool = True,
+    with_confidence: bool = False,
+) -> np.ndarray:
+    """The node's ``points2`` for one frame: triangulated, coloured, filtered or annotated.
+
+    Args:
+        disparity: (H, W) raw disparity (NaN = invalid), see :func:`disparity_to_points`.
+        confidence: (H, W) confidence in [0, 1].
+        left: (H, W) or (H, W, 3) uint8 left image, the points' colours.
+        geometry: Intrinsics at the disparity map's resolution.
+        threshold: Without ``with_confidence``, only points of pixels with confidence
+            ≥ ``threshold`` are kept; with it, it is not used.
+        organized: (H, W) grid with NaN points, or only the valid points as (N,).
+        with_confidence: Keep every point that can be triangulated and carry its confidence
+            (:data:`CLOUD_CONFIDENCE_DTYPE`), so that consumers filter with their own threshold
+            (:func:`filter_cloud`).
+
+    Returns:
+        The structured point array.
+    """
+    if with_confidence:
+        points = disparity_to_points(disparity, geometry)
+        return make_cloud(points, pack_rgb(left), organized, confidence=confidence)
+    with np.errstate(invalid='ignore'):
+        kept = np.isfinite(disparity) & (confidence >= threshold)
+    points = disparity_to_points(disparity, geometry, kept)
+    return make_cloud(points, pack_rgb(left), organized)
+
+
+def filter_cloud(
+    cloud: np.ndarray,
+    threshold: float,
+    organized: bool = True,
+    field: str = 'confidence',
+) -> np.ndarray:
+    """Keep the points of a cloud whose confidence is at least ``threshold``.
+
+    Works on any structured point array with float ``x``, ``y``, ``z`` and a real confidence
+    field (other fields, e.g. ``rgb`` or ``intensity``, are carried along unchanged), such as
+    :func:`make_cloud` builds with ``confidence`` or
+    :func:`cva_confidence_ros.ros.convert.point_cloud_to_records` decodes from a
+    ``PointCloud2``. A point is kept where its x, y, z are finite and its confidence is
+    ≥ ``threshold`` (a NaN confidence is never kept).
+
+    Args:
+        cloud: (H, W) organised or (N,) structured point array.
+        threshold: In [0, 1]; 0 keeps every finite point.
+        organized: Keep the input's shape and set x, y, z of the dropped points to NaN
+            (``stereo_image_proc`` style); if False, return only the kept points as (N,).
+        field: Name of the confidence field.
+
+    Returns:
+        The filtered structured array, a new array (the input is not changed).
+
+    Raises:
+        InputError: ``cloud`` is not a structured array with float x, y, z and a real
+            ``field``.
+        ConfigError: ``threshold`` is not a real number in [0, 1], ``organized`` not a bool.
+    """
+    if not is_real(threshold) or not 0.0 <= threshold <= 1.0:
+        raise ConfigError(f'threshold must be a real number in [0, 1]; got {threshold!r}')
+    if not isinstance(organized, (bool, np.bool_)):
+        raise ConfigError(
+            f'organized must be a bool; got {type(organized).__name__} {organized!r}'
+        )
+    if not isinstance(cloud, np.ndarray) or cloud.dtype.names is None:
+        raise InputError(
+            'cloud must be a structured numpy array of points; '
+            f'got {getattr(cloud, "dtype", type(cloud).__name__)}'
+        )
+    if cloud.ndim not in (1, 2):
+        raise InputError(f'cloud must be (H, W) or (N,); got shape {cloud.shape}')
+    names = cloud.dtype.names
+    for name in ('x', 'y', 'z'):
+        if name not in names or cloud.dtype[name].kind != 'f' or cloud.dtype[name].shape:
+            raise InputError(f'cloud needs a float field {name!r}; its fields are {list(names)}')
+    if field not in names:
+        raise InputError(
+            f'cloud has no confidence field {field!r}; its fields are {list(names)} '
+            '(the node writes it with points_confidence: true)'
+        )
+    if cloud.dtype[field].kind not in 'fiu' or cloud.dtype[field].shape:
+        raise InputError(
+            f'confidence field {field!r} must be one real number a point; '
+            f'got {cloud.dtype[field]}'
+        )
+    with np.errstate(invalid='ignore'):
+        keep = cloud[field] >= threshold
+    for name in ('x', 'y', 'z'):
+        keep &= np.isfinite(cloud[name])
+    if not organized:
+        return cloud[keep]
+    filtered = cloud.copy()
+    for name in ('x', 'y', 'z'):
+        filtered[name][~keep] = np.nan
+    return filtered

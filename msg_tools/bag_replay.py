@@ -83,6 +83,9 @@ def build_parser() -> argparse.ArgumentParser:
     node.add_argument('--no-points', action='store_true', help='do not write points2')
     node.add_argument('--points-unorganized', action='store_true',
                       help='points2 holds only the kept points (default: organised H×W)')
+    node.add_argument('--points-confidence', action='store_true',
+                      help='points2 holds every triangulated point with a float32 confidence '
+                           'field (the node parameter points_confidence), for filtering later')
 
     topics = parser.add_argument_group('topics (relative names are put under --topic-prefix)')
     topics.add_argument('--topic-prefix', default='', help='camera namespace, e.g. /stereo')
@@ -160,6 +163,7 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
         max_plots=args.max_plots,
         publish_points=not args.no_points,
         points_organized=not args.points_unorganized,
+        points_confidence=args.points_confidence,
         overwrite=args.overwrite,
         rate_scale=args.rate_scale,
         start_node=not args.no_start_node,

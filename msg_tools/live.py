@@ -90,6 +90,7 @@ def node_arguments(options: ReplayOptions, node_name: str) -> list[str]:
     node_config = NodeConfig(
         publish_points=options.publish_points,
         points_organized=options.points_organized,
+        points_confidence=options.points_confidence,
         input_qos='reliable',
         output_qos='reliable',
         approximate_sync=options.approximate_sync,

@@ -151,6 +151,8 @@ class ReplayOptions:
         max_plots: Frames that get a confidence-map and ROC PNG.
         publish_points: Write ``points2``.
         points_organized: Organised (H×W, NaN for dropped points) or dense cloud.
+        points_confidence: ``points2`` holds every triangulated point with its confidence
+            (the node's ``points_confidence``) instead of the kept ones only.
         overwrite: Replace an existing output bag.
         rate_scale: Live mode: play at this multiple of the recorded speed.
         start_node: Live mode: start ``cva-node`` (else connect to a running one).
@@ -175,6 +177,7 @@ class ReplayOptions:
     max_plots: int = 10
     publish_points: bool = True
     points_organized: bool = True
+    points_confidence: bool = False
     overwrite: bool = False
     rate_scale: float = 1.0
     start_node: bool = True
@@ -378,6 +381,7 @@ def node_outputs(
     *,
     publish_points: bool = True,
     points_organized: bool = True,
+    points_confidence: bool = False,
 ) -> NodeOutputs:
     """The messages the node publishes for one processed pair, built by the node's own code.
 
@@ -394,6 +398,8 @@ def node_outputs(
         config: The pipeline settings.
         publish_points: Include ``points2``.
         points_organized: Organised cloud (H×W, NaN points) or only the kept points.
+        points_confidence: Every triangulated point with a ``confidence`` field instead of
+            only the kept ones.
 
     Returns:
         The :class:`NodeOutputs`.
@@ -402,7 +408,7 @@ def node_outputs(
     from rclpy.serialization import serialize_message
     from std_msgs.msg import Header
 
-    from cva_confidence_ros.pointcloud import disparity_to_points, make_cloud, pack_rgb
+    from cva_confidence_ros.pointcloud import stereo_cloud
     from cva_confidence_ros.ros.convert import (
         array_to_image,
         cloud_to_message,
@@ -428,8 +434,15 @@ def node_outputs(
          disparity_to_message(filtered, ros_header, geometry, config.max_disparity)),
     ]
     if publish_points:
-        points = disparity_to_points(disparity, geometry, kept)
-        cloud = make_cloud(points, pack_rgb(result.left), points_organized)
+        cloud = stereo_cloud(
+            disparity,
+            confidence,
+            result.left,
+            geometry,
+            config.confidence_threshold,
+            organized=points_organized,
+            with_confidence=points_confidence,
+        )
         messages.append(('points', POINT_CLOUD2, cloud_to_message(cloud, ros_header)))
     store = jazzy_typestore()
     # rclpy leaves CDR alignment padding uninitialised; a pass through rosbags zeroes it, so
@@ -820,6 +833,7 @@ def _process_pair(session: ReplaySession, pipeline: Any, matched: Any, frame: in
     outputs = node_outputs(
         result, geometry, left.shape[:2], items['left'].header, options.pipeline,
         publish_points=options.publish_points, points_organized=options.points_organized,
+        points_confidence=options.points_confidence,
     )
     topics = options.topics.outputs()
     session.write([(topics[name], kind, data) for name, kind, data in outputs.messages], timestamp)

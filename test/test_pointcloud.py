@@ -7,11 +7,14 @@ import pytest
 
 from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.pointcloud import (
+    CLOUD_CONFIDENCE_DTYPE,
     CLOUD_DTYPE,
     StereoGeometry,
     disparity_to_points,
+    filter_cloud,
     make_cloud,
     pack_rgb,
+    stereo_cloud,
     unpack_rgb,
 )
 
@@ -244,3 +247,121 @@ def test_scaled_factors_must_be_real_numbers(factor: object, factor_y: object) -
     with pytest.raises(InputError, match='must be a real number'):
         geometry.scaled(factor, factor_y)  # type: ignore[arg-type]
     assert geometry.scaled(np.float32(0.5), 1).fx == 50.0
+
+
+def _cloud_with_confidence() -> tuple[np.ndarray, np.ndarray]:
+    points = np.arange(2 * 3 * 3, dtype=np.float32).reshape(2, 3, 3)
+    points[0, 1] = np.nan
+    confidence = np.array([[0.9, np.nan, 0.2], [0.5, 0.49, 1.0]], np.float32)
+    colours = pack_rgb(np.full((2, 3), 7, np.uint8))
+    return make_cloud(points, colours, True, confidence=confidence), confidence
+
+
+def test_make_cloud_carries_confidence() -> None:
+    cloud, confidence = _cloud_with_confidence()
+    assert cloud.dtype == CLOUD_CONFIDENCE_DTYPE and CLOUD_CONFIDENCE_DTYPE.itemsize == 20
+    assert CLOUD_CONFIDENCE_DTYPE.names[:4] == CLOUD_DTYPE.names
+    np.testing.assert_array_equal(cloud['confidence'], confidence)
+    points = np.zeros((2, 3, 3), np.float32)
+    dense = make_cloud(points, np.zeros((2, 3), np.float32), False, confidence=np.ones((2, 3)))
+    assert dense.shape == (6,) and (dense['confidence'] == 1).all()
+
+
+@pytest.mark.parametrize(
+    ('confidence', 'match'),
+    [
+        (np.full((2, 3), 1.5), r'\[0, 1\] at every kept point; 6 do not'),
+        (np.full((2, 3), np.nan), r'\[0, 1\]'),
+        (np.ones((3, 2)), r'must be \(2, 3\)'),
+        (np.ones((2, 3), bool), 'real numbers'),
+        ([[1.0] * 3] * 2, 'numpy array'),
+    ],
+)
+def test_make_cloud_refuses_bad_confidence(confidence: object, match: str) -> None:
+    with pytest.raises(InputError, match=match):
+        make_cloud(np.zeros((2, 3, 3), np.float32), np.zeros((2, 3), np.float32),
+                   confidence=confidence)
+
+
+def test_make_cloud_confidence_may_be_nan_at_dropped_points() -> None:
+    points = np.zeros((1, 2, 3), np.float32)
+    points[0, 0] = np.nan
+    cloud = make_cloud(points, np.zeros((1, 2), np.float32), False,
+                       confidence=np.array([[np.nan, 0.3]]))
+    assert cloud.shape == (1,) and cloud['confidence'][0] == np.float32(0.3)
+
+
+def test_filter_cloud_organised_and_dense() -> None:
+    cloud, confidence = _cloud_with_confidence()
+    before = cloud.copy()
+    organised = filter_cloud(cloud, 0.5)
+    keep = np.array([[True, False, False], [True, False, True]])
+    np.testing.assert_array_equal(np.isfinite(organised['z']), keep)
+    np.testing.assert_array_equal(organised['x'][keep], cloud['x'][keep])
+    assert np.isnan(organised['y'][~keep]).all()
+    np.testing.assert_array_equal(organised['rgb'], cloud['rgb'])  # other fields untouched
+    assert cloud.tobytes() == before.tobytes()  # the input is not changed
+    dense = filter_cloud(cloud, 0.5, organized=False)
+    assert dense.tobytes() == cloud[keep].tobytes()
+    # 0 keeps every finite point with a confidence; NaN confidence is never kept.
+    assert filter_cloud(cloud, 0.0, organized=False).shape == (5,)
+    assert filter_cloud(cloud, 1.0, organized=False)['confidence'].tolist() == [1.0]
+
+
+def test_filter_cloud_other_layouts() -> None:
+    dtype = np.dtype({'names': ['z', 'y', 'x', 'score', 'ring'],
+                      'formats': ['<f8', '<f4', '<f4', 'u1', '<u2'],
+                      'offsets': [0, 8, 12, 16, 18], 'itemsize': 24})
+    cloud = np.zeros(4, dtype)
+    cloud['score'] = [0, 100, 200, 255]
+    cloud['ring'] = [1, 2, 3, 4]
+    kept = filter_cloud(cloud, 0.5, organized=False, field='score')
+    assert kept.dtype == dtype and kept['ring'].tolist() == [2, 3, 4]
+    with pytest.raises(InputError, match="no confidence field 'confidence'.*'ring'"):
+        filter_cloud(cloud, 0.5)
+
+
+@pytest.mark.parametrize(
+    ('cloud', 'kwargs', 'error', 'match'),
+    [
+        (np.zeros(3, np.float32), {}, InputError, 'structured numpy array'),
+        ([1, 2], {}, InputError, 'structured numpy array'),
+        (np.zeros((1, 1, 1), CLOUD_CONFIDENCE_DTYPE), {}, InputError, r'\(H, W\) or \(N,\)'),
+        (np.zeros(2, [('x', '<f4'), ('y', '<f4'), ('confidence', '<f4')]), {}, InputError,
+         "float field 'z'"),
+        (np.zeros(2, [('x', '<f4'), ('y', '<f4'), ('z', '<i4'), ('confidence', '<f4')]), {},
+         InputError, "float field 'z'"),
+        (np.zeros(2, [('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('confidence', '<f4', 2)]),
+         {}, InputError, 'one real number a point'),
+        (np.zeros(2, CLOUD_CONFIDENCE_DTYPE), {'threshold': 1.5}, ConfigError, r'\[0, 1\]'),
+        (np.zeros(2, CLOUD_CONFIDENCE_DTYPE), {'threshold': float('nan')}, ConfigError,
+         r'\[0, 1\]'),
+        (np.zeros(2, CLOUD_CONFIDENCE_DTYPE), {'threshold': True}, ConfigError, r'\[0, 1\]'),
+        (np.zeros(2, CLOUD_CONFIDENCE_DTYPE), {'organized': 'yes'}, ConfigError, 'a bool'),
+    ],
+)
+def test_filter_cloud_refuses(cloud: object, kwargs: dict, error: type, match: str) -> None:
+    with pytest.raises(error, match=match):
+        filter_cloud(cloud, **{'threshold': 0.5, **kwargs})
+
+
+def test_stereo_cloud_thresholded_or_annotated() -> None:
+    geometry = StereoGeometry.from_projections(P_LEFT, P_RIGHT)
+    disparity = np.array([[10.0, np.nan, 5.0], [20.0, 25.0, -1.0]], np.float32)
+    confidence = np.array([[0.9, 0.9, 0.1], [0.5, 0.2, 0.9]], np.float32)
+    left = np.full((2, 3), 200, np.uint8)
+    plain = stereo_cloud(disparity, confidence, left, geometry, 0.5)
+    assert plain.dtype == CLOUD_DTYPE
+    np.testing.assert_array_equal(
+        np.isfinite(plain['z']), [[True, False, False], [True, False, False]]
+    )
+    annotated = stereo_cloud(disparity, confidence, left, geometry, 0.5, with_confidence=True)
+    triangulable = [[True, False, True], [True, True, False]]
+    np.testing.assert_array_equal(np.isfinite(annotated['z']), triangulable)
+    np.testing.assert_array_equal(annotated['confidence'], confidence)
+    # The filter at the node's threshold gives back the plain cloud.
+    refiltered = filter_cloud(annotated, 0.5)
+    for name in CLOUD_DTYPE.names:
+        np.testing.assert_array_equal(refiltered[name], plain[name])
+    dense = stereo_cloud(disparity, confidence, left, geometry, 0.5, organized=False)
+    assert dense.shape == (2,)

@@ -6,13 +6,9 @@ pipeline inside its ``try``: a Ctrl-C during that second of imports then ends th
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import partial
-import re
-import signal
-import sys
 import threading
 import time
 from typing import Any
@@ -20,25 +16,21 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
-import rclpy
 from rclpy.context import Context
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-import rclpy.logging
-from rclpy.logging import LoggingSeverity
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rclpy.qos import QoSProfile
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
-from cva_confidence_ros.errors import CVAError, reason
+from cva_confidence_ros.errors import CVAError
 from cva_confidence_ros.pipeline import PipelineConfig, PipelineResult, StereoPipeline
-from cva_confidence_ros.pointcloud import (
-    StereoGeometry,
-    disparity_to_points,
-    make_cloud,
-    pack_rgb,
+from cva_confidence_ros.pointcloud import StereoGeometry, stereo_cloud
+from cva_confidence_ros.ros.common import (
+    LOG_THROTTLE_S,
+    ReasonThrottle,
+    qos_profile,
+    run_node,
 )
 from cva_confidence_ros.ros.convert import (
     array_to_image,
@@ -60,17 +52,7 @@ from cva_confidence_ros.sync import MatchedSet, StampSynchronizer
 __all__ = ['NODE_NAME', 'ConfidenceNode', 'run']
 
 NODE_NAME = 'cva_confidence'
-_LOG_THROTTLE_S = 5.0
-_READY = 'ready'
 _OWN_PARAMETERS = frozenset(spec.name for spec in PARAMETERS)
-_EXIT_BAD_START = 2
-_EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a Ctrl-C
-
-
-def _qos(name: str) -> QoSProfile:
-    if name == 'sensor_data':
-        return qos_profile_sensor_data
-    return QoSProfile(depth=10)
 
 
 class _Mailbox:
@@ -108,54 +90,6 @@ class _Mailbox:
         with self._cond:
             self._closed = True
             self._cond.notify_all()
-
-
-class _ReasonThrottle:
-    """Throttle log messages per reason: the first of each is let through, repeats once a period.
-
-    rclpy throttles per call site, so one steady fault (a wrong encoding on every frame) would
-    hide every other one behind it.
-
-    Args:
-        period_s: Least time between two messages of one reason, seconds.
-        max_reasons: Reasons remembered; the one logged longest ago is forgotten first.
-    """
-
-    def __init__(self, period_s: float = _LOG_THROTTLE_S, max_reasons: int = 64) -> None:
-        self.period_s = period_s
-        self.max_reasons = max_reasons
-        self._lock = threading.Lock()
-        # reason → [monotonic time it was last logged, repeats held back since]
-        self._reasons: OrderedDict[str, list[float]] = OrderedDict()
-
-    @staticmethod
-    def key(reason: str) -> str:
-        """The reason without its numbers: sizes, steps and stamps vary, the fault does not."""
-        return re.sub(r'\d+', '#', reason)
-
-    def admit(self, reason: str) -> int | None:
-        """Whether to log a message of ``reason`` now.
-
-        Returns:
-            None to stay silent; else how many of this reason were held back since it was last
-            logged (0 the first time).
-        """
-        key = self.key(reason)
-        now = time.monotonic()
-        with self._lock:
-            entry = self._reasons.get(key)
-            if entry is None:
-                self._reasons[key] = [now, 0]
-                if len(self._reasons) > self.max_reasons:
-                    self._reasons.popitem(last=False)
-                return 0
-            if now - entry[0] < self.period_s:
-                entry[1] += 1
-                return None
-            held_back = int(entry[1])
-            entry[0], entry[1] = now, 0
-            self._reasons.move_to_end(key)
-            return held_back
 
 
 def _seconds(stamp_ns: int) -> str:
@@ -223,13 +157,13 @@ class ConfidenceNode(Node):
         self._node_config = node_config
         self._sync = self._make_sync(node_config)
         self._stats = _Stats()
-        self._log_throttle = _ReasonThrottle()
+        self._log_throttle = ReasonThrottle()
         self._mailbox = _Mailbox()
         # rclpy.shutdown() from another thread: the worker must not publish on a dead context.
         # (Ctrl-C shuts the context down in C without these callbacks; see _work.)
         self.context.on_shutdown(self._mailbox.close)
 
-        in_qos, out_qos = _qos(node_config.input_qos), _qos(node_config.output_qos)
+        in_qos, out_qos = qos_profile(node_config.input_qos), qos_profile(node_config.output_qos)
         for key, msg_type, topic in (
             ('left', Image, 'left/image_rect'),
             ('right', Image, 'right/image_rect'),
@@ -252,11 +186,13 @@ class ConfidenceNode(Node):
         self._worker = threading.Thread(target=self._work, name='cva_confidence_worker')
         self._worker.daemon = True
         self._worker.start()
-        self.get_logger().info(
-            f'{_READY}: matcher={pipeline_config.matcher} '
-            f'max_disparity={pipeline_config.max_disparity} '
-            f'confidence_method={pipeline_config.confidence_method} '
-            f'downsample={pipeline_config.downsample} '
+
+    def summary(self) -> str:
+        """One line on what the node computes, for its ready line."""
+        config, node_config = self.pipeline_config, self.node_config
+        return (
+            f'matcher={config.matcher} max_disparity={config.max_disparity} '
+            f'confidence_method={config.confidence_method} downsample={config.downsample} '
             f'sync={"approximate" if node_config.approximate_sync else "exact"}'
         )
 
@@ -342,12 +278,7 @@ class ConfidenceNode(Node):
 
     def _log_throttled(self, log: Callable[[str], Any], why: str, message: str) -> None:
         """Log ``message`` unless one for the same ``why`` was logged within the period."""
-        held_back = self._log_throttle.admit(why)
-        if held_back is None:
-            return
-        if held_back:
-            message += f' ({held_back} more like it held back since the last one logged)'
-        log(message)
+        self._log_throttle.log(log, why, message)
 
     # Worker side --------------------------------------------------------------------------
 
@@ -444,8 +375,15 @@ class ConfidenceNode(Node):
                 disparity_to_message(filtered, header, geometry, config.max_disparity)
             )
         if node_config.publish_points and self._pub_points.get_subscription_count():
-            points = disparity_to_points(disparity, geometry, keep)
-            cloud = make_cloud(points, pack_rgb(result.left), node_config.points_organized)
+            cloud = stereo_cloud(
+                disparity,
+                confidence,
+                result.left,
+                geometry,
+                config.confidence_threshold,
+                organized=node_config.points_organized,
+                with_confidence=node_config.points_confidence,
+            )
             self._pub_points.publish(cloud_to_message(cloud, header))
 
     # Diagnostics --------------------------------------------------------------------------
@@ -506,7 +444,7 @@ class ConfidenceNode(Node):
             f'{status.message}; received {summary["frames_received"]}, processed '
             f'{summary["frames_processed"]}, dropped {summary["frames_dropped"]}, invalid '
             f'{summary["frames_invalid"]}, frame {summary.get("mean_frame_ms", "-")} ms',
-            throttle_duration_sec=_LOG_THROTTLE_S,
+            throttle_duration_sec=LOG_THROTTLE_S,
         )
 
     def stats(self) -> dict[str, int]:
@@ -544,51 +482,7 @@ class ConfidenceNode(Node):
         super().destroy_node()
 
 
-def _init(args: list[str]) -> None:
-    """``rclpy.init`` without rcl's own log line on a bad argument: the exception says more."""
-    rclpy.logging.set_logger_level('rcl', LoggingSeverity.FATAL)
-    try:
-        rclpy.init(args=args)
-    finally:
-        # Back to the default, unless ``--log-level rcl:=…`` has just set a level of its own.
-        if rclpy.logging.get_logger_level('rcl') == LoggingSeverity.FATAL:
-            rclpy.logging.set_logger_level('rcl', LoggingSeverity.UNSET)
-
-
 def run(argv: Sequence[str] | None = None) -> int:
     """Run the node until Ctrl-C or SIGTERM: the body of :func:`cva_confidence_ros.node.main`,
     with its arguments and exit codes (imported by it once a Ctrl-C can be caught)."""
-    args = list(sys.argv if argv is None else argv)
-    logger = rclpy.logging.get_logger(NODE_NAME)
-    node: ConfidenceNode | None = None
-    code = 0
-    try:
-        try:
-            _init(args)
-        except RuntimeError as error:
-            # rcl's RCLError and UnknownROSArgsError: an unreadable --params-file, a bad flag.
-            logger.fatal(f'cannot start: {reason(error, limit=300)}')
-            return _EXIT_BAD_START
-        node = ConfidenceNode()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        # Ctrl-C stops a running node cleanly; before it is up, it interrupts the start.
-        code = 0 if node is not None else _EXIT_INTERRUPTED
-    except (CVAError, ParameterException) as error:
-        logger.fatal(f'cannot start: {error}')
-        code = _EXIT_BAD_START
-    except Exception:
-        # A signal during start-up shuts the context down under the constructor; the error
-        # that follows is that interruption, not a fault worth a traceback.
-        if rclpy.ok():
-            raise
-        code = 0 if node is not None else _EXIT_INTERRUPTED
-    finally:
-        # A second Ctrl-C while the worker finishes its frame must not print a traceback.
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    return run_node(ConfidenceNode, NODE_NAME, argv)

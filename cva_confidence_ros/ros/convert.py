@@ -6,7 +6,9 @@ Conventions follow ``stereo_image_proc`` so that the node drops into existing pi
   ``Z = f·T/d`` holds for every valid value), ``f`` and ``T`` (baseline) from the camera infos,
   ``min_disparity``/``max_disparity`` the searched range after that shift, invalid pixels set to
   ``min_disparity − 1`` (below the valid range, as ``stereo_image_proc`` does).
-* ``sensor_msgs/PointCloud2``: fields x, y, z, rgb (float32, 16-byte points).
+* ``sensor_msgs/PointCloud2``: fields x, y, z, rgb (float32, 16-byte points), optionally a
+  fifth float32 ``confidence`` (20-byte points). Clouds of other producers, with any fields,
+  padding and row step, are read by :func:`point_cloud_to_records` for filtering.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from std_msgs.msg import Header
 from stereo_msgs.msg import DisparityImage
 
 from cva_confidence_ros.errors import InputError
-from cva_confidence_ros.pointcloud import CLOUD_DTYPE, StereoGeometry
+from cva_confidence_ros.pointcloud import CLOUD_CONFIDENCE_DTYPE, CLOUD_DTYPE, StereoGeometry
 
 __all__ = [
     'SUPPORTED_ENCODINGS',
@@ -34,6 +36,8 @@ __all__ = [
     'image_to_array',
     'ns_to_stamp',
     'pair_to_uint8',
+    'point_cloud_to_records',
+    'records_to_point_cloud',
     'scale_camera_info',
     'stamp_to_ns',
     'stereo_pair_from_messages',
@@ -330,15 +334,38 @@ def disparity_from_message(msg: DisparityImage) -> np.ndarray:
     return values
 
 
-# x, y, z, rgb: four float32 in a row, as CLOUD_DTYPE lays them out.
-_CLOUD_FIELDS = [
-    PointField(name=name, offset=4 * index, datatype=PointField.FLOAT32, count=1)
-    for index, name in enumerate(('x', 'y', 'z', 'rgb'))
-]
+# The layouts this package writes: x, y, z, rgb (and confidence), float32 in a row.
+_CLOUD_DTYPES = (CLOUD_DTYPE, CLOUD_CONFIDENCE_DTYPE)
+
+# PointField datatype → numpy little-endian type.
+_POINT_FIELD_TYPES = {
+    PointField.INT8: 'i1',
+    PointField.UINT8: 'u1',
+    PointField.INT16: '<i2',
+    PointField.UINT16: '<u2',
+    PointField.INT32: '<i4',
+    PointField.UINT32: '<u4',
+    PointField.FLOAT32: '<f4',
+    PointField.FLOAT64: '<f8',
+}
+_NUMPY_POINT_FIELDS = {np.dtype(code): datatype for datatype, code in _POINT_FIELD_TYPES.items()}
+
+
+def _point_fields(dtype: np.dtype) -> list[PointField]:
+    fields = []
+    for name in dtype.names or ():
+        base, offset = dtype.fields[name][:2]
+        count = int(np.prod(base.shape)) if base.shape else 1
+        datatype = _NUMPY_POINT_FIELDS.get(base.base.newbyteorder('<'))
+        if datatype is None or base.base.byteorder == '>':
+            raise InputError(f'point field {name!r} has no PointField type: {base}')
+        fields.append(PointField(name=name, offset=offset, datatype=datatype, count=count))
+    return fields
 
 
 def cloud_to_message(cloud: np.ndarray, header: Header) -> PointCloud2:
-    """Encode a :data:`~cva_confidence_ros.pointcloud.CLOUD_DTYPE` array as ``PointCloud2``.
+    """Encode a :data:`~cva_confidence_ros.pointcloud.CLOUD_DTYPE` (or
+    :data:`~cva_confidence_ros.pointcloud.CLOUD_CONFIDENCE_DTYPE`) array as ``PointCloud2``.
 
     Args:
         cloud: (H, W) organised cloud (NaN points kept, ``is_dense`` False) or (N,) dense.
@@ -347,41 +374,107 @@ def cloud_to_message(cloud: np.ndarray, header: Header) -> PointCloud2:
     Raises:
         InputError: Another dtype or dimensionality.
     """
-    if cloud.dtype != CLOUD_DTYPE:
-        raise InputError(f'cloud dtype must be {CLOUD_DTYPE}; got {cloud.dtype}')
-    if cloud.ndim == 2:
-        height, width = cloud.shape
-        is_dense = bool(np.isfinite(cloud['z']).all())
-    elif cloud.ndim == 1:
-        height, width = 1, cloud.shape[0]
-        is_dense = True
-    else:
-        raise InputError(f'cloud must be (H, W) or (N,); got shape {cloud.shape}')
-    return PointCloud2(
-        header=header,
-        height=height,
-        width=width,
-        fields=list(_CLOUD_FIELDS),
-        is_bigendian=False,
-        point_step=CLOUD_DTYPE.itemsize,
-        row_step=CLOUD_DTYPE.itemsize * width,
-        data=np.ascontiguousarray(cloud).tobytes(),
-        is_dense=is_dense,
-    )
+    if cloud.dtype not in _CLOUD_DTYPES:
+        raise InputError(
+            f'cloud dtype must be {CLOUD_DTYPE} or {CLOUD_CONFIDENCE_DTYPE}; got {cloud.dtype}'
+        )
+    return records_to_point_cloud(cloud, header)
 
 
 def cloud_to_array(msg: PointCloud2) -> np.ndarray:
     """Decode a ``PointCloud2`` written by :func:`cloud_to_message` into (H, W) points.
 
     Raises:
-        InputError: A layout other than x, y, z, rgb float32 at offsets 0, 4, 8, 12.
+        InputError: A layout other than x, y, z, rgb (and confidence) float32 at offsets 0, 4,
+            8, 12 (16), or data that does not fit it.
     """
     layout = [(f.name, f.offset, f.datatype, f.count) for f in msg.fields]
-    expected = [(f.name, f.offset, f.datatype, f.count) for f in _CLOUD_FIELDS]
-    if layout != expected or msg.point_step != CLOUD_DTYPE.itemsize or msg.is_bigendian:
+    for dtype in _CLOUD_DTYPES:
+        expected = [(f.name, f.offset, f.datatype, f.count) for f in _point_fields(dtype)]
+        if layout == expected and msg.point_step == dtype.itemsize and not msg.is_bigendian:
+            return point_cloud_to_records(msg).astype(dtype)
+    raise InputError(
+        f'cloud must have fields x, y, z, rgb (and confidence), float32, point_step '
+        f'{CLOUD_DTYPE.itemsize} ({CLOUD_CONFIDENCE_DTYPE.itemsize}); got {layout} and '
+        f'{msg.point_step}'
+    )
+
+
+def point_cloud_to_records(msg: PointCloud2) -> np.ndarray:
+    """Decode any little-endian ``PointCloud2`` into an (H, W) structured array.
+
+    The dtype has one field per ``PointField`` at its offset (``count`` > 1 becomes a
+    sub-array) and ``point_step`` as its item size, so padding bytes and fields of other
+    producers survive a round trip through :func:`records_to_point_cloud`; padding at the end
+    of a row (``row_step`` > ``point_step`` × ``width``) is dropped.
+
+    Raises:
+        InputError: Big-endian data, an unknown datatype, duplicate or overlapping-the-end
+            fields, a ``row_step`` shorter than a row, or fewer data bytes than the header says.
+    """
+    if msg.is_bigendian:
+        raise InputError('big-endian PointCloud2 data is not supported')
+    height, width, step, row_step = msg.height, msg.width, msg.point_step, msg.row_step
+    names, formats, offsets = [], [], []
+    for field in msg.fields:
+        code = _POINT_FIELD_TYPES.get(field.datatype)
+        if code is None:
+            raise InputError(f'point field {field.name!r} has unknown datatype {field.datatype}')
+        if field.name in names:
+            raise InputError(f'point field {field.name!r} appears twice')
+        count = max(int(field.count), 1)
+        size = np.dtype(code).itemsize * count
+        if field.offset + size > step:
+            raise InputError(
+                f'point field {field.name!r} (offset {field.offset}, {size} bytes) does not fit '
+                f'in point_step {step}'
+            )
+        names.append(field.name)
+        formats.append(code if count == 1 else (code, (count,)))
+        offsets.append(field.offset)
+    if height * width and row_step < step * width:
+        raise InputError(f'row_step {row_step} is shorter than width × point_step {step * width}')
+    data = np.frombuffer(msg.data, dtype=np.uint8)
+    if data.size < row_step * height:
         raise InputError(
-            f'cloud must have fields {expected} and point_step {CLOUD_DTYPE.itemsize}; '
-            f'got {layout} and {msg.point_step}'
+            f'cloud data holds {data.size} bytes; {height} rows of row_step {row_step} need '
+            f'{row_step * height}'
         )
-    data = np.frombuffer(msg.data, dtype=CLOUD_DTYPE, count=msg.height * msg.width)
-    return data.reshape(msg.height, msg.width).copy()
+    dtype = np.dtype({'names': names, 'formats': formats, 'offsets': offsets, 'itemsize': step})
+    rows = data[: row_step * height].reshape(height, row_step)[:, : step * width]
+    return np.ascontiguousarray(rows).view(dtype).reshape(height, width)
+
+
+def records_to_point_cloud(records: np.ndarray, header: Header) -> PointCloud2:
+    """Encode an (H, W) organised or (N,) dense structured point array as ``PointCloud2``.
+
+    ``is_dense`` is set when no point has a NaN or infinite x, y or z (always so for a
+    one-row cloud of kept points).
+
+    Raises:
+        InputError: Not a structured array, not 1- or 2-D, or a field type PointField lacks.
+    """
+    if not isinstance(records, np.ndarray) or records.dtype.names is None:
+        raise InputError(f'points must be a structured numpy array; got {type(records).__name__}')
+    if records.ndim == 2:
+        height, width = records.shape
+    elif records.ndim == 1:
+        height, width = 1, records.shape[0]
+    else:
+        raise InputError(f'cloud must be (H, W) or (N,); got shape {records.shape}')
+    is_dense = all(
+        bool(np.isfinite(records[name]).all())
+        for name in ('x', 'y', 'z')
+        if name in records.dtype.names
+    )
+    return PointCloud2(
+        header=header,
+        height=height,
+        width=width,
+        fields=_point_fields(records.dtype),
+        is_bigendian=False,
+        point_step=records.dtype.itemsize,
+        row_step=records.dtype.itemsize * width,
+        data=np.ascontiguousarray(records).tobytes(),
+        is_dense=is_dense,
+    )

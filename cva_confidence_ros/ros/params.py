@@ -47,6 +47,9 @@ class NodeConfig:
     Attributes:
         publish_points: Publish ``points2``.
         points_organized: Organised cloud (H×W, NaN for dropped points) instead of a dense one.
+        points_confidence: ``points2`` holds every point that can be triangulated, with a fifth
+            float32 field ``confidence``, for consumers that filter with their own threshold
+            (``cloud_filter``); false = only the points with confidence ≥ threshold.
         input_qos: QoS of the four subscriptions, one of :data:`QOS_CHOICES`.
         output_qos: QoS of the outputs; ``reliable`` serves reliable and best-effort readers.
         approximate_sync: Pair messages whose stamps differ by up to the tolerance.
@@ -57,6 +60,7 @@ class NodeConfig:
 
     publish_points: bool = True
     points_organized: bool = True
+    points_confidence: bool = False
     input_qos: str = 'sensor_data'
     output_qos: str = 'reliable'
     approximate_sync: bool = False
@@ -243,6 +247,12 @@ NODE_PARAMETERS: tuple[ParamSpec, ...] = (
     _node(
         'points_organized',
         'points2 keeps the image grid with NaN for dropped points; false = only kept points.',
+    ),
+    _node(
+        'points_confidence',
+        'points2 holds every point that can be triangulated with a float32 confidence field, '
+        'for consumers that filter with their own threshold (cloud_filter); false = only the '
+        'points with confidence >= confidence_threshold, x y z rgb as stereo_image_proc.',
     ),
     _node(
         'input_qos',

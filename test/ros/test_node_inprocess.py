@@ -334,6 +334,46 @@ def test_dense_cloud(running: _Running) -> None:
         assert result.successful
 
 
+def test_cloud_with_confidence_cut_downstream_by_the_filter_node(running: _Running) -> None:
+    # points_confidence: every point that can be triangulated, each with its confidence; the
+    # cloud_filter node (over DDS, in this context) then keeps what the node alone would have.
+    from sensor_msgs.msg import PointCloud2
+
+    from cva_confidence_ros.pointcloud import CLOUD_CONFIDENCE_DTYPE
+    from cva_confidence_ros.ros.cloud_filter_node import CloudFilterNode
+
+    cloud_filter = CloudFilterNode(
+        context=running.context, parameter_overrides=[Parameter('threshold', value=THRESHOLD)]
+    )
+    spinner = Spinner(running.context, cloud_filter)
+    running.client.subscribe('points2_filtered', PointCloud2)
+    assert running.set(points_confidence=True).successful
+    try:
+        left, right = textured_pair(seed=12)
+        out = running.client.send_until_output(
+            left, right, running.next_stamp(),
+            topics=('disparity', 'confidence', 'points2', 'points2_filtered'),
+        )  # fmt: skip
+        cloud = cloud_to_array(out['points2'])
+        assert cloud.dtype == CLOUD_CONFIDENCE_DTYPE and cloud.shape == (64, 96)
+        assert out['points2'].point_step == 20
+        confidence = float_image_to_array(out['confidence'])
+        disparity = disparity_from_message(out['disparity'])
+        triangulable = np.isfinite(disparity) & (disparity > 0)
+        np.testing.assert_array_equal(np.isfinite(cloud['z']), triangulable)
+        np.testing.assert_array_equal(cloud['confidence'][triangulable], confidence[triangulable])
+        kept = triangulable & (confidence >= THRESHOLD)
+        assert 0 < kept.sum() < triangulable.sum(), 'the threshold must cut something here'
+        filtered = cloud_to_array(out['points2_filtered'])
+        np.testing.assert_array_equal(np.isfinite(filtered['z']), kept)
+        np.testing.assert_array_equal(filtered['z'][kept], cloud['z'][kept])
+        np.testing.assert_array_equal(filtered['rgb'][kept], cloud['rgb'][kept])
+    finally:
+        assert running.set(points_confidence=False).successful
+        spinner.stop()
+        cloud_filter.destroy_node()
+
+
 def test_approximate_sync(running: _Running) -> None:
     client = running.client
     left, right = textured_pair(seed=6)

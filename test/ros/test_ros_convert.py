@@ -5,11 +5,16 @@ from __future__ import annotations
 from node_test_utils import image_msg, info_msgs
 import numpy as np
 import pytest
-from sensor_msgs.msg import Image, PointField
+from sensor_msgs.msg import Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
 from cva_confidence_ros.errors import InputError
-from cva_confidence_ros.pointcloud import CLOUD_DTYPE, StereoGeometry, make_cloud
+from cva_confidence_ros.pointcloud import (
+    CLOUD_CONFIDENCE_DTYPE,
+    CLOUD_DTYPE,
+    StereoGeometry,
+    make_cloud,
+)
 from cva_confidence_ros.ros.convert import (
     SUPPORTED_ENCODINGS,
     array_to_image,
@@ -22,6 +27,8 @@ from cva_confidence_ros.ros.convert import (
     image_to_array,
     ns_to_stamp,
     pair_to_uint8,
+    point_cloud_to_records,
+    records_to_point_cloud,
     scale_camera_info,
     stamp_to_ns,
     stereo_pair_from_messages,
@@ -200,6 +207,92 @@ def test_cloud_message_round_trip() -> None:
     assert len(dense.data) == 5 * 16
     with pytest.raises(InputError, match='dtype'):
         cloud_to_message(np.zeros(3, np.float32), header)
+
+
+def test_cloud_with_confidence_round_trip() -> None:
+    points = np.ones((2, 3, 3), np.float32)
+    points[1, 2] = np.nan
+    confidence = np.linspace(0, 1, 6, dtype=np.float32).reshape(2, 3)
+    cloud = make_cloud(points, np.zeros((2, 3), np.float32), True, confidence=confidence)
+    msg = cloud_to_message(cloud, Header(frame_id='left'))
+    assert (msg.point_step, msg.row_step) == (20, 60)
+    assert [(f.name, f.offset, f.datatype, f.count) for f in msg.fields][-1] == (
+        'confidence', 16, PointField.FLOAT32, 1
+    )
+    back = cloud_to_array(msg)
+    assert back.dtype == CLOUD_CONFIDENCE_DTYPE
+    np.testing.assert_array_equal(back['confidence'], confidence)
+
+
+def _foreign_cloud() -> PointCloud2:
+    # x, y, z float32; a uint8[3] colour at 12; float64 score at 16; 24-byte points; 4 points
+    # a row and 5 padding bytes at each row's end; 2 rows.
+    fields = [
+        PointField(name='x', offset=0, datatype=PointField.FLOAT32, count=1),
+        PointField(name='y', offset=4, datatype=PointField.FLOAT32, count=1),
+        PointField(name='z', offset=8, datatype=PointField.FLOAT32, count=1),
+        PointField(name='bgr', offset=12, datatype=PointField.UINT8, count=3),
+        PointField(name='score', offset=16, datatype=PointField.FLOAT64, count=1),
+    ]
+    dtype = np.dtype({'names': ['x', 'y', 'z', 'bgr', 'score'],
+                      'formats': ['<f4', '<f4', '<f4', ('u1', (3,)), '<f8'],
+                      'offsets': [0, 4, 8, 12, 16], 'itemsize': 24})
+    records = np.zeros((2, 4), dtype)
+    records['x'] = np.arange(8).reshape(2, 4)
+    records['bgr'] = [1, 2, 3]
+    records['score'] = np.linspace(0, 1, 8).reshape(2, 4)
+    rows = np.full((2, 4 * 24 + 5), 0xEE, np.uint8)
+    rows[:, : 4 * 24] = records.view(np.uint8).reshape(2, -1)
+    return PointCloud2(header=Header(frame_id='lidar'), height=2, width=4, fields=fields,
+                       is_bigendian=False, point_step=24, row_step=4 * 24 + 5,
+                       data=rows.tobytes(), is_dense=True)
+
+
+def test_foreign_cloud_records_round_trip() -> None:
+    msg = _foreign_cloud()
+    records = point_cloud_to_records(msg)
+    assert records.shape == (2, 4) and records.dtype.itemsize == 24
+    np.testing.assert_array_equal(records['x'], np.arange(8).reshape(2, 4))
+    np.testing.assert_array_equal(records['bgr'][1, 3], [1, 2, 3])
+    np.testing.assert_allclose(records['score'].ravel(), np.linspace(0, 1, 8))
+    again = records_to_point_cloud(records[1], msg.header)  # one row: (N,)
+    assert (again.height, again.width, again.row_step, again.is_dense) == (1, 4, 96, True)
+    assert [(f.name, f.offset, f.datatype, f.count) for f in again.fields] == [
+        (f.name, f.offset, f.datatype, f.count) for f in msg.fields
+    ]
+    np.testing.assert_array_equal(point_cloud_to_records(again)[0]['x'], records[1]['x'])
+    with pytest.raises(InputError, match='x, y, z, rgb'):
+        cloud_to_array(msg)
+
+
+@pytest.mark.parametrize(
+    ('change', 'match'),
+    [
+        ({'is_bigendian': True}, 'big-endian'),
+        ({'row_step': 10}, 'row_step 10 is shorter'),
+        ({'data': b'\0' * 50}, 'holds 50 bytes'),
+        ({'point_step': 20}, "'score' .* does not fit in point_step 20"),
+    ],
+)
+def test_point_cloud_to_records_refuses(change: dict, match: str) -> None:
+    msg = _foreign_cloud()
+    for key, value in change.items():
+        setattr(msg, key, value)
+    with pytest.raises(InputError, match=match):
+        point_cloud_to_records(msg)
+
+
+def test_point_cloud_to_records_refuses_bad_fields() -> None:
+    msg = _foreign_cloud()
+    msg.fields[3].datatype = 42
+    with pytest.raises(InputError, match="'bgr' has unknown datatype 42"):
+        point_cloud_to_records(msg)
+    msg = _foreign_cloud()
+    msg.fields[4].name = 'x'
+    with pytest.raises(InputError, match="'x' appears twice"):
+        point_cloud_to_records(msg)
+    with pytest.raises(InputError, match='structured'):
+        records_to_point_cloud(np.zeros(3), Header())
 
 
 def test_scale_camera_info() -> None:

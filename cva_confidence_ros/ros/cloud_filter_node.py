@@ -1,0 +1,244 @@
+"""The rclpy node behind :mod:`cva_confidence_ros.cloud_filter`: a point cloud cut at a threshold.
+
+Subscribes to ``points2`` (any little-endian ``sensor_msgs/PointCloud2`` with x, y, z and a
+confidence field, e.g. the confidence node's with ``points_confidence: true``) and republishes on
+``points2_filtered`` the points whose confidence is at least ``threshold``, every other field
+(rgb, intensity, …) carried along, with the input's header. ``threshold`` can be changed at run
+time, so one confidence stream serves consumers with different needs: a mapper that wants only
+sure points and an obstacle layer that would rather see everything but the worst.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, fields, replace
+import threading
+from typing import Any
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+import numpy as np
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
+from rclpy.context import Context
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile
+from sensor_msgs.msg import PointCloud2
+
+from cva_confidence_ros.checks import is_real
+from cva_confidence_ros.errors import ConfigError, CVAError
+from cva_confidence_ros.pointcloud import filter_cloud
+from cva_confidence_ros.ros.common import ReasonThrottle, qos_profile, run_node
+from cva_confidence_ros.ros.convert import point_cloud_to_records, records_to_point_cloud
+from cva_confidence_ros.ros.params import QOS_CHOICES
+
+__all__ = ['NODE_NAME', 'CloudFilterConfig', 'CloudFilterNode', 'run']
+
+NODE_NAME = 'cva_cloud_filter'
+
+
+@dataclass(frozen=True)
+class CloudFilterConfig:
+    """The filter's parameters (one ROS parameter each, same names).
+
+    Attributes:
+        threshold: Points with confidence ≥ it are kept, in [0, 1].
+        organized: Keep the input's grid and set x, y, z of dropped points to NaN; false = a
+            dense cloud of the kept points only.
+        confidence_field: Name of the confidence field of the input cloud.
+        input_qos: QoS of the subscription, one of :data:`QOS_CHOICES` (start-up only).
+        output_qos: QoS of the publisher (start-up only).
+        diagnostics_period_seconds: Period of ``/diagnostics`` messages (start-up only).
+    """
+
+    threshold: float = 0.5
+    organized: bool = True
+    confidence_field: str = 'confidence'
+    input_qos: str = 'reliable'
+    output_qos: str = 'reliable'
+    diagnostics_period_seconds: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not is_real(self.threshold) or not 0.0 <= self.threshold <= 1.0:
+            raise ConfigError(f'threshold must be a number in [0, 1]; got {self.threshold!r}')
+        if not isinstance(self.organized, bool):
+            raise ConfigError(f'organized must be a bool; got {self.organized!r}')
+        if not isinstance(self.confidence_field, str) or not self.confidence_field:
+            raise ConfigError(
+                f'confidence_field must name a point field; got {self.confidence_field!r}'
+            )
+        for name in ('input_qos', 'output_qos'):
+            if getattr(self, name) not in QOS_CHOICES:
+                raise ConfigError(
+                    f'{name} must be one of {QOS_CHOICES}; got {getattr(self, name)!r}'
+                )
+        if not is_real(self.diagnostics_period_seconds) or not (
+            0 < self.diagnostics_period_seconds < float('inf')
+        ):
+            raise ConfigError(
+                f'diagnostics_period_seconds must be > 0; got {self.diagnostics_period_seconds}'
+            )
+
+
+_DESCRIPTIONS = {
+    'threshold': 'Points with confidence >= threshold are kept.',
+    'organized': 'Keep the input grid with NaN for dropped points; false = kept points only.',
+    'confidence_field': 'Name of the confidence field of the input cloud.',
+    'input_qos': 'QoS of the points2 subscription: sensor_data (best effort) or reliable.',
+    'output_qos': 'QoS of points2_filtered: sensor_data (best effort) or reliable.',
+    'diagnostics_period_seconds': 'Period of /diagnostics messages, seconds.',
+}
+_READ_ONLY = frozenset({'input_qos', 'output_qos', 'diagnostics_period_seconds'})
+
+
+@dataclass
+class _Counts:
+    clouds_received: int = 0
+    clouds_published: int = 0
+    clouds_invalid: int = 0
+    points_received: int = 0
+    points_kept: int = 0
+    last_error: str = ''
+
+
+class CloudFilterNode(Node):
+    """rclpy node that keeps the points of ``points2`` with confidence ≥ ``threshold``.
+
+    Args:
+        context: rclpy context (tests use one per node); None = the global one.
+        parameter_overrides: Start-up parameter values, as with ``--ros-args -p``.
+        **kwargs: Passed on to :class:`rclpy.node.Node`.
+
+    Raises:
+        ConfigError: The start-up parameters are invalid.
+    """
+
+    def __init__(
+        self,
+        *,
+        context: Context | None = None,
+        parameter_overrides: list[Parameter] | None = None,
+        **kwargs: Any,
+    ) -> None:
+        super().__init__(
+            NODE_NAME, context=context, parameter_overrides=parameter_overrides, **kwargs
+        )
+        for spec in fields(CloudFilterConfig):
+            descriptor = ParameterDescriptor(
+                description=_DESCRIPTIONS[spec.name], read_only=spec.name in _READ_ONLY
+            )
+            if spec.name == 'threshold':
+                descriptor.floating_point_range = [
+                    FloatingPointRange(from_value=0.0, to_value=1.0, step=0.0)
+                ]
+            self.declare_parameter(spec.name, spec.default, descriptor)
+        names = [spec.name for spec in fields(CloudFilterConfig)]
+        self._config = CloudFilterConfig(
+            **{name: self.get_parameter(name).value for name in names}
+        )
+        self._lock = threading.Lock()
+        self._counts = _Counts()
+        self._throttle = ReasonThrottle()
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._publisher = self.create_publisher(
+            PointCloud2, 'points2_filtered', qos_profile(self._config.output_qos)
+        )
+        self.create_subscription(
+            PointCloud2, 'points2', self._on_cloud, qos_profile(self._config.input_qos)
+        )
+        self._diagnostics = self.create_publisher(
+            DiagnosticArray, '/diagnostics', QoSProfile(depth=10)
+        )
+        self.create_timer(self._config.diagnostics_period_seconds, self._publish_diagnostics)
+
+    def summary(self) -> str:
+        """One line on the filter's settings, for its ready line."""
+        config = self.config
+        return (
+            f'threshold={config.threshold} organized={config.organized} '
+            f'confidence_field={config.confidence_field}'
+        )
+
+    @property
+    def config(self) -> CloudFilterConfig:
+        """The configuration the next cloud is filtered with."""
+        with self._lock:
+            return self._config
+
+    def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        changes = {p.name: p.value for p in params if p.name in _DESCRIPTIONS}
+        if not changes:
+            return SetParametersResult(successful=True)
+        try:
+            config = replace(self.config, **changes)
+        except (ConfigError, TypeError) as error:
+            return SetParametersResult(successful=False, reason=str(error))
+        with self._lock:
+            self._config = config
+        self.get_logger().info(
+            'parameters set: ' + ', '.join(f'{name}={value!r}' for name, value in changes.items())
+        )
+        return SetParametersResult(successful=True)
+
+    def _on_cloud(self, msg: PointCloud2) -> None:
+        config = self.config
+        try:
+            records = point_cloud_to_records(msg)
+            kept = filter_cloud(
+                records, config.threshold, config.organized, config.confidence_field
+            )
+            out = records_to_point_cloud(kept, msg.header)
+        except CVAError as error:
+            with self._lock:
+                self._counts.clouds_received += 1
+                self._counts.clouds_invalid += 1
+                self._counts.last_error = str(error)
+            self._throttle.log(
+                self.get_logger().warning, str(error), f'dropped cloud: {error}'
+            )
+            return
+        self._publisher.publish(out)
+        with self._lock:
+            counts = self._counts
+            counts.clouds_received += 1
+            counts.clouds_published += 1
+            counts.points_received += _finite_points(records)
+            counts.points_kept += _finite_points(kept)
+
+    def stats(self) -> dict[str, int]:
+        """Counters since start: clouds received, published and invalid; finite points in and
+        kept."""
+        with self._lock:
+            counts = asdict(self._counts)
+        counts.pop('last_error')
+        return counts
+
+    def _publish_diagnostics(self) -> None:
+        with self._lock:
+            counts = asdict(self._counts)
+            config = self._config
+        level, message = DiagnosticStatus.OK, f'threshold {config.threshold}'
+        if counts['clouds_invalid']:
+            level = DiagnosticStatus.WARN
+            message = f'{counts["clouds_invalid"]} cloud(s) dropped: {counts["last_error"]}'
+        values = {**counts, 'threshold': config.threshold, 'organized': config.organized}
+        status = DiagnosticStatus(
+            level=level,
+            name=f'{self.get_name()}: point cloud confidence filter',
+            message=message,
+            hardware_id=self.get_fully_qualified_name(),
+            values=[KeyValue(key=key, value=str(value)) for key, value in values.items()],
+        )
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self._diagnostics.publish(array)
+
+
+def _finite_points(records: np.ndarray) -> int:
+    finite = np.isfinite(records['x']) & np.isfinite(records['y']) & np.isfinite(records['z'])
+    return int(finite.sum())
+
+
+def run(argv: Sequence[str] | None = None) -> int:
+    """Run the filter until Ctrl-C or SIGTERM: the body of
+    :func:`cva_confidence_ros.cloud_filter.main`."""
+    return run_node(CloudFilterNode, NODE_NAME, argv)
