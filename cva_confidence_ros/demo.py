@@ -7,8 +7,9 @@ The Middlebury 2014 Motorcycle pair that scikit-image ships is
 3. replayed through the node's pipeline with the shipped CVA-Net weights and the hand-crafted
    measures (``cva-bag-replay``), which writes an output bag, a report and PNGs;
 
-and the AUC table is printed. Runs in a few minutes on a 2-core CPU: the images are processed at
-quarter resolution (``--downsample 4``), which keeps CVA-Net to about a minute a matcher.
+and the AUC table is printed. Runs in about a minute on a 2-core CPU (set-up done): the images
+are processed at quarter resolution (``--downsample 4``), which keeps CVA-Net to about 16 s a
+matcher.
 """
 
 from __future__ import annotations
@@ -104,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--out', type=Path, default=Path('out/demo'), help='output folder')
     parser.add_argument(
         '--downsample', type=int, default=4,
-        help='processing downsample (4 keeps CVA-Net on a 2-core CPU to about a minute a matcher)'
+        help='processing downsample (4 keeps CVA-Net on a 2-core CPU to about 16 s a matcher)'
     )
     parser.add_argument('--max-disparity', type=int, default=64, help='cost-volume depth')
     parser.add_argument(

@@ -61,7 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
     node.add_argument('--matcher', default=_default('matcher'), help='census_bm, census_sgm, '
                       'mccnn_fast (default %(default)s)')
     node.add_argument('--confidence-method', default=_default('confidence_method'),
-                      help='cva_net or a hand-crafted measure (default %(default)s)')
+                      help='any confidence_method of the node: cva_net, cva_net_fast, '
+                           'cva_net_lite, ccnn, lfn, lgc_net or a hand-crafted measure '
+                           '(default %(default)s)')
     node.add_argument('--weights', default=_default('model_path'),
                       help='CVA-Net weights (default: the shipped ones for the matcher)')
     node.add_argument('--max-disparity', type=int, default=_default('max_disparity'),

@@ -58,8 +58,9 @@ def build_parser() -> argparse.ArgumentParser:
     data.add_argument(
         '--arch',
         default=defaults['arch'].default,
-        help='network architecture to train: cvanet (the paper network) or the baselines '
-        'ccnn, lfn, lgcnet (disparity + image; --mode sparse = 9×9 patches)',
+        help='network architecture to train: cvanet (the paper network), cvanet_lite, '
+        "cvanet_fast (this project's light and CPU networks) or the baselines ccnn, lfn, "
+        'lgcnet (disparity + image; --mode sparse = 9×9 patches)',
     )
     data.add_argument('--matcher', default=defaults['matcher'].default, help='matcher name')
     data.add_argument(
