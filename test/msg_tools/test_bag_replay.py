@@ -105,6 +105,32 @@ def test_auc_equals_cva_evaluate(tmp_path: Path) -> None:
     assert {f['n_pixels'] for f in subset['frames']} == {300}
 
 
+def test_points_confidence_writes_every_point_with_its_confidence(tmp_path: Path) -> None:
+    from cva_confidence_ros.pointcloud import CLOUD_CONFIDENCE_DTYPE, filter_cloud
+
+    bag = dataset_bag(tmp_path, 'mcap', 1)
+    code, _ = _replay(bag, tmp_path, '--points-confidence')
+    assert code == 0
+    outputs = read_bag(tmp_path / 'run_bag')
+    msg = outputs['/points2'][0][1]
+    assert [f.name for f in msg.fields] == ['x', 'y', 'z', 'rgb', 'confidence']
+    assert msg.point_step == 20
+    cloud = np.frombuffer(bytes(msg.data), CLOUD_CONFIDENCE_DTYPE).reshape(msg.height, msg.width)
+    confidence = float_image_to_array(outputs['/confidence'][0][1])
+    disparity = disparity_from_message(outputs['/disparity'][0][1])
+    triangulable = np.isfinite(disparity) & (disparity > 0)
+    np.testing.assert_array_equal(np.isfinite(cloud['z']), triangulable)
+    np.testing.assert_array_equal(cloud['confidence'][triangulable], confidence[triangulable])
+    # Cut at the node's threshold, it is the cloud the node keeps: disparity_filtered's pixels.
+    kept = np.isfinite(disparity_from_message(outputs['/disparity_filtered'][0][1]))
+    from cva_confidence_ros.pipeline import PipelineConfig
+
+    threshold = PipelineConfig().confidence_threshold  # cva-bag-replay's default
+    np.testing.assert_array_equal(
+        np.isfinite(filter_cloud(cloud, threshold)['z']), kept & triangulable
+    )
+
+
 def test_downsample_scales_ground_truth(tmp_path: Path) -> None:
     bag = dataset_bag(tmp_path, 'mcap', 2)
     code, report = _replay(bag, tmp_path, '--downsample', '2')
