@@ -9,6 +9,10 @@ Usage (full ROS 2 install)::
 The node subscribes to ``<stereo_namespace>/{left,right}/{image_rect,camera_info}`` and
 publishes ``disparity``, ``disparity_filtered``, ``confidence`` and ``points2`` in the same
 namespace, like ``stereo_image_proc``. Launch arguments left empty keep the file's value.
+
+``cloud_filter_threshold:=0.8`` also starts the ``cloud_filter`` node in that namespace: the
+confidence node then publishes every point with its confidence (``points_confidence: true``) and
+the filter republishes those with confidence >= 0.8 on ``points2_filtered``.
 """
 
 # The repository's own launch/ folder makes ruff take the `launch` package for first-party.
@@ -45,12 +49,28 @@ def _node(context: LaunchContext) -> list[Node]:
         if value:
             overrides[name] = kind(value)
     use_sim_time = LaunchConfiguration('use_sim_time').perform(context).lower() == 'true'
+    namespace = LaunchConfiguration('stereo_namespace')
+    cloud_threshold = LaunchConfiguration('cloud_filter_threshold').perform(context)
+    nodes = []
+    if cloud_threshold:
+        overrides['points_confidence'] = True
+        nodes.append(
+            Node(
+                package=PACKAGE,
+                executable='cloud_filter',
+                name='cva_cloud_filter',
+                namespace=namespace,
+                output='screen',
+                emulate_tty=True,
+                parameters=[{'threshold': float(cloud_threshold), 'use_sim_time': use_sim_time}],
+            )
+        )
     return [
         Node(
             package=PACKAGE,
             executable='node',
             name='cva_confidence',
-            namespace=LaunchConfiguration('stereo_namespace'),
+            namespace=namespace,
             output='screen',
             emulate_tty=True,
             parameters=[
@@ -58,7 +78,8 @@ def _node(context: LaunchContext) -> list[Node]:
                 {'use_sim_time': use_sim_time},
                 overrides,
             ],
-        )
+        ),
+        *nodes,
     ]
 
 
@@ -76,6 +97,12 @@ def generate_launch_description() -> LaunchDescription:
         ),
         DeclareLaunchArgument(
             'use_sim_time', default_value='false', description='Use the /clock topic.'
+        ),
+        DeclareLaunchArgument(
+            'cloud_filter_threshold',
+            default_value='',
+            description='Also start cloud_filter at this threshold (points_confidence on); '
+            'empty = no filter.',
         ),
     ]
     arguments += [

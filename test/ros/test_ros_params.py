@@ -108,3 +108,78 @@ def test_launch_file_overrides_declared_parameters() -> None:
     }
     for name, kind in kinds.items():
         assert kind == type(DEFAULTS[name]).__name__, name
+
+
+class _Config:
+    """Stand-in for ``launch.substitutions.LaunchConfiguration``: values from a dict."""
+
+    values: dict[str, str] = {}
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    def perform(self, context: object) -> str:
+        return self.values[self.name]
+
+
+class _Action:
+    """Stand-in for launch actions: keeps the keyword arguments it was built with."""
+
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        self.args, self.kwargs = args, kwargs
+
+
+def _launch_module(monkeypatch: pytest.MonkeyPatch) -> object:
+    """Import the launch file with stand-ins for the ROS launch packages (not on the index)."""
+    import importlib.util
+    import sys
+    import types
+
+    fakes = {
+        'ament_index_python': {},
+        'ament_index_python.packages': {'get_package_share_directory': lambda name: '/share'},
+        'launch': {'LaunchContext': object, 'LaunchDescription': _Action},
+        'launch.actions': {'DeclareLaunchArgument': _Action, 'OpaqueFunction': _Action},
+        'launch.substitutions': {'LaunchConfiguration': _Config},
+        'launch_ros': {},
+        'launch_ros.actions': {'Node': _Action},
+    }
+    for name, attributes in fakes.items():
+        module = types.ModuleType(name)
+        module.__dict__.update(attributes)
+        monkeypatch.setitem(sys.modules, name, module)
+    path = ROOT / 'launch' / 'cva_confidence.launch.py'
+    spec = importlib.util.spec_from_file_location('cva_confidence_launch', path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_launch_file_starts_the_cloud_filter_on_request(monkeypatch: pytest.MonkeyPatch) -> None:
+    launch = _launch_module(monkeypatch)
+    description = launch.generate_launch_description()
+    declared = [a.args[0] if a.args else a.kwargs['name'] for a in description.args[0][:-1]]
+    assert 'cloud_filter_threshold' in declared
+    (entry_points,) = [
+        ast.literal_eval(node.value)
+        for node in ast.walk(ast.parse((ROOT / 'setup.py').read_text()))
+        if isinstance(node, ast.Assign) and getattr(node.targets[0], 'id', '') == 'ENTRY_POINTS'
+    ]
+    ros_names = {ros_name for ros_name, _, _ in entry_points}  # what colcon installs
+    base = {name: '' for name in launch.OVERRIDES}
+    base.update(stereo_namespace='/stereo', use_sim_time='true', params_file='p.yaml')
+
+    monkeypatch.setattr(_Config, 'values', {**base, 'cloud_filter_threshold': ''})
+    (alone,) = launch._node(None)
+    assert alone.kwargs['executable'] == 'node'
+    assert 'points_confidence' not in alone.kwargs['parameters'][2]
+
+    monkeypatch.setattr(
+        _Config, 'values', {**base, 'cloud_filter_threshold': '0.8', 'matcher': 'census_sgm'}
+    )
+    node, cloud_filter = launch._node(None)
+    assert node.kwargs['parameters'][2] == {'matcher': 'census_sgm', 'points_confidence': True}
+    assert cloud_filter.kwargs['executable'] == 'cloud_filter'
+    assert {'node', 'cloud_filter'} <= ros_names
+    assert cloud_filter.kwargs['parameters'] == [{'threshold': 0.8, 'use_sim_time': True}]
+    assert cloud_filter.kwargs['namespace'] is node.kwargs['namespace']
