@@ -8,9 +8,11 @@ field; each consumer then cuts it where it needs, and the threshold can be chang
 confidence field works (``confidence_field`` names it); its other fields are carried along.
 
 Parameters: ``threshold`` ([0, 1], 0.5), ``organized`` (true: keep the grid, NaN for dropped
-points; false: kept points only), ``confidence_field`` ('confidence'), ``input_qos`` and
-``output_qos`` (reliable | sensor_data), ``diagnostics_period_seconds``. A cloud it cannot read
-(no such field, truncated data, big-endian) is logged and skipped; counts go to ``/diagnostics``.
+points; false: kept points only), ``confidence_field`` ('confidence'), ``input_qos``
+(sensor_data, the default: best effort, receives from any publisher | reliable),
+``output_qos`` (reliable, the default | sensor_data), ``diagnostics_period_seconds``. A cloud it
+cannot read (no such field, truncated data, big-endian) is logged and skipped; counts go to
+``/diagnostics``.
 
 The node itself lives in :mod:`cva_confidence_ros.ros.cloud_filter_node`.
 """

@@ -45,7 +45,9 @@ class CloudFilterConfig:
         organized: Keep the input's grid and set x, y, z of dropped points to NaN; false = a
             dense cloud of the kept points only.
         confidence_field: Name of the confidence field of the input cloud.
-        input_qos: QoS of the subscription, one of :data:`QOS_CHOICES` (start-up only).
+        input_qos: QoS of the subscription, one of :data:`QOS_CHOICES` (start-up only); the
+            default best-effort subscription receives from reliable and best-effort publishers
+            alike.
         output_qos: QoS of the publisher (start-up only).
         diagnostics_period_seconds: Period of ``/diagnostics`` messages (start-up only).
     """
@@ -53,7 +55,7 @@ class CloudFilterConfig:
     threshold: float = 0.5
     organized: bool = True
     confidence_field: str = 'confidence'
-    input_qos: str = 'reliable'
+    input_qos: str = 'sensor_data'
     output_qos: str = 'reliable'
     diagnostics_period_seconds: float = 1.0
 
@@ -188,13 +190,10 @@ class CloudFilterNode(Node):
             )
             out = records_to_point_cloud(kept, msg.header)
         except CVAError as error:
-            with self._lock:
-                self._counts.clouds_received += 1
-                self._counts.clouds_invalid += 1
-                self._counts.last_error = str(error)
-            self._throttle.log(
-                self.get_logger().warning, str(error), f'dropped cloud: {error}'
-            )
+            self._dropped(str(error), self.get_logger().warning)
+            return
+        except Exception as error:  # noqa: BLE001  (the node must outlive any one cloud)
+            self._dropped(f'{type(error).__name__}: {error}', self.get_logger().error)
             return
         self._publisher.publish(out)
         with self._lock:
@@ -203,6 +202,13 @@ class CloudFilterNode(Node):
             counts.clouds_published += 1
             counts.points_received += _finite_points(records)
             counts.points_kept += _finite_points(kept)
+
+    def _dropped(self, why: str, log: Any) -> None:
+        with self._lock:
+            self._counts.clouds_received += 1
+            self._counts.clouds_invalid += 1
+            self._counts.last_error = why
+        self._throttle.log(log, why, f'dropped cloud: {why}')
 
     def stats(self) -> dict[str, int]:
         """Counters since start: clouds received, published and invalid; finite points in and

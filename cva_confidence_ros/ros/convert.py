@@ -409,12 +409,15 @@ def point_cloud_to_records(msg: PointCloud2) -> np.ndarray:
     of a row (``row_step`` > ``point_step`` × ``width``) is dropped.
 
     Raises:
-        InputError: Big-endian data, an unknown datatype, duplicate or overlapping-the-end
-            fields, a ``row_step`` shorter than a row, or fewer data bytes than the header says.
+        InputError: Big-endian data, a ``point_step`` of 0, an unknown datatype, duplicate or
+            overlapping-the-end fields, a ``row_step`` shorter than a row, or fewer data bytes
+            than the header says.
     """
     if msg.is_bigendian:
         raise InputError('big-endian PointCloud2 data is not supported')
     height, width, step, row_step = msg.height, msg.width, msg.point_step, msg.row_step
+    if step == 0 and height * width:
+        raise InputError(f'point_step is 0 for a cloud of {height}×{width} points')
     names, formats, offsets = [], [], []
     for field in msg.fields:
         code = _POINT_FIELD_TYPES.get(field.datatype)

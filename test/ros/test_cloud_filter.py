@@ -157,7 +157,7 @@ def test_threshold_and_layout_change_at_run_time(running: _Running) -> None:
         assert not refused.successful and running.node.config.threshold == 0.8
         refused = running.node.set_parameters([Parameter('confidence_field', value='')])[0]
         assert not refused.successful and 'confidence_field' in refused.reason
-        read_only = running.node.set_parameters([Parameter('input_qos', value='sensor_data')])[0]
+        read_only = running.node.set_parameters([Parameter('input_qos', value='reliable')])[0]
         assert not read_only.successful
     finally:
         result = running.node.set_parameters_atomically(

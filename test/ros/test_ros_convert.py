@@ -272,6 +272,7 @@ def test_foreign_cloud_records_round_trip() -> None:
         ({'row_step': 10}, 'row_step 10 is shorter'),
         ({'data': b'\0' * 50}, 'holds 50 bytes'),
         ({'point_step': 20}, "'score' .* does not fit in point_step 20"),
+        ({'point_step': 0}, r'point_step is 0 for a cloud of 2×4 points'),
     ],
 )
 def test_point_cloud_to_records_refuses(change: dict, match: str) -> None:
