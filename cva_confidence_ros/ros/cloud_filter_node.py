@@ -139,6 +139,7 @@ class CloudFilterNode(Node):
         )
         self._lock = threading.Lock()
         self._counts = _Counts()
+        self._window_invalid = 0  # since the last /diagnostics message
         self._throttle = ReasonThrottle()
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._publisher = self.create_publisher(
@@ -170,12 +171,11 @@ class CloudFilterNode(Node):
         changes = {p.name: p.value for p in params if p.name in _DESCRIPTIONS}
         if not changes:
             return SetParametersResult(successful=True)
-        try:
-            config = replace(self.config, **changes)
-        except (ConfigError, TypeError) as error:
-            return SetParametersResult(successful=False, reason=str(error))
         with self._lock:
-            self._config = config
+            try:
+                self._config = replace(self._config, **changes)
+            except (ConfigError, TypeError) as error:
+                return SetParametersResult(successful=False, reason=str(error))
         self.get_logger().info(
             'parameters set: ' + ', '.join(f'{name}={value!r}' for name, value in changes.items())
         )
@@ -183,6 +183,13 @@ class CloudFilterNode(Node):
 
     def _on_cloud(self, msg: PointCloud2) -> None:
         config = self.config
+        if msg.height * msg.width == 0:
+            # "Nothing seen": passed on as it came, whatever its (possibly empty) fields.
+            self._publisher.publish(msg)
+            with self._lock:
+                self._counts.clouds_received += 1
+                self._counts.clouds_published += 1
+            return
         try:
             records = point_cloud_to_records(msg)
             kept = filter_cloud(
@@ -190,10 +197,10 @@ class CloudFilterNode(Node):
             )
             out = records_to_point_cloud(kept, msg.header)
         except CVAError as error:
-            self._dropped(str(error), self.get_logger().warning)
+            self._dropped(str(error))
             return
         except Exception as error:  # noqa: BLE001  (the node must outlive any one cloud)
-            self._dropped(f'{type(error).__name__}: {error}', self.get_logger().error)
+            self._dropped(f'{type(error).__name__}: {error}', error=True)
             return
         self._publisher.publish(out)
         with self._lock:
@@ -203,12 +210,13 @@ class CloudFilterNode(Node):
             counts.points_received += _finite_points(records)
             counts.points_kept += _finite_points(kept)
 
-    def _dropped(self, why: str, log: Any) -> None:
+    def _dropped(self, why: str, error: bool = False) -> None:
         with self._lock:
             self._counts.clouds_received += 1
             self._counts.clouds_invalid += 1
+            self._window_invalid += 1
             self._counts.last_error = why
-        self._throttle.log(log, why, f'dropped cloud: {why}')
+        self._throttle.log(self.get_logger(), why, f'dropped cloud: {why}', error=error)
 
     def stats(self) -> dict[str, int]:
         """Counters since start: clouds received, published and invalid; finite points in and
@@ -222,10 +230,11 @@ class CloudFilterNode(Node):
         with self._lock:
             counts = asdict(self._counts)
             config = self._config
+            window_invalid, self._window_invalid = self._window_invalid, 0
         level, message = DiagnosticStatus.OK, f'threshold {config.threshold}'
-        if counts['clouds_invalid']:
+        if window_invalid:
             level = DiagnosticStatus.WARN
-            message = f'{counts["clouds_invalid"]} cloud(s) dropped: {counts["last_error"]}'
+            message = f'{window_invalid} cloud(s) dropped: {counts["last_error"]}'
         values = {**counts, 'threshold': config.threshold, 'organized': config.organized}
         status = DiagnosticStatus(
             level=level,

@@ -20,6 +20,7 @@ import time
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.impl.rcutils_logger import RcutilsLogger
 import rclpy.logging
 from rclpy.logging import LoggingSeverity
 from rclpy.node import Node
@@ -99,14 +100,19 @@ class ReasonThrottle:
             self._reasons.move_to_end(key)
             return held_back
 
-    def log(self, log: Callable[[str], object], why: str, message: str) -> None:
-        """Call ``log(message)`` unless one for the same ``why`` was logged within the period."""
+    def log(self, logger: RcutilsLogger, why: str, message: str, *, error: bool = False) -> None:
+        """Log ``message`` as a warning (an error with ``error``) unless one for the same ``why``
+        was logged within the period."""
         held_back = self.admit(why)
         if held_back is None:
             return
         if held_back:
             message += f' ({held_back} more like it held back since the last one logged)'
-        log(message)
+        # rclpy fixes the severity of each calling line at its first call: one line a severity.
+        if error:
+            logger.error(message)
+        else:
+            logger.warning(message)
 
 
 def _init(args: list[str]) -> None:
@@ -123,7 +129,8 @@ def _init(args: list[str]) -> None:
 def run_node(factory: Callable[[], Node], name: str, argv: Sequence[str] | None = None) -> int:
     """Run the node ``factory()`` builds until Ctrl-C or SIGTERM.
 
-    Once the node is up, ``ready: <node.summary()>`` is logged.
+    Once the node is up, ``ready: <node.summary()>`` is logged; a Ctrl-C after that line is a
+    clean stop (0), one before it an interrupted start (130).
 
     Args:
         factory: Builds the node once rclpy is initialised; may raise :class:`CVAError` or
@@ -139,6 +146,7 @@ def run_node(factory: Callable[[], Node], name: str, argv: Sequence[str] | None 
     args = list(sys.argv if argv is None else argv)
     logger = rclpy.logging.get_logger(name)
     node: Node | None = None
+    up = False
     code = 0
     try:
         try:
@@ -150,14 +158,15 @@ def run_node(factory: Callable[[], Node], name: str, argv: Sequence[str] | None 
         node = factory()
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        # Logged here, once the node is assigned and its executor built: a Ctrl-C after this
-        # line is a clean stop (0), never an interrupted start.
+        # Up before the ready line is written: whoever reacts to the line with a Ctrl-C must get
+        # a clean stop (0), even if the signal lands before the logging call has returned.
+        up = True
         summary = getattr(node, 'summary', None)
         node.get_logger().info(f'{READY}: {summary() if summary else node.get_name()}')
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
-        # Ctrl-C stops a running node cleanly; before it is up, it interrupts the start.
-        code = 0 if node is not None else EXIT_INTERRUPTED
+        # Ctrl-C stops a running node cleanly; before its ready line, it interrupts the start.
+        code = 0 if up else EXIT_INTERRUPTED
     except (CVAError, ParameterException) as error:
         logger.fatal(f'cannot start: {error}')
         code = EXIT_BAD_START
@@ -166,7 +175,7 @@ def run_node(factory: Callable[[], Node], name: str, argv: Sequence[str] | None 
         # that follows is that interruption, not a fault worth a traceback.
         if rclpy.ok():
             raise
-        code = 0 if node is not None else EXIT_INTERRUPTED
+        code = 0 if up else EXIT_INTERRUPTED
     finally:
         # A second Ctrl-C while a worker finishes its frame must not print a traceback.
         signal.signal(signal.SIGINT, signal.SIG_IGN)

@@ -6,7 +6,7 @@ pipeline inside its ``try``: a Ctrl-C during that second of imports then ends th
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import partial
 import threading
@@ -268,17 +268,13 @@ class ConfidenceNode(Node):
                 if self._mailbox.put(item):
                     self._stats.dropped += 1
         for previous, now in jumps:
-            self._log_throttled(
-                self.get_logger().warning,
+            self._log_throttle.log(
+                self.get_logger(),
                 'input stamps jumped back',
                 f'input stamps jumped back {(previous - now) / 1e9:.3f} s, from '
                 f'{_seconds(previous)} to {_seconds(now)} (bag loop, driver restart or simulator '
                 'reset?): pairing starts over from there',
             )
-
-    def _log_throttled(self, log: Callable[[str], Any], why: str, message: str) -> None:
-        """Log ``message`` unless one for the same ``why`` was logged within the period."""
-        self._log_throttle.log(log, why, message)
 
     # Worker side --------------------------------------------------------------------------
 
@@ -298,10 +294,8 @@ class ConfidenceNode(Node):
                     self._stats.invalid += 1
                     self._stats.window_invalid += 1
                     self._stats.last_error = str(error)
-                self._log_throttled(
-                    self.get_logger().warning,
-                    str(error),
-                    f'dropped frame {item.stamp_ns}: {error}',
+                self._log_throttle.log(
+                    self.get_logger(), str(error), f'dropped frame {item.stamp_ns}: {error}'
                 )
             except Exception as error:  # noqa: BLE001  (the worker must outlive any frame)
                 if self._stopping():
@@ -312,10 +306,11 @@ class ConfidenceNode(Node):
                 with self._lock:
                     self._stats.failed += 1
                     self._stats.last_error = what
-                self._log_throttled(
-                    self.get_logger().error,
+                self._log_throttle.log(
+                    self.get_logger(),
                     what,
                     f'processing failed on frame {item.stamp_ns}: {what}',
+                    error=True,
                 )
 
     def _process(self, item: MatchedSet) -> None:

@@ -408,6 +408,9 @@ def point_cloud_to_records(msg: PointCloud2) -> np.ndarray:
     producers survive a round trip through :func:`records_to_point_cloud`; padding at the end
     of a row (``row_step`` > ``point_step`` × ``width``) is dropped.
 
+    A field of ``count`` 0 declares no data and is left out. An empty cloud (height or width 0)
+    gives an empty array with the fields it declares.
+
     Raises:
         InputError: Big-endian data, a ``point_step`` of 0, an unknown datatype, duplicate or
             overlapping-the-end fields, a ``row_step`` shorter than a row, or fewer data bytes
@@ -416,18 +419,21 @@ def point_cloud_to_records(msg: PointCloud2) -> np.ndarray:
     if msg.is_bigendian:
         raise InputError('big-endian PointCloud2 data is not supported')
     height, width, step, row_step = msg.height, msg.width, msg.point_step, msg.row_step
-    if step == 0 and height * width:
+    empty = height * width == 0
+    if step == 0 and not empty:
         raise InputError(f'point_step is 0 for a cloud of {height}×{width} points')
-    names, formats, offsets = [], [], []
+    names, formats, offsets, ends = [], [], [], []
     for field in msg.fields:
         code = _POINT_FIELD_TYPES.get(field.datatype)
         if code is None:
             raise InputError(f'point field {field.name!r} has unknown datatype {field.datatype}')
         if field.name in names:
             raise InputError(f'point field {field.name!r} appears twice')
-        count = max(int(field.count), 1)
+        count = int(field.count)
+        if count == 0:
+            continue  # a declared field of no elements: nothing to read
         size = np.dtype(code).itemsize * count
-        if field.offset + size > step:
+        if field.offset + size > step and not empty:
             raise InputError(
                 f'point field {field.name!r} (offset {field.offset}, {size} bytes) does not fit '
                 f'in point_step {step}'
@@ -435,7 +441,14 @@ def point_cloud_to_records(msg: PointCloud2) -> np.ndarray:
         names.append(field.name)
         formats.append(code if count == 1 else (code, (count,)))
         offsets.append(field.offset)
-    if height * width and row_step < step * width:
+        ends.append(field.offset + size)
+    if empty:
+        itemsize = max([step, *ends])
+        dtype = np.dtype(
+            {'names': names, 'formats': formats, 'offsets': offsets, 'itemsize': itemsize}
+        )
+        return np.empty((height, width), dtype)
+    if row_step < step * width:
         raise InputError(f'row_step {row_step} is shorter than width × point_step {step * width}')
     data = np.frombuffer(msg.data, dtype=np.uint8)
     if data.size < row_step * height:

@@ -230,3 +230,35 @@ def test_process_refuses_a_bad_threshold_and_stops_on_sigint() -> None:
     finally:
         if proc.poll() is None:
             proc.kill()
+
+
+def test_throttled_warnings_and_errors_share_a_logger() -> None:
+    # rclpy fixes the severity of each calling line at its first call; a warning and then an
+    # error through the throttle used to raise "Logger severity cannot be changed between
+    # calls" inside the node's callback (the filter died, the confidence node's worker stopped).
+    import rclpy.logging
+
+    from cva_confidence_ros.ros.common import ReasonThrottle
+
+    logger = rclpy.logging.get_logger('cva_throttle_test')
+    throttle = ReasonThrottle(period_s=60.0)
+    throttle.log(logger, 'bad frame', 'first warning')
+    throttle.log(logger, 'crash', 'an error', error=True)
+    throttle.log(logger, 'other bad frame', 'second warning')
+    throttle.log(logger, 'bad frame', 'held back')
+    assert throttle.admit('bad frame') is None  # still within the period: held back
+
+
+def test_empty_and_zero_count_clouds(running: _Running) -> None:
+    empty = PointCloud2(header=Header(stamp=ns_to_stamp(running.next_stamp())))
+    out = running.client.answer(empty)
+    assert (out.height, out.width, len(out.fields)) == (0, 0, 0)
+    records = point_cloud_to_records(
+        PointCloud2(height=1, width=0, fields=_cloud(1, _confidence(0)).fields)
+    )
+    assert records.shape == (1, 0) and 'confidence' in records.dtype.names
+    # A field of count 0 declares nothing and is dropped, even at offset == point_step.
+    msg = _cloud(running.next_stamp(), _confidence(5))
+    msg.fields.append(PointField(name='pad', offset=32, datatype=PointField.FLOAT32, count=0))
+    out = running.client.answer(msg)
+    assert [f.name for f in out.fields] == ['x', 'y', 'z', 'confidence', 'intensity']
