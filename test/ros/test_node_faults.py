@@ -246,3 +246,47 @@ def test_each_kind_of_bad_frame_is_logged_and_repeats_are_counted(running: _Runn
     finally:
         throttle.period_s = period
     assert node._worker.is_alive()
+
+
+def test_a_frame_that_fails_after_bad_ones_is_logged_as_an_error_and_work_goes_on(
+    running: _Running,
+) -> None:
+    # A bad frame (a warning) and then a failure (an error) through the throttle: rclpy fixes
+    # the severity of a calling line at its first call, so one line for both raised inside the
+    # worker and stopped it for good.
+    node, client = running.node, running.client
+    stamp = running.next_stamp()
+    running.send_bad(_other_bad_frames(stamp)['no rows'])
+    pipeline = node._pipeline
+    process = pipeline.process
+    calls = []
+
+    def fail_once(left: np.ndarray, right: np.ndarray) -> object:
+        if not calls:
+            calls.append(1)
+            raise RuntimeError('simulated failure inside the pipeline')
+        return process(left, right)
+
+    pipeline.process = fail_once
+    try:
+        failed = node.stats()['frames_failed']
+        left, right = textured_pair(64, 96, seed=9)
+        client.publish_frame(left, right, running.next_stamp())
+        assert client.wait_for(lambda: node.stats()['frames_failed'] > failed, 10)
+
+        def errors() -> list[str]:
+            return [
+                msg.msg
+                for msg in list(client.received['/rosout'])
+                if msg.name == 'cva_confidence'
+                and msg.level == Log.ERROR
+                and 'simulated failure' in msg.msg
+            ]
+
+        assert client.wait_for(lambda: bool(errors()), 10), 'the failure was not logged'
+        assert 'processing failed on frame' in errors()[0]
+        assert node._worker.is_alive()
+        out = client.send_until_output(left, right, running.next_stamp(), topics=('disparity',))
+        assert out['disparity'] is not None
+    finally:
+        del pipeline.process
