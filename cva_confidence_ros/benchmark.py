@@ -100,7 +100,7 @@ _NETWORK_WORKER_FLAG = '--network-worker'
 _NETWORK_PREFIX = 'cvanet_d'
 _GEMM_SIZE = 2048
 _RECORD_PREFIX = 'BENCH-RECORD '
-_SUITES = ('matchers', 'node', 'fast', 'gpu')
+_SUITES = ('matchers', 'node', 'fast', 'gpu', 'cloud')
 
 
 @dataclass(frozen=True)
@@ -584,8 +584,9 @@ def _parser() -> argparse.ArgumentParser:
                         help='matchers (this table), node: end-to-end latency of cva-node '
                         'over DDS (see cva-benchmark --suite node --help), fast: CVA-Net '
                         'fast paths with their AUC cost (cva-benchmark --suite fast --help), '
-                        'or gpu: the networks per precision on a CUDA GPU '
-                        '(cva-benchmark --suite gpu --help)')
+                        'gpu: the networks per precision on a CUDA GPU '
+                        '(cva-benchmark --suite gpu --help), or cloud: the point clouds in the '
+                        'node and the cloud_filter node (cva-benchmark --suite cloud --help)')
     parser.add_argument('--network', action=argparse.BooleanOptionalAction, default=True,
                         help=f'add the CVA-Net row {_NETWORK_PREFIX}<D> (on a crop of the '
                         f'{NETWORK_MATCHER} cost volume, extrapolated to the frame by FLOPs)')
@@ -613,6 +614,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         from cva_confidence_ros.gpu_benchmark import main as gpu_main
 
         return gpu_main(rest)
+    if chosen.suite == 'cloud':
+        from cva_confidence_ros.cloud_benchmark import main as cloud_main
+
+        return cloud_main(rest)
     parser = _parser()
     args = parser.parse_args(rest)
     try:
