@@ -280,3 +280,21 @@ def localhost_context(domain: int) -> Iterator[Context]:
             os.environ.pop('ROS_AUTOMATIC_DISCOVERY_RANGE', None)
         else:
             os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = previous
+
+
+@contextlib.contextmanager
+def running_nodes(domain: int, make: Callable[[Context], Any]) -> Iterator[Any]:
+    """A module's running nodes: ``make(context)`` in a fresh localhost context on ``domain``.
+
+    ``make`` returns the test's state object with ``spinner`` (a :class:`Spinner`), ``node``
+    (the node under test) and ``client.node`` (the test-side node); all three are stopped and
+    destroyed afterwards.
+    """
+    with localhost_context(domain) as context:
+        state = make(context)
+        try:
+            yield state
+        finally:
+            state.spinner.stop()
+            state.node.destroy_node()
+            state.client.node.destroy_node()

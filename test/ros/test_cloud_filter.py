@@ -10,7 +10,7 @@ import subprocess
 import sys
 import time
 
-from node_test_utils import Spinner, domain_id, first_stamp, localhost_context
+from node_test_utils import Spinner, domain_id, first_stamp, running_nodes
 import numpy as np
 import pytest
 from rcl_interfaces.msg import Log
@@ -105,14 +105,8 @@ class _Running:
 
 @pytest.fixture(scope='module')
 def running() -> Iterator[_Running]:
-    with localhost_context(domain_id(1)) as context:
-        state = _Running(context)
-        try:
-            yield state
-        finally:
-            state.spinner.stop()
-            state.node.destroy_node()
-            state.client.node.destroy_node()
+    with running_nodes(domain_id(1), _Running) as state:
+        yield state
 
 
 def _confidence(seed: int) -> np.ndarray:

@@ -12,8 +12,8 @@ from node_test_utils import (
     first_stamp,
     image_msg,
     info_msgs,
-    localhost_context,
     rss_mb,
+    running_nodes,
     textured_pair,
 )
 import numpy as np
@@ -72,14 +72,8 @@ class _Running:
 
 @pytest.fixture(scope='module')
 def running() -> Iterator[_Running]:
-    with localhost_context(domain_id(1)) as context:
-        state = _Running(context)
-        try:
-            yield state
-        finally:
-            state.spinner.stop()
-            state.node.destroy_node()
-            state.client.node.destroy_node()
+    with running_nodes(domain_id(1), _Running) as state:
+        yield state
 
 
 def _burst(running: _Running, left: np.ndarray, right: np.ndarray, count: int) -> list[int]:

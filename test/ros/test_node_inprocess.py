@@ -16,7 +16,7 @@ from node_test_utils import (
     first_stamp,
     image_msg,
     info_msgs,
-    localhost_context,
+    running_nodes,
     textured_pair,
 )
 import numpy as np
@@ -100,14 +100,8 @@ class _Running:
 
 @pytest.fixture(scope='module')
 def running() -> Iterator[_Running]:
-    with localhost_context(domain_id(0)) as context:
-        state = _Running(context)
-        try:
-            yield state
-        finally:
-            state.spinner.stop()
-            state.node.destroy_node()
-            state.client.node.destroy_node()
+    with running_nodes(domain_id(0), _Running) as state:
+        yield state
 
 
 def _interior(array: np.ndarray, border: int) -> np.ndarray:
