@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass, fields, replace
 import threading
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
 from rclpy.context import Context
@@ -27,7 +27,13 @@ from sensor_msgs.msg import PointCloud2
 from cva_confidence_ros.checks import is_real
 from cva_confidence_ros.errors import ConfigError, CVAError
 from cva_confidence_ros.pointcloud import filter_cloud
-from cva_confidence_ros.ros.common import ReasonThrottle, qos_profile, run_node
+from cva_confidence_ros.ros.common import (
+    ReasonThrottle,
+    diagnostic_status,
+    publish_status,
+    qos_profile,
+    run_node,
+)
 from cva_confidence_ros.ros.convert import point_cloud_to_records, records_to_point_cloud
 from cva_confidence_ros.ros.params import QOS_CHOICES
 
@@ -236,16 +242,8 @@ class CloudFilterNode(Node):
             level = DiagnosticStatus.WARN
             message = f'{window_invalid} cloud(s) dropped: {counts["last_error"]}'
         values = {**counts, 'threshold': config.threshold, 'organized': config.organized}
-        status = DiagnosticStatus(
-            level=level,
-            name=f'{self.get_name()}: point cloud confidence filter',
-            message=message,
-            hardware_id=self.get_fully_qualified_name(),
-            values=[KeyValue(key=key, value=str(value)) for key, value in values.items()],
-        )
-        array = DiagnosticArray(status=[status])
-        array.header.stamp = self.get_clock().now().to_msg()
-        self._diagnostics.publish(array)
+        status = diagnostic_status(self, 'point cloud confidence filter', level, message, values)
+        publish_status(self, self._diagnostics, status)
 
 
 def _finite_points(records: np.ndarray) -> int:

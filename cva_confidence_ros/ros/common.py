@@ -17,6 +17,7 @@ import sys
 import threading
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -24,6 +25,7 @@ from rclpy.impl.rcutils_logger import RcutilsLogger
 import rclpy.logging
 from rclpy.logging import LoggingSeverity
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 
 from cva_confidence_ros.errors import CVAError, reason
@@ -34,6 +36,8 @@ __all__ = [
     'LOG_THROTTLE_S',
     'READY',
     'ReasonThrottle',
+    'diagnostic_status',
+    'publish_status',
     'qos_profile',
     'run_node',
 ]
@@ -43,6 +47,27 @@ LOG_THROTTLE_S = 5.0
 READY = 'ready'
 EXIT_BAD_START = 2
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a Ctrl-C
+
+
+def diagnostic_status(
+    node: Node, what: str, level: bytes, message: str, values: dict[str, object]
+) -> DiagnosticStatus:
+    """A node's ``DiagnosticStatus``: named ``<node name>: <what>``, the node's full name as
+    hardware id, every value as a string."""
+    return DiagnosticStatus(
+        level=level,
+        name=f'{node.get_name()}: {what}',
+        message=message,
+        hardware_id=node.get_fully_qualified_name(),
+        values=[KeyValue(key=key, value=str(value)) for key, value in values.items()],
+    )
+
+
+def publish_status(node: Node, publisher: Publisher, status: DiagnosticStatus) -> None:
+    """Publish ``status`` alone in a ``DiagnosticArray`` stamped with the node's clock."""
+    array = DiagnosticArray(status=[status])
+    array.header.stamp = node.get_clock().now().to_msg()
+    publisher.publish(array)
 
 
 def qos_profile(name: str) -> QoSProfile:

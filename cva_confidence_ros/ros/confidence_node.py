@@ -13,7 +13,7 @@ import threading
 import time
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.context import Context
@@ -29,6 +29,8 @@ from cva_confidence_ros.pointcloud import StereoGeometry, stereo_cloud
 from cva_confidence_ros.ros.common import (
     LOG_THROTTLE_S,
     ReasonThrottle,
+    diagnostic_status,
+    publish_status,
     qos_profile,
     run_node,
 )
@@ -421,19 +423,11 @@ class ConfidenceNode(Node):
             stats.window_messages = stats.window_pairs = 0
             stats.window_processed = stats.window_invalid = 0
             stats.window_start = now
-        return DiagnosticStatus(
-            level=level,
-            name=f'{self.get_name()}: stereo confidence',
-            message=message,
-            hardware_id=self.get_fully_qualified_name(),
-            values=[KeyValue(key=key, value=str(value)) for key, value in values.items()],
-        )
+        return diagnostic_status(self, 'stereo confidence', level, message, values)
 
     def _publish_diagnostics(self) -> None:
         status = self.diagnostics()
-        array = DiagnosticArray(status=[status])
-        array.header.stamp = self.get_clock().now().to_msg()
-        self._pub_diagnostics.publish(array)
+        publish_status(self, self._pub_diagnostics, status)
         summary = {kv.key: kv.value for kv in status.values}
         self.get_logger().info(
             f'{status.message}; received {summary["frames_received"]}, processed '

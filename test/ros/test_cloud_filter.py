@@ -10,6 +10,7 @@ import subprocess
 import sys
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from node_test_utils import Spinner, domain_id, first_stamp, running_nodes
 import numpy as np
 import pytest
@@ -73,6 +74,10 @@ class _Client:
             PointCloud2, 'points2_filtered', self.received.append, QoSProfile(depth=10)
         )
         self.node.create_subscription(Log, '/rosout', self.logs.append, QoSProfile(depth=100))
+        self.diagnostics: list[DiagnosticArray] = []
+        self.node.create_subscription(
+            DiagnosticArray, '/diagnostics', self.diagnostics.append, QoSProfile(depth=100)
+        )
 
     def answer(self, msg: PointCloud2, timeout: float = 20.0) -> PointCloud2:
         """Publish ``msg`` (again every second) until the answer with its stamp arrives."""
@@ -92,7 +97,11 @@ class _Client:
 class _Running:
     def __init__(self, context: Context) -> None:
         self.node = CloudFilterNode(
-            context=context, parameter_overrides=[Parameter('threshold', value=0.5)]
+            context=context,
+            parameter_overrides=[
+                Parameter('threshold', value=0.5),
+                Parameter('diagnostics_period_seconds', value=0.2),
+            ],
         )
         self.client = _Client(context)
         self.spinner = Spinner(context, self.node, self.client.node)
@@ -185,6 +194,29 @@ def test_bad_cloud_is_logged_and_the_node_goes_on(running: _Running) -> None:
     stats = running.node.stats()
     assert stats['clouds_published'] >= before['clouds_published'] + 1
     assert stats['points_kept'] <= stats['points_received']
+
+    def statuses() -> list[DiagnosticStatus]:
+        return [
+            status
+            for array in list(running.client.diagnostics)
+            for status in array.status
+            if status.name == 'cva_cloud_filter: point cloud confidence filter'
+        ]
+
+    deadline = time.monotonic() + 10.0
+    while not any(s.level == DiagnosticStatus.WARN for s in statuses()):
+        assert time.monotonic() < deadline, 'no warning in /diagnostics after bad clouds'
+        time.sleep(0.05)
+    warned = [s for s in statuses() if s.level == DiagnosticStatus.WARN][0]
+    assert 'cloud(s) dropped' in warned.message
+    values = {kv.key: kv.value for kv in warned.values}
+    assert int(values['clouds_invalid']) >= 2 and values['threshold'] == '0.5'
+    # The next periods without bad clouds are OK again.
+    count = len(statuses())
+    deadline = time.monotonic() + 10.0
+    while not any(s.level == DiagnosticStatus.OK for s in statuses()[count:]):
+        assert time.monotonic() < deadline, '/diagnostics stayed at WARN'
+        time.sleep(0.05)
 
 
 def test_config_validation() -> None:
