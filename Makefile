@@ -10,7 +10,7 @@ STAMP := $(VENV)/.installed
 TORCH := torch==2.13.0
 DEPS := numpy scipy opencv-python-headless scikit-image numba matplotlib tqdm \
 	rosbags 'ros-jazzy-rclpy[fastrtps]' ros-jazzy-common-interfaces mccnn
-TEST_DEPS := pytest pyyaml pytest-timeout colcon-core colcon-python-setup-py colcon-ros ruff
+TEST_DEPS := pytest pyyaml pytest-timeout colcon-core colcon-python-setup-py colcon-ros ruff mypy
 DEMO_OUT ?= out/demo
 
 .PHONY: setup test demo bench bench-fast lint clean
@@ -41,6 +41,7 @@ bench-fast: setup
 
 lint: setup
 	$(BIN)/ruff check cva_confidence_ros msg_tools test
+	$(BIN)/mypy  # the core, as setup.cfg lists it
 
 clean:
 	rm -rf $(VENV) build install log *.egg-info out

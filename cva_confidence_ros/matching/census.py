@@ -112,7 +112,8 @@ def hamming_distance(code_a: np.ndarray, code_b: np.ndarray) -> np.ndarray:
 def _popcount_array(values: np.ndarray) -> np.ndarray:
     out = np.empty(values.shape[0], np.uint8)
     for i in range(values.shape[0]):
-        out[i] = popcount(values[i])
+        # numba's stubs type an intrinsic's call with the typing context as an argument
+        out[i] = popcount(values[i])  # type: ignore[call-arg]
     return out
 
 
@@ -144,7 +145,8 @@ def _hamming_hwd_kernel(
             target = costs[y, x]
             row = partners[first:first + inside]
             for d in range(inside):
-                target[d] = popcount(ref ^ row[d])
+                # numba's stubs type an intrinsic's call with the typing context as an argument
+                target[d] = popcount(ref ^ row[d])  # type: ignore[call-arg]
             for d in range(inside, depth):
                 target[d] = CENSUS_BITS
 

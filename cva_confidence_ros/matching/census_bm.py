@@ -65,7 +65,8 @@ def _window_row(
     ref_in = ref[lo:hi]
     other_in = other[lo + shift:hi + shift]
     for x in range(hi - lo):
-        inside[x] = popcount(ref_in[x] ^ other_in[x])
+        # numba's stubs type an intrinsic's call with the typing context as an argument
+        inside[x] = popcount(ref_in[x] ^ other_in[x])  # type: ignore[call-arg]
     padded[0] = 0
     padded[1:radius + 1] = costs[0]
     padded[radius + 1 + width:] = costs[width - 1]
@@ -124,6 +125,7 @@ class CensusBlockMatcher(Matcher):
     """
 
     Config = CensusBMConfig
+    config: CensusBMConfig
 
     def compute(
         self, left: np.ndarray, right: np.ndarray, max_disparity: int, view: str

@@ -49,6 +49,7 @@ class CensusSGMMatcher(Matcher):
     """
 
     Config = CensusSGMConfig
+    config: CensusSGMConfig
 
     def compute(
         self, left: np.ndarray, right: np.ndarray, max_disparity: int, view: str

@@ -16,7 +16,7 @@ __all__ = ['left_right_check', 'wta_disparity']
 # that the NaN test survives optimisation. The planes are visited in memory order, with the
 # running minimum of the whole image kept, so that the volume streams through once.
 @njit(cache=True)
-def _argmin_depth(volume: np.ndarray, out: np.ndarray) -> bool:
+def _argmin_depth(volume: np.ndarray, out: np.ndarray) -> bool | np.bool_:
     depth, height, width = volume.shape
     best = volume[0].copy()
     out[:, :] = 0.0

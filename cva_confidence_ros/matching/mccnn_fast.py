@@ -164,6 +164,7 @@ class MCCNNFastMatcher(Matcher):
     """
 
     Config = MCCNNFastConfig
+    config: MCCNNFastConfig
 
     def compute(
         self, left: np.ndarray, right: np.ndarray, max_disparity: int, view: str

@@ -43,11 +43,11 @@ MAX_ACCUMULATED = np.iinfo(np.uint16).max
 
 
 @njit(cache=True, fastmath=True, inline='always')
-def _start(cost: np.ndarray, out: np.ndarray) -> int:
+def _start(cost: np.ndarray, out: np.ndarray) -> np.signedinteger:
     """First pixel of a path: L = C. ``out`` has D + 2 cells; cells 0 and D + 1 stay outside."""
     depth = cost.shape[0]
     inner = out[1:depth + 1]
-    best = np.int32(_OUTSIDE)
+    best: np.signedinteger = np.int32(_OUTSIDE)
     for d in range(depth):
         value = np.int16(cost[d])
         inner[d] = value
@@ -57,9 +57,9 @@ def _start(cost: np.ndarray, out: np.ndarray) -> int:
 
 @njit(cache=True, fastmath=True, inline='always')
 def _step(
-    cost: np.ndarray, prev: np.ndarray, prev_min: int, p1: np.int16, p2: np.int16,
-    out: np.ndarray,
-) -> int:
+    cost: np.ndarray, prev: np.ndarray, prev_min: int | np.signedinteger, p1: np.int16,
+    p2: np.int16, out: np.ndarray,
+) -> np.int16:
     """One path step: ``out`` = L_r(p, ·) from ``prev`` = L_r(p − r, ·); returns min_k of it.
 
     ``prev`` and ``out`` have D + 2 cells; cells 0 and D + 1 hold :data:`_OUTSIDE`.
@@ -116,7 +116,7 @@ def _sweep_rows(
         y = height - 1 - i if backward else i
         cur = i & 1
         prev = 1 - cur
-        along_min = 0
+        along_min: int | np.signedinteger = 0
         sums = row_sum if combine else acc[y]
         for j in range(width):
             x = width - 1 - j if backward else j
@@ -259,10 +259,10 @@ def aggregate_hwd(
     lines = _SCRATCH.get('lines', (2, 2, 3, width, depth + 2), np.int16, fill=int(_OUTSIDE))
     minima = _SCRATCH.get('minima', (2, 2, 3, width), np.int32)
     acc = _SCRATCH.get('acc', (height, width, depth), np.uint16)
-    args = (np.int16(p1), np.int16(p2))
-    tail = (lines, minima, acc, volume, np.float32(scale), int(step))
-    _sweep_phase(costs, *args, False, *tail)
-    _sweep_phase(costs, *args, True, *tail)
+    pen1, pen2 = np.int16(p1), np.int16(p2)
+    scale32, step_int = np.float32(scale), int(step)
+    _sweep_phase(costs, pen1, pen2, False, lines, minima, acc, volume, scale32, step_int)
+    _sweep_phase(costs, pen1, pen2, True, lines, minima, acc, volume, scale32, step_int)
     return volume
 
 

@@ -39,7 +39,7 @@ the CPU budget asks for one (also written on every model card):
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -422,6 +422,7 @@ def predict_disparity_confidence(
         raise ModelError(
             f'expected a network of {sorted(BASELINE_ARCHS)}; got {type(net).__name__}'
         )
+    net = cast('CCNN | LGCNet', net)  # a baseline by the arch check above (LFN is a CCNN)
     disparity_n, image_n = network_inputs(disparity, image, net.max_disparity)
     device = torch.device(device)
     was_training = net.training

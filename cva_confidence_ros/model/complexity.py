@@ -130,6 +130,7 @@ def _resolve(net_or_arch: nn.Module | str, max_disparity: int | None) -> tuple[s
     if arch not in _TABLES:
         raise ConfigError(f'no MAC count for arch {arch!r}; expected one of {sorted(_TABLES)}')
     if max_disparity is None:
+        assert not isinstance(net_or_arch, str)  # an arch name without a D raised above
         max_disparity = int(net_or_arch.max_disparity)
     elif not isinstance(net_or_arch, str) and max_disparity != net_or_arch.max_disparity:
         raise ConfigError(

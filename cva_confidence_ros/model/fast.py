@@ -33,7 +33,8 @@ by itself.
 
 from __future__ import annotations
 
-from typing import ClassVar
+from collections.abc import Iterable
+from typing import ClassVar, cast
 
 from numba import njit
 import numpy as np
@@ -278,9 +279,10 @@ class FoldedCVANetFast(nn.Module):
             self.squeeze = _folded_conv2d(
                 squeeze.weight.double(), conv_bias(squeeze).double(), encoder.squeeze_bn
             )
+            fusion_convs = cast('Iterable[nn.Conv2d]', net.fusion.convs)
             self.fusion = nn.ModuleList(
                 _folded_conv2d(conv.weight.double(), conv_bias(conv).double(), norm)
-                for conv, norm in zip(net.fusion.convs, net.fusion.norms, strict=True)
+                for conv, norm in zip(fusion_convs, net.fusion.norms, strict=True)
             )
             self.fc1 = _folded_conv2d(
                 net.classification.fc1.weight.double(),
@@ -347,5 +349,5 @@ def _folded_conv2d(
     out_channels, in_channels, kh, kw = weight.shape
     conv = nn.Conv2d(in_channels, out_channels, (kh, kw), device=weight.device)
     conv.weight.copy_(weight.float())
-    conv.bias.copy_(bias.float())
+    conv_bias(conv).copy_(bias.float())
     return conv

@@ -239,27 +239,29 @@ def pad_cost_volume(cost_volume: np.ndarray, dtype: np.dtype | type = np.float32
 
 def _check_tile_budget(tile_budget_mb: object) -> float:
     """``tile_budget_mb`` as a float; ConfigError unless it is a finite real number > 0."""
+    budget = cast('float | np.integer', tile_budget_mb)  # only used once is_real holds
     if (
         not is_real(tile_budget_mb)
-        or not (math.isfinite(tile_budget_mb) and tile_budget_mb > 0)
+        or not (math.isfinite(budget) and budget > 0)
     ):
         raise ConfigError(
             f'tile_budget_mb must be a finite number > 0 (megabytes); '
             f'got {type(tile_budget_mb).__name__} {tile_budget_mb!r}'
         )
-    return float(tile_budget_mb)
+    return float(budget)
 
 
 def _check_batch_size(batch_size: object) -> int:
     """``batch_size`` as an int; ConfigError unless it is an integer >= 1 (not a bool)."""
+    size = cast('int | np.integer', batch_size)  # only used once is_int holds
     if (
         not is_int(batch_size)
-        or batch_size < 1
+        or size < 1
     ):
         raise ConfigError(
             f'batch_size must be an integer >= 1; got {type(batch_size).__name__} {batch_size!r}'
         )
-    return int(batch_size)
+    return int(size)
 
 
 def tile_shape(

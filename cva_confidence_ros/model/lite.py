@@ -25,7 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 import math
-from typing import ClassVar
+from typing import ClassVar, cast
 
 import torch
 from torch import nn
@@ -255,6 +255,11 @@ class FoldedCVANetLite(nn.Module):
     #: Ready for inference as it is; see ``model.inference.predict_confidence``.
     is_folded = True
 
+    # Set by ``setattr`` and ``register_buffer`` in ``__init__`` (types for the checker only).
+    fc1: nn.Conv1d
+    fc2: nn.Conv1d
+    fc1_matrix: torch.Tensor
+
     def __init__(self, net: CVANetLite) -> None:
         super().__init__()
         from cva_confidence_ros.model.inference import _bn_affine
@@ -272,7 +277,8 @@ class FoldedCVANetLite(nn.Module):
                     bias = bias + in_shift[0] * weight.sum(dim=(1, 2, 3, 4))
                     weight = weight * in_scale[0]
                 self.fusion.append(_fold(conv, weight, bias, norm))
-            for conv, norm in zip(net.depth.convs, net.depth.norms, strict=True):
+            depth_convs = cast('Iterable[nn.Conv2d]', net.depth.convs)
+            for conv, norm in zip(depth_convs, net.depth.norms, strict=True):
                 self.depth.append(
                     _fold(conv, conv.weight.double(), conv_bias(conv).double(), norm)
                 )
@@ -280,10 +286,12 @@ class FoldedCVANetLite(nn.Module):
                 conv = getattr(net.classification, name)
                 setattr(self, name, _fold(conv, conv.weight.double(), conv_bias(conv).double()))
             depth = condensed_depth(self.max_disparity)
-            for index, (conv, k) in enumerate(zip(self.depth, LITE_DEPTH_KERNELS, strict=True)):
+            folded_depth = cast('Iterable[nn.Conv1d]', self.depth)
+            for index, (conv, k) in enumerate(zip(folded_depth, LITE_DEPTH_KERNELS, strict=True)):
                 matrix = _banded_matrix(conv.weight, depth, (k - 1) // 2)
                 self.register_buffer(f'depth_matrix{index}', matrix)
-                self.register_buffer(f'depth_bias{index}', conv.bias.repeat_interleave(depth))
+                depth_bias = conv_bias(conv).repeat_interleave(depth)
+                self.register_buffer(f'depth_bias{index}', depth_bias)
             # fc1 spans the whole depth: its (16, C, D'') kernel is a (C·D'', 16) matrix.
             self.register_buffer('fc1_matrix', self.fc1.weight.reshape(LITE_FC_NODES, -1).t())
         self.requires_grad_(False)
@@ -314,8 +322,8 @@ class FoldedCVANetLite(nn.Module):
         for index in range(len(LITE_DEPTH_KERNELS)):
             matrix = getattr(self, f'depth_matrix{index}')
             x = F.relu(torch.addmm(getattr(self, f'depth_bias{index}'), x, matrix))
-        x = F.relu(torch.addmm(self.fc1.bias, x, self.fc1_matrix))
-        x = x @ self.fc2.weight[:, :, 0].t() + self.fc2.bias
+        x = F.relu(torch.addmm(conv_bias(self.fc1), x, self.fc1_matrix))
+        x = x @ self.fc2.weight[:, :, 0].t() + conv_bias(self.fc2)
         return x.reshape(-1)
 
     def forward_logits(self, volume: torch.Tensor) -> torch.Tensor:
@@ -359,12 +367,13 @@ def _fold(
     device = conv.weight.device
     new: nn.Module
     if isinstance(conv, nn.Conv3d):
+        # A Conv3d's kernel_size, stride and padding are 3-tuples (or a padding string).
         new = nn.Conv3d(
             conv.in_channels,
             conv.out_channels,
-            conv.kernel_size,
-            stride=conv.stride,
-            padding=conv.padding,
+            cast(tuple[int, int, int], conv.kernel_size),
+            stride=cast(tuple[int, int, int], conv.stride),
+            padding=cast('str | tuple[int, int, int]', conv.padding),
             device=device,
         )
     else:
@@ -376,5 +385,5 @@ def _fold(
         weight = weight * scale.reshape(-1, *([1] * (weight.ndim - 1)))
         bias = bias * scale + shift
     new.weight.copy_(weight.float())
-    new.bias.copy_(bias.float())
+    conv_bias(new).copy_(bias.float())
     return new

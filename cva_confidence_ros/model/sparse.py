@@ -57,6 +57,7 @@ import contextlib
 import copy
 from dataclasses import dataclass
 import math
+from typing import cast
 
 import numba
 import numpy as np
@@ -265,7 +266,7 @@ class SparseEvaluator:
         elif not getattr(net, 'is_folded', False) and callable(
             getattr(net, 'fold_batchnorm', None)
         ):
-            net = net.fold_batchnorm()  # e.g. CVA-Net-Lite
+            net = cast('Callable[[], nn.Module]', net.fold_batchnorm)()  # e.g. CVA-Net-Lite
         if not isinstance(getattr(net, 'max_disparity', None), int):
             raise ConfigError(
                 f'expected a cost-volume network with an integer max_disparity; '
@@ -277,7 +278,7 @@ class SparseEvaluator:
         self.device = resolve_device(device)
         precision_context(self.device, precision)  # validates
         self.net = net.to(self.device).eval()
-        self.max_disparity: int = net.max_disparity
+        self.max_disparity: int = cast(int, net.max_disparity)  # checked above
         self.tile_budget_mb = tile_budget
         self.precision = precision
         self.splittable = callable(getattr(net, 'fusion_features', None)) and callable(
