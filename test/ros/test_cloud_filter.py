@@ -1,4 +1,5 @@
-"""The point-cloud confidence filter node: in this process over real DDS, and as a process."""
+"""The point-cloud confidence filter node: in this process over real DDS, and as a process
+(alone, and behind a cva-node process)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,16 @@ import sys
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from node_test_utils import Spinner, domain_id, first_stamp, running_nodes
+from node_test_utils import (
+    Spinner,
+    StereoClient,
+    domain_id,
+    first_stamp,
+    localhost_context,
+    running_nodes,
+    spare_domain_id,
+    textured_pair,
+)
 import numpy as np
 import pytest
 from rcl_interfaces.msg import Log
@@ -24,7 +34,13 @@ from std_msgs.msg import Header
 
 from cva_confidence_ros.errors import ConfigError
 from cva_confidence_ros.ros.cloud_filter_node import CloudFilterConfig, CloudFilterNode
-from cva_confidence_ros.ros.convert import ns_to_stamp, point_cloud_to_records
+from cva_confidence_ros.ros.convert import (
+    cloud_to_array,
+    disparity_from_message,
+    float_image_to_array,
+    ns_to_stamp,
+    point_cloud_to_records,
+)
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -288,3 +304,49 @@ def test_empty_and_zero_count_clouds(running: _Running) -> None:
     msg.fields.append(PointField(name='pad', offset=32, datatype=PointField.FLOAT32, count=0))
     out = running.client.answer(msg)
     assert [f.name for f in out.fields] == ['x', 'y', 'z', 'confidence', 'intensity']
+
+
+def test_node_and_filter_as_processes_over_dds() -> None:
+    # cva-node (points_confidence) and cva-cloud-filter as separate processes in a namespace,
+    # a client in this one: the stereo frame goes in, the cut cloud comes out.
+    domain = spare_domain_id()
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+               PYTHONUNBUFFERED='1', OMP_NUM_THREADS='1')
+    namespace = ['-r', '__ns:=/rig']
+    processes = [
+        subprocess.Popen(
+            [str(BIN / 'cva-node'), '--ros-args', *namespace, '-p', 'confidence_method:=mlm',
+             '-p', 'max_disparity:=16', '-p', 'points_confidence:=true'],
+            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        ),
+        subprocess.Popen(
+            [str(BIN / 'cva-cloud-filter'), '--ros-args', *namespace, '-p', 'threshold:=0.6'],
+            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        ),
+    ]
+    try:
+        with localhost_context(domain) as context:
+            client = StereoClient(context, namespace='/rig')
+            client.subscribe('points2_filtered', PointCloud2)
+            spinner = Spinner(context, client.node)
+            try:
+                assert client.wait_connected(90), 'cva-node did not come up'
+                left, right = textured_pair(seed=13)
+                out = client.send_until_output(
+                    left, right, first_stamp(), timeout=60,
+                    topics=('disparity', 'confidence', 'points2', 'points2_filtered'),
+                )  # fmt: skip
+            finally:
+                spinner.stop()
+                client.node.destroy_node()
+    finally:
+        for process in processes:
+            process.send_signal(signal.SIGINT)
+        codes = [process.wait(timeout=30) for process in processes]
+    assert codes == [0, 0]
+    confidence = float_image_to_array(out['confidence'])
+    disparity = disparity_from_message(out['disparity'])
+    kept = np.isfinite(disparity) & (disparity > 0) & (confidence >= 0.6)
+    filtered = cloud_to_array(out['points2_filtered'])
+    np.testing.assert_array_equal(np.isfinite(filtered['z']), kept)
+    assert 0 < kept.sum() < np.isfinite(cloud_to_array(out['points2'])['z']).sum()
