@@ -5,7 +5,8 @@ Layers (nothing in the core imports rclpy):
 * core: :mod:`.matching` (cost volumes), :mod:`.confidence` (confidence methods),
   :mod:`.model` (CVA-Net), :mod:`.metrics` (the paper's ROC/AUC protocol);
 * I/O: :mod:`.datasets` (stereo data sets), :mod:`msg_tools` (rosbag2);
-* on top: :mod:`.pipeline` (matcher + confidence, shared by node and tools), :mod:`.node`.
+* on top: :mod:`.pipeline` (matcher + confidence, shared by node and tools), :mod:`.node`,
+  :mod:`.cloud_filter` (point clouds cut at a confidence threshold downstream).
 """
 
 from cva_confidence_ros.errors import (
