@@ -41,7 +41,7 @@ bench-fast: setup
 
 lint: setup
 	$(BIN)/ruff check cva_confidence_ros msg_tools test
-	$(BIN)/mypy  # the core, as setup.cfg lists it
+	$(BIN)/mypy  # the package and msg_tools, as setup.cfg lists them
 
 clean:
 	rm -rf $(VENV) build install log *.egg-info out

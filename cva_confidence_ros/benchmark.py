@@ -184,7 +184,8 @@ def _sgbm_min_width(max_disparity: int) -> int:
 def _sgbm_case(settings: BenchSettings) -> Case:
     block = _SGBM_BLOCK
     disparities = _sgbm_disparities(settings.max_disparity)
-    sgbm = cv2.StereoSGBM_create(
+    # OpenCV's stubs lack the StereoSGBM_create alias (kept for older OpenCV builds).
+    sgbm = cv2.StereoSGBM_create(  # type: ignore[attr-defined]
         minDisparity=0,
         numDisparities=disparities,
         blockSize=block,
@@ -228,7 +229,9 @@ def _fit(image: np.ndarray, width: int, height: int) -> np.ndarray:
 def _synthetic_pair(width: int, height: int, max_disparity: int) -> tuple[np.ndarray, np.ndarray]:
     """Seeded smooth random texture in horizontal bands, each band at its own disparity."""
     rng = np.random.default_rng(2019)
-    texture = rng.integers(0, 256, (height, width + max_disparity, 3), dtype=np.uint8)
+    texture: np.ndarray = rng.integers(
+        0, 256, (height, width + max_disparity, 3), dtype=np.uint8
+    )
     texture = cv2.GaussianBlur(texture, (3, 3), 0.8)
     bands = 6
     left = np.ascontiguousarray(texture[:, :width])

@@ -39,7 +39,7 @@ from pathlib import Path
 import statistics
 import sys
 import time
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -243,7 +243,9 @@ def _auc_rel(configs: Sequence[FastConfig], crops: list[dict[str, Any]], net: An
                            item['volume_right'])
             values = light_exact.get(config.arch, exact)
             result = sparse_confidence(
-                lambda _v, _m, values=values: values, item['volume'], item['image'],
+                cast('Callable[[np.ndarray, np.ndarray], np.ndarray]',
+                     lambda _v, _m, values=values: values),
+                item['volume'], item['image'],
                 item['disparity'], config.sparse(), cheap,
             )
             aucs[config.name].append(roc_auc(result.confidence[known], wrong[known]))
@@ -351,6 +353,7 @@ def run_fast(
                           crop=[rows, columns])
         else:
             sparse = config.sparse()
+            frame_fn: Callable[[], dict[str, float]]
             if config.pipeline:
                 pipeline = StereoPipeline(PipelineConfig(
                     matcher=NETWORK_MATCHER, max_disparity=depth, device='cpu',
@@ -362,16 +365,22 @@ def run_fast(
                 pipeline.warm_up()
                 evaluator = pipeline._method.evaluator  # type: ignore[attr-defined]
 
-                def frame_fn(pipeline: Any = pipeline) -> dict[str, float]:
+                def pipeline_frame(pipeline: Any = pipeline) -> dict[str, float]:
                     return pipeline.process(left, right).timings_ms
+
+                frame_fn = pipeline_frame
             else:
-                def frame_fn(evaluator: Any = evaluator, sparse: Any = sparse) -> dict[str, float]:
+                def sparse_frame(
+                    evaluator: Any = evaluator, sparse: Any = sparse
+                ) -> dict[str, float]:
                     tic = time.perf_counter()
                     cheap = _cheap(sparse.cascade, volume, disparity, left,
                                    volume_right if sparse.cascade == 'lrd' else None)
                     cheap_ms = (time.perf_counter() - tic) * 1e3
                     result = evaluator.confidence(volume, left, disparity, sparse, cheap)
                     return {'cheap': cheap_ms, 'share': result.network_share}
+
+                frame_fn = sparse_frame
             frame_fn()  # untimed
             _release_free_heap()
             rss, have_hwm = memory_kb('VmRSS'), _reset_peak()

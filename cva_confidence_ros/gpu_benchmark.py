@@ -195,7 +195,10 @@ def run_gpu(
         evaluator = SparseEvaluator(net, target, tile_budget_mb=1e9, precision=precision,
                                     path='tile')
         if layout:
-            evaluator.net = evaluator.net.to(memory_format=torch.channels_last_3d)
+            # torch's stubs of Module.to omit memory_format, which it accepts at run time.
+            evaluator.net = evaluator.net.to(  # type: ignore[call-overload]
+                memory_format=torch.channels_last_3d
+            )
         padded = torch.from_numpy(pad_cost_volume(volume)).to(target)[None, None]
         if layout:
             padded = padded.contiguous(memory_format=torch.channels_last_3d)
@@ -229,7 +232,7 @@ def run_gpu(
             auc = float(np.mean(aucs))
             if (name, precision, layout) == ('exact', 'fp32', False):
                 reference = auc
-        record = {
+        record: dict[str, Any] = {
             'config': config,
             'device': target.type,
             'gpu_name': gpu_name,

@@ -59,7 +59,7 @@ import sys
 import tempfile
 import threading
 import time
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -440,7 +440,12 @@ class _Client:
         self._diagnostics_count = 0
         self._subs = [
             self._node.create_subscription(
-                types[topic], topic, lambda msg, topic=topic: self._on_output(topic, msg), qos
+                types[topic],
+                topic,
+                # mypy cannot infer a lambda with a default argument against the callback type
+                cast('Callable[[Any], None]',
+                     lambda msg, topic=topic: self._on_output(topic, msg)),
+                qos,
             )
             for topic in self.outputs
         ]
@@ -722,11 +727,11 @@ def measure_node(
     try:
         client = _Client(settings.domain, settings.outputs)
     finally:
-        for name, value in previous.items():
-            if value is None:
+        for name, saved in previous.items():
+            if saved is None:
                 os.environ.pop(name, None)
             else:
-                os.environ[name] = value
+                os.environ[name] = saved
     with client:
         node = _NodeProcess(node_parameters(settings, matcher, method, model_path), env)
         try:
@@ -743,7 +748,8 @@ def measure_node(
                 messages = frame_messages(*pair, stamp)
                 start = client.publish(messages)
                 if not client.wait(
-                    lambda stamp=stamp: client.answer_time(stamp) is not None,
+                    cast('Callable[[], bool]',
+                         lambda stamp=stamp: client.answer_time(stamp) is not None),
                     settings.timeout_s,
                     node.alive,
                 ):
@@ -756,7 +762,7 @@ def measure_node(
                 # The diagnostics after this frame carry its stage times; waiting for them also
                 # keeps the node idle before the next frame.
                 if client.wait(
-                    lambda done=done: client.idle_after(done),
+                    cast('Callable[[], bool]', lambda done=done: client.idle_after(done)),
                     10 * _DIAGNOSTICS_PERIOD_S,
                     node.alive,
                 ):

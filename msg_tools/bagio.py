@@ -13,15 +13,18 @@ import re
 import shutil
 import sqlite3
 import struct
-from typing import Any
+from typing import Any, Final
 
 from cva_confidence_ros.errors import BagError, ConfigError, reason
 from msg_tools.convert import jazzy_typestore
 
+_SqliteReadError: type[Exception]
 try:
-    from apsw import Error as _SqliteReadError
+    from apsw import Error as _ApswError
 except ImportError:  # rosbags before 0.10 read sqlite3 bags through the standard module
     _SqliteReadError = sqlite3.Error
+else:
+    _SqliteReadError = _ApswError
 
 __all__ = [
     'BAG_VERSION',
@@ -34,7 +37,7 @@ __all__ = [
     'remove_bag',
 ]
 
-BAG_VERSION = 8
+BAG_VERSION: Final = 8
 STORAGES = ('mcap', 'sqlite3')
 #: rosbag2 compression modes (zstd), as ``ros2 bag record --compression-mode`` names them.
 COMPRESSIONS = ('none', 'file', 'message')

@@ -14,7 +14,7 @@ replay's names), or, with ``start_node=False``, an already running one is used.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 import os
@@ -26,7 +26,7 @@ import subprocess
 import sys
 import threading
 import time
-from typing import Any
+from typing import Any, cast
 
 from cva_confidence_ros.errors import BagError, ConfigError, InputError, reason
 from msg_tools.bagio import InputBag
@@ -260,7 +260,9 @@ class _Player:
         self.subscriptions = {
             name: self.node.create_subscription(
                 _message_class(_OUTPUT_TYPES[name]), outputs[name],
-                lambda raw, name=name: self.received.put((name, raw, time.monotonic())),
+                # mypy cannot infer a lambda with a default argument against the callback type
+                cast('Callable[[Any], None]',
+                     lambda raw, name=name: self.received.put((name, raw, time.monotonic()))),
                 receive_qos, raw=True,
             )
             for name in names

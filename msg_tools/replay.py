@@ -312,16 +312,17 @@ def plan_topics(bag: InputBag, options: ReplayOptions, log: Logger = log_stderr)
         types[topic] = bag.require(topic, (_INPUT_TYPES[key],), key.replace('_', ' '))
     gt_topic = options.topics.resolve('ground_truth')
     gt_type = ''
+    ground_truth: str | None = gt_topic
     if gt_topic in bag.topics or options.gt_required:
         gt_type = bag.require(gt_topic, GT_TYPES, 'ground-truth')
     else:
         log(f'no ground-truth topic {gt_topic} in the bag: frames are processed, not scored')
-        gt_topic = None
+        ground_truth = None
     counts = bag.message_counts
     return TopicPlan(
         inputs=inputs,
         input_types=types,
-        ground_truth=gt_topic,
+        ground_truth=ground_truth,
         ground_truth_type=gt_type,
         pairs_expected=counts.get(inputs['left'], 0),
         input_counts={topic: counts.get(topic, 0) for topic in inputs.values()},

@@ -21,7 +21,7 @@ from dataclasses import asdict, dataclass, field
 import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -301,11 +301,13 @@ class ReportWriter:
         figure = Figure(figsize=(6.0, 3.5), dpi=100)
         FigureCanvasAgg(figure)
         axes = figure.add_subplot(1, 1, 1)
-        axes.plot(index, [100 * f.auc for f in frames], 'o-', label='AUC', markersize=3)
-        axes.plot(index, [100 * f.auc_opt for f in frames], 'k--', label='AUC opt', linewidth=1)
-        axes.plot(
-            index, [100 * f.error_rate for f in frames], ':', label='error rate', linewidth=1
-        )
+        # Scored frames (auc set) have auc_opt and error_rate too: score_frame sets all three.
+        aucs = [100 * cast(float, f.auc) for f in frames]
+        auc_opts = [100 * cast(float, f.auc_opt) for f in frames]
+        error_rates = [100 * cast(float, f.error_rate) for f in frames]
+        axes.plot(index, aucs, 'o-', label='AUC', markersize=3)
+        axes.plot(index, auc_opts, 'k--', label='AUC opt', linewidth=1)
+        axes.plot(index, error_rates, ':', label='error rate', linewidth=1)
         axes.set_xlabel('frame')
         axes.set_ylabel('× 100')
         axes.set_ylim(bottom=0.0)

@@ -31,7 +31,7 @@ import math
 from pathlib import Path
 import sys
 import time
-from typing import Any
+from typing import Any, cast
 
 from cva_confidence_ros.errors import ConfigError, CVAError, DataError
 from cva_confidence_ros.outputs import check_output_dir, check_output_file
@@ -236,7 +236,8 @@ def run(args: argparse.Namespace) -> int:
                     max_pixels=args.max_pixels,
                     seed=args.seed,
                     plot_dir=plot_dir,
-                    log=lambda message, p=prefix: _log(f'{p} {message}'),
+                    log=cast('Callable[[str], None]',
+                             lambda message, p=prefix: _log(f'{p} {message}')),
                     method_order=methods,
                     progress=True,
                 )

@@ -352,6 +352,7 @@ def evaluate_scene(
                 f'got {dense.shape}'
             )
         if values is None:
+            assert dense is not None  # values is None only where the method was run densely
             values = dense[ys, xs]
         if dense is None:
             dense = np.full(disparity.shape, np.nan, dtype=np.float32)

@@ -31,14 +31,14 @@ a fixed random subset of ground-truth pixels per scene (the same pixels for ever
 from __future__ import annotations
 
 import argparse
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 import json
 import math
 from pathlib import Path
 import sys
 import time
-from typing import Any
+from typing import Any, cast
 
 from cva_confidence_ros.errors import ConfigError, DataError, ModelError
 from cva_confidence_ros.outputs import check_output_dir
@@ -296,7 +296,8 @@ def save_table_png(
             bold = _bold_best(values, 2)
             best = min(values.values()) if values else 0.0
             labels.append(f'{row.label} · {MATCHER_LABELS.get(matcher, matcher)}')
-            line, shade = [f'{cell["opt"]:.2f}' if 'opt' in cell else '–'], ['#eeeeee']
+            line = [f'{cell["opt"]:.2f}' if 'opt' in cell else '–']
+            shade: list[str | tuple[float, float, float]] = ['#eeeeee']  # names or RGB
             for method, _ in columns:
                 if method not in values:
                     line.append('–')
@@ -561,7 +562,7 @@ def run(args: argparse.Namespace) -> int:
 
     reusable = _load_reusable(args.reuse, methods) if args.reuse else {}
     records: list[dict[str, Any]] = []
-    jobs = []
+    jobs: list[tuple[TableRow, str]] = []
     for row in rows:
         if row.missing:
             continue
@@ -581,7 +582,9 @@ def run(args: argparse.Namespace) -> int:
                 for record in evaluate_scene(
                     sample, matcher, built[matcher], max_disparity=args.max_disparity,
                     max_pixels=args.max_pixels, seed=args.seed, method_order=todo,
-                    log=lambda message, p=prefix: _log(f'{p} {message}'), progress=True,
+                    log=cast('Callable[[str], None]',
+                             lambda message, p=prefix: _log(f'{p} {message}')),
+                    progress=True,
                 )
             }
             check = next(iter(fresh.values()))

@@ -354,6 +354,7 @@ _NUMPY_POINT_FIELDS = {np.dtype(code): datatype for datatype, code in _POINT_FIE
 def _point_fields(dtype: np.dtype) -> list[PointField]:
     fields = []
     for name in dtype.names or ():
+        assert dtype.fields is not None  # a dtype with field names has a fields mapping
         base, offset = dtype.fields[name][:2]
         count = int(np.prod(base.shape)) if base.shape else 1
         datatype = _NUMPY_POINT_FIELDS.get(base.base.newbyteorder('<'))

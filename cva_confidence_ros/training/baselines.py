@@ -34,13 +34,14 @@ One process (CPU or one GPU); DistributedDataParallel is not offered for these s
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 import datetime
 import math
 import os
 from pathlib import Path
 import time
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -296,11 +297,16 @@ def _auc(net: nn.Module, scenes: list[DisparityScene], subsets: list[Any], devic
                 continue
             d, i = (t.to(device) for t in scene.planes())
             if part == 'local':
+                assert isinstance(net, LGCNet)  # parts are LGC-Net's (stage 'parts')
                 conf = net.local.dense_confidence(d, i)
             elif part == 'global':
+                assert isinstance(net, LGCNet)
                 conf = net.confnet.dense_confidence(d, i)
             else:
-                conf = net.dense_confidence(d, i)
+                # Every baseline network has dense_confidence(disparity, image).
+                dense = cast('Callable[[torch.Tensor, torch.Tensor], torch.Tensor]',
+                             net.dense_confidence)
+                conf = dense(d, i)
             confidences.append(conf[0, 0].cpu().numpy()[ys, xs])
             wrongs.append(~scene.correct[ys, xs])
     net.train()
@@ -358,6 +364,7 @@ def _step_loss(
             scenes, crops, step, side, TOWER_MARGIN, ('disparity', 'local', 'global_')
         )
         planes = [p.to(device) for p in planes]
+        assert isinstance(net, LGCNet)  # stage 'fusion' is LGC-Net's
         logits = net.fusion.forward_logits(*planes)
         mask, targets = mask.to(device), targets.to(device)
         return _masked_bce(logits, targets, mask), int(mask.sum())
@@ -365,7 +372,11 @@ def _step_loss(
     mask, targets = mask.to(device), targets.to(device)
     planes = [p.to(device) for p in planes]
     if stage == 'single':
-        return _masked_bce(net.forward_logits(*planes), targets, mask), int(mask.sum())
+        forward_logits = cast(  # CCNN or LFN
+            'Callable[[torch.Tensor, torch.Tensor], torch.Tensor]', net.forward_logits
+        )
+        return _masked_bce(forward_logits(*planes), targets, mask), int(mask.sum())
+    assert isinstance(net, LGCNet)  # stage 'parts' is LGC-Net's
     loss = _masked_bce(net.local.forward_logits(*planes), targets, mask)
     inner = [p[:, :, TOWER_MARGIN:-TOWER_MARGIN, TOWER_MARGIN:-TOWER_MARGIN] for p in planes]
     loss = loss + _masked_bce(net.confnet.forward_logits(*inner), targets, mask)
@@ -504,8 +515,9 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
         for group in optimiser.param_groups:
             group['lr'] = lr
         torch.manual_seed(config.seed * 1_000_003 + epoch * 7919 + 1)
-        crops = dense_crops(  # type: ignore[arg-type]
-            stage_scenes[stage], stage_index[stage], n_samples, side, config.seed, epoch
+        crops = dense_crops(
+            stage_scenes[stage],  # type: ignore[arg-type]  # duck-typed as in sample_index
+            stage_index[stage], n_samples, side, config.seed, epoch
         )
         per_step = max(1, math.ceil(config.batch_size / side**2))
         steps = list(batches(np.arange(len(crops.scene)), per_step))

@@ -22,8 +22,9 @@ network decides from the disparities the source saw, and training teaches it the
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import torch
 from torch import nn
@@ -76,8 +77,10 @@ def load_teacher(
 
 def teacher_logits(teacher: nn.Module, volumes: torch.Tensor) -> torch.Tensor:
     """The teacher's (B, H, W) logits for (B, 1, D, H + 12, W + 12) inputs, without a graph."""
+    # load_teacher returns a folded cost-volume network, which has forward_logits.
+    forward_logits = cast('Callable[[torch.Tensor], torch.Tensor]', teacher.forward_logits)
     with torch.no_grad():
-        return teacher.forward_logits(volumes)
+        return forward_logits(volumes)
 
 
 def distillation_loss(

@@ -18,7 +18,7 @@ import os
 from pathlib import Path
 import sys
 import time
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -29,7 +29,6 @@ from cva_confidence_ros.datasets.synthetic import synthetic_pair
 from cva_confidence_ros.errors import ConfigError, ModelError, reason
 from cva_confidence_ros.model import (
     ARCHITECTURES,
-    CVANet,
     predict_confidence_at,
     resolve_device,
     save_weights,
@@ -132,12 +131,14 @@ def _setup_distributed(device: str) -> _Dist:
 class _Logits(nn.Module):
     """Forward = logits, so that DistributedDataParallel wraps the call the loss uses."""
 
-    def __init__(self, net: CVANet) -> None:
+    def __init__(self, net: nn.Module) -> None:
         super().__init__()
         self.net = net
 
     def forward(self, volume: torch.Tensor) -> torch.Tensor:
-        return self.net.forward_logits(volume)
+        # Any registered cost-volume network (CVA-Net, -Lite, -Fast) has forward_logits.
+        forward_logits = cast('Callable[[torch.Tensor], torch.Tensor]', self.net.forward_logits)
+        return forward_logits(volume)
 
 
 class _Log:
@@ -260,7 +261,7 @@ def _load_checkpoint(path: Path, config: TrainConfig) -> dict[str, Any]:
 
 
 def _validate(
-    net: CVANet,
+    net: nn.Module,
     scenes: list[PreparedScene],
     subsets: list[tuple[np.ndarray, np.ndarray]],
     device: torch.device,
