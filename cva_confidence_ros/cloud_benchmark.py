@@ -77,7 +77,7 @@ def run_cloud(settings: BenchSettings, threshold: float) -> list[dict[str, Any]]
 
     def node_cloud(with_confidence: bool) -> Any:
         cloud = stereo_cloud(
-            result.disparity, result.confidence, result.left, geometry, threshold,
+            result.disparity, result.confidence, result.left, geometry, result.valid,
             with_confidence=with_confidence,
         )  # fmt: skip
         return cloud_to_message(cloud, header)

@@ -341,7 +341,7 @@ def stereo_cloud(
     confidence: np.ndarray,
     left: np.ndarray,
     geometry: StereoGeometry,
-    threshold: float,
+    kept: np.ndarray,
     *,
     organized: bool = True,
     with_confidence: bool = False,
@@ -353,8 +353,9 @@ def stereo_cloud(
         confidence: (H, W) confidence in [0, 1].
         left: (H, W) or (H, W, 3) uint8 left image, the points' colours.
         geometry: Intrinsics at the disparity map's resolution.
-        threshold: Without ``with_confidence``, only points of pixels with confidence
-            ≥ ``threshold`` are kept; with it, it is not used.
+        kept: (H, W) bool, the pixels the node keeps (finite disparity, confidence ≥ its
+            threshold: ``PipelineResult.valid``); without ``with_confidence`` only their points
+            are in the cloud, with it every point is and ``kept`` is not used.
         organized: (H, W) grid with NaN points, or only the valid points as (N,).
         with_confidence: Keep every point that can be triangulated and carry its confidence
             (:data:`CLOUD_CONFIDENCE_DTYPE`), so that consumers filter with their own threshold
@@ -366,8 +367,6 @@ def stereo_cloud(
     if with_confidence:
         points = disparity_to_points(disparity, geometry)
         return make_cloud(points, pack_rgb(left), organized, confidence=confidence)
-    with np.errstate(invalid='ignore'):
-        kept = np.isfinite(disparity) & (confidence >= threshold)
     points = disparity_to_points(disparity, geometry, kept)
     return make_cloud(points, pack_rgb(left), organized)
 

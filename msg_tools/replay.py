@@ -440,7 +440,7 @@ def node_outputs(
             confidence,
             result.left,
             geometry,
-            config.confidence_threshold,
+            kept,
             organized=points_organized,
             with_confidence=points_confidence,
         )

@@ -350,12 +350,13 @@ def test_stereo_cloud_thresholded_or_annotated() -> None:
     disparity = np.array([[10.0, np.nan, 5.0], [20.0, 25.0, -1.0]], np.float32)
     confidence = np.array([[0.9, 0.9, 0.1], [0.5, 0.2, 0.9]], np.float32)
     left = np.full((2, 3), 200, np.uint8)
-    plain = stereo_cloud(disparity, confidence, left, geometry, 0.5)
+    kept = np.isfinite(disparity) & (confidence >= 0.5)
+    plain = stereo_cloud(disparity, confidence, left, geometry, kept)
     assert plain.dtype == CLOUD_DTYPE
     np.testing.assert_array_equal(
         np.isfinite(plain['z']), [[True, False, False], [True, False, False]]
     )
-    annotated = stereo_cloud(disparity, confidence, left, geometry, 0.5, with_confidence=True)
+    annotated = stereo_cloud(disparity, confidence, left, geometry, kept, with_confidence=True)
     triangulable = [[True, False, True], [True, True, False]]
     np.testing.assert_array_equal(np.isfinite(annotated['z']), triangulable)
     np.testing.assert_array_equal(annotated['confidence'], confidence)
@@ -363,5 +364,5 @@ def test_stereo_cloud_thresholded_or_annotated() -> None:
     refiltered = filter_cloud(annotated, 0.5)
     for name in CLOUD_DTYPE.names:
         np.testing.assert_array_equal(refiltered[name], plain[name])
-    dense = stereo_cloud(disparity, confidence, left, geometry, 0.5, organized=False)
+    dense = stereo_cloud(disparity, confidence, left, geometry, kept, organized=False)
     assert dense.shape == (2,)

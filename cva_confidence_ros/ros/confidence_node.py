@@ -377,7 +377,7 @@ class ConfidenceNode(Node):
                 confidence,
                 result.left,
                 geometry,
-                config.confidence_threshold,
+                keep,
                 organized=node_config.points_organized,
                 with_confidence=node_config.points_confidence,
             )
