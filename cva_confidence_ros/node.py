@@ -28,8 +28,7 @@ and hands ``ConfidenceNode`` and ``NODE_NAME`` on to ``from cva_confidence_ros.n
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from functools import partial
+from collections.abc import Sequence
 import importlib
 import sys
 from typing import TYPE_CHECKING, Any
@@ -59,27 +58,23 @@ def main(argv: Sequence[str] | None = None) -> int:
 def run_entry(module: str, argv: Sequence[str] | None = None) -> int:
     """Import ``module`` and return its ``run(argv)``, a Ctrl-C at any point ending quietly.
 
-    rclpy, the message types and the pipeline take most of a second to import: a Ctrl-C in that
-    time must end the program as quietly as one a moment later, so the import happens here,
-    inside the ``try``. Every node entry point of the package goes through this.
+    rclpy, the message types and the pipeline take a second or two to import, and a Ctrl-C in
+    that time must end the program as quietly as one a moment later. From here on SIGINT is only
+    noted (:mod:`cva_confidence_ros.ros.interrupt`: raised as ``KeyboardInterrupt`` it could land
+    inside torch's or rclpy's C++ and abort the process, or be swallowed on the way); a Ctrl-C
+    during the imports ends the program right after them, and ``run`` stops at its own points
+    (:func:`cva_confidence_ros.ros.common.run_node`). Every node entry point goes through this.
     """
-    hook = sys.unraisablehook
-    sys.unraisablehook = partial(_unraisable, hook)
+    from cva_confidence_ros.ros import interrupt
+
+    interrupt.install()
     try:
-        return importlib.import_module(module).run(argv)
-    except KeyboardInterrupt:
-        return _EXIT_INTERRUPTED
+        run = importlib.import_module(module).run
+        if interrupt.requested():
+            return _EXIT_INTERRUPTED
+        return run(argv)
     finally:
-        sys.unraisablehook = hook
-
-
-def _unraisable(hook: Callable[[Any], Any], unraisable: Any) -> None:
-    # A Ctrl-C that lands in a callback from C (numba compiling during the warm-up) cannot
-    # propagate and would be printed as an ignored exception with its traceback. rclpy has shut
-    # the context down by then, so the start fails, quietly, a moment later.
-    if isinstance(unraisable.exc_value, KeyboardInterrupt):
-        return
-    hook(unraisable)
+        interrupt.restore()
 
 
 def __getattr__(name: str) -> Any:

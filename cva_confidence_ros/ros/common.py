@@ -29,6 +29,7 @@ from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 
 from cva_confidence_ros.errors import CVAError, reason
+from cva_confidence_ros.ros import interrupt
 
 __all__ = [
     'EXIT_BAD_START',
@@ -155,7 +156,9 @@ def run_node(factory: Callable[[], Node], name: str, argv: Sequence[str] | None 
     """Run the node ``factory()`` builds until Ctrl-C or SIGTERM.
 
     Once the node is up, ``ready: <node.summary()>`` is logged; a Ctrl-C after that line is a
-    clean stop (0), one before it an interrupted start (130).
+    clean stop (0), one before it an interrupted start (130). Through
+    :func:`cva_confidence_ros.node.run_entry`, a Ctrl-C is noted rather than raised
+    (:mod:`cva_confidence_ros.ros.interrupt`) and the start stops once the node is built.
 
     Args:
         factory: Builds the node once rclpy is initialised; may raise :class:`CVAError` or
@@ -181,6 +184,10 @@ def run_node(factory: Callable[[], Node], name: str, argv: Sequence[str] | None 
             logger.fatal(f'cannot start: {reason(error, limit=300)}')
             return EXIT_BAD_START
         node = factory()
+        if interrupt.requested():
+            # A Ctrl-C before rclpy.init installed its handler (which would have shut the
+            # context down under the constructor) was only noted: the start was interrupted.
+            return EXIT_INTERRUPTED
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         # Up before the ready line is written: whoever reacts to the line with a Ctrl-C must get
@@ -188,9 +195,11 @@ def run_node(factory: Callable[[], Node], name: str, argv: Sequence[str] | None 
         up = True
         summary = getattr(node, 'summary', None)
         node.get_logger().info(f'{READY}: {summary() if summary else node.get_name()}')
+        # Until Ctrl-C or SIGTERM: rclpy's handler shuts the context down, which ends the spin.
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         # Ctrl-C stops a running node cleanly; before its ready line, it interrupts the start.
+        # (KeyboardInterrupt only reaches here when the caller did not go through run_entry.)
         code = 0 if up else EXIT_INTERRUPTED
     except (CVAError, ParameterException) as error:
         logger.fatal(f'cannot start: {error}')
