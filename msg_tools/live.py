@@ -140,7 +140,7 @@ class NodeProcess:
     """
 
     #: Exit codes of a node that ended on :meth:`stop`'s SIGINT: 0 once it is up, 130 while
-    #: it is still importing, −SIGINT before its Python handles signals at all.
+    #: it is still starting, −SIGINT before its Python handles signals at all.
     STOPPED_CODES = (0, 130, -signal.SIGINT)
 
     def __init__(self, options: ReplayOptions, log_path: Path) -> None:
