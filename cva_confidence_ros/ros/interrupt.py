@@ -10,7 +10,9 @@ stops at points of its own: after its imports, once it is built, and, while it s
 rclpy, whose handler (installed by ``rclpy.init`` in front of this one, which it still calls)
 shuts the context down on the same signal and so ends the executor's spin.
 
-No rclpy here: this is installed before anything heavy is imported.
+The handler replaces an inherited "ignore SIGINT" too (a background job of a script), as
+``rclpy.init`` does with its own: a node takes SIGINT as a request to stop from its first line,
+not only once rclpy is up. No rclpy here: this is installed before anything heavy is imported.
 """
 
 from __future__ import annotations
