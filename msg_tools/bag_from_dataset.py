@@ -251,6 +251,7 @@ def write_dataset_bag(
         bag.open()
         try:
             for index, sample in enumerate(samples):
+                interrupts.check()
                 geometry, assumed = sample_geometry(sample, spec)
                 if assumed and not summary.assumed_calibration:
                     log(f'{sample.dataset}/{sample.scene} has no calibration: assuming '

@@ -33,7 +33,8 @@ import sys
 from cva_confidence_ros.errors import CVAError
 from cva_confidence_ros.pipeline import PipelineConfig
 from msg_tools.bagio import STORAGES
-from msg_tools.replay import ReplayOptions, TopicNames
+from msg_tools.progress import GracefulInterrupt
+from msg_tools.replay import STOPPING, ReplayOptions, TopicNames
 
 __all__ = ['build_parser', 'main', 'options_from_args']
 
@@ -177,16 +178,22 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``cva-bag-replay``; returns the exit code."""
     args = build_parser().parse_args(argv)
+    # From here a Ctrl-C is noted and raised between steps, never inside the pipeline's or
+    # rclpy's C code (see GracefulInterrupt); the imports below take a second or two.
+    interrupts = GracefulInterrupt(notice=STOPPING)
     try:
-        options = options_from_args(args)
-        if args.mode == 'live':
-            from msg_tools.live import run_live
+        with interrupts:
+            options = options_from_args(args)
+            if args.mode == 'live':
+                from msg_tools.live import run_live
 
-            outcome = run_live(options)
-        else:
-            from msg_tools.replay import run_offline
+                interrupts.check()
+                outcome = run_live(options, interrupts=interrupts)
+            else:
+                from msg_tools.replay import run_offline
 
-            outcome = run_offline(options)
+                interrupts.check()
+                outcome = run_offline(options, interrupts=interrupts)
     except CVAError as err:
         print(f'cva-bag-replay: error: {err}', file=sys.stderr)
         return 2

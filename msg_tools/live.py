@@ -31,8 +31,9 @@ from typing import Any, cast
 from cva_confidence_ros.errors import BagError, ConfigError, InputError, reason
 from msg_tools.bagio import InputBag
 from msg_tools.convert import camera_geometry, disparity_from_msg, jazzy_typestore, stamp_to_ns
-from msg_tools.progress import Progress
+from msg_tools.progress import GracefulInterrupt, Progress
 from msg_tools.replay import (
+    STOPPING,
     FrameResult,
     Logger,
     ReplayOptions,
@@ -235,9 +236,12 @@ class _Player:
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+        from rclpy.signals import SignalHandlerOptions
 
         self.context = Context()
-        rclpy.init(context=self.context)
+        # No rclpy signal handlers: Ctrl-C is the replay's (GracefulInterrupt), and it shuts
+        # this context down itself (close), after the frames in hand are written.
+        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node(f'cva_bag_replay_{os.getpid()}', context=self.context)
         self.received: queue.Queue[tuple[str, bytes, float]] = queue.Queue()
         publish_qos = QoSProfile(
@@ -310,9 +314,17 @@ def _message_class(msgtype: str) -> Any:
     return getattr(importlib.import_module(f'{package}.msg'), name)
 
 
-def run_live(options: ReplayOptions, log: Logger = log_stderr) -> ReplayOutcome:
+def run_live(
+    options: ReplayOptions,
+    log: Logger = log_stderr,
+    interrupts: GracefulInterrupt | None = None,
+) -> ReplayOutcome:
     """Play the bag to the node over DDS at the recorded speed × ``rate_scale``; record and
     score what it publishes.
+
+    A Ctrl-C stops the run at its next step (a second one at once); the node we started is
+    stopped and the frames done are in the outputs. ``interrupts``: the caller's Ctrl-C
+    handling, if it has begun one; else the run's own.
 
     Returns:
         The :class:`ReplayOutcome` (same report as offline; ``dropped`` counts the pairs the
@@ -322,9 +334,11 @@ def run_live(options: ReplayOptions, log: Logger = log_stderr) -> ReplayOutcome:
         BagError: The bag cannot be opened or lacks an input topic.
         ConfigError: The node exits or does not connect within ``startup_timeout_s``.
     """
-    preload()
-    with InputBag(options.bag) as bag:
+    interrupts = interrupts or GracefulInterrupt(notice=STOPPING)
+    with interrupts, InputBag(options.bag) as bag:
+        preload()
         plan = plan_topics(bag, options, log)
+        interrupts.check()
         node = None
         if options.start_node:
             node = NodeProcess(options, Path(options.report) / 'node.log').start()
@@ -332,8 +346,8 @@ def run_live(options: ReplayOptions, log: Logger = log_stderr) -> ReplayOutcome:
         player = None
         try:
             player = _Player(plan, options, reliable_outputs=node is not None)
-            _wait_for_node(player, node, options, log)
-            return _play(bag, plan, player, node, options, log)
+            _wait_for_node(player, node, options, log, interrupts)
+            return _play(bag, plan, player, node, options, log, interrupts)
         finally:
             # A second Ctrl-C must not cut the clean-up short (and leave the node running).
             with _signals_ignored():
@@ -359,10 +373,15 @@ def _signals_ignored() -> Iterator[None]:
 
 
 def _wait_for_node(
-    player: _Player, node: NodeProcess | None, options: ReplayOptions, log: Logger
+    player: _Player,
+    node: NodeProcess | None,
+    options: ReplayOptions,
+    log: Logger,
+    interrupts: GracefulInterrupt,
 ) -> None:
     deadline = time.monotonic() + options.startup_timeout_s
     while not player.connected():
+        interrupts.check()
         if node is not None and node.exit_code is not None:
             raise ConfigError(
                 f'cva-node exited with code {node.exit_code} before it connected: '
@@ -378,6 +397,7 @@ def _wait_for_node(
     # This is our side of the matching; a message sent before the node's side has matched
     # our writers too would be lost (volatile QoS), so give discovery a moment to settle.
     time.sleep(1.0)
+    interrupts.check()
     log('node connected; playing the bag')
 
 
@@ -388,6 +408,7 @@ def _play(
     node: NodeProcess | None,
     options: ReplayOptions,
     log: Logger,
+    interrupts: GracefulInterrupt,
 ) -> ReplayOutcome:
     from rosbags.serde import SerdeError
 
@@ -397,13 +418,16 @@ def _play(
     progress = Progress(plan.pairs_expected, prefix='[cva-bag-replay] live: ')
     # Outputs lag the inputs, so ground truth waits until its frame is answered (or a newer
     # one is); the cap only guards against a node that answers nothing at all.
-    session = ReplaySession(options, plan, log, truth_window=max(50, 4 * options.queue_size))
+    session = ReplaySession(
+        options, plan, log, truth_window=max(50, 4 * options.queue_size), interrupts=interrupts
+    )
     recorder = _Recorder(session, store, options, player.received)
     with session:
         try:
             start_bag: int | None = None
             start_wall = 0.0
             for topic, msgtype, timestamp, raw in bag.messages(plan.topics):
+                interrupts.check()
                 if start_bag is None:
                     start_bag, start_wall = timestamp, time.monotonic()
                 due = start_wall + (timestamp - start_bag) / 1e9 / options.rate_scale
@@ -477,6 +501,7 @@ class _Recorder:
     def drain(self, until: float, progress: Progress) -> None:
         """Handle outputs until the wall-clock time ``until`` (monotonic seconds)."""
         while True:
+            self.session.interrupts.check()
             left = until - time.monotonic()
             if left <= 0:
                 return
@@ -490,6 +515,7 @@ class _Recorder:
         """After the last input: wait for the outstanding outputs (or the drain timeout)."""
         self.last_output = time.monotonic()
         while self.frames and time.monotonic() - self.last_output < self.options.drain_timeout_s:
+            self.session.interrupts.check()
             if node is not None and node.exit_code is not None:
                 raise BagError(f'cva-node exited with code {node.exit_code}: {node.last_lines()}')
             try:

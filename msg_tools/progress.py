@@ -79,49 +79,75 @@ class Progress:
 
 
 class GracefulInterrupt:
-    """Turns SIGINT/SIGTERM into :class:`KeyboardInterrupt`, but never inside a critical section.
+    """SIGINT/SIGTERM as a request to stop, raised as :class:`KeyboardInterrupt` where it is safe.
 
-    Writing a message into a bag must not be cut in half, or the storage file could not be
-    finalised. Inside :meth:`critical` a signal is only noted; it is raised when the section
-    ends. Outside, it is raised at once, which aborts a long computation (the frame being
-    processed is lost, the frames already written are kept).
+    The first signal is only noted (and a line on stderr says so, when ``notice`` is given); the
+    run raises it at its next :meth:`check` (between frames, in its waits). Raised from the
+    handler itself, it could land wherever
+    Python happens to run next: inside numba's or torch's C code calling back into Python, where
+    it becomes a ``SystemError`` or aborts the process. A second signal outside a critical
+    section is raised at once, for a step that takes long. Inside :meth:`critical` (writing a
+    message into a bag, which must not be cut in half) and after :meth:`closing` (the outputs
+    are being finalised) signals are only noted.
 
-    Use as a context manager around the whole run; the previous handlers come back on exit.
-    Signal handlers can only be set from the main thread; elsewhere this does nothing.
+    Use as a context manager around the run; it may be entered again inside (the handlers are
+    set by the outermost ``with`` and put back when it ends). Signal handlers can only be set
+    from the main thread; elsewhere this does nothing.
+
+    Args:
+        notice: Written to stderr on the first signal, e.g. ``stopping after this frame``.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, notice: str = '') -> None:
         self.requested = False
+        self.notice = notice
+        self._signals = 0
         self._depth = 0
         self._closing = False
+        self._entered = 0
         self._previous: dict[int, object] = {}
 
     def _handler(self, signum: int, frame: FrameType | None) -> None:
         self.requested = True
-        if self._depth == 0 and not self._closing:
+        self._signals += 1
+        if self._depth or self._closing:
+            return
+        if self._signals > 1:
             raise KeyboardInterrupt
+        if self.notice:
+            sys.stderr.write(f'{self.notice} (Ctrl-C again to stop at once)\n')
+            sys.stderr.flush()
 
     def __enter__(self) -> GracefulInterrupt:
-        if threading.current_thread() is threading.main_thread():
+        self._entered += 1
+        if self._entered == 1 and threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGINT, signal.SIGTERM):
                 self._previous[sig] = signal.signal(sig, self._handler)
         return self
 
     def __exit__(self, *exc: object) -> None:
+        self._entered -= 1
+        if self._entered:
+            return
         for sig, handler in self._previous.items():
             signal.signal(sig, handler)  # type: ignore[arg-type]
         self._previous.clear()
 
+    def check(self) -> None:
+        """Raise :class:`KeyboardInterrupt` if a signal came (outside critical sections and
+        before :meth:`closing`)."""
+        if self.requested and not self._depth and not self._closing:
+            raise KeyboardInterrupt
+
     @contextmanager
     def critical(self) -> Iterator[None]:
-        """A section that a signal does not interrupt (it is raised after the section)."""
+        """A section that no signal interrupts, not even a second one (the next :meth:`check`
+        raises it)."""
         self._depth += 1
         try:
             yield
         finally:
             self._depth -= 1
-        if self._depth == 0 and self.requested and not self._closing:
-            raise KeyboardInterrupt
 
     def closing(self) -> None:
         """From now on only note signals: the outputs are being finalised and must not break."""

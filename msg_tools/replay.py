@@ -63,6 +63,8 @@ _INPUT_TYPES = {'left': IMAGE, 'right': IMAGE, 'left_info': CAMERA_INFO, 'right_
 GT_TYPES = (DISPARITY_IMAGE, IMAGE)
 # Skips are counted always but logged only this often, so a bag of bad frames stays readable.
 _MAX_SKIP_LOGS = 20
+#: The line a first Ctrl-C prints (a run stops between frames, not inside one).
+STOPPING = '[cva-bag-replay] Ctrl-C: stopping after this frame'
 # Longest span rosbag2 timestamps (int64 nanoseconds) can express, in seconds.
 _MAX_SPAN_S = (2**63 - 1) / 1e9
 
@@ -512,6 +514,8 @@ class ReplaySession:
         truth_window: Most ground-truth messages held while waiting for their frame (the
             oldest goes first); None = unbounded, the caller evicts with
             :meth:`drop_ground_truth_before` (live mode, where outputs lag the inputs).
+        interrupts: The run's Ctrl-C handling, when it began before the session; the session
+            enters it again and calls :meth:`GracefulInterrupt.closing` when it ends.
     """
 
     def __init__(
@@ -520,6 +524,7 @@ class ReplaySession:
         plan: TopicPlan,
         log: Logger = log_stderr,
         truth_window: int | None = 0,
+        interrupts: GracefulInterrupt | None = None,
     ) -> None:
         self.options = options
         self.plan = plan
@@ -528,7 +533,7 @@ class ReplaySession:
         self.report.counts.update(
             total=plan.pairs_expected, pairs=0, processed=0, skipped=0, unpaired=0, dropped=0
         )
-        self.interrupts = GracefulInterrupt()
+        self.interrupts = interrupts or GracefulInterrupt()
         self.out: OutputBag | None = None
         self.writer: ReportWriter | None = None
         self.paths: dict[str, Path] = {}
@@ -767,12 +772,20 @@ def make_synchronizer(options: ReplayOptions) -> Any:
     )
 
 
-def run_offline(options: ReplayOptions, log: Logger = log_stderr) -> ReplayOutcome:
+def run_offline(
+    options: ReplayOptions,
+    log: Logger = log_stderr,
+    interrupts: GracefulInterrupt | None = None,
+) -> ReplayOutcome:
     """Replay a bag through the pipeline as fast as possible (deterministic).
+
+    A Ctrl-C stops the run after the frame in hand (a second one at once); the frames done
+    are in the outputs.
 
     Args:
         options: The run's options (``mode`` is not looked at).
         log: Receives one-line messages (skips, notes).
+        interrupts: The caller's Ctrl-C handling, if it has begun one; else the run's own.
 
     Returns:
         The :class:`ReplayOutcome`; faults after the start (corrupt data part-way, Ctrl-C,
@@ -787,18 +800,21 @@ def run_offline(options: ReplayOptions, log: Logger = log_stderr) -> ReplayOutco
 
     from cva_confidence_ros.pipeline import StereoPipeline
 
-    store = jazzy_typestore()
-    preload()
-    with InputBag(options.bag) as bag:
+    interrupts = interrupts or GracefulInterrupt(notice=STOPPING)
+    with interrupts, InputBag(options.bag) as bag:
+        store = jazzy_typestore()
+        preload()
         plan = plan_topics(bag, options, log)
         pipeline = StereoPipeline(options.pipeline)
+        interrupts.check()
         sync = make_synchronizer(options)
         key_of = plan.key_of
         progress = Progress(plan.pairs_expected, prefix='[cva-bag-replay] offline: ')
-        session = ReplaySession(options, plan, log)
+        session = ReplaySession(options, plan, log, interrupts=interrupts)
         with session:
             try:
                 for topic, msgtype, timestamp, raw in bag.messages(plan.topics):
+                    interrupts.check()
                     try:
                         msg = store.deserialize_cdr(raw, msgtype)
                     except SerdeError as err:
@@ -837,15 +853,19 @@ def _process_pair(session: ReplaySession, pipeline: Any, matched: Any, frame: in
         points_confidence=options.points_confidence,
     )
     topics = options.topics.outputs()
-    session.write([(topics[name], kind, data) for name, kind, data in outputs.messages], timestamp)
-    session.add_result(
-        FrameResult(
-            frame=frame,
-            stamp_ns=matched.stamp_ns,
-            disparity=result.disparity,
-            confidence=outputs.confidence,
-            kept=outputs.kept,
-            offset=geometry.disparity_offset,
-            processing_ms=float(result.timings_ms.get('total', 0.0)),
+    # The frame's messages and its line in the report go together, whenever the signal comes.
+    with session.interrupts.critical():
+        session.write(
+            [(topics[name], kind, data) for name, kind, data in outputs.messages], timestamp
         )
-    )
+        session.add_result(
+            FrameResult(
+                frame=frame,
+                stamp_ns=matched.stamp_ns,
+                disparity=result.disparity,
+                confidence=outputs.confidence,
+                kept=outputs.kept,
+                offset=geometry.disparity_offset,
+                processing_ms=float(result.timings_ms.get('total', 0.0)),
+            )
+        )

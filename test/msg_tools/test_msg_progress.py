@@ -6,9 +6,13 @@ import io
 import os
 from pathlib import Path
 import signal
+import threading
+import time
 
+import numpy as np
 import pytest
 
+from cva_confidence_ros.confidence.handcrafted import two_smallest
 from cva_confidence_ros.pipeline import PipelineConfig
 from msg_tools.live import node_arguments
 from msg_tools.progress import GracefulInterrupt, Progress
@@ -37,13 +41,70 @@ def test_signal_waits_for_the_critical_section() -> None:
     original = signal.getsignal(signal.SIGINT)
     steps = []
     with GracefulInterrupt() as interrupts:
-        with pytest.raises(KeyboardInterrupt):
-            with interrupts.critical():
-                os.kill(os.getpid(), signal.SIGINT)
-                steps.append('finished the section')
+        with interrupts.critical():
+            os.kill(os.getpid(), signal.SIGINT)
+            os.kill(os.getpid(), signal.SIGINT)  # not even a second one cuts it short
+            time.sleep(0.05)
+            steps.append('finished the section')
         assert steps == ['finished the section'] and interrupts.requested
+        with pytest.raises(KeyboardInterrupt):
+            interrupts.check()
         interrupts.closing()
         os.kill(os.getpid(), signal.SIGTERM)  # only noted while the outputs are closed
+    assert signal.getsignal(signal.SIGINT) is original
+
+
+def _signal_soon(sig: int = signal.SIGINT, delay: float = 0.05) -> threading.Timer:
+    timer = threading.Timer(delay, os.kill, (os.getpid(), sig))
+    timer.start()
+    return timer
+
+
+def test_a_first_signal_is_noted_and_raised_at_the_next_check(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    original = signal.getsignal(signal.SIGINT)
+    with GracefulInterrupt(notice='stopping after this frame') as interrupts:
+        # A numba kernel that takes a while, with the signal arriving half-way: numba calls back
+        # into Python to hand the result arrays over, and an exception raised there by Python's
+        # own handler came out as "SystemError: CPUDispatcher(...) returned a result with an
+        # exception set" (cva-bag-replay then exited 1 with a traceback instead of 130).
+        volume = np.random.default_rng(0).random((600, 800, 64), dtype=np.float32)
+        two_smallest(volume[:8, :8])  # compiled before the clock starts
+        timer = _signal_soon()
+        while not interrupts.requested:
+            c1, _, c2 = two_smallest(volume)
+        timer.join()
+        assert (c1 <= c2).all()  # the kernel's result, whole
+        with pytest.raises(KeyboardInterrupt):
+            interrupts.check()
+    assert 'stopping after this frame (Ctrl-C again to stop at once)' in capsys.readouterr().err
+    assert signal.getsignal(signal.SIGINT) is original
+
+
+def test_a_second_signal_is_raised_at_once() -> None:
+    with GracefulInterrupt() as interrupts:
+        os.kill(os.getpid(), signal.SIGINT)
+        assert interrupts.requested
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(5)  # a long step: the second signal does not wait for it
+        # Once the outputs are being closed, signals are only noted.
+        interrupts.closing()
+        os.kill(os.getpid(), signal.SIGINT)
+        interrupts.check()
+
+
+def test_entered_again_the_handlers_stay_until_the_outermost_exit() -> None:
+    original = signal.getsignal(signal.SIGINT)
+    interrupts = GracefulInterrupt()
+    with interrupts:
+        with interrupts:
+            pass
+        assert signal.getsignal(signal.SIGINT) == interrupts._handler
+        os.kill(os.getpid(), signal.SIGINT)
+        with pytest.raises(KeyboardInterrupt):
+            interrupts.check()
     assert signal.getsignal(signal.SIGINT) is original
 
 
