@@ -763,7 +763,7 @@ def measure_node(
                 # keeps the node idle before the next frame.
                 if client.wait(
                     cast('Callable[[], bool]', lambda done=done: client.idle_after(done)),
-                    10 * _DIAGNOSTICS_PERIOD_S,
+                    50 * _DIAGNOSTICS_PERIOD_S,  # 10 s: a loaded machine may be slow to send
                     node.alive,
                 ):
                     for stage, value in _stage_times(client.diagnostics()).items():

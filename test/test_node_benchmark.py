@@ -166,8 +166,10 @@ def test_tiny_run_through_the_real_node(tmp_path: Path) -> None:
         assert row['online'] == (row['fps'] >= 5.0)
     assert measured['extrapolated'] is False
     assert len(measured['latencies_ms']) == 2 and min(measured['latencies_ms']) > 0
-    # the node's own times come over /diagnostics and cannot exceed the round trip
-    assert 0 < measured['stages_ms']['frame'] <= max(measured['latencies_ms'])
+    # The node's own times come over /diagnostics and hardly exceed the round trip (its frame
+    # clock stops once its publish calls return, which can be a moment after the client has
+    # the message: a few milliseconds of slack).
+    assert 0 < measured['stages_ms']['frame'] <= max(measured['latencies_ms']) + 5.0
     assert measured['peak_mem_mb'] >= measured['rss_ready_mb'] > 0
     assert measured['burst_sent'] == 3 and measured['burst_answered'] >= 1
     assert measured['burst_answered'] + measured['burst_dropped'] <= 3

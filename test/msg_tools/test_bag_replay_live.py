@@ -31,6 +31,8 @@ METRICS = ('error_rate', 'auc', 'auc_opt', 'kept_density', 'kept_error_rate', 'n
 @pytest.fixture(autouse=True)
 def _own_domain(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv('ROS_DOMAIN_ID', str(domain_id()))
+    # The replay and its node talk on this host only (no cross-talk with other machines' runs).
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 
 
 def _replay(bag: Path, tmp_path: Path, mode: str, *extra: str) -> tuple[int, dict]:

@@ -255,7 +255,10 @@ def test_process_refuses_a_bad_threshold_and_stops_on_sigint() -> None:
     assert 'cannot start' in bad.stderr and 'threshold' in bad.stderr
     assert 'Traceback' not in bad.stderr
     proc = subprocess.Popen(
-        [str(BIN / 'cva-cloud-filter'), '--ros-args', '-p', 'threshold:=0.7'],
+        # In a namespace of its own: the module's in-process filter, of the same name and
+        # topics, is still up in this domain.
+        [str(BIN / 'cva-cloud-filter'), '--ros-args', '-r', '__ns:=/sigint_test',
+         '-p', 'threshold:=0.7'],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
     )
     try:

@@ -183,13 +183,29 @@ def test_invalid_start_configuration_exits_cleanly(args: tuple[str, ...], messag
     assert message in line and '[FATAL]' in line
 
 
-@pytest.mark.parametrize('delay', [0.15, 0.5, 1.2])
+def _loaded(pid: int, library: str, timeout: float = 30.0) -> bool:
+    """Wait until the process ``pid`` has mapped a shared library whose path holds ``library``."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            if library in Path(f'/proc/{pid}/maps').read_text():
+                return True
+        except OSError:
+            return False
+        time.sleep(0.005)
+    return False
+
+
+@pytest.mark.parametrize('delay', [0.0, 0.35, 1.0])
 def test_early_ctrl_c_exits_quietly(delay: float) -> None:
-    # Within the imports of rclpy, torch and the pipeline (0.15, 0.5 s), or while the node is
-    # built and warmed up (about 1.2 s here: numba compiles then).
+    # Counted from rclpy's extension being loaded (the node's imports, after its entry point
+    # took SIGINT over; before that, Python's own start-up has it): within the imports of
+    # rclpy, torch and the pipeline (0, 0.35 s), or while the node is built and warmed up
+    # (about 1 s later here: numba compiles then).
     if not CVA_NODE.exists():
         pytest.skip('cva-node is not installed')
     node = NodeProcess('-p', 'max_disparity:=16', '-p', 'confidence_method:=mlm')
+    assert _loaded(node.process.pid, '_rclpy_pybind11'), node.output
     time.sleep(delay)
     code = node.stop(signal.SIGINT)
     assert 'Traceback' not in node.output, node.output
