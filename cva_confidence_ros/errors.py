@@ -13,6 +13,7 @@ __all__ = [
     'DataError',
     'InputError',
     'ModelError',
+    'from_interrupt',
     'reason',
 ]
 
@@ -56,3 +57,20 @@ def reason(exc: BaseException, limit: int = 200) -> str:
     if len(first) > limit:
         first = first[: limit - 1] + '…'
     return f'{type(exc).__name__}: {first}' if first else type(exc).__name__
+
+
+def from_interrupt(exc: BaseException) -> bool:
+    """Whether ``exc`` is a Ctrl-C: a :class:`KeyboardInterrupt`, or an error it caused.
+
+    Python raises the interrupt wherever it runs next, which can be a callback from C: inside
+    a numba kernel's hand-over of its result it comes out as ``SystemError: CPUDispatcher(...)
+    returned a result with an exception set``, the interrupt at the end of its chain.
+    """
+    seen: set[int] = set()
+    current: BaseException | None = exc
+    while current is not None and id(current) not in seen:
+        if isinstance(current, KeyboardInterrupt):
+            return True
+        seen.add(id(current))
+        current = current.__cause__ or current.__context__
+    return False

@@ -30,7 +30,7 @@ import argparse
 from pathlib import Path
 import sys
 
-from cva_confidence_ros.errors import CVAError
+from cva_confidence_ros.errors import CVAError, from_interrupt
 from cva_confidence_ros.pipeline import PipelineConfig
 from msg_tools.bagio import STORAGES
 from msg_tools.progress import GracefulInterrupt
@@ -197,9 +197,11 @@ def main(argv: list[str] | None = None) -> int:
     except CVAError as err:
         print(f'cva-bag-replay: error: {err}', file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemError) as exc:
         # Only reached outside the replay proper (start-up, final clean-up): the output bag,
         # if one was begun, was finalised by the replay session.
+        if not from_interrupt(exc):
+            raise
         print('cva-bag-replay: interrupted', file=sys.stderr)
         return 130
     if outcome.exit_code == 0:

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from cva_confidence_ros.errors import BagError, ConfigError, CVAError, InputError
+from cva_confidence_ros.errors import BagError, ConfigError, CVAError, InputError, from_interrupt
 from cva_confidence_ros.pipeline import PipelineConfig, PipelineResult
 from cva_confidence_ros.pointcloud import StereoGeometry
 from cva_confidence_ros.sync import DEFAULT_KEYS
@@ -563,15 +563,18 @@ class ReplaySession:
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: object
     ) -> bool:
         self.interrupts.closing()
+        # A second Ctrl-C is raised at once, possibly inside a numba kernel's hand-over of its
+        # result, where it comes out as a SystemError (see from_interrupt).
+        interrupted = exc is not None and from_interrupt(exc)
         try:
-            if exc_type is not None and issubclass(exc_type, KeyboardInterrupt):
+            if interrupted:
                 self.report.interrupted = True
             elif isinstance(exc, BagError):
                 self.report.error = str(exc)
             self.finish()
         finally:
             self.interrupts.__exit__()
-        return isinstance(exc, (KeyboardInterrupt, BagError))
+        return interrupted or isinstance(exc, BagError)
 
     @property
     def counts(self) -> dict[str, int]:

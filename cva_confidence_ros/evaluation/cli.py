@@ -33,7 +33,7 @@ import sys
 import time
 from typing import Any, cast
 
-from cva_confidence_ros.errors import ConfigError, CVAError, DataError
+from cva_confidence_ros.errors import ConfigError, CVAError, DataError, from_interrupt
 from cva_confidence_ros.outputs import check_output_dir, check_output_file
 
 __all__ = ['exit_code', 'main', 'parse_dataset_names', 'parse_weights']
@@ -267,7 +267,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def exit_code(prog: str, command: Callable[[], int]) -> int:
     """Run ``command`` the way the evaluation tools end: its own code, or one line on stderr
-    and 2 for bad input (:class:`CVAError`), 1 for an output that cannot be written."""
+    and 2 for bad input (:class:`CVAError`), 1 for an output that cannot be written, 130 on
+    Ctrl-C (also when it surfaced inside a numba kernel, see :func:`from_interrupt`)."""
     try:
         return command()
     except CVAError as exc:
@@ -276,6 +277,11 @@ def exit_code(prog: str, command: Callable[[], int]) -> int:
     except OSError as exc:
         print(f'{prog}: error: {exc}', file=sys.stderr)
         return 1
+    except (KeyboardInterrupt, SystemError) as exc:
+        if not from_interrupt(exc):
+            raise
+        print(f'{prog}: interrupted', file=sys.stderr)
+        return 130
 
 
 if __name__ == '__main__':

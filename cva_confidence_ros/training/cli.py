@@ -19,7 +19,7 @@ from collections.abc import Sequence
 import shlex
 import sys
 
-from cva_confidence_ros.errors import CVAError
+from cva_confidence_ros.errors import CVAError, from_interrupt
 from cva_confidence_ros.training.config import (
     FUSION_SPLITS,
     MODES,
@@ -216,7 +216,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except CVAError as exc:
         print(f'{PROG}: error: {exc}', file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemError) as exc:
+        # A Ctrl-C in a numba kernel (the cost volumes) surfaces as a SystemError.
+        if not from_interrupt(exc):
+            raise
         print(f'{PROG}: interrupted; continue with --resume', file=sys.stderr)
         return 130
     return 0
