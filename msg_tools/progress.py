@@ -83,10 +83,10 @@ class GracefulInterrupt:
 
     The first signal is only noted (and a line on stderr says so, when ``notice`` is given); the
     run raises it at its next :meth:`check` (between frames, in its waits). Raised from the
-    handler itself, it could land wherever
-    Python happens to run next: inside numba's or torch's C code calling back into Python, where
-    it becomes a ``SystemError`` or aborts the process. A second signal outside a critical
-    section is raised at once, for a step that takes long. Inside :meth:`critical` (writing a
+    handler itself, it could land wherever Python happens to run next: inside numba's or
+    torch's C code calling back into Python, where it becomes a ``SystemError`` or aborts the
+    process. A second signal outside a critical section is raised at once, for a step that
+    takes long. Inside :meth:`critical` (writing a
     message into a bag, which must not be cut in half) and after :meth:`closing` (the outputs
     are being finalised) signals are only noted.
 
@@ -99,7 +99,6 @@ class GracefulInterrupt:
     """
 
     def __init__(self, notice: str = '') -> None:
-        self.requested = False
         self.notice = notice
         self._signals = 0
         self._depth = 0
@@ -107,8 +106,12 @@ class GracefulInterrupt:
         self._entered = 0
         self._previous: dict[int, object] = {}
 
+    @property
+    def requested(self) -> bool:
+        """Whether a signal came."""
+        return self._signals > 0
+
     def _handler(self, signum: int, frame: FrameType | None) -> None:
-        self.requested = True
         self._signals += 1
         if self._depth or self._closing:
             return
