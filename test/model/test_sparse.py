@@ -315,7 +315,8 @@ def scene():
     """A fixed synthetic scene, census_bm at D = 64, and the exact shipped-network map."""
     if not SHIPPED.exists():
         pytest.skip('shipped weights not found')
-    torch.set_num_threads(1)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # one reduction order for the exact map and the sparse evaluations
     sample = synthetic_pair(7, height=24, width=160, max_disparity=64)
     volume = compute_cost_volume(sample.left, sample.right, 'census_bm', 64)
     disparity = wta_disparity(volume)
@@ -324,7 +325,8 @@ def scene():
     exact = evaluator(volume)
     wrong = kitti_error(disparity, sample.disparity)
     cheap = compute_confidence('pkrn', ConfidenceInputs(volume, disparity, sample.left))
-    return sample, volume, disparity, evaluator, exact, wrong, cheap
+    yield sample, volume, disparity, evaluator, exact, wrong, cheap
+    torch.set_num_threads(threads)
 
 
 @pytest.mark.parametrize('config', APPROXIMATE, ids=str)
