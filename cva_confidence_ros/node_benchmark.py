@@ -460,7 +460,13 @@ class _Client:
 
     def _spin(self) -> None:
         while not self._stop.is_set() and self._context.ok():
-            self._executor.spin_once(timeout_sec=0.05)
+            try:
+                self._executor.spin_once(timeout_sec=0.05)
+            except Exception:
+                # A Ctrl-C that shut the context down under the wait (ExternalShutdownException,
+                # or rcl's RCLError between the check and the wait set) only ends the spin.
+                if self._context.ok():
+                    raise
 
     def close(self) -> None:
         """Stop spinning and shut the context down."""

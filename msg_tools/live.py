@@ -283,6 +283,11 @@ class _Player:
             self.executor.spin()
         except ExternalShutdownException:
             pass
+        except RuntimeError:
+            # rcl's RCLError: the context was shut down between the executor's check of it and
+            # the wait set that needs it (rclpy does not turn this race into a shutdown).
+            if self.context.ok():
+                raise
 
     def connected(self) -> bool:
         """Every input has a reader and every output a writer."""

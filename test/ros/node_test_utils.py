@@ -249,6 +249,11 @@ class Spinner:
                 self.executor.spin_once(timeout_sec=0.05)
             except ExternalShutdownException:
                 return  # the context was shut down under the wait (a test stopping the node)
+            except RuntimeError:
+                # rcl's RCLError: shut down between the executor's check and its wait set.
+                if rclpy.ok(context=self.executor.context):
+                    raise
+                return
 
     def stop(self) -> None:
         self._stop.set()
