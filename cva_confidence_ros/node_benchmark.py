@@ -416,6 +416,8 @@ class _Client:
         from sensor_msgs.msg import CameraInfo, Image, PointCloud2
         from stereo_msgs.msg import DisparityImage
 
+        from cva_confidence_ros.ros.common import spin_until_shutdown
+
         self._rclpy = rclpy
         self.outputs = tuple(outputs)
         self._context = Context()
@@ -455,18 +457,10 @@ class _Client:
         self._executor = SingleThreadedExecutor(context=self._context)
         self._executor.add_node(self._node)
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread = threading.Thread(
+            target=spin_until_shutdown, args=(self._executor, self._stop), daemon=True
+        )
         self._thread.start()
-
-    def _spin(self) -> None:
-        while not self._stop.is_set() and self._context.ok():
-            try:
-                self._executor.spin_once(timeout_sec=0.05)
-            except Exception:
-                # A Ctrl-C that shut the context down under the wait (ExternalShutdownException,
-                # or rcl's RCLError between the check and the wait set) only ends the spin.
-                if self._context.ok():
-                    raise
 
     def close(self) -> None:
         """Stop spinning and shut the context down."""

@@ -238,6 +238,8 @@ class _Player:
         from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
         from rclpy.signals import SignalHandlerOptions
 
+        from cva_confidence_ros.ros.common import spin_until_shutdown
+
         self.context = Context()
         # No rclpy signal handlers: Ctrl-C is the replay's (GracefulInterrupt), and it shuts
         # this context down itself (close), after the frames in hand are written.
@@ -273,21 +275,11 @@ class _Player:
         }
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, name='cva_bag_replay_spin', daemon=True)
+        self.thread = threading.Thread(
+            target=spin_until_shutdown, args=(self.executor,), name='cva_bag_replay_spin',
+            daemon=True,
+        )
         self.thread.start()
-
-    def _spin(self) -> None:
-        from rclpy.executors import ExternalShutdownException
-
-        try:
-            self.executor.spin()
-        except ExternalShutdownException:
-            pass
-        except RuntimeError:
-            # rcl's RCLError: the context was shut down between the executor's check of it and
-            # the wait set that needs it (rclpy does not turn this race into a shutdown).
-            if self.context.ok():
-                raise
 
     def connected(self) -> bool:
         """Every input has a reader and every output a writer."""

@@ -20,7 +20,12 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import rclpy
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import (
+    Executor,
+    ExternalShutdownException,
+    ShutdownException,
+    SingleThreadedExecutor,
+)
 from rclpy.impl.rcutils_logger import RcutilsLogger
 import rclpy.logging
 from rclpy.logging import LoggingSeverity
@@ -41,6 +46,7 @@ __all__ = [
     'publish_status',
     'qos_profile',
     'run_node',
+    'spin_until_shutdown',
 ]
 
 LOG_THROTTLE_S = 5.0
@@ -139,6 +145,26 @@ class ReasonThrottle:
             logger.error(message)
         else:
             logger.warning(message)
+
+
+def spin_until_shutdown(executor: Executor, stop: threading.Event | None = None) -> None:
+    """Spin ``executor`` until ``stop`` is set, the executor is shut down or its context is.
+
+    For background spin threads. A context shut down during a spin (Ctrl-C, or the owner
+    closing it) ends the spin quietly, whichever way rclpy reports it: as
+    ``ExternalShutdownException`` after the wait, or as rcl's ``RCLError`` when the shutdown
+    lands between the executor's check of the context and the wait set that needs it.
+    """
+    context = executor.context
+    while context.ok() and not (stop is not None and stop.is_set()):
+        try:
+            executor.spin_once(timeout_sec=0.05)
+        except ShutdownException:
+            return
+        except Exception:
+            if context.ok():
+                raise
+            return
 
 
 def _init(args: list[str]) -> None:

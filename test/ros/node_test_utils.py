@@ -12,13 +12,14 @@ from typing import Any
 import numpy as np
 import rclpy
 from rclpy.context import Context
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import Header
 from stereo_msgs.msg import DisparityImage
 
+from cva_confidence_ros.ros.common import spin_until_shutdown
 from cva_confidence_ros.ros.convert import ns_to_stamp
 
 FX = 100.0
@@ -240,20 +241,10 @@ class Spinner:
         for node in nodes:
             self.executor.add_node(node)
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread = threading.Thread(
+            target=spin_until_shutdown, args=(self.executor, self._stop), daemon=True
+        )
         self._thread.start()
-
-    def _spin(self) -> None:
-        while not self._stop.is_set() and rclpy.ok(context=self.executor.context):
-            try:
-                self.executor.spin_once(timeout_sec=0.05)
-            except ExternalShutdownException:
-                return  # the context was shut down under the wait (a test stopping the node)
-            except RuntimeError:
-                # rcl's RCLError: shut down between the executor's check and its wait set.
-                if rclpy.ok(context=self.executor.context):
-                    raise
-                return
 
     def stop(self) -> None:
         self._stop.set()
