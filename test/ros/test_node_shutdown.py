@@ -111,6 +111,11 @@ except KeyboardInterrupt:
 node._worker.join(20)
 print('RESULT', json.dumps(dict(node.stats(), worker_alive=node._worker.is_alive(),
                                 context_ok=context.ok())), flush=True)
+# Tear down as cva-node does: a spin thread or a DDS participant left to the interpreter's exit
+# can abort it in C++ (terminate called without an active exception).
+spinner.stop()
+client.node.destroy_node()
+node.destroy_node()
 """
 
 
