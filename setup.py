@@ -6,7 +6,10 @@ Two installs are supported from this one file:
   directly. The scripts then land in ``lib/cva_confidence_ros`` (see ``setup.cfg``), where
   ``ros2 run cva_confidence_ros <name>`` looks for them, under the ROS-style names.
 * ``pip install`` into a virtual environment (PEP 517 build). The scripts land on ``PATH`` under
-  ``cva-*`` names only: a plain ``node`` executable there would shadow Node.js.
+  ``cva-*`` names only: a plain ``node`` executable there would shadow Node.js. ``make setup``
+  installs the dependencies first (torch pinned to the CPU build, rclpy and the message packages
+  as the ``ros-jazzy-*`` wheels, which ``install_requires`` leaves to ROS or to the Makefile) and
+  then this package with ``--no-deps``.
 """
 
 from glob import glob
@@ -54,13 +57,14 @@ setup(
         (f'share/{PACKAGE}/models', sorted(glob('models/*.pt') + glob('models/*.md')
                                              + glob('models/*.json') + glob('models/*.yaml'))),
     ],
-    install_requires=['setuptools', 'numpy', 'scipy', 'opencv-python-headless', 'numba'],
+    install_requires=['setuptools', 'numpy', 'opencv-python-headless', 'scikit-image', 'numba',
+                      'torch', 'matplotlib', 'tqdm', 'rosbags', 'mccnn'],
     zip_safe=True,
     maintainer='cva_confidence_ros maintainers',
     maintainer_email='maintainers@cva-confidence-ros.dev',
     description='Online per-pixel stereo confidence with CVA-Net for ROS 2.',
     license='Apache-2.0',
     python_requires='>=3.10',
-    tests_require=['pytest'],
+    tests_require=['pytest', 'scipy', 'pyyaml'],
     entry_points={'console_scripts': _console_scripts()},
 )

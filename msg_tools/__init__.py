@@ -1,7 +1,9 @@
 """rosbag2 tools of cva_confidence_ros: data sets → bags, and bag replay evaluation.
 
-Everything here reads and writes rosbag2 files (MCAP or sqlite3) through ``rosbags``, without a
-ROS installation; only the ``live`` replay mode talks DDS through rclpy.
+Bags are read and written (MCAP or sqlite3) through ``rosbags``, without the rosbag2 C++ stack.
+The node's output messages are built with the ROS message packages and serialised with
+``rclpy.serialization``, so rclpy and the message packages are needed (the ``ros-jazzy-*``
+wheels of ``make setup`` will do); only the ``live`` replay mode talks DDS.
 
 Modules:
     bagio: opening input bags and writing output bags, with ``BagError`` for every fault.

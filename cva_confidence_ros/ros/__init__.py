@@ -1,9 +1,11 @@
-"""rclpy side of the package: message ⇄ numpy conversions, the node's parameters, the node.
+"""rclpy side of the package: message ⇄ numpy conversions, parameters, the two nodes.
 
-Only :mod:`cva_confidence_ros.node` and this subpackage import rclpy or ROS message types; the
-core (matching, confidence, pipeline, point cloud, sync) stays ROS-free.
+The core (matching, confidence, model, pipeline, point cloud, sync) never imports rclpy or ROS
+message types. They are imported here, by the entry points (:mod:`cva_confidence_ros.node`,
+:mod:`cva_confidence_ros.cloud_filter`), by the node and cloud benchmarks, and by the bag tools'
+live mode and message serialisation (``msg_tools``).
 """
 
 from __future__ import annotations
 
-__all__ = ['confidence_node', 'convert', 'params']
+__all__ = ['cloud_filter_node', 'common', 'confidence_node', 'convert', 'interrupt', 'params']
