@@ -152,12 +152,20 @@ class StereoPipeline:
 
     Args:
         config: What to compute. Learned weights are loaded once here, not per frame.
+
+    Raises:
+        ConfigError: The device is not available here, or the method's options do not fit.
+        ModelError: Weights that cannot be loaded or do not fit the matcher and depth.
     """
 
     def __init__(self, config: PipelineConfig) -> None:
         from cva_confidence_ros.confidence import CONFIDENCE_METHODS
+        from cva_confidence_ros.model import resolve_device
 
         self.config = config
+        # Checked here for every method, not on the first frame: a node that accepts
+        # device=cuda on a machine without CUDA would then drop every frame.
+        self.device = resolve_device(config.device)
         factory = CONFIDENCE_METHODS.get(config.confidence_method)
         self._method = factory(
             matcher=config.matcher,
@@ -174,10 +182,28 @@ class StereoPipeline:
     def _matcher_params(self) -> dict[str, Any]:
         # MC-CNN is the one matcher with a network; it runs where the confidence network runs.
         if self.config.matcher == 'mccnn_fast':
-            from cva_confidence_ros.model import resolve_device
-
-            return {'device': str(resolve_device(self.config.device))}
+            return {'device': str(self.device)}
         return {}
+
+    def check_input_size(self, width: int, height: int) -> None:
+        """Whether images of ``width`` × ``height`` px can be processed with this configuration.
+
+        Raises:
+            InputError: Too small for ``downsample``, or narrower than ``max_disparity`` + 1
+                after downsampling.
+        """
+        cfg = self.config
+        if min(width, height) < cfg.downsample:
+            raise InputError(
+                f'images of {width}×{height} px cannot be shrunk by downsample = {cfg.downsample}'
+            )
+        shrunk = width // cfg.downsample
+        if cfg.max_disparity >= shrunk:
+            raise InputError(
+                f'max_disparity must be smaller than the image width {shrunk}'
+                + (f' ({width} px at downsample = {cfg.downsample})' if cfg.downsample > 1 else '')
+                + f'; got {cfg.max_disparity}'
+            )
 
     def warm_up(self) -> None:
         """Run the matcher once on a small random pair.
@@ -223,11 +249,7 @@ class StereoPipeline:
         # Checked before resizing: OpenCV's resize has its own, less clear, view of bad arrays.
         left, right = check_image_pair(left, right)
         cfg = self.config
-        if min(left.shape[:2]) < cfg.downsample:
-            raise InputError(
-                f'images of {left.shape[1]}×{left.shape[0]} px cannot be shrunk by '
-                f'downsample = {cfg.downsample}'
-            )
+        self.check_input_size(left.shape[1], left.shape[0])
         timings: dict[str, float] = {}
         start = time.perf_counter()
         # Crop to a multiple of the factor first, so that images and a ground truth shrunk with

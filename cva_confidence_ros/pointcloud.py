@@ -47,6 +47,11 @@ CLOUD_DTYPE = np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('rgb', '<f4')
 #: :data:`CLOUD_DTYPE` and the point's confidence in [0, 1] as a fifth float32, 20 bytes.
 CLOUD_CONFIDENCE_DTYPE = np.dtype(CLOUD_DTYPE.descr + [('confidence', '<f4')])
 
+#: Largest relative difference between the left and right fx of a rectified pair (P[0, 0]).
+FX_TOLERANCE = 1e-3
+
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+
 
 def _projection(matrix: Sequence[float] | np.ndarray, name: str) -> np.ndarray:
     array = np.asarray(matrix, dtype=np.float64)
@@ -90,6 +95,10 @@ class StereoGeometry:
         values = (self.fx, self.fy, self.cx, self.cy, self.cx_right, self.baseline)
         if not all(np.isfinite(values)):
             raise InputError(f'stereo geometry must be finite; got {self}')
+        # The outputs are float32 (DisparityImage.f and .t, the points): a value or a depth
+        # scale fx·B beyond float32 would publish inf.
+        if not all(abs(value) < _FLOAT32_MAX for value in (*values, self.fx * self.baseline)):
+            raise InputError(f'stereo geometry must fit float32 (fx·B included); got {self}')
         if self.fx <= 0 or self.fy <= 0:
             raise InputError(f'focal lengths must be > 0; got fx={self.fx}, fy={self.fy}')
         if self.baseline <= 0:
@@ -116,6 +125,13 @@ class StereoGeometry:
         right = _projection(p_right, 'P_right')
         if right[0, 0] <= 0:
             raise InputError(f'P_right[0, 0] (fx) must be > 0; got {right[0, 0]}')
+        # Rectification gives both cameras one focal length; images with two are not a
+        # rectified pair, and the baseline (read with the right fx) would be wrong too.
+        if left[0, 0] > 0 and abs(right[0, 0] - left[0, 0]) > FX_TOLERANCE * left[0, 0]:
+            raise InputError(
+                f'left and right projection matrices must share fx (a rectified pair); got '
+                f'P_left[0, 0] = {left[0, 0]:g} and P_right[0, 0] = {right[0, 0]:g}'
+            )
         return cls(
             fx=float(left[0, 0]),
             fy=float(left[1, 1]),

@@ -6,6 +6,7 @@ pipeline inside its ``try``: a Ctrl-C during that second of imports then ends th
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import partial
@@ -55,6 +56,13 @@ __all__ = ['NODE_NAME', 'ConfidenceNode', 'run']
 
 NODE_NAME = 'cva_confidence'
 _OWN_PARAMETERS = frozenset(spec.name for spec in PARAMETERS)
+# Synchroniser key → the topic it subscribes to (named in the logs).
+_TOPICS = {
+    'left': 'left/image_rect',
+    'right': 'right/image_rect',
+    'left_info': 'left/camera_info',
+    'right_info': 'right/camera_info',
+}
 
 
 class _Mailbox:
@@ -118,6 +126,19 @@ class _Stats:
     window_processed: int = 0
     window_invalid: int = 0
     window_start: float = field(default_factory=time.monotonic)
+    # per synchroniser key: messages in the window, and the stamp of the newest one
+    window_keys: dict[str, int] = field(default_factory=dict)
+    last_stamps_ns: dict[str, int] = field(default_factory=dict)
+    # left image stamps: the previous one and the last gaps between them (ns)
+    left_stamp_ns: int | None = None
+    left_gaps_ns: deque[int] = field(default_factory=lambda: deque(maxlen=8))
+
+    @property
+    def left_period_ns(self) -> float | None:
+        """The median spacing of the recent left images (ns), once three gaps are known."""
+        if len(self.left_gaps_ns) < 3:
+            return None
+        return float(np.median(self.left_gaps_ns))
 
     def record_timings(self, timings: dict[str, float]) -> None:
         self.last_timings_ms = dict(timings)
@@ -157,6 +178,9 @@ class ConfidenceNode(Node):
         self._pipeline.warm_up()
         self._pipeline_config = pipeline_config
         self._node_config = node_config
+        # (width, height) of the last images received: a parameter change that could not
+        # process them (max_disparity, downsample) is refused.
+        self._input_size: tuple[int, int] | None = None
         self._sync = self._make_sync(node_config)
         self._stats = _Stats()
         self._log_throttle = ReasonThrottle()
@@ -188,6 +212,7 @@ class ConfidenceNode(Node):
         self._worker = threading.Thread(target=self._work, name='cva_confidence_worker')
         self._worker.daemon = True
         self._worker.start()
+        self._warn_if_slow(self._pipeline)
 
     def summary(self) -> str:
         """One line on what the node computes, for its ready line."""
@@ -220,18 +245,41 @@ class ConfidenceNode(Node):
             tolerance_ns=config.tolerance_ns,
         )
 
+    def _warn_if_slow(self, pipeline: StereoPipeline) -> None:
+        """Say so when the paper network is to run on every pixel on a CPU (seconds a frame)."""
+        config = pipeline.config
+        if (
+            config.confidence_method == 'cva_net'
+            and pipeline.device.type == 'cpu'
+            and config.cva_stride == 1
+            and config.cva_cascade == 'none'
+        ):
+            self.get_logger().warning(
+                'confidence_method cva_net on the CPU runs the paper network on every pixel '
+                '(≈ 35 M multiply-adds a pixel at D = 64): seconds to minutes a frame. For '
+                'online use take a GPU (device: cuda), cva_net_fast, or the fast paths '
+                '(cva_stride, cva_cascade)'
+            )
+
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
         # rclpy's own parameters (use_sim_time, …) are for rclpy to accept or refuse.
         params = [param for param in params if param.name in _OWN_PARAMETERS]
         if not params:
             return SetParametersResult(successful=True)
+        asked = ', '.join(f'{p.name}={p.value!r}' for p in params)
         try:
             pipeline_config, node_config = build_configs(parameter_values(self), params)
             pipeline = None
             if pipeline_config != self.pipeline_config:
-                # Built here, before accepting, so that e.g. missing weights reject the change.
+                # Built here, before accepting, so that e.g. missing weights or a device that
+                # is not there reject the change, and checked against the images coming in.
                 pipeline = StereoPipeline(pipeline_config)
+                with self._lock:
+                    size = self._input_size
+                if size is not None:
+                    pipeline.check_input_size(*size)
         except CVAError as error:
+            self.get_logger().warning(f'parameter change refused ({asked}): {error}')
             return SetParametersResult(successful=False, reason=str(error))
         with self._lock:
             if pipeline is not None:
@@ -242,9 +290,9 @@ class ConfidenceNode(Node):
             if any(getattr(old, key) != getattr(node_config, key) for key in sync_keys):
                 self._stats.unmatched += sum(self._sync.pending().values())
                 self._sync = self._make_sync(node_config)
-        self.get_logger().info(
-            'parameters set: ' + ', '.join(f'{p.name}={p.value!r}' for p in params)
-        )
+        self.get_logger().info(f'parameters set: {asked}')
+        if pipeline is not None:
+            self._warn_if_slow(pipeline)
         return SetParametersResult(successful=True)
 
     # Executor side ------------------------------------------------------------------------
@@ -254,6 +302,9 @@ class ConfidenceNode(Node):
         with self._lock:
             self._stats.messages += 1
             self._stats.window_messages += 1
+            self._stats.window_keys[key] = self._stats.window_keys.get(key, 0) + 1
+            self._stats.last_stamps_ns[key] = stamp
+            loose_tolerance = key == 'left' and self._note_left_stamp(stamp)
             sync = self._sync
             before = sync.dropped
             matched = sync.add(key, stamp, msg)
@@ -269,6 +320,16 @@ class ConfidenceNode(Node):
                 self._stats.window_pairs += 1
                 if self._mailbox.put(item):
                     self._stats.dropped += 1
+        if loose_tolerance:
+            config = self.node_config
+            period = self._stats.left_period_ns or 0.0
+            self._log_throttle.log(
+                self.get_logger(),
+                'approximate sync tolerance too wide',
+                f'approximate_sync_tolerance_seconds = {config.tolerance_ns / 1e9:g} is at least '
+                f'half the frame period ({period / 1e9:.3f} s between left images): images of '
+                f'different frames can pair; set it below {period / 2e9:.3f}',
+            )
         for previous, now in jumps:
             self._log_throttle.log(
                 self.get_logger(),
@@ -277,6 +338,41 @@ class ConfidenceNode(Node):
                 f'{_seconds(previous)} to {_seconds(now)} (bag loop, driver restart or simulator '
                 'reset?): pairing starts over from there',
             )
+
+    def _note_left_stamp(self, stamp: int) -> bool:
+        """Track the spacing of the left images (call with the lock held).
+
+        Returns:
+            Whether approximate sync is on with a tolerance of half that spacing or more, so
+            that an image can pair with its neighbour's partner.
+        """
+        stats = self._stats
+        previous, stats.left_stamp_ns = stats.left_stamp_ns, stamp
+        if previous is None or stamp <= previous:
+            return False
+        stats.left_gaps_ns.append(stamp - previous)
+        period = stats.left_period_ns
+        config = self._node_config
+        return period is not None and config.approximate_sync and 2 * config.tolerance_ns >= period
+
+    def _unpaired_reason(self, stats: _Stats, elapsed: float) -> str:
+        """Why messages arrive but none pair up, naming the topics (lock held)."""
+        silent = [topic for key, topic in _TOPICS.items() if not stats.window_keys.get(key)]
+        if silent:
+            return (
+                f'messages arrive but none pair up: nothing on {", ".join(silent)} in the last '
+                f'{elapsed:.1f} s'
+            )
+        stamps = ', '.join(
+            f'{topic} {_seconds(stats.last_stamps_ns[key])}' for key, topic in _TOPICS.items()
+        )
+        how = (
+            f'approximate sync pairs stamps within {self._node_config.tolerance_ns / 1e9:g} s'
+            if self._node_config.approximate_sync
+            else 'exact sync pairs equal stamps only (approximate_sync: true for cameras '
+            'that are not hardware-synchronised)'
+        )
+        return f'messages arrive but none pair up; newest stamps: {stamps}; {how}'
 
     # Worker side --------------------------------------------------------------------------
 
@@ -322,6 +418,7 @@ class ConfidenceNode(Node):
             left_msg, item.items['right'], item.items['left_info'], item.items['right_info']
         )
         with self._lock:
+            self._input_size = (left.shape[1], left.shape[0])
             pipeline, config, node_config = (
                 self._pipeline,
                 self._pipeline_config,
@@ -398,7 +495,7 @@ class ConfidenceNode(Node):
                 message = f'{stats.window_invalid} bad frame(s) dropped: {stats.last_error}'
             if stats.window_messages and not stats.window_pairs:
                 level = DiagnosticStatus.WARN
-                message = 'messages arrive but none pair up: check stamps and camera_info'
+                message = self._unpaired_reason(stats, elapsed)
             if stats.failed and stats.window_pairs and not stats.window_processed:
                 level, message = DiagnosticStatus.ERROR, f'processing fails: {stats.last_error}'
             values = {
@@ -422,6 +519,7 @@ class ConfidenceNode(Node):
                 values[f'mean_{key}_ms'] = f'{value:.2f}'
             stats.window_messages = stats.window_pairs = 0
             stats.window_processed = stats.window_invalid = 0
+            stats.window_keys = {}
             stats.window_start = now
         return diagnostic_status(self, 'stereo confidence', level, message, values)
 
@@ -429,12 +527,17 @@ class ConfidenceNode(Node):
         status = self.diagnostics()
         publish_status(self, self._pub_diagnostics, status)
         summary = {kv.key: kv.value for kv in status.values}
-        self.get_logger().info(
+        # Bad frames are logged where they are dropped; input that never pairs is logged here.
+        line = (
             f'{status.message}; received {summary["frames_received"]}, processed '
             f'{summary["frames_processed"]}, dropped {summary["frames_dropped"]}, invalid '
-            f'{summary["frames_invalid"]}, frame {summary.get("mean_frame_ms", "-")} ms',
-            throttle_duration_sec=LOG_THROTTLE_S,
+            f'{summary["frames_invalid"]}, frame {summary.get("mean_frame_ms", "-")} ms'
         )
+        # rclpy throttles per call site and allows one severity per site: two sites.
+        if status.message.startswith('messages arrive but none pair up'):
+            self.get_logger().warning(line, throttle_duration_sec=LOG_THROTTLE_S)
+        else:
+            self.get_logger().info(line, throttle_duration_sec=LOG_THROTTLE_S)
 
     def stats(self) -> dict[str, int]:
         """Counters since start.

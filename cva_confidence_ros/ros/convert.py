@@ -67,12 +67,13 @@ def ns_to_stamp(stamp_ns: int) -> Time:
     return Time(sec=sec, nanosec=nanosec)
 
 
-def image_to_array(msg: Image) -> np.ndarray:
+def image_to_array(msg: Image, name: str = 'image') -> np.ndarray:
     """Decode a ``sensor_msgs/Image`` into the array layout of the core.
 
     Args:
         msg: An image with one of :data:`SUPPORTED_ENCODINGS`; row padding (``step`` larger
             than a row) and big-endian mono16 are handled.
+        name: What the error messages call the image (e.g. ``'left image'``).
 
     Returns:
         (H, W) uint8 for mono8, (H, W) uint16 for mono16 (see :func:`pair_to_uint8`), or
@@ -80,26 +81,28 @@ def image_to_array(msg: Image) -> np.ndarray:
         that does not alias the message buffer.
 
     Raises:
-        InputError: Unknown encoding, zero size, or a ``step``/``data`` too short for the size.
+        InputError: Unknown encoding, zero size, a ``step`` too short for a row, or ``data``
+            that is not ``height`` rows of ``step`` bytes (the last row's padding may be
+            missing).
     """
     encoding = msg.encoding.lower()
     if encoding not in _ENCODINGS:
         raise InputError(
-            f'image encoding must be one of {SUPPORTED_ENCODINGS}; got {msg.encoding!r}'
+            f'{name} encoding must be one of {SUPPORTED_ENCODINGS}; got {msg.encoding!r}'
         )
     channels, depth, order = _ENCODINGS[encoding]
     height, width, step = int(msg.height), int(msg.width), int(msg.step)
     if height <= 0 or width <= 0:
-        raise InputError(f'image must have a positive size; got {width}×{height}')
+        raise InputError(f'{name} must have a positive size; got {width}×{height}')
     row_bytes = width * channels * depth
     if step < row_bytes:
         raise InputError(
-            f'image step must be ≥ {row_bytes} bytes for {width} px of {encoding}; got {step}'
+            f'{name} step must be ≥ {row_bytes} bytes for {width} px of {encoding}; got {step}'
         )
     data = np.frombuffer(msg.data, dtype=np.uint8)
-    if data.size < step * (height - 1) + row_bytes:
+    if not step * (height - 1) + row_bytes <= data.size <= step * height:
         raise InputError(
-            f'image data must hold {height} rows of step {step} '
+            f'{name} data must hold {height} rows of step {step} '
             f'({step * height} bytes); got {data.size}'
         )
     rows = np.lib.stride_tricks.as_strided(data, shape=(height, row_bytes), strides=(step, 1))
@@ -228,7 +231,8 @@ def stereo_pair_from_messages(
         InputError: Unknown encoding, images of different sizes or bit depths, or camera
             infos that do not fit them.
     """
-    left, right = image_to_array(left_msg), image_to_array(right_msg)
+    left = image_to_array(left_msg, 'left image')
+    right = image_to_array(right_msg, 'right image')
     if left.shape[:2] != right.shape[:2]:
         raise InputError(
             f'left and right images must have the same size; got '

@@ -28,6 +28,7 @@ from rclpy.context import Context
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import CameraInfo
+import torch
 
 from cva_confidence_ros.node import ConfidenceNode
 from cva_confidence_ros.ros.convert import (
@@ -435,3 +436,73 @@ def test_rclpy_parameters_are_left_to_rclpy(running: _Running) -> None:
     finally:
         assert running.set(use_sim_time=False).successful
     assert node.pipeline_config.max_disparity == MAX_DISPARITY
+
+
+def test_changes_that_could_not_run_here_are_refused_and_logged(running: _Running) -> None:
+    client, node = running.client, running.node
+    left, right = textured_pair(seed=9)
+    client.send_until_output(left, right, running.next_stamp(), topics=('disparity',))
+    before = node.pipeline_config
+    # The images coming in are 96 px wide: a depth of 96 could never be matched on them.
+    result = running.set(max_disparity=96)
+    assert not result.successful
+    assert 'max_disparity must be smaller than the image width 96; got 96' in result.reason
+    result = running.set(max_disparity=48, downsample=2)  # 48 px wide after downsampling
+    assert not result.successful and 'image width 48 (96 px at downsample = 2)' in result.reason
+    if not torch.cuda.is_available():
+        result = running.set(device='cuda')
+        assert not result.successful and 'CUDA is not available' in result.reason
+    assert node.pipeline_config == before
+    assert client.wait_for(lambda: bool(running.logged('parameter change refused')), 5.0)
+    assert any('max_disparity=96' in line for line in running.logged('parameter change refused'))
+    client.send_until_output(left, right, running.next_stamp(), topics=('disparity',))
+
+
+def test_the_paper_network_on_every_pixel_of_a_cpu_is_warned_about(running: _Running) -> None:
+    if torch.cuda.is_available():
+        pytest.skip('device auto picks CUDA here')
+    try:
+        result = running.set(confidence_method='cva_net', max_disparity=64, device='cpu')
+        assert result.successful, result.reason
+        assert running.client.wait_for(lambda: bool(running.logged('cva_net on the CPU')), 5.0)
+    finally:
+        assert running.set(confidence_method='mlm', max_disparity=MAX_DISPARITY).successful
+
+
+def test_input_that_never_pairs_names_the_silent_topic(running: _Running) -> None:
+    client, node = running.client, running.node
+    left, right = textured_pair(seed=10)
+    period = node.node_config.diagnostics_period_seconds
+    deadline = time.monotonic() + max(10.0, 6 * period)
+    # No right camera info, ever: a camera driver that publishes only one.
+    while time.monotonic() < deadline and not running.logged('nothing on right/camera_info'):
+        stamp = running.next_stamp()
+        left_info, _ = info_msgs(stamp)
+        client.pubs['left_info'].publish(left_info)
+        client.pubs['left'].publish(image_msg(left, stamp))
+        client.pubs['right'].publish(image_msg(right, stamp))
+        time.sleep(0.1)
+    (line, *_) = running.logged('nothing on right/camera_info')
+    assert line.startswith('messages arrive but none pair up')
+    assert 'left/camera_info' not in line.split(';')[0]
+    client.send_until_output(left, right, running.next_stamp(), topics=('disparity',))
+
+
+def test_an_approximate_tolerance_of_half_the_frame_period_is_warned_about(
+    running: _Running,
+) -> None:
+    client = running.client
+    left, right = textured_pair(seed=11)
+    assert running.set(approximate_sync=True, approximate_sync_tolerance_seconds=0.06).successful
+    try:
+        base = running.next_stamp()
+        for index in range(20):  # 10 Hz: left images 0.1 s apart, pairs 0.12 s apart possible
+            client.publish_frame(left, right, base + index * 100_000_000)
+            if running.logged('at least half the frame period'):
+                break
+            time.sleep(0.05)
+        assert client.wait_for(lambda: bool(running.logged('half the frame period')), 5.0)
+        (line, *_) = running.logged('half the frame period')
+        assert 'approximate_sync_tolerance_seconds = 0.06' in line and 'below 0.050' in line
+    finally:
+        assert running.set(approximate_sync=False).successful

@@ -91,6 +91,7 @@ def test_supported_encodings() -> None:
     [
         (_raw(b'\x00' * 12, 1, 3, '32FC1', 12), 'encoding'),
         (_raw(b'\x00' * 4, 2, 3, 'mono8', 3), 'data must hold'),
+        (_raw(b'\x00' * 7, 2, 3, 'mono8', 3), 'data must hold 2 rows of step 3 .6 bytes.; got 7'),
         (_raw(b'\x00' * 6, 2, 3, 'mono8', 2), 'step'),
         (_raw(b'', 0, 3, 'mono8', 3), 'positive size'),
     ],
@@ -157,6 +158,17 @@ def test_stereo_pair_from_messages() -> None:
     with pytest.raises(InputError, match='camera info must be for 48×32'):
         small = image_msg(mono16[::2, ::2].copy(), 0)
         stereo_pair_from_messages(small, small, *infos)
+    # Which side is bad is part of the reason, so the node's log throttle keeps them apart.
+    short = image_msg(mono16, 0)
+    short.data = short.data[:-10]
+    for side, pair in (('left', (short, image_msg(mono16, 0))),
+                       ('right', (image_msg(mono16, 0), short))):
+        with pytest.raises(InputError, match=f'^{side} image data must hold 64 rows'):
+            stereo_pair_from_messages(*pair, *infos)
+    odd = image_msg(left, 0)
+    odd.encoding = 'yuv422'
+    with pytest.raises(InputError, match="^right image encoding must be one of .*'yuv422'"):
+        stereo_pair_from_messages(image_msg(left, 0), odd, *infos)
 
 
 def test_disparity_message_like_stereo_image_proc() -> None:
