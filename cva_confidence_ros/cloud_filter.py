@@ -14,7 +14,9 @@ points; false: kept points only), ``confidence_field`` ('confidence'), ``input_q
 cannot read (no such field, truncated data, big-endian) is logged and skipped; counts go to
 ``/diagnostics``.
 
-The node itself lives in :mod:`cva_confidence_ros.ros.cloud_filter_node`.
+The node itself lives in :mod:`cva_confidence_ros.ros.cloud_filter_node`. ``-h``/``--help``
+lists the topics and the parameters with their defaults (:func:`usage`) and exits; any other
+argument outside ``--ros-args`` is refused (exit status 2).
 """
 
 from __future__ import annotations
@@ -22,19 +24,60 @@ from __future__ import annotations
 from collections.abc import Sequence
 import sys
 
-__all__ = ['main']
+__all__ = ['main', 'usage']
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the filter until Ctrl-C or SIGTERM.
 
+    Args:
+        argv: Command line including ROS arguments; None = ``sys.argv``.
+
     Returns:
-        0 on a clean stop, 2 for invalid ROS arguments or parameters, 130 when interrupted
-        before the node is up.
+        0 on a clean stop or after ``--help``, 2 for an argument outside ``--ros-args``, invalid
+        ROS arguments or parameters, 130 when interrupted before the node is up.
     """
     from cva_confidence_ros.node import run_entry
 
-    return run_entry('cva_confidence_ros.ros.cloud_filter_node', argv)
+    return run_entry(
+        'cva_confidence_ros.ros.cloud_filter_node', argv, usage=usage, example=_EXAMPLE
+    )
+
+
+_TOPICS = (
+    ('in', 'points2', 'sensor_msgs/PointCloud2', 'x, y, z and a confidence field'),
+    ('out', 'points2_filtered', 'sensor_msgs/PointCloud2', 'points with confidence >= threshold'),
+    ('out', '/diagnostics', 'diagnostic_msgs/DiagnosticArray', ''),
+)
+_EXAMPLE = 'threshold:=0.8'
+
+
+def usage(prog: str = 'cva-cloud-filter') -> str:
+    """The filter's ``--help``: its topics, and its parameters with defaults and descriptions."""
+    from dataclasses import fields
+
+    from cva_confidence_ros.ros.cloud_filter_node import (
+        _DESCRIPTIONS,
+        _READ_ONLY,
+        CloudFilterConfig,
+    )
+    from cva_confidence_ros.ros.common import usage_text
+
+    parameters = []
+    for spec in fields(CloudFilterConfig):
+        # The declared range of threshold, the only one (CloudFilterNode.__init__).
+        limits = '[0.0, 1.0]' if spec.name == 'threshold' else ''
+        if spec.name in _READ_ONLY:
+            limits = '(start-up only)'
+        parameters.append((spec.name, spec.default, limits, _DESCRIPTIONS[spec.name]))
+    return usage_text(
+        prog,
+        'Point-cloud confidence filter: republishes the points of a cloud whose confidence is at '
+        'least a threshold.',
+        _TOPICS,
+        parameters,
+        example=_EXAMPLE,
+    )
 
 
 if __name__ == '__main__':

@@ -24,11 +24,14 @@ simulator reset) are logged and pairing starts over from them.
 The node itself lives in :mod:`cva_confidence_ros.ros.confidence_node`; this module is the light
 entry point, which imports it inside :func:`main`'s ``try`` (so that an early Ctrl-C ends quietly)
 and hands ``ConfidenceNode`` and ``NODE_NAME`` on to ``from cva_confidence_ros.node import …``.
+``-h``/``--help`` lists the topics and the parameters with their defaults (:func:`usage`) and
+exits; any other argument outside ``--ros-args`` is refused (exit status 2) before the node
+module is imported.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 import importlib
 import sys
 from typing import TYPE_CHECKING, Any
@@ -36,9 +39,24 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from cva_confidence_ros.ros.confidence_node import NODE_NAME, ConfidenceNode
 
-__all__ = ['NODE_NAME', 'ConfidenceNode', 'main', 'run_entry']
+__all__ = ['NODE_NAME', 'ConfidenceNode', 'main', 'run_entry', 'usage']
 
 _EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a Ctrl-C
+
+#: ``(direction, name, type, note)`` of every topic, for :func:`usage`.
+_TOPICS = (
+    ('in', 'left/image_rect', 'sensor_msgs/Image', 'mono8/16, rgb8, bgr8, rgba8, bgra8'),
+    ('in', 'right/image_rect', 'sensor_msgs/Image', 'paired with the left one by stamp'),
+    ('in', 'left/camera_info', 'sensor_msgs/CameraInfo', ''),
+    ('in', 'right/camera_info', 'sensor_msgs/CameraInfo', ''),
+    ('out', 'disparity', 'stereo_msgs/DisparityImage', ''),
+    ('out', 'disparity_filtered', 'stereo_msgs/DisparityImage', 'invalid below the threshold'),
+    ('out', 'confidence', 'sensor_msgs/Image', '32FC1 in [0, 1]'),
+    ('out', 'points2', 'sensor_msgs/PointCloud2', 'x y z rgb of the confident pixels'),
+    ('out', 'camera_info', 'sensor_msgs/CameraInfo', 'left, at the output resolution'),
+    ('out', '/diagnostics', 'diagnostic_msgs/DiagnosticArray', ''),
+)
+_EXAMPLE = 'confidence_threshold:=0.8'
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -49,13 +67,48 @@ def main(argv: Sequence[str] | None = None) -> int:
             left/image_rect:=/cam/left/image``); None = ``sys.argv``.
 
     Returns:
-        0 on a clean stop, 2 when the ROS arguments or the start-up configuration are invalid,
-        130 when interrupted before the node is up.
+        0 on a clean stop or after ``--help``, 2 for an argument outside ``--ros-args`` or when
+        the ROS arguments or the start-up configuration are invalid, 130 when interrupted before
+        the node is up.
     """
-    return run_entry('cva_confidence_ros.ros.confidence_node', argv)
+    return run_entry(
+        'cva_confidence_ros.ros.confidence_node', argv, usage=usage, example=_EXAMPLE
+    )
 
 
-def run_entry(module: str, argv: Sequence[str] | None = None) -> int:
+def usage(prog: str = 'cva-node') -> str:
+    """The node's ``--help``: its topics, and its parameters with defaults and descriptions."""
+    from cva_confidence_ros.ros.common import usage_text
+    from cva_confidence_ros.ros.params import PARAMETERS
+
+    parameters = []
+    for spec in PARAMETERS:
+        limits = []
+        if spec.low is not None and spec.high is not None:
+            limits.append(f'[{spec.low}, {spec.high}]')
+        if spec.read_only:
+            limits.append('(start-up only)')
+        description = spec.description
+        if spec.constraints:
+            description += f' Allowed: {spec.constraints}.'
+        parameters.append((spec.name, spec.default, ' '.join(limits), description))
+    return usage_text(
+        prog,
+        'Stereo confidence node: rectified stereo in; disparity, confidence and a '
+        'confidence-filtered point cloud out.',
+        _TOPICS,
+        parameters,
+        example=_EXAMPLE,
+    )
+
+
+def run_entry(
+    module: str,
+    argv: Sequence[str] | None = None,
+    *,
+    usage: Callable[[str], str] | None = None,
+    example: str = 'name:=value',
+) -> int:
     """Import ``module`` and return its ``run(argv)``, a Ctrl-C at any point ending quietly.
 
     rclpy, the message types and the pipeline take a second or two to import, and a Ctrl-C in
@@ -64,11 +117,28 @@ def run_entry(module: str, argv: Sequence[str] | None = None) -> int:
     inside torch's or rclpy's C++ and abort the process, or be swallowed on the way); a Ctrl-C
     during the imports ends the program right after them, and ``run`` stops at its own points
     (:func:`cva_confidence_ros.ros.common.run_node`). Every node entry point goes through this.
+
+    The command line outside ``--ros-args`` is answered first, before ``module`` is imported
+    (:func:`cva_confidence_ros.ros.common.check_arguments`): ``-h``/``--help`` prints
+    ``usage(prog)`` and returns 0, any other argument there returns 2.
+
+    Args:
+        module: The node's module, with a ``run(argv) -> int``.
+        argv: Command line including ROS arguments; None = ``sys.argv``.
+        usage: The ``--help`` text for a program name; None = only how to pass ROS arguments.
+        example: A ``name:=value`` of the node's, for the hint on an unrecognised argument.
     """
     from cva_confidence_ros.ros import interrupt
 
     interrupt.install()
     try:
+        from cva_confidence_ros.ros.common import check_arguments
+
+        code = check_arguments(sys.argv if argv is None else argv, usage, example)
+        if code is not None:
+            return code
+        if interrupt.requested():
+            return _EXIT_INTERRUPTED
         run = importlib.import_module(module).run
         if interrupt.requested():
             return _EXIT_INTERRUPTED

@@ -1,40 +1,44 @@
 """Check output paths before a long job starts, not after it has computed everything.
 
 A command that evaluates or trains for an hour and then finds that ``--json`` names a folder
-loses the hour. These checks create nothing; they only refuse paths that cannot work.
+loses the hour. Permission bits do not tell everything (a read-only mount, ``/proc``, a full
+quota, or a root user for whom ``os.access`` always says yes), so the checks try: they make
+the missing folders and write and delete a probe file there. Only those folders are left
+behind, which the job would make anyway.
 """
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
+import tempfile
 
 from cva_confidence_ros.errors import ConfigError
 
 __all__ = ['check_output_dir', 'check_output_file']
 
 
-def _nearest_existing(path: Path) -> Path:
-    for candidate in (path, *path.parents):
+def _probe(folder: Path, option: str, path: Path) -> None:
+    """Make ``folder`` (and its parents) and write a probe file in it."""
+    for candidate in (folder, *folder.parents):
         if candidate.exists():
-            return candidate
-    return Path.cwd()
-
-
-def _check_creatable(path: Path, option: str) -> None:
-    """The parts of ``path`` that do not exist yet can be made under its nearest existing one."""
-    base = _nearest_existing(path)
-    if base != path and not base.is_dir():
-        raise ConfigError(f'{option} {path}: {base} is a file, not a folder')
-    if base.is_dir() and not os.access(base, os.W_OK | os.X_OK):
-        raise ConfigError(f'{option} {path}: cannot write in {base} (permission denied)')
+            if not candidate.is_dir():
+                raise ConfigError(f'{option} {path}: {candidate} is a file, not a folder')
+            break
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder, prefix='.write-probe-'):
+            pass
+    except OSError as error:
+        reason = error.strerror or type(error).__name__
+        raise ConfigError(f'{option} {path}: cannot write in {folder} ({reason})') from None
 
 
 def check_output_file(path: str | os.PathLike[str], option: str) -> Path:
-    """Refuse an output file path that is a folder or cannot be created.
+    """Refuse an output file path that is a folder or cannot be written.
 
     Args:
-        path: The file the job will write (its folders may not exist yet).
+        path: The file the job will write (its folders may not exist yet; they are made).
         option: The command-line option that named it, for the message (e.g. ``'--json'``).
 
     Returns:
@@ -48,15 +52,15 @@ def check_output_file(path: str | os.PathLike[str], option: str) -> Path:
         raise ConfigError(f'{option} {path} is a folder; expected a file path')
     if path.exists() and not os.access(path, os.W_OK):
         raise ConfigError(f'{option} {path}: the file exists and is not writable')
-    _check_creatable(path, option)
+    _probe(path.parent if str(path.parent) else Path.cwd(), option, path)
     return path
 
 
 def check_output_dir(path: str | os.PathLike[str], option: str) -> Path:
-    """Refuse an output folder path that is a file or cannot be created.
+    """Refuse an output folder path that is a file or cannot be written; make it otherwise.
 
     Args:
-        path: The folder the job will write into (it may not exist yet).
+        path: The folder the job will write into (it may not exist yet; it is made).
         option: The command-line option that named it, for the message (e.g. ``'--out'``).
 
     Returns:
@@ -68,5 +72,5 @@ def check_output_dir(path: str | os.PathLike[str], option: str) -> Path:
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise ConfigError(f'{option} {path} is a file; expected a folder')
-    _check_creatable(path, option)
+    _probe(path, option, path)
     return path

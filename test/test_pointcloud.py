@@ -141,8 +141,8 @@ def test_make_cloud_organised_and_dense() -> None:
         ([0.0] * 12, P_RIGHT, 'focal'),
         ([np.nan] * 12, P_RIGHT, 'finite'),
         (P_LEFT, [50.0, 0, 2, -25.0, 0, 50, 1, 0, 0, 0, 1, 0], 'must share fx'),
-        ([1e40, 0, 2, 0, 0, 1e40, 1, 0, 0, 0, 1, 0], [1e40, 0, 2, -1e39, 0, 1e40, 1, 0, 0, 0, 1, 0],
-         'fit float32'),
+        ([1e40, 0, 2, 0, 0, 1e40, 1, 0, 0, 0, 1, 0],
+         [1e40, 0, 2, -1e39, 0, 1e40, 1, 0, 0, 0, 1, 0], 'fit float32'),
     ],
 )
 def test_invalid_projections(p_left: list, p_right: list, match: str) -> None:

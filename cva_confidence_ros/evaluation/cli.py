@@ -27,16 +27,23 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 import math
 from pathlib import Path
 import sys
 import time
 from typing import Any, cast
 
-from cva_confidence_ros.errors import ConfigError, CVAError, DataError, from_interrupt
+from cva_confidence_ros.errors import (
+    ConfigError,
+    CVAError,
+    DataError,
+    InputError,
+    from_interrupt,
+)
 from cva_confidence_ros.outputs import check_output_dir, check_output_file
 
-__all__ = ['exit_code', 'main', 'parse_dataset_names', 'parse_weights']
+__all__ = ['SceneRun', 'exit_code', 'main', 'parse_dataset_names', 'parse_weights', 'run_scenes']
 
 PROG = 'cva-evaluate'
 
@@ -143,6 +150,95 @@ def _log(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
+@dataclass
+class SceneRun:
+    """What a loop over scenes got done (:func:`run_scenes`).
+
+    Attributes:
+        records: The records of every scene that finished, in order.
+        failed: ``(scene label, reason)`` of each scene whose data could not be used.
+        total: Scenes there were to do.
+        done: Scenes that finished.
+        interrupted: Ctrl-C ended the loop early.
+    """
+
+    records: list[Any] = field(default_factory=list)
+    failed: list[tuple[str, str]] = field(default_factory=list)
+    total: int = 0
+    done: int = 0
+    interrupted: bool = False
+
+    @property
+    def partial(self) -> bool:
+        """Whether some scenes are missing from :attr:`records`."""
+        return self.done < self.total
+
+    def note(self) -> str:
+        """One Markdown line on what is missing, for the written table ('' when complete)."""
+        if not self.partial:
+            return ''
+        parts = []
+        if self.interrupted:
+            parts.append(f'interrupted after {self.done} of {self.total} scenes')
+        if self.failed:
+            parts.append('could not use ' + '; '.join(f'{s} ({r})' for s, r in self.failed))
+        return f'**Partial: {self.done} of {self.total} scenes** — ' + '; '.join(parts) + '.'
+
+    def ending(self, prog: str, written: str) -> int:
+        """Say on stderr what was left out and return the exit status (0, 2 or 130)."""
+        for scene, reason in self.failed:
+            print(f'{prog}: error: {scene}: {reason}', file=sys.stderr)
+        if self.interrupted:
+            print(f'{prog}: interrupted after {self.done} of {self.total} scenes; '
+                  f'{written}', file=sys.stderr)
+            return 130
+        if self.failed:
+            print(f'{prog}: error: {len(self.failed)} of {self.total} scenes could not be used; '
+                  f'{written}', file=sys.stderr)
+            return 2
+        return 0
+
+
+def run_scenes(
+    jobs: Sequence[Any],
+    label: Callable[[Any], str],
+    work: Callable[[int, Any], list[Any]],
+) -> SceneRun:
+    """Run ``work(number, job)`` for each scene and keep what finished.
+
+    A scene whose data cannot be used (:class:`DataError`, :class:`InputError`: an unreadable
+    image, a ground truth that does not fit) is logged and skipped, and the loop goes on; Ctrl-C
+    ends it after the records so far. Either way the caller writes what finished, so an hour of
+    evaluation is not lost to one bad file or a late Ctrl-C. Option faults (:class:`ConfigError`,
+    :class:`ModelError`) end the run as before: they would fail every scene alike.
+
+    Returns:
+        The records and what was left out.
+    """
+    result = SceneRun(total=len(jobs))
+    for number, job in enumerate(jobs, start=1):
+        try:
+            records = work(number, job)
+        except (DataError, InputError) as error:
+            _log(f'[{number}/{len(jobs)}] {label(job)} skipped: {error}')
+            result.failed.append((label(job), str(error)))
+            continue
+        except (KeyboardInterrupt, SystemError) as exc:
+            if not from_interrupt(exc):
+                raise
+            _log(f'[{number}/{len(jobs)}] {label(job)} interrupted; writing the '
+                 f'{result.done} scene(s) done')
+            result.interrupted = True
+            break
+        result.records.extend(records)
+        result.done += 1
+    if not result.records and result.failed:
+        scene, reason = result.failed[0]
+        more = f' (and {len(result.failed) - 1} more)' if len(result.failed) > 1 else ''
+        raise DataError(f'no scene could be evaluated; {scene}: {reason}{more}')
+    return result
+
+
 def _check_args(args: argparse.Namespace) -> None:
     if not 1 <= args.max_disparity <= 1024:
         raise ConfigError(f'--max-disparity must be in [1, 1024]; got {args.max_disparity}')
@@ -214,8 +310,8 @@ def run(args: argparse.Namespace) -> int:
     built = _build_methods(args, matchers, methods)
     jobs = _scene_lists(datasets, args.data_root, args.split, args.max_scenes)
 
-    records = []
-    for index, (dataset, scene) in enumerate(jobs, start=1):
+    def work(index: int, job: tuple[str, str]) -> list[Any]:
+        dataset, scene = job
         prefix = f'[{index}/{len(jobs)}] {dataset}/{scene}'
         tic = time.perf_counter()
         sample = load_scene(dataset, args.data_root, scene, split=args.split)
@@ -223,6 +319,7 @@ def run(args: argparse.Namespace) -> int:
             sample = resize_sample(sample, args.downsample)
         _log(f'{prefix} loaded {sample.left.shape[1]}x{sample.left.shape[0]} '
              f'{time.perf_counter() - tic:.2f} s')
+        records: list[Any] = []
         for matcher in matchers:
             plot_dir = None
             if args.out is not None:
@@ -242,16 +339,23 @@ def run(args: argparse.Namespace) -> int:
                     progress=True,
                 )
             )
+        return records
 
+    outcome = run_scenes(jobs, lambda job: f'{job[0]}/{job[1]}', work)
+    if not outcome.records:
+        return outcome.ending(PROG, 'nothing written')
+    records = outcome.records
     write_records(records, args.json)
     table = format_table(records, methods=methods)
+    if outcome.partial:
+        table += f'\n{outcome.note()}\n'
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / 'table.md').write_text(table, encoding='utf-8')
     sys.stdout.write(table)
     sys.stdout.flush()
     _log(f'wrote {len(records)} records to {args.json}')
-    return 0
+    return outcome.ending(PROG, f'the records of the {outcome.done} done are in {args.json}')
 
 
 def main(argv: Sequence[str] | None = None) -> int:

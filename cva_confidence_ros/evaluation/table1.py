@@ -438,6 +438,7 @@ def _train(args: argparse.Namespace, protocol: str, arch: str, matcher: str) -> 
         device=args.device,
         threads=args.threads,
         out=str(args.out / 'runs' / target.stem),
+        overwrite=True,  # its own scratch folder: a run that wrote no weights starts over
         weights_out=str(target),
         progress=False,
         **recipe,
@@ -481,6 +482,7 @@ def run(args: argparse.Namespace) -> int:
     """Score every method on every row; write the outputs. Raises ``CVAError`` on bad input."""
     from cva_confidence_ros.confidence import CONFIDENCE_METHODS
     from cva_confidence_ros.datasets import list_scenes, load_scene
+    from cva_confidence_ros.evaluation.cli import run_scenes
     from cva_confidence_ros.evaluation.scene import evaluate_scene
     from cva_confidence_ros.matching import MATCHERS
 
@@ -561,7 +563,6 @@ def run(args: argparse.Namespace) -> int:
             )
 
     reusable = _load_reusable(args.reuse, methods) if args.reuse else {}
-    records: list[dict[str, Any]] = []
     jobs: list[tuple[TableRow, str]] = []
     for row in rows:
         if row.missing:
@@ -569,9 +570,12 @@ def run(args: argparse.Namespace) -> int:
         scenes = list_scenes(row.dataset, args.data_root, row.split)[row.first :]
         jobs.extend((row, scene) for scene in scenes[: args.max_scenes])
     started = time.perf_counter()
-    for number, (row, scene) in enumerate(jobs, start=1):
+
+    def work(number: int, job: tuple[TableRow, str]) -> list[dict[str, Any]]:
+        row, scene = job
         sample = load_scene(row.dataset, args.data_root, scene, split=row.split)
         prefix = f'[{number}/{len(jobs)}] {row.dataset}/{scene}'
+        records: list[dict[str, Any]] = []
         for matcher in matchers:
             old = reusable.get((row.dataset, scene, matcher), {})
             todo = [m for m in methods if m not in old]
@@ -592,7 +596,7 @@ def run(args: argparse.Namespace) -> int:
                 same = (item['n_pixels'] == check['n_pixels']
                         and abs(item['error_rate'] - check['error_rate']) < 1e-9)
                 if not same:
-                    raise DataError(
+                    raise ConfigError(
                         f'--reuse {args.reuse}: {row.dataset}/{scene} {matcher} {method} was '
                         f'scored on other pixels ({item["n_pixels"]} px, error rate '
                         f'{item["error_rate"]:.6f}; now {check["n_pixels"]} px, '
@@ -602,10 +606,17 @@ def run(args: argparse.Namespace) -> int:
                 _log(f'{prefix} {matcher} {method} reused: AUC {100 * item["auc"]:.2f}')
             records.extend(fresh[m] for m in methods)
         _log(f'{prefix} done, {time.perf_counter() - started:.0f} s so far')
+        return records
 
+    outcome = run_scenes(jobs, lambda job: f'{job[0].dataset}/{job[1]}', work)
+    if not outcome.records:
+        return outcome.ending(PROG, 'nothing written')
+    records = outcome.records
     table = format_table1(records, rows, matchers, columns)
     missing_rows = [r for r in rows if r.missing]
     notes = [f'- {r.label}: not scored — {r.missing}.' for r in missing_rows]
+    if outcome.partial:
+        notes.append(outcome.note())
     subset = f'{args.max_pixels} ground-truth pixels per scene (seed {args.seed})' if (
         args.max_pixels) else 'all ground-truth pixels'
     reused = sorted({r['method'] for r in records if r.get('reused')})
@@ -639,6 +650,7 @@ def run(args: argparse.Namespace) -> int:
         'cells': [{'row': label, 'matcher': matcher, **values}
                   for (label, matcher), values in cells.items()],
         'records': records,
+        'partial': outcome.note() or None,
         'paper': {label: {m: dict(zip(['opt', 'ccnn', 'lfn', 'lgc_net', 'cva_net'], v,
                                       strict=True)) for m, v in block.items()}
                   for label, block in PAPER_TABLE1.items()},
@@ -650,7 +662,7 @@ def run(args: argparse.Namespace) -> int:
     sys.stdout.write(markdown)
     sys.stdout.flush()
     _log(f'wrote {args.out / "table1.md"}, table1.json, table1.png')
-    return 0
+    return outcome.ending(PROG, f'the records of the {outcome.done} done are in {args.out}')
 
 
 def main(argv: Sequence[str] | None = None) -> int:

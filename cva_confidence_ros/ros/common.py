@@ -3,17 +3,20 @@
 :func:`run_node` is the body of every node's ``main``: ``rclpy.init`` with the command line, the
 node, a single-threaded executor, and the exit codes a shell expects (0 on Ctrl-C or SIGTERM
 once running, 2 for bad ``--ros-args`` or a configuration the node refuses, 130 when interrupted
-before the node is up). :class:`ReasonThrottle` keeps one steady fault from hiding the others in
-the log.
+before the node is up). :func:`check_arguments` answers the rest of a node's command line first:
+``-h``/``--help`` prints :func:`usage_text`, anything else outside ``--ros-args`` is refused.
+:class:`ReasonThrottle` keeps one steady fault from hiding the others in the log.
 """
 
 from __future__ import annotations
 
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
+import os
 import re
 import signal
 import sys
+import textwrap
 import threading
 import time
 
@@ -32,6 +35,7 @@ from rclpy.logging import LoggingSeverity
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rclpy.utilities import remove_ros_args
 
 from cva_confidence_ros.errors import CVAError, reason
 from cva_confidence_ros.ros import interrupt
@@ -42,11 +46,13 @@ __all__ = [
     'LOG_THROTTLE_S',
     'READY',
     'ReasonThrottle',
+    'check_arguments',
     'diagnostic_status',
     'publish_status',
     'qos_profile',
     'run_node',
     'spin_until_shutdown',
+    'usage_text',
 ]
 
 LOG_THROTTLE_S = 5.0
@@ -165,6 +171,121 @@ def spin_until_shutdown(executor: Executor, stop: threading.Event | None = None)
             if context.ok():
                 raise
             return
+
+
+#: ROS flags that, given without ``--ros-args`` in front, are a forgotten ``--ros-args``.
+_ROS_FLAGS = frozenset(
+    {'-p', '--param', '-r', '--remap', '--params-file', '-e', '--enclave', '--log-level'}
+)
+_WIDTH = 99
+
+
+def _ros_value(value: object) -> str:
+    """``value`` as written after ``-p name:=``: YAML's true/false, '' for an empty string."""
+    if isinstance(value, bool):
+        return str(value).lower()
+    if value == '':
+        return "''"
+    return str(value)
+
+
+def usage_text(
+    prog: str,
+    summary: str,
+    topics: Sequence[tuple[str, str, str, str]] = (),
+    parameters: Sequence[tuple[str, object, str, str]] = (),
+    example: str = 'name:=value',
+) -> str:
+    """A node's ``--help``: how to call it, its topics and its parameters with their defaults.
+
+    Args:
+        prog: The program's name as called (``cva-node``, ``node``).
+        summary: One sentence on what the node does.
+        topics: ``(direction, name, type, note)`` a topic, direction ``in`` or ``out``.
+        parameters: ``(name, default, limits, description)`` a parameter; ``limits`` is a short
+            note for the parameter's line (a range, ``(start-up only)``), may be empty.
+        example: A ``name:=value`` for the examples.
+    """
+    lines = [
+        f'usage: {prog} [-h] [--ros-args [-p NAME:=VALUE] [--params-file FILE] '
+        '[-r FROM:=TO] ...]',
+    ]
+    if summary:
+        lines += ['', *textwrap.wrap(summary, _WIDTH)]
+    if topics:
+        lines += ['', 'topics (rename with --ros-args -r NAME:=NEW_NAME):']
+        name_width = max(len(name) for _, name, _, _ in topics)
+        type_width = max(len(kind) for _, _, kind, _ in topics)
+        for direction, name, kind, note in topics:
+            line = f'  {direction:<3}  {name:<{name_width}}  {kind:<{type_width}}  {note}'
+            lines.append(line.rstrip())
+    if parameters:
+        lines += [
+            '',
+            'parameters (defaults shown; set with --ros-args -p NAME:=VALUE or --params-file '
+            'FILE):',
+        ]
+        for name, default, limits, description in parameters:
+            lines.append(f'  {name}:={_ros_value(default)}  {limits}'.rstrip())
+            lines += textwrap.wrap(
+                description, _WIDTH, initial_indent=' ' * 6, subsequent_indent=' ' * 6
+            )
+    lines += [
+        '',
+        'examples:',
+        f'  {prog} --ros-args -p {example}',
+        f'  {prog} --ros-args -r __ns:=/stereo --params-file params.yaml',
+    ]
+    return '\n'.join(lines) + '\n'
+
+
+def check_arguments(
+    args: Sequence[str],
+    usage: Callable[[str], str] | None = None,
+    example: str = 'name:=value',
+) -> int | None:
+    """Answer a node's command line outside its ROS arguments, before anything starts.
+
+    ``-h``/``--help`` prints ``usage(prog)`` to stdout; any other argument outside ``--ros-args
+    … [--]`` is refused with one line on stderr, as argparse would. ROS arguments that rcl cannot
+    parse are left to ``rclpy.init`` (:func:`run_node`), which says what is wrong with them.
+
+    Args:
+        args: The command line, program name first (``sys.argv``).
+        usage: The help text for a program name; None = only how to pass ROS arguments.
+        example: A ``name:=value`` of the node's, for the hint that ROS arguments go after
+            ``--ros-args``.
+
+    Returns:
+        None to go on and start the node; else the exit status: 0 after the help,
+        :data:`EXIT_BAD_START` for an argument the node does not take.
+    """
+    args = list(args)
+    prog = os.path.basename(args[0]) if args else 'node'
+    try:
+        extra = remove_ros_args(args)[1:]
+    except RuntimeError:
+        # rcl's RCLError and UnknownROSArgsError: run_node reports them as it starts.
+        return None
+    if not extra:
+        return None
+    if '-h' in extra or '--help' in extra:
+        text = usage(prog) if usage is not None else usage_text(prog, '', example=example)
+        sys.stdout.write(text)
+        sys.stdout.flush()
+        return 0
+    if extra[0] in _ROS_FLAGS:
+        # ``-p threshold:=0.8`` without ``--ros-args`` in front: the line it should have been.
+        hint = f': --ros-args {" ".join(extra)}'
+    else:
+        hint = f', e.g. --ros-args -p {example}'
+    print(
+        f'{prog}: error: unrecognised argument(s): {" ".join(extra)} '
+        f'(ROS arguments go after --ros-args{hint})',
+        file=sys.stderr,
+        flush=True,
+    )
+    return EXIT_BAD_START
 
 
 def _init(args: list[str]) -> None:

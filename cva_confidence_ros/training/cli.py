@@ -161,6 +161,11 @@ def build_parser() -> argparse.ArgumentParser:
         '--weights-out', default=None, help='final weights PATH.pt (+ PATH.md, PATH.json)'
     )
     output.add_argument('--resume', action='store_true', help='continue from OUT/checkpoint.pt')
+    output.add_argument(
+        '--overwrite',
+        action='store_true',
+        help='start afresh in an OUT that holds the checkpoint of an earlier run',
+    )
     output.add_argument('--no-progress', action='store_true', help='no progress bar')
     return parser
 
@@ -196,6 +201,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         out=args.out,
         weights_out=args.weights_out,
         resume=args.resume,
+        overwrite=args.overwrite,
         progress=not args.no_progress,
         teacher=args.teacher,
         distill_weight=args.distill_weight,

@@ -79,6 +79,8 @@ class TrainConfig:
         out: Folder for checkpoints, the log and the history.
         weights_out: Final weights file (+ model card beside it); None = only checkpoints.
         resume: Continue from ``out/checkpoint.pt`` if it exists.
+        overwrite: Start afresh even if ``out`` holds the checkpoint of an earlier run (which
+            is refused otherwise: it would be overwritten at the end of the first epoch).
         progress: Show a progress bar.
         teacher: Weights file of a trained network that the trained one learns to imitate
             (knowledge distillation, see ``training.distill``); None = labels only.
@@ -118,6 +120,7 @@ class TrainConfig:
     out: str = 'out/train'
     weights_out: str | None = None
     resume: bool = False
+    overwrite: bool = False
     progress: bool = True
     teacher: str | None = None
     distill_weight: float = 0.0

@@ -600,12 +600,19 @@ def check_run_setup(config: TrainConfig) -> None:
         raise ConfigError(
             f'unknown matcher {config.matcher!r}; expected one of {MATCHERS.names()}'
         )
+    # The weights file first: the check of --out makes that folder.
+    if config.weights_out:
+        check_output_file(config.weights_out, '--weights-out')
     out = check_output_dir(config.out, '--out')
     checkpoint = out / CHECKPOINT_NAME
     if checkpoint.exists() and not checkpoint.is_file():
         raise ConfigError(f'--out {out}: {checkpoint} is not a file; cannot keep checkpoints')
-    if config.weights_out:
-        check_output_file(config.weights_out, '--weights-out')
+    if checkpoint.is_file() and not (config.resume or config.overwrite):
+        written = time.strftime('%Y-%m-%d %H:%M', time.localtime(checkpoint.stat().st_mtime))
+        raise ConfigError(
+            f'--out {out} holds the checkpoint of an earlier run ({CHECKPOINT_NAME}, written '
+            f'{written}): --resume to continue it, --overwrite to start over, or another --out'
+        )
     if config.threads:
         # numba's OpenMP layer resets the OpenMP thread count that torch also uses: numba first.
         _limit_numba_threads(config.threads)

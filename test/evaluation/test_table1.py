@@ -198,3 +198,66 @@ def test_bad_options_and_reuse_files_exit_2_before_any_work(data_root, tmp_path,
         assert main([*base, *out, '--reuse', str(reuse)]) == 2
         assert message in capsys.readouterr().err.splitlines()[-1]
     assert not (tmp_path / 'out' / 'table1.md').exists()
+
+
+def _root_with_a_bad_scene(tmp_path: Path) -> Path:
+    """Middlebury v3 with three scenes, the middle one's right image an empty file."""
+    root = tmp_path / 'data'
+    for scene, seed in (('A', 401), ('B', 402), ('C', 403)):
+        _write_middlebury(root, scene, seed)
+    (root / 'middlebury2014' / 'trainingQ' / 'B' / 'im1.png').write_bytes(b'')
+    return root
+
+
+def test_evaluate_skips_a_bad_scene_writes_the_rest_and_exits_2(tmp_path, capsys):
+    from cva_confidence_ros.evaluation.cli import main as evaluate
+
+    root = _root_with_a_bad_scene(tmp_path)
+    records, out = tmp_path / 'r.json', tmp_path / 'out'
+    code = evaluate(['--data-root', str(root), '--dataset', 'middlebury2014', '--matchers',
+                     'census_bm', '--methods', 'pkrn,score', '--max-disparity', str(D),
+                     '--max-pixels', '200', '--json', str(records), '--out', str(out)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert '[2/3] middlebury2014/B skipped: ' in err and 'im1.png' in err
+    assert 'cva-evaluate: error: 1 of 3 scenes could not be used' in err
+    written = json.loads(records.read_text())
+    assert sorted({r['scene'] for r in written}) == ['A', 'C'] and len(written) == 4
+    assert '**Partial: 2 of 3 scenes**' in (out / 'table.md').read_text()
+    # Every scene bad: nothing to write, and the first reason is the error.
+    for scene in ('A', 'C'):
+        (root / 'middlebury2014' / 'trainingQ' / scene / 'im1.png').write_bytes(b'')
+    records.unlink()
+    assert evaluate(['--data-root', str(root), '--dataset', 'middlebury2014', '--matchers',
+                     'census_bm', '--methods', 'pkrn', '--max-disparity', str(D),
+                     '--json', str(records)]) == 2
+    assert 'no scene could be evaluated; middlebury2014/A: ' in capsys.readouterr().err
+    assert not records.exists()
+
+
+def test_table1_keeps_the_scenes_done_when_interrupted(tmp_path, capsys, monkeypatch):
+    from cva_confidence_ros.evaluation import scene as scene_module
+
+    root = tmp_path / 'data'
+    for scene, seed in (('A', 401), ('B', 402), ('C', 403)):
+        _write_middlebury(root, scene, seed)
+    real = scene_module.evaluate_scene
+    calls = []
+
+    def interrupted_on_the_second_scene(sample, *args, **kwargs):
+        calls.append(sample)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(sample, *args, **kwargs)
+
+    monkeypatch.setattr(scene_module, 'evaluate_scene', interrupted_on_the_second_scene)
+    out = tmp_path / 'out'
+    code = main(['--data-root', str(root), '--out', str(out), '--matchers', 'census_bm',
+                 '--methods', 'pkrn', '--max-disparity', str(D), '--max-pixels', '100',
+                 '--protocol', 'develop', '--threads', '1'])
+    err = capsys.readouterr().err
+    assert code == 130 and 'cva-table1: interrupted after 1 of 3 scenes' in err
+    summary = json.loads((out / 'table1.json').read_text())
+    assert [r['scene'] for r in summary['records']] == ['A']
+    assert summary['partial'].startswith('**Partial: 1 of 3 scenes** — interrupted')
+    assert '**Partial: 1 of 3 scenes**' in (out / 'table1.md').read_text()

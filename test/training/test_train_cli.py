@@ -175,6 +175,22 @@ def test_resume_with_other_settings_is_refused(tmp_path, capsys):
     assert 'seed: 7' in capsys.readouterr().err
 
 
+def test_a_fresh_run_does_not_overwrite_an_earlier_checkpoint(tmp_path, capsys):
+    out = tmp_path / 'run'
+    args = [*TINY, '--out', str(out), '--epochs', '1', '--epochs-low-lr', '0']
+    assert main(args) == 0
+    first = (out / 'checkpoint.pt').read_bytes()
+    capsys.readouterr()
+    assert main([*args, '--seed', '8']) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count('\n') == 0
+    assert err.startswith(f'cva-train: error: --out {out} holds the checkpoint of an earlier run')
+    assert '--resume to continue it, --overwrite to start over' in err
+    assert (out / 'checkpoint.pt').read_bytes() == first
+    assert main([*args, '--seed', '8', '--overwrite']) == 0
+    assert (out / 'checkpoint.pt').read_bytes() != first
+
+
 def test_config_validation():
     with pytest.raises(ConfigError, match='mode'):
         TrainConfig(synthetic=1, mode='fancy')
