@@ -500,6 +500,10 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f'--kitti2012-train must be ≥ 0; got {args.kitti2012_train}')
     if args.threads is not None and args.threads < 1:
         raise ConfigError(f'--threads must be ≥ 1; got {args.threads}')
+    if args.train_datasets not in (None, 'none'):
+        from cva_confidence_ros.evaluation.cli import parse_dataset_names
+
+        parse_dataset_names(args.train_datasets)
     check_output_dir(args.out, '--out')
     if args.weights_dir is not None:
         check_output_dir(args.weights_dir, '--weights-dir')

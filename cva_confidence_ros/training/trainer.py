@@ -420,6 +420,14 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
     log(f'cva-train: {command or config.to_dict()}')
     started = time.perf_counter()
 
+    # Weight files named on the command line are checked before the data are prepared (minutes
+    # on the full recipe), on throwaway copies: the run's own loads below are left as they were.
+    if config.init_weights:
+        spare = ARCHITECTURES.get(config.arch)({'max_disparity': config.max_disparity})
+        load_init_weights(spare, config.init_weights, config.arch)
+    if config.teacher:
+        load_teacher(config.teacher, config.matcher, config.max_disparity, torch.device('cpu'))
+
     scenes = _prepare(config, False, log)
     index = sample_index(scenes)
     val_scenes = _prepare(config, True, log) if dist.main else []

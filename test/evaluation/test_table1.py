@@ -185,6 +185,7 @@ def test_bad_options_and_reuse_files_exit_2_before_any_work(data_root, tmp_path,
         ([*out, '--kitti2012-train', '-1'], '--kitti2012-train', 'must be ≥ 0'),
         ([*out, '--seed', '-1'], '--seed', 'must be ≥ 0'),
         ([*out, '--max-disparity', '0'], '--max-disparity', 'must be in [1, 1024]'),
+        ([*out, '--train-datasets', 'kitti2012,nosuch'], "'nosuch'", 'unknown data set'),
     ]
     for extra, option, message in cases:
         assert main([*base, *extra]) == 2

@@ -125,6 +125,8 @@ def test_teacher_of_another_matcher_exits_2(tmp_path, teacher_path, capsys):
     ]  # fmt: skip
     assert main(args) == 2
     assert "asked for matcher 'census_sgm'" in capsys.readouterr().err
+    # Checked before the training data are prepared.
+    assert 'labelled pixels' not in (tmp_path / 'train.log').read_text()
 
 
 def test_init_weights_warm_start(tmp_path, teacher_path, capsys):
@@ -147,6 +149,7 @@ def test_init_weights_warm_start(tmp_path, teacher_path, capsys):
     wrong_arch = [*TINY, '--arch', 'cvanet_lite', '--init-weights', str(teacher_path)]
     assert main([*wrong_arch, '--out', str(tmp_path / 'other')]) == 2
     assert "expected 'cvanet_lite'" in capsys.readouterr().err
+    assert 'labelled pixels' not in (tmp_path / 'other' / 'train.log').read_text()
 
     # Weights of another matcher are a legitimate start, but not a silent one.
     sgm = [a if a != 'census_bm' else 'census_sgm' for a in args]
