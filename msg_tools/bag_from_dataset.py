@@ -31,15 +31,15 @@ from typing import Any
 
 import numpy as np
 
-from cva_confidence_ros.errors import ConfigError, CVAError
+from cva_confidence_ros.errors import BagError, ConfigError, CVAError
 from cva_confidence_ros.pointcloud import StereoGeometry
 from msg_tools.bagio import (
     BAG_VERSION,
     COMPRESSIONS,
     STORAGES,
     OutputBag,
+    check_replaceable,
     check_topic_name,
-    remove_bag,
 )
 from msg_tools.convert import (
     CAMERA_INFO,
@@ -166,7 +166,8 @@ class BagSpec:
 
 @dataclass
 class DatasetBagSummary:
-    """What was written: the bag, the number of frames, the scenes and topic counts."""
+    """What was written: the bag, the number of frames, the scenes and topic counts;
+    ``kept_old``: an old bag was to be replaced but no frame was written, so it is untouched."""
 
     path: Path
     frames: int = 0
@@ -174,6 +175,7 @@ class DatasetBagSummary:
     counts: dict[str, int] = field(default_factory=dict)
     assumed_calibration: bool = False
     interrupted: bool = False
+    kept_old: bool = False
 
 
 def sample_geometry(sample: Any, spec: BagSpec) -> tuple[StereoGeometry, bool]:
@@ -217,23 +219,28 @@ def write_dataset_bag(
     out: str | Path,
     spec: BagSpec | None = None,
     log: Logger = _log_stderr,
+    overwrite: bool = False,
 ) -> DatasetBagSummary:
     """Write stereo samples into a new rosbag2.
 
     Args:
         samples: ``datasets.StereoSample`` objects (left/right uint8 (H, W[, 3]), disparity
             (H, W) float32 NaN = unknown, ``calib`` or None); each becomes one frame.
-        out: Bag folder to create (must not exist).
+        out: Bag folder to create (must not exist unless ``overwrite``).
         spec: Layout (storage, rate, stamps, topics, frames); defaults if None.
         log: Receives one line per frame.
+        overwrite: Replace an existing bag at ``out``; the new bag is written aside and takes
+            the old one's place only once it holds a frame (``bagio.OutputBag``).
 
     Returns:
         A :class:`DatasetBagSummary`. A Ctrl-C stops between frames; the bag is still
         finalised with the frames written so far (``interrupted`` is True).
 
     Raises:
-        BagError: ``out`` exists or cannot be written.
-        DataError, InputError: A sample that cannot be read or converted.
+        BagError: ``out`` exists (without ``overwrite``, or it is not a bag) or cannot be
+            written.
+        DataError, InputError: A sample that cannot be read or converted; when an old bag
+            was kept because no frame was written, the message says so.
     """
     spec = spec or BagSpec()
     store = jazzy_typestore()
@@ -246,7 +253,7 @@ def write_dataset_bag(
         'gt': spec.topic(spec.gt_topic.strip('/')),
     }
     interrupts = GracefulInterrupt()
-    bag = OutputBag(out, spec.storage, store, spec.compression)
+    bag = OutputBag(out, spec.storage, store, spec.compression, overwrite=overwrite)
     with interrupts:
         bag.open()
         try:
@@ -269,10 +276,16 @@ def write_dataset_bag(
                     f'at {stamp / 1e9:.3f} s')
         except KeyboardInterrupt:
             summary.interrupted = True
+        except CVAError as err:
+            bag.close()
+            if bag.kept_old:
+                raise type(err)(f'{err}; the existing bag {out} was left as it was') from None
+            raise
         finally:
             interrupts.closing()
             bag.close()
     summary.counts = dict(bag.counts)
+    summary.kept_old = bag.kept_old
     return summary
 
 
@@ -358,10 +371,16 @@ def main(argv: list[str] | None = None) -> int:
         root = args.data_root
         if root is None and args.dataset != 'motorcycle':
             raise ConfigError(f'--data-root is needed for data set {args.dataset!r}')
+        # Before any work: an existing --out needs --overwrite and must be a bag.
+        if args.out.exists() or args.out.is_symlink():
+            if not args.overwrite:
+                raise BagError(
+                    f'output bag {args.out} exists already; use --overwrite to replace it, or '
+                    f'pick another'
+                )
+            check_replaceable(args.out)
         samples = load_dataset(args.dataset, root, split=args.split, max_scenes=args.max_frames)
-        if args.overwrite:
-            remove_bag(args.out)
-        summary = write_dataset_bag(samples, args.out, spec)
+        summary = write_dataset_bag(samples, args.out, spec, overwrite=args.overwrite)
     except CVAError as err:
         print(f'cva-bag-from-dataset: error: {err}', file=sys.stderr)
         return 2
@@ -369,8 +388,12 @@ def main(argv: list[str] | None = None) -> int:
         print('cva-bag-from-dataset: interrupted before the bag was created', file=sys.stderr)
         return 130
     if summary.frames == 0:
+        state = (
+            f'the existing bag {args.out} was left as it was' if summary.kept_old
+            else f'{args.out} is an empty bag'
+        )
         print(f'cva-bag-from-dataset: error: data set {args.dataset!r} yielded no frames; '
-              f'{args.out} is an empty bag', file=sys.stderr)
+              f'{state}', file=sys.stderr)
         return 2
     state = 'interrupted: ' if summary.interrupted else ''
     print(f'{state}wrote {summary.frames} frames to {summary.path} ({spec.storage}, rosbag2 '

@@ -11,6 +11,12 @@ confidence method, weights, downsample, threshold), and writes
   ``summary``: their means and the frame counters), ``DIR/report.csv``, ``DIR/summary.md`` and
   PNGs (confidence maps, ROC curves, AUC over time).
 
+An existing output bag, or a report folder that holds an earlier report, is refused before any
+work unless ``--overwrite`` is given; then the old report's files are deleted (nothing else in
+the folder), and the old bag is replaced only once the new one holds a frame. Input messages
+that pair with nothing (a stamp off by a few µs, a duplicate stamp) and frames whose ground
+truth is unusable are named on stderr (the first few) and listed in the report.
+
 Modes: ``offline`` processes as fast as it can (deterministic); ``live`` plays the bag over DDS
 to the node (started as a subprocess with the same parameters, or a running one with
 ``--no-start-node``) at the recorded speed times ``--rate-scale`` and records what it
@@ -110,7 +116,9 @@ def build_parser() -> argparse.ArgumentParser:
     output = parser.add_argument_group('output bag')
     output.add_argument('--storage', choices=STORAGES, default='mcap',
                         help='storage of the output bag (default mcap)')
-    output.add_argument('--overwrite', action='store_true', help='replace an existing output bag')
+    output.add_argument('--overwrite', action='store_true',
+                        help='replace an existing output bag (once the new one holds a frame) '
+                        'and the files of an earlier report in the report folder')
 
     live = parser.add_argument_group('live mode')
     live.add_argument('--rate-scale', type=float, default=1.0,

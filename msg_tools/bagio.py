@@ -8,6 +8,7 @@ version 8, Jazzy message definitions and type hashes, MCAP by default.
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
+import os
 from pathlib import Path
 import re
 import shutil
@@ -33,8 +34,10 @@ __all__ = [
     'TOPIC_MAX_LENGTH',
     'InputBag',
     'OutputBag',
+    'check_replaceable',
     'check_topic_name',
     'remove_bag',
+    'staging_folder',
 ]
 
 BAG_VERSION: Final = 8
@@ -243,40 +246,75 @@ class InputBag:
             yield conn.topic, conn.msgtype, int(timestamp), bytes(data)
 
 
-def remove_bag(path: str | Path) -> None:
-    """Delete an existing output bag; refuse anything that is not recognisably one.
+def check_replaceable(path: str | Path, what: str = 'output bag') -> bool:
+    """Check that ``path`` is nothing or a bag that ``--overwrite`` may replace.
 
     A bag is a folder with a ``metadata.yaml``, or a single ``.mcap`` / ``.db3`` file that
     starts with its format's magic bytes; a symbolic link is never followed.
+
+    Returns:
+        Whether ``path`` exists (and is a bag).
+
+    Raises:
+        BagError: ``path`` exists but is not recognisably a bag.
+    """
+    target = Path(path)
+    if not target.exists() and not target.is_symlink():
+        return False
+    if target.is_symlink():
+        raise BagError(f'refusing to overwrite {target}: it is a symbolic link, not a rosbag2')
+    if target.is_dir() and (target / 'metadata.yaml').is_file():
+        return True
+    if target.is_file() and target.suffix in _STORAGE_MAGIC:
+        magic = _STORAGE_MAGIC[target.suffix]
+        try:
+            with target.open('rb') as stream:
+                head = stream.read(len(magic))
+        except OSError as err:
+            raise BagError(f'cannot read the old {what} {target}: {reason(err)}') from None
+        if head != magic:
+            raise BagError(
+                f'refusing to overwrite {target}: it does not start like a '
+                f'{target.suffix} bag file (expected {magic!r}; got {head!r})'
+            )
+        return True
+    raise BagError(
+        f'refusing to overwrite {target}: it is not a rosbag2 folder '
+        f'(with metadata.yaml) or a .mcap/.db3 bag file'
+    )
+
+
+def _delete(target: Path) -> None:
+    if target.is_dir() and not target.is_symlink():
+        shutil.rmtree(target)
+    else:
+        target.unlink()
+
+
+def remove_bag(path: str | Path) -> None:
+    """Delete an existing output bag; refuse anything that is not recognisably one
+    (see :func:`check_replaceable`).
 
     Raises:
         BagError: ``path`` exists but is not a bag, or cannot be removed.
     """
     target = Path(path)
-    if not target.exists() and not target.is_symlink():
+    if not check_replaceable(target):
         return
-    if target.is_symlink():
-        raise BagError(f'refusing to overwrite {target}: it is a symbolic link, not a rosbag2')
     try:
-        if target.is_dir() and (target / 'metadata.yaml').is_file():
-            shutil.rmtree(target)
-        elif target.is_file() and target.suffix in _STORAGE_MAGIC:
-            magic = _STORAGE_MAGIC[target.suffix]
-            with target.open('rb') as stream:
-                head = stream.read(len(magic))
-            if head != magic:
-                raise BagError(
-                    f'refusing to overwrite {target}: it does not start like a '
-                    f'{target.suffix} bag file (expected {magic!r}; got {head!r})'
-                )
-            target.unlink()
-        else:
-            raise BagError(
-                f'refusing to overwrite {target}: it is not a rosbag2 folder '
-                f'(with metadata.yaml) or a .mcap/.db3 bag file'
-            )
+        _delete(target)
     except OSError as err:
         raise BagError(f'cannot remove the old output bag {target}: {reason(err)}') from None
+
+
+def staging_folder(path: str | Path) -> Path:
+    """The hidden sibling folder a bag that replaces ``path`` is written in first.
+
+    The new bag gets ``path``'s own name inside it, so that its storage file is named as if
+    it had been written in place (rosbag2 names the file after the bag's folder).
+    """
+    target = Path(path)
+    return target.parent / f'.{target.name}.new-{os.getpid()}'
 
 
 class OutputBag:
@@ -285,14 +323,24 @@ class OutputBag:
     Leaving the ``with`` block always finalises the bag (metadata and MCAP summary), also on
     an exception or Ctrl-C, so the messages written so far stay readable.
 
+    With ``overwrite`` and an existing bag at ``path``, the new bag is written in a hidden
+    sibling folder (:func:`staging_folder`) and replaces the old one when it is closed, only
+    if at least one message was written (also after a Ctrl-C or a fault part-way); a run that
+    writes nothing leaves the old bag as it was (:attr:`kept_old`).
+
     Args:
-        path: Bag folder to create; must not exist.
+        path: Bag folder to create; must not exist unless ``overwrite``.
         storage: ``mcap`` (default) or ``sqlite3``.
         typestore: ``rosbags`` typestore; the Jazzy one by default.
         compression: ``none`` (default), ``file`` or ``message`` (zstd).
+        overwrite: Replace an existing bag at ``path`` (see above).
+
+    Attributes:
+        kept_old: After :meth:`close`: an old bag was to be replaced, but nothing was written,
+            so it is still there, untouched.
 
     Raises:
-        BagError: Unknown storage or compression, or ``path`` exists already.
+        BagError: Unknown storage or compression.
     """
 
     def __init__(
@@ -301,6 +349,7 @@ class OutputBag:
         storage: str = 'mcap',
         typestore: Any | None = None,
         compression: str = 'none',
+        overwrite: bool = False,
     ) -> None:
         if storage not in STORAGES:
             raise BagError(f'storage must be one of {STORAGES}; got {storage!r}')
@@ -309,9 +358,12 @@ class OutputBag:
         self.path = Path(path)
         self.storage = storage
         self.compression = compression
+        self.overwrite = overwrite
         self.typestore = typestore or jazzy_typestore()
         self.counts: dict[str, int] = {}
+        self.kept_old = False
         self._writer: Any = None
+        self._staging: Path | None = None
         self._connections: dict[str, Any] = {}
         self._qos = _reliable_qos()
 
@@ -322,11 +374,18 @@ class OutputBag:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    @property
+    def written(self) -> int:
+        """Messages written so far."""
+        return sum(self.counts.values())
+
     def open(self) -> None:
-        """Create the bag folder and its storage file.
+        """Create the bag folder and its storage file (in the staging folder when an old bag
+        is to be replaced).
 
         Raises:
-            BagError: The folder exists or cannot be created.
+            BagError: The folder exists (and ``overwrite`` is off, or it is not a bag), or it
+                cannot be created.
         """
         from rosbags.rosbag2 import (
             CompressionFormat,
@@ -336,18 +395,29 @@ class OutputBag:
             WriterError,
         )
 
-        if self.path.exists():
-            raise BagError(f'output bag {self.path} exists already; remove it or pick another')
+        target = self.path
+        if self.path.exists() or self.path.is_symlink():
+            if not self.overwrite:
+                raise BagError(
+                    f'output bag {self.path} exists already; remove it or pick another'
+                )
+            check_replaceable(self.path)
+            staging = staging_folder(self.path)
+            if staging.exists():
+                remove_bag(staging / self.path.name)  # left by a killed run of this pid
+            target = staging / self.path.name
+            self._staging = staging
         plugin = StoragePlugin.MCAP if self.storage == 'mcap' else StoragePlugin.SQLITE3
         try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            writer = Writer(self.path, version=BAG_VERSION, storage_plugin=plugin)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            writer = Writer(target, version=BAG_VERSION, storage_plugin=plugin)
             if self.compression != 'none':
                 writer.set_compression(
                     CompressionMode[self.compression.upper()], CompressionFormat.ZSTD
                 )
             writer.open()
         except (WriterError, OSError) as err:
+            self._discard_staging()
             raise BagError(f'cannot create output bag {self.path}: {err}') from None
         self._writer = writer
 
@@ -370,7 +440,36 @@ class OutputBag:
         self.counts[topic] = self.counts.get(topic, 0) + 1
 
     def close(self) -> None:
-        """Finalise the bag (idempotent)."""
+        """Finalise the bag; put a staged bag in place of the old one if it holds anything,
+        else drop it and keep the old one (idempotent).
+
+        Raises:
+            BagError: The old bag cannot be swapped for the new one (the new one is left in
+                the staging folder, and the message says where).
+        """
         writer, self._writer = self._writer, None
         if writer is not None:
             writer.close()
+        staging, self._staging = self._staging, None
+        if staging is None:
+            return
+        if self.written == 0:
+            self.kept_old = True
+            self._discard_staging(staging)
+            return
+        old = staging / f'old-{self.path.name}'
+        try:
+            self.path.rename(old)
+            (staging / self.path.name).rename(self.path)
+        except OSError as err:
+            raise BagError(
+                f'cannot replace the old output bag {self.path}: {reason(err)}; the new one is '
+                f'{staging / self.path.name}'
+            ) from None
+        self._discard_staging(staging)
+
+    def _discard_staging(self, staging: Path | None = None) -> None:
+        """Delete the staging folder (it holds only bags this object wrote or moved there)."""
+        staging = staging or self._staging
+        if staging is not None and staging.is_dir():
+            shutil.rmtree(staging, ignore_errors=True)

@@ -45,6 +45,7 @@ from msg_tools.replay import (
     plan_topics,
     preload,
 )
+from msg_tools.scoring import clear_report
 
 __all__ = ['NodeProcess', 'node_arguments', 'run_live']
 
@@ -337,6 +338,8 @@ def run_live(
         plan = plan_topics(bag, options, log)
         interrupts.check()
         node = None
+        if options.overwrite:
+            clear_report(options.report)  # the files of an earlier report, node.log too
         if options.start_node:
             node = NodeProcess(options, Path(options.report) / 'node.log').start()
             log(f'started cva-node (log {node.log_path})')
@@ -440,9 +443,12 @@ def _play(
                     continue
                 player.publishers[topic].publish(raw)
                 recorder.published(stamp)
+                session.offer(key_of[topic], stamp)
                 for matched in sync.add(key_of[topic], stamp, msg):
+                    session.paired(matched)
                     recorder.expect(matched, session.counts['pairs'], timestamp)
                     session.counts['pairs'] += 1
+            session.end_of_input()
             recorder.finish(node, progress)
         finally:
             session.counts['unpaired'] = sync.dropped + sum(sync.pending().values())

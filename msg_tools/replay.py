@@ -10,7 +10,7 @@ image) and scores each frame against the ground truth topic, when the bag has on
 
 from __future__ import annotations
 
-from collections import OrderedDict
+from collections import Counter, OrderedDict
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 import importlib
@@ -25,7 +25,14 @@ from cva_confidence_ros.errors import BagError, ConfigError, CVAError, InputErro
 from cva_confidence_ros.pipeline import PipelineConfig, PipelineResult
 from cva_confidence_ros.pointcloud import StereoGeometry
 from cva_confidence_ros.sync import DEFAULT_KEYS
-from msg_tools.bagio import STORAGES, InputBag, OutputBag, check_topic_name, remove_bag
+from msg_tools.bagio import (
+    STORAGES,
+    InputBag,
+    OutputBag,
+    check_replaceable,
+    check_topic_name,
+    staging_folder,
+)
 from msg_tools.convert import (
     CAMERA_INFO,
     DISPARITY_IMAGE,
@@ -36,7 +43,14 @@ from msg_tools.convert import (
     stamp_to_ns,
 )
 from msg_tools.progress import GracefulInterrupt, Progress
-from msg_tools.scoring import FrameScore, ReplayReport, ReportWriter, score_frame
+from msg_tools.scoring import (
+    FrameScore,
+    ReplayReport,
+    ReportWriter,
+    check_report_folder,
+    clear_report,
+    score_frame,
+)
 
 __all__ = [
     'FrameResult',
@@ -63,6 +77,16 @@ _INPUT_TYPES = {'left': IMAGE, 'right': IMAGE, 'left_info': CAMERA_INFO, 'right_
 GT_TYPES = (DISPARITY_IMAGE, IMAGE)
 # Skips are counted always but logged only this often, so a bag of bad frames stays readable.
 _MAX_SKIP_LOGS = 20
+# The same for unpaired input messages, and for unscored frames (per reason).
+_MAX_UNPAIRED_LOGS = 10
+_MAX_UNSCORED_LOGS = 3
+# Stamps of paired messages remembered per input, to name a later repeat a duplicate.
+_PAIRED_MEMORY = 1000
+# Readable names of the synchroniser keys.
+_KEY_NAMES = {
+    'left': 'left image', 'right': 'right image', 'left_info': 'left camera info',
+    'right_info': 'right camera info',
+}
 #: The line a first Ctrl-C prints (a run stops between frames, not inside one).
 STOPPING = '[cva-bag-replay] Ctrl-C: stopping after this frame'
 # Longest span rosbag2 timestamps (int64 nanoseconds) can express, in seconds.
@@ -155,7 +179,8 @@ class ReplayOptions:
         points_organized: Organised (H×W, NaN for dropped points) or dense cloud.
         points_confidence: ``points2`` holds every triangulated point with its confidence
             (the node's ``points_confidence``) instead of the kept ones only.
-        overwrite: Replace an existing output bag.
+        overwrite: Replace an existing output bag (it is replaced only once the new one holds
+            a frame) and the files of an earlier report in the report folder.
         rate_scale: Live mode: play at this multiple of the recorded speed.
         start_node: Live mode: start ``cva-node`` (else connect to a running one).
         startup_timeout_s: Live mode: wait this long for the node's topics to connect.
@@ -213,12 +238,15 @@ class ReplayOptions:
         self._check_paths()
 
     def _check_paths(self) -> None:
-        """Refuse outputs that would write over the input or over each other, and a report
-        folder that cannot be made because a file is in the way.
+        """Refuse outputs that would write over the input or over each other, a report
+        folder that cannot be made because a file is in the way, and, before any work,
+        earlier outputs without ``overwrite``.
 
-        ``--overwrite`` deletes the output bag first, so an output that is the input, holds
+        ``--overwrite`` deletes the old output bag, so an output that is the input, holds
         it or lies in it would destroy the input; a report folder in the output bag would
-        make the bag's folder exist before the bag is created.
+        make the bag's folder exist before the bag is created. An existing output bag needs
+        ``overwrite`` and must be a bag; a report folder that holds something needs
+        ``overwrite`` and must hold an earlier report (``scoring.check_report_folder``).
         """
         bag, out, report = (Path(p).resolve() for p in (self.bag, self.out, self.report))
         if out == bag or bag in out.parents:
@@ -248,6 +276,16 @@ class ReplayOptions:
             raise ConfigError(
                 f'cannot create the report folder {self.report}: {existing} is a file'
             )
+        if Path(self.out).exists() or Path(self.out).is_symlink():
+            if not self.overwrite:
+                raise ConfigError(
+                    f'output bag {self.out} exists already; use --overwrite to replace it, or '
+                    f'pick another'
+                )
+            check_replaceable(self.out)
+        # The bags may lie inside the report folder: they are not part of a report.
+        ignore = {bag, out, *bag.parents, *out.parents, staging_folder(out).resolve()}
+        check_report_folder(self.report, self.overwrite, ignore)
 
     def config_record(self) -> dict[str, Any]:
         """The ``config`` block of ``report.json``."""
@@ -305,9 +343,11 @@ def plan_topics(bag: InputBag, options: ReplayOptions, log: Logger = log_stderr)
     """Check that the bag has the input topics (and the ground truth if asked for).
 
     Raises:
-        BagError: A missing input topic, one of the wrong type, or a missing ground-truth
-            topic that was asked for explicitly.
+        BagError: An empty bag (no topic at all), a missing input topic, one of the wrong
+            type, or a missing ground-truth topic that was asked for explicitly.
     """
+    if not bag.topics:
+        raise BagError(f'bag {bag.path} is empty (0 messages)')
     inputs = options.topics.inputs()
     types = {}
     for key, topic in inputs.items():
@@ -505,7 +545,12 @@ class ReplaySession:
     raised further, see :meth:`outcome`.
 
     Ground truth and results meet by stamp: whichever comes first waits; a result whose
-    ground truth never comes is reported unscored.
+    ground truth never comes is reported unscored. A frame that cannot be scored (no usable
+    ground truth) is logged with the reason (the first few times per reason).
+
+    Input messages are followed through the synchroniser (:meth:`offer`, :meth:`paired`,
+    :meth:`end_of_input`): each one that matches no pair is logged (the first few) and
+    recorded in the report with its topic, stamp and why (no partner, duplicate stamp).
 
     Args:
         options: The run's options.
@@ -543,16 +588,27 @@ class ReplaySession:
         self._pending: OrderedDict[int, FrameResult] = OrderedDict()
         self._truth: OrderedDict[int, Any] = OrderedDict()
         self._skip_logs = 0
+        # Per input key: stamps offered to the synchroniser and not paired yet (in order),
+        # and the latest paired ones (to tell a duplicate).
+        self._waiting: dict[str, dict[int, None]] = {key: {} for key in INPUT_KEYS}
+        self._paired: dict[str, OrderedDict[int, None]] = {
+            key: OrderedDict() for key in INPUT_KEYS
+        }
+        self._unpaired_logs = 0
+        self._unscored_logs: Counter[str] = Counter()
 
     def __enter__(self) -> ReplaySession:
         # The report folder first: a --report that cannot be created must not cost the old
-        # output bag that --overwrite was about to delete.
+        # output bag. A live run cleared it before it started the node (whose log is there).
+        if self.options.overwrite and self.options.mode != 'live':
+            clear_report(self.options.report)
         self.writer = ReportWriter(self.options.report, self.options.max_plots)
-        if self.options.overwrite:
-            remove_bag(self.options.out)
         self.interrupts.__enter__()
         try:
-            self.out = OutputBag(self.options.out, self.options.storage)
+            # With --overwrite the old bag is replaced only once the new one holds a frame.
+            self.out = OutputBag(
+                self.options.out, self.options.storage, overwrite=self.options.overwrite
+            )
             self.out.open()
         except BaseException:
             self.interrupts.__exit__()
@@ -589,6 +645,88 @@ class ReplaySession:
             self.log(f'skipped {what}: {reason}')
         elif self._skip_logs == _MAX_SKIP_LOGS + 1:
             self.log('more frames skipped; only counting them from now on')
+
+    def offer(self, key: str, stamp_ns: int) -> None:
+        """Note an input message about to be offered to the synchroniser.
+
+        A stamp its input has already (waiting or just paired) is a duplicate, which the
+        synchroniser drops: it is reported at once.
+        """
+        if stamp_ns in self._waiting[key] or stamp_ns in self._paired[key]:
+            self._unpaired(
+                key, stamp_ns,
+                f'duplicate stamp: an earlier message on {self.plan.inputs[key]} has the same '
+                f'stamp' + (' and was paired' if stamp_ns in self._paired[key] else ''),
+            )
+            return
+        waiting = self._waiting[key]
+        waiting[stamp_ns] = None
+        if len(waiting) > self.options.queue_size:
+            # The synchroniser's queue is full: its oldest message goes.
+            self._drop_waiting({key: [min(waiting)]})
+
+    def paired(self, matched: Any) -> None:
+        """Note a matched set: what waited on an input before its stamp can no longer pair."""
+        evicted: dict[str, list[int]] = {}
+        for key in INPUT_KEYS:
+            stamp = int(matched.stamps_ns.get(key, matched.stamp_ns))
+            waiting = self._waiting[key]
+            waiting.pop(stamp, None)
+            evicted[key] = [s for s in waiting if s < stamp]
+            memory = self._paired[key]
+            memory[stamp] = None
+            while len(memory) > _PAIRED_MEMORY:
+                memory.popitem(last=False)
+        self._drop_waiting(evicted)
+
+    def end_of_input(self) -> None:
+        """Report what still waits in the synchroniser when the input ends."""
+        self._drop_waiting({key: list(waiting) for key, waiting in self._waiting.items()})
+
+    def _drop_waiting(self, evicted: dict[str, list[int]]) -> None:
+        """Report waiting messages that will never pair, saying what they lacked."""
+        reasons = {
+            (key, stamp): self._no_partner(key, stamp)
+            for key, stamps in evicted.items() for stamp in stamps
+        }
+        for (key, stamp), why in sorted(reasons.items(), key=lambda item: item[0][1]):
+            self._waiting[key].pop(stamp, None)
+            self._unpaired(key, stamp, why)
+
+    def _no_partner(self, key: str, stamp_ns: int) -> str:
+        """Why a message found no partner: the inputs without its stamp, and the nearest
+        stamp each of them had."""
+        if self.options.approximate_sync:
+            return (
+                f'no partner within the sync tolerance ({self.options.sync_tolerance_s:g} s) '
+                f'on every input'
+            )
+        missing = []
+        for other in INPUT_KEYS:
+            if other == key:
+                continue
+            stamps = [*self._waiting[other], *self._paired[other]]
+            if stamp_ns in stamps:
+                continue
+            text = self.plan.inputs[other]
+            if stamps:
+                nearest = min(stamps, key=lambda s: abs(s - stamp_ns))
+                text += f' (nearest {_offset(nearest - stamp_ns)})'
+            missing.append(text)
+        if not missing:
+            return 'no partner (its partners were paired or dropped before it came)'
+        return 'no message with this stamp on ' + ', '.join(missing)
+
+    def _unpaired(self, key: str, stamp_ns: int, why: str) -> None:
+        topic = self.plan.inputs[key]
+        self.report.add_unpaired(topic, stamp_ns, why)
+        self._unpaired_logs += 1
+        if self._unpaired_logs <= _MAX_UNPAIRED_LOGS:
+            self.log(f'unpaired {_KEY_NAMES.get(key, key)} on {topic}, stamp {stamp_ns} ns: '
+                     f'{why}')
+        elif self._unpaired_logs == _MAX_UNPAIRED_LOGS + 1:
+            self.log('more unpaired messages; only counting them from now on (report.json '
+                     'lists the first ones)')
 
     def write(self, messages: list[tuple[str, str, Any]], timestamp_ns: int) -> None:
         """Write ``(topic, type, message or CDR bytes)`` triples at one bag time; a signal
@@ -670,6 +808,8 @@ class ReplaySession:
             note = f'not scored: {err}'
         if note:
             score.note = note
+        if score.auc is None and self.plan.ground_truth is not None:
+            self._log_unscored(score)
         score.processing_ms = result.processing_ms
         score.latency_ms = result.latency_ms
         self.report.frames.append(score)
@@ -678,6 +818,16 @@ class ReplaySession:
                 score, result.confidence, self.options.pipeline.confidence_method
             )
 
+    def _log_unscored(self, score: FrameScore) -> None:
+        """Say why a frame of a bag with ground truth has no metrics (throttled per reason)."""
+        kind = score.note.split(':', 1)[0] or 'no metrics'
+        self._unscored_logs[kind] += 1
+        count = self._unscored_logs[kind]
+        if count <= _MAX_UNSCORED_LOGS:
+            self.log(f'frame {score.frame} (stamp {score.stamp_ns} ns) not scored: {score.note}')
+        elif count == _MAX_UNSCORED_LOGS + 1:
+            self.log(f'more frames not scored for "{kind}"; only counting them from now on')
+
     def finish(self) -> None:
         """Score what still waits, close the output bag, write the report."""
         for result in list(self._pending.values()):
@@ -685,7 +835,8 @@ class ReplaySession:
         self._pending.clear()
         if self.out is not None:
             self.out.close()
-            self.paths['bag'] = Path(self.options.out)
+            if not self.out.kept_old:
+                self.paths['bag'] = Path(self.options.out)
         if self.writer is not None:
             self.paths.update(self.writer.write(self.report))
 
@@ -693,10 +844,12 @@ class ReplaySession:
         """Exit code and closing message of the run (call after leaving the context)."""
         counts = self.counts
         done = counts['processed']
-        where = (
-            f'output bag {self.options.out}, report '
-            f'{self.paths.get("json", self.options.report)}'
+        bag = (
+            f'the existing output bag {self.options.out} was left as it was (nothing written)'
+            if self.out is not None and self.out.kept_old
+            else f'output bag {self.options.out}'
         )
+        where = f'{bag}, report {self.paths.get("json", self.options.report)}'
         if self.report.interrupted:
             return ReplayOutcome(
                 self.report, self.paths, 130,
@@ -720,6 +873,7 @@ class ReplaySession:
                     'no stereo pair matched by stamp: left/right images and camera infos '
                     'must share header stamps (or use --approximate-sync with '
                     f'--sync-tolerance); {counts["unpaired"]} messages stayed unpaired'
+                    f'{self._unpaired_text()}'
                 )
             else:
                 reason = (
@@ -731,13 +885,45 @@ class ReplaySession:
         text = (
             f'{done} of {counts["pairs"]} frames processed, {counts["skipped"]} skipped, '
             f'{counts["dropped"]} dropped, {counts["unpaired"]} unpaired messages'
+            f'{self._unpaired_text()}'
         )
         if summary['auc'] is not None:
             text += (
                 f"; mean AUC {100 * summary['auc']:.2f} (opt {100 * summary['auc_opt']:.2f}), "
                 f"error rate {100 * summary['error_rate']:.2f} %"
             )
+        scored = summary['frames_scored']
+        if self.plan.ground_truth is not None and scored < len(self.report.frames):
+            reasons = list(self.report.not_scored().items())
+            listed = '; '.join(
+                f'{note} ({n} frame{"s" if n > 1 else ""})' for note, n in reasons[:3]
+            )
+            more = f'; {len(reasons) - 3} more reasons in the report' if len(reasons) > 3 else ''
+            text += (
+                f'; {scored} of {len(self.report.frames)} frames scored (ground truth '
+                f'unusable: {listed}{more})'
+            )
         return ReplayOutcome(self.report, self.paths, 0, f'{text}; {where}')
+
+    def _unpaired_text(self) -> str:
+        """`` (topic: n, ...)`` of the unpaired messages per topic, or ''."""
+        by_topic = self.report.unpaired_by_topic
+        if not by_topic:
+            return ''
+        return ' (' + ', '.join(f'{t}: {n}' for t, n in sorted(by_topic.items())) + ')'
+
+
+def _offset(delta_ns: int) -> str:
+    """A stamp difference in words: ``5 µs later``, ``2.5 ms earlier``."""
+    size = abs(delta_ns)
+    unit, scale = next(
+        ((unit, scale) for unit, scale in (('s', 10**9), ('ms', 10**6), ('µs', 10**3))
+         if size >= scale),
+        ('ns', 1),
+    )
+    value = f'{size / scale:.3f}'.rstrip('0').rstrip('.')
+    return f'{value} {unit} {"later" if delta_ns > 0 else "earlier"}'
+
 
 
 # Modules the frames need later, imported before the first frame: a Ctrl-C that lands inside
@@ -827,11 +1013,14 @@ def run_offline(
                     if topic == plan.ground_truth:
                         session.add_ground_truth(stamp, msg)
                         continue
+                    session.offer(key_of[topic], stamp)
                     for matched in sync.add(key_of[topic], stamp, (msg, timestamp)):
+                        session.paired(matched)
                         frame = session.counts['pairs']
                         session.counts['pairs'] += 1
                         _process_pair(session, pipeline, matched, frame)
                         progress.update()
+                session.end_of_input()
             finally:
                 session.counts['unpaired'] = sync.dropped + sum(sync.pending().values())
         progress.finish()

@@ -16,11 +16,14 @@ Per frame, on the pixels with ground truth (or a fixed random subset of ``max_pi
 
 from __future__ import annotations
 
+from collections import Counter
+from collections.abc import Collection
 import csv
 from dataclasses import asdict, dataclass, field
 import json
 import math
 from pathlib import Path
+import re
 from typing import Any, cast
 
 import numpy as np
@@ -33,12 +36,100 @@ __all__ = [
     'REPORT_KEYS',
     'ReplayReport',
     'ReportWriter',
+    'check_report_folder',
+    'clear_report',
+    'report_files',
     'score_frame',
 ]
 
 METRIC_KEYS = ('error_rate', 'auc', 'auc_opt', 'kept_density', 'kept_error_rate')
 REPORT_KEYS = ('frame', 'stamp_ns', *METRIC_KEYS)
 _EXTRA_KEYS = ('n_pixels', 'width', 'height', 'processing_ms', 'latency_ms', 'note')
+#: Names of the files a replay writes into its report folder (``node.log``: live mode).
+_REPORT_FILE = re.compile(
+    r'report\.json|report\.json\.tmp|report\.csv|summary\.md|auc_over_time\.png|node\.log'
+    r'|(confidence|roc)_\d+\.png'
+)
+#: Unpaired messages listed one by one in ``report.json`` (all are counted).
+MAX_LISTED_UNPAIRED = 100
+
+
+def report_files(folder: str | Path) -> list[Path]:
+    """The files in ``folder`` whose names are those a replay writes (sorted)."""
+    path = Path(folder)
+    if not path.is_dir():
+        return []
+    return sorted(
+        p for p in path.iterdir()
+        if _REPORT_FILE.fullmatch(p.name) and p.is_file() and not p.is_symlink()
+    )
+
+
+def check_report_folder(
+    folder: str | Path, overwrite: bool, ignore: Collection[Path] = ()
+) -> None:
+    """Refuse a report folder that holds something, unless ``overwrite`` and it is a report.
+
+    A folder that holds an earlier report would end up with a mix of two runs (old PNGs next
+    to a new ``report.json``), so it needs ``overwrite`` (:func:`clear_report` then removes
+    the old report's files, and only those). A folder that does not look like a report (no
+    ``report.json``, and names this tool never writes) is refused even with ``overwrite``.
+
+    Args:
+        folder: The report folder (need not exist).
+        overwrite: ``--overwrite`` was given.
+        ignore: Entries of the folder that do not count (resolved paths: the input and
+            output bags when they lie inside it, and what holds them).
+
+    Raises:
+        ConfigError: The folder holds something and ``overwrite`` is off, or it holds
+            something that is not a report.
+    """
+    path = Path(folder)
+    if not path.is_dir():
+        return
+    entries = sorted(p for p in path.iterdir() if p.resolve() not in ignore)
+    if not entries:
+        return
+    names = [p.name for p in entries]
+    listing = ', '.join(names[:3]) + (f' and {len(names) - 3} more' if len(names) > 3 else '')
+    ours = {p.name for p in report_files(path)}
+    is_report = 'report.json' in ours or all(name in ours for name in names)
+    if not is_report:
+        raise ConfigError(
+            f'the report folder {folder} is not empty and holds no cva-bag-replay report '
+            f'(no report.json; it has {listing}); pick another folder'
+        )
+    if not overwrite:
+        raise ConfigError(
+            f'the report folder {folder} holds an earlier report ({listing}); use --overwrite '
+            f'to replace it, or pick another folder'
+        )
+
+
+def clear_report(folder: str | Path, keep: Collection[str] = ()) -> list[Path]:
+    """Delete the files of an earlier report in ``folder`` (see :func:`report_files`);
+    anything else in it stays. Returns the deleted paths.
+
+    Args:
+        folder: The report folder.
+        keep: Names not to delete (e.g. ``node.log`` a live run has just begun).
+
+    Raises:
+        ConfigError: A file cannot be deleted.
+    """
+    removed = []
+    for path in report_files(folder):
+        if path.name in keep:
+            continue
+        try:
+            path.unlink()
+        except OSError as err:
+            raise ConfigError(
+                f'cannot remove {path.name} of the earlier report in {folder}: {reason(err)}'
+            ) from None
+        removed.append(path)
+    return removed
 
 
 @dataclass
@@ -164,6 +255,10 @@ class ReplayReport:
             did not answer).
         interrupted: The run was stopped (Ctrl-C) before the end of the bag.
         error: The fault that ended the run early, if any.
+        unpaired: The first :data:`MAX_LISTED_UNPAIRED` input messages that matched no pair:
+            records with ``topic``, ``stamp_ns`` and ``reason`` (``no partner`` or
+            ``duplicate stamp``).
+        unpaired_by_topic: Input topic → number of its messages that matched no pair.
     """
 
     frames: list[FrameScore] = field(default_factory=list)
@@ -171,6 +266,19 @@ class ReplayReport:
     counts: dict[str, int] = field(default_factory=dict)
     interrupted: bool = False
     error: str = ''
+    unpaired: list[dict[str, Any]] = field(default_factory=list)
+    unpaired_by_topic: dict[str, int] = field(default_factory=dict)
+
+    def add_unpaired(self, topic: str, stamp_ns: int, why: str) -> None:
+        """Record one input message that matched no pair."""
+        self.unpaired_by_topic[topic] = self.unpaired_by_topic.get(topic, 0) + 1
+        if len(self.unpaired) < MAX_LISTED_UNPAIRED:
+            self.unpaired.append({'topic': topic, 'stamp_ns': int(stamp_ns), 'reason': why})
+
+    def not_scored(self) -> dict[str, int]:
+        """Why frames have no metrics: note → number of frames (most frequent first)."""
+        notes = Counter(f.note or 'no metrics' for f in self.frames if f.auc is None)
+        return dict(notes.most_common())
 
     def summary(self) -> dict[str, Any]:
         """Means of the metrics over the frames that have them, plus the counters."""
@@ -184,18 +292,22 @@ class ReplayReport:
         out['mean_latency_ms'] = float(np.mean(latencies)) if latencies else None
         out['frames'] = len(self.frames)
         out['frames_scored'] = sum(1 for f in self.frames if f.auc is not None)
+        out['not_scored'] = self.not_scored()
         out.update({key: int(value) for key, value in self.counts.items()})
+        out['unpaired_by_topic'] = dict(sorted(self.unpaired_by_topic.items()))
         out['interrupted'] = self.interrupted
         out['error'] = self.error or None
         return {key: _clean(value) for key, value in out.items()}
 
     def as_dict(self) -> dict[str, Any]:
-        """The JSON document: ``config``, ``frames`` (records), ``summary``."""
+        """The JSON document: ``config``, ``frames`` (records), ``summary``, ``unpaired``
+        (the first unpaired input messages, see :attr:`unpaired`)."""
         frames = sorted(self.frames, key=lambda f: (f.frame, f.stamp_ns))
         return {
             'config': self.config,
             'frames': [f.as_dict() for f in frames],
             'summary': self.summary(),
+            'unpaired': list(self.unpaired),
         }
 
 
@@ -343,6 +455,25 @@ def format_summary(document: dict[str, Any], max_rows: int = 200) -> str:
         lines += ['**Interrupted**: the report holds the frames done before the stop.', '']
     if summary.get('error'):
         lines += [f"**Stopped by an error**: {summary['error']}", '']
+    not_scored = summary.get('not_scored') or {}
+    if not_scored:
+        lines += ['Frames without metrics:', '']
+        lines += [f'- {count} × {note}' for note, count in not_scored.items()]
+        lines.append('')
+    by_topic = summary.get('unpaired_by_topic') or {}
+    if by_topic:
+        listed = document.get('unpaired', [])
+        lines += [
+            f"Unpaired input messages: {summary.get('unpaired', sum(by_topic.values()))} ("
+            + ', '.join(f'{topic}: {count}' for topic, count in by_topic.items()) + ')',
+            '',
+            '| topic | stamp (ns) | reason |',
+            '|---|---|---|',
+        ]
+        lines += [f"| {m['topic']} | {m['stamp_ns']} | {m['reason']} |" for m in listed]
+        if sum(by_topic.values()) > len(listed):
+            lines.append(f'\n({sum(by_topic.values()) - len(listed)} more not listed)')
+        lines.append('')
     frames = document['frames']
     if frames:
         lines += [

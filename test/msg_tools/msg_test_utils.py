@@ -116,14 +116,16 @@ def write_stereo_bag(
     """A hand-made stereo bag for fault cases.
 
     Each frame dict may hold ``left``/``right`` (uint8 arrays), ``shift`` (true disparity),
-    ``stamp_right`` (ns, default the left stamp), ``encoding`` (forced on both images),
-    ``info_size`` ((width, height) written into the camera infos).
+    ``stamp`` (ns, default ``START_NS`` + index × 0.1 s), ``stamp_right`` (ns, default the
+    left stamp), ``encoding`` (forced on both images), ``info_size`` ((width, height) written
+    into the camera infos), ``gt`` (a float32 ground-truth array instead of the true shift),
+    ``gt_bytes`` (the ground truth's image data cut to this many bytes).
     """
     store = jazzy_typestore()
     geometry = StereoGeometry(fx=50.0, fy=50.0, cx=20.0, cy=15.0, cx_right=20.0, baseline=0.1)
     with OutputBag(path, storage, store) as bag:
         for index, frame in enumerate(frames):
-            stamp = START_NS + index * 100_000_000
+            stamp = frame.get('stamp', START_NS + index * 100_000_000)
             stamp_right = frame.get('stamp_right', stamp)
             shift = frame.get('shift', 4)
             left, right = frame.get('left'), frame.get('right')
@@ -141,6 +143,7 @@ def write_stereo_bag(
                 left_msg.encoding = right_msg.encoding = frame['encoding']
             gt = np.full((height, width), float(shift), np.float32)
             gt[:, :shift] = np.nan
+            gt = frame.get('gt', gt)
             messages = [
                 ('left/camera_info', CAMERA_INFO, left_info),
                 ('right/camera_info', CAMERA_INFO, right_info),
@@ -148,10 +151,10 @@ def write_stereo_bag(
                 ('right/image_rect', IMAGE, right_msg),
             ]
             if ground_truth:
-                messages.append((
-                    'ground_truth/disparity', DISPARITY_IMAGE,
-                    disparity_to_msg(gt, stamp, 'l', geometry, typestore=store),
-                ))
+                gt_msg = disparity_to_msg(gt, stamp, 'l', geometry, typestore=store)
+                if 'gt_bytes' in frame:
+                    gt_msg.image.data = gt_msg.image.data[: frame['gt_bytes']]
+                messages.append(('ground_truth/disparity', DISPARITY_IMAGE, gt_msg))
             for topic, msgtype, message in messages:
                 if topic in skip_topics:
                     continue
