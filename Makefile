@@ -9,7 +9,7 @@ STAMP := $(VENV)/.installed
 # pulls a multi-GB CUDA build from the index.
 TORCH := torch==2.13.0
 DEPS := numpy scipy opencv-python-headless scikit-image numba matplotlib tqdm \
-	rosbags 'ros-jazzy-rclpy[fastrtps]' ros-jazzy-common-interfaces mccnn
+	rosbags 'ros-jazzy-rclpy[fastrtps]' ros-jazzy-common-interfaces mccnn onnx onnxruntime
 TEST_DEPS := pytest pyyaml pytest-timeout colcon-core colcon-python-setup-py colcon-ros ruff mypy
 DEMO_OUT ?= out/demo
 

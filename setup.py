@@ -28,6 +28,7 @@ ENTRY_POINTS = [
     ('table1', 'cva-table1', 'cva_confidence_ros.evaluation.table1:main'),
     ('benchmark', 'cva-benchmark', 'cva_confidence_ros.benchmark:main'),
     ('demo', 'cva-demo', 'cva_confidence_ros.demo:main'),
+    ('export', 'cva-export', 'cva_confidence_ros.model.export:main'),
     ('bag_from_dataset', 'cva-bag-from-dataset', 'msg_tools.bag_from_dataset:main'),
     ('bag_replay', 'cva-bag-replay', 'msg_tools.bag_replay:main'),
 ]
@@ -65,6 +66,7 @@ setup(
     description='Online per-pixel stereo confidence with CVA-Net for ROS 2.',
     license='Apache-2.0',
     python_requires='>=3.10',
+    extras_require={'export': ['onnx', 'onnxruntime']},  # cva-export and its check
     tests_require=['pytest', 'scipy', 'pyyaml'],
     entry_points={'console_scripts': _console_scripts()},
 )

@@ -45,6 +45,9 @@ class PipelineConfig:
         cva_cascade_fraction: Share (0, 1] of the pixels the cascade hands to the network (the
             least confident by the cheap measure).
         cva_precision: ``fp32``, ``bf16`` or ``fp16`` (CUDA only) arithmetic of the network.
+        cva_backend: ``torch``, or ``onnxruntime``: the learned cost-volume networks
+            (``cva_net``, ``cva_net_lite``, ``cva_net_fast``) exported to ONNX once and run by
+            ONNX Runtime on the CPU (float32, ``device`` must resolve to the CPU).
     """
 
     matcher: str = 'census_bm'
@@ -60,6 +63,7 @@ class PipelineConfig:
     cva_cascade: str = 'none'
     cva_cascade_fraction: float = 0.25
     cva_precision: str = 'fp32'
+    cva_backend: str = 'torch'
 
     def __post_init__(self) -> None:
         from cva_confidence_ros.confidence import CONFIDENCE_METHODS
@@ -102,6 +106,10 @@ class PipelineConfig:
             cascade_fraction=self.cva_cascade_fraction,
             precision=self.cva_precision,
         )
+        from cva_confidence_ros.model.sparse import BACKENDS
+
+        if self.cva_backend not in BACKENDS:
+            raise ConfigError(f'cva_backend must be one of {BACKENDS}; got {self.cva_backend!r}')
 
     def replace(self, **changes: object) -> PipelineConfig:
         """Return a copy with ``changes`` applied (validated)."""
@@ -177,6 +185,7 @@ class StereoPipeline:
             cva_cascade=config.cva_cascade,
             cva_cascade_fraction=config.cva_cascade_fraction,
             cva_precision=config.cva_precision,
+            cva_backend=config.cva_backend,
         )
 
     def _matcher_params(self) -> dict[str, Any]:

@@ -44,6 +44,8 @@ DECLARATIONS: dict[str, tuple[str | None, str | None]] = {
     'mc_cnn': (None, 'mccnn'),
     # imported only where present: rosbags' own sqlite3 driver (its dependency), and the build
     'apsw': (None, None),
+    # optional, cva-export's check: setup.py's extras_require['export'], the Makefile installs it
+    'onnxruntime': (None, None),
     'setuptools': (None, 'setuptools'),
 }
 

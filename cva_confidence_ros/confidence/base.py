@@ -39,6 +39,7 @@ GENERIC_OPTIONS = frozenset(
         'cva_cascade',
         'cva_cascade_fraction',
         'cva_precision',
+        'cva_backend',
     }
 )
 

@@ -54,6 +54,8 @@ class CVANetConfidence(ConfidenceMethod):
             sure of first (``lrd`` makes the pipeline compute the right-reference volume).
         cva_cascade_fraction: Share (0, 1] of the pixels the cascade hands to the network.
         cva_precision: ``fp32``, ``bf16`` or ``fp16`` (CUDA only).
+        cva_backend: ``torch``, or ``onnxruntime`` (the network exported to ONNX once and run
+            by ONNX Runtime on the CPU).
         **_: Other generic options of the pipeline, ignored.
 
     Raises:
@@ -76,6 +78,7 @@ class CVANetConfidence(ConfidenceMethod):
         cva_cascade: str = 'none',
         cva_cascade_fraction: float = 0.25,
         cva_precision: str = 'fp32',
+        cva_backend: str = 'torch',
         **_: Any,
     ) -> None:
         budget = _check_tile_budget(tile_budget_mb)
@@ -109,7 +112,11 @@ class CVANetConfidence(ConfidenceMethod):
         # Built once: BN folding and the operation counts of the tile shapes are not redone
         # on every frame.
         self._evaluator = SparseEvaluator(
-            net, self.device, self.tile_budget_mb, precision=self.sparse.precision
+            net,
+            self.device,
+            self.tile_budget_mb,
+            precision=self.sparse.precision,
+            backend=cva_backend,
         )
         self._cheap = (
             None

@@ -87,13 +87,15 @@ def aligned_curve(costs: torch.Tensor) -> torch.Tensor:
     Channels 0–8: the costs at d_WTA − 4 … d_WTA + 4 (1.0 outside [0, D)); channel 9:
     d_WTA / D. d_WTA is the smallest d of the lowest cost (ties as ``argmin``). Float32 CPU
     tensors without gradient go through a compiled one-pass kernel (6× faster than the
-    torch ops here), everything else (CUDA, autograd) through torch; both give the same
-    values (tested).
+    torch ops here), everything else (CUDA, autograd, tracing for an ONNX or TorchScript
+    export) through torch; both give the same values (tested).
     """
     if (
         costs.device.type == 'cpu'
         and costs.dtype == torch.float32
         and not (torch.is_grad_enabled() and costs.requires_grad)
+        and not torch.jit.is_tracing()
+        and not torch.compiler.is_exporting()
     ):
         source = costs.detach().contiguous().numpy()
         out = np.empty((costs.shape[0], FAST_INPUTS, *costs.shape[2:]), np.float32)

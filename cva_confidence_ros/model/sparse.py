@@ -83,6 +83,7 @@ from cva_confidence_ros.model.inference import (
 from cva_confidence_ros.model.network import PATCH_SIZE
 
 __all__ = [
+    'BACKENDS',
     'CASCADES',
     'PRECISIONS',
     'STRIDES',
@@ -90,6 +91,7 @@ __all__ = [
     'SparseEvaluator',
     'SparseResult',
     'cascade_selection',
+    'check_backend',
     'grid_offset',
     'joint_bilateral_fill',
     'monotone_map',
@@ -105,6 +107,8 @@ CASCADES = ('none', 'pkrn', 'lrd')
 PRECISIONS = ('fp32', 'bf16', 'fp16')
 #: Ways of evaluating the network on a tile (``auto`` = the cheapest by operation count).
 PATHS = ('auto', 'tile', 'fused', 'extracts')
+#: Runtimes of the network: PyTorch, or ONNX Runtime on the CPU (``model.export``).
+BACKENDS = ('torch', 'onnxruntime')
 
 #: Calibration pixels of a cascade: one per this many evaluated undecided pixels.
 CALIBRATION_RATIO = 8
@@ -216,6 +220,28 @@ def precision_context(device: torch.device, precision: str) -> contextlib.Abstra
     raise ConfigError(f'cva_precision must be one of {PRECISIONS}; got {precision!r}')
 
 
+def check_backend(backend: object, device: torch.device, precision: str) -> None:
+    """Refuse a backend that is not there or cannot run with ``device`` and ``precision``.
+
+    Raises:
+        ConfigError: Unknown backend, or ``onnxruntime`` with a CUDA device or a reduced
+            precision (its graph is the float32 network on the CPU).
+    """
+    if backend not in BACKENDS:
+        raise ConfigError(f'cva_backend must be one of {BACKENDS}; got {backend!r}')
+    if backend == 'onnxruntime':
+        if device.type != 'cpu':
+            raise ConfigError(
+                f"cva_backend 'onnxruntime' runs the network on the CPU; got device {device} "
+                "(device: cpu, or cva_backend: torch on CUDA)"
+            )
+        if precision != 'fp32':
+            raise ConfigError(
+                f"cva_backend 'onnxruntime' runs the float32 network; got cva_precision "
+                f'{precision!r}'
+            )
+
+
 def grid_offset(stride: int) -> int:
     """First row/column of the stride grid, ``(stride − 1) // 2`` (cells centred on it)."""
     return (stride - 1) // 2
@@ -246,10 +272,13 @@ class SparseEvaluator:
         tile_budget_mb: Memory budget of one tile's activations, megabytes.
         precision: ``fp32``, ``bf16`` or ``fp16`` (CUDA).
         path: ``auto`` or one fixed way (``tile``, ``fused``, ``extracts``).
+        backend: ``torch``, or ``onnxruntime``: the folded network exported to ONNX once and
+            run by ONNX Runtime on the CPU (float32; the ``fused`` way is not available).
 
     Raises:
-        ConfigError: Bad device, budget, precision or path, or ``fused`` for a network that
-            cannot be split.
+        ConfigError: Bad device, budget, precision, path or backend, or ``fused`` for a
+            network that cannot be split.
+        ModelError: ``onnxruntime`` asked for without the onnx / onnxruntime packages.
     """
 
     def __init__(
@@ -259,6 +288,7 @@ class SparseEvaluator:
         tile_budget_mb: float = 512.0,
         precision: str = 'fp32',
         path: str = 'auto',
+        backend: str = 'torch',
     ) -> None:
         net = _unwrap(net)
         if isinstance(net, CVANet):
@@ -277,16 +307,29 @@ class SparseEvaluator:
             raise ConfigError(f'path must be one of {PATHS}; got {path!r}')
         self.device = resolve_device(device)
         precision_context(self.device, precision)  # validates
+        check_backend(backend, self.device, precision)
         self.net = net.to(self.device).eval()
         self.max_disparity: int = cast(int, net.max_disparity)  # checked above
         self.tile_budget_mb = tile_budget
         self.precision = precision
-        self.splittable = callable(getattr(net, 'fusion_features', None)) and callable(
-            getattr(net, 'head_logits', None)
+        self.backend = backend
+        # What runs the network on tiles and extracts: the module, or its ONNX Runtime copy
+        # (which has no separate fusion and head, so the 'fused' way is left out).
+        self._run: Callable[[torch.Tensor], torch.Tensor] = self.net
+        if backend == 'onnxruntime':
+            from cva_confidence_ros.model.export import OnnxRuntimeNet
+
+            self._run = OnnxRuntimeNet(self.net)
+        self.splittable = (
+            backend == 'torch'
+            and callable(getattr(net, 'fusion_features', None))
+            and callable(getattr(net, 'head_logits', None))
         )
         if path == 'fused' and not self.splittable:
             raise ConfigError(
-                f"path 'fused' needs a network with fusion_features and head_logits; "
+                "path 'fused' is not available with cva_backend 'onnxruntime'"
+                if backend == 'onnxruntime'
+                else f"path 'fused' needs a network with fusion_features and head_logits; "
                 f'{type(net).__name__} has not'
             )
         self.path = path
@@ -436,7 +479,7 @@ class SparseEvaluator:
         index_y = torch.from_numpy(ys).to(self.device)
         index_x = torch.from_numpy(xs).to(self.device)
         if way == 'tile':
-            return self.net(tile)[0][index_y, index_x].float().cpu().numpy()
+            return self._run(tile)[0][index_y, index_x].float().cpu().numpy()
         fused = self.net.fusion_features(tile)  # type: ignore[operator]
         # (1, C, D', h, w) → (n, C, D') at the wanted pixels
         curves = fused[0][:, :, index_y, index_x].permute(2, 0, 1).contiguous()
@@ -459,7 +502,7 @@ class SparseEvaluator:
             # (D, n, 13, 13) → (n, 1, D, 13, 13)
             batch = np.ascontiguousarray(windows[:, ys[start:stop], xs[start:stop]].swapaxes(0, 1))
             extracts = torch.from_numpy(batch)[:, None].to(self.device)
-            out[start:stop] = self.net(extracts)[:, 0, 0].float().cpu().numpy()
+            out[start:stop] = self._run(extracts)[:, 0, 0].float().cpu().numpy()
             if self.progress is not None:
                 self.progress(done_before + stop, total)
         return out

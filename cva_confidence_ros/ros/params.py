@@ -240,6 +240,12 @@ PIPELINE_PARAMETERS: tuple[ParamSpec, ...] = (
         'Arithmetic of CVA-Net: fp32, bf16 (autocast) or fp16 (CUDA only).',
         constraints='one of fp32, bf16, fp16',
     ),
+    _pipeline(
+        'cva_backend',
+        'Runtime of the cost-volume networks (cva_net, cva_net_lite, cva_net_fast): torch, or '
+        'onnxruntime (exported to ONNX at start, run by ONNX Runtime on the CPU, float32).',
+        constraints='one of torch, onnxruntime',
+    ),
 )
 
 NODE_PARAMETERS: tuple[ParamSpec, ...] = (

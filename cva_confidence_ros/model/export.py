@@ -1,0 +1,320 @@
+"""Export the cost-volume networks to ONNX, for ONNX Runtime, TensorRT or OpenVINO on a robot.
+
+The exported graph is the folded network (batch normalisation merged into the convolutions)
+behind the zero padding that :func:`~cva_confidence_ros.model.predict_confidence` applies, so
+that it takes what a matcher gives and returns what the node publishes:
+
+* input ``cost_volume``: (B, D, H, W) float32, costs normalised to [0, 1] as
+  :func:`~cva_confidence_ros.matching.compute_cost_volume` returns them (one volume is
+  ``volume[None]``); B, H and W are dynamic, D is the weights' depth;
+* output ``confidence``: (B, H, W) float32 in (0, 1), one per pixel.
+
+``cva-export`` writes the ``.onnx`` file, a ``.json`` beside it (matcher, D, architecture, the
+weights it came from and their training facts) and, where ONNX Runtime is installed, checks the
+exported graph against PyTorch on a random volume.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+import json
+import os
+from pathlib import Path
+import sys
+import time
+from typing import Any
+import warnings
+
+import numpy as np
+import torch
+from torch import nn
+import torch.nn.functional as F
+
+from cva_confidence_ros.errors import ModelError
+from cva_confidence_ros.model.inference import PAD, fold_batchnorm
+from cva_confidence_ros.model.weights import architecture_of, default_weights_path, load_weights
+
+__all__ = ['EXPORTABLE', 'CostVolumeModel', 'OnnxRuntimeNet', 'check_onnx', 'export_onnx', 'main']
+
+PROG = 'cva-export'
+#: Architectures whose input is the cost volume alone (the baselines need an image too).
+EXPORTABLE = ('cvanet', 'cvanet_lite', 'cvanet_fast')
+DEFAULT_OPSET = 17
+
+
+class CostVolumeModel(nn.Module):
+    """A cost-volume network as a deployable whole: (B, D, H, W) costs → (B, H, W) confidence.
+
+    Args:
+        net: CVA-Net, CVA-Net-Lite or CVA-Net-Fast (trained or folded), in eval mode.
+    """
+
+    def __init__(self, net: nn.Module) -> None:
+        super().__init__()
+        self.net = net
+
+    def forward(self, cost_volume: torch.Tensor) -> torch.Tensor:
+        padded = F.pad(cost_volume, (PAD, PAD, PAD, PAD))
+        return self.net(padded.unsqueeze(1))
+
+
+def _deployable(net: nn.Module) -> tuple[CostVolumeModel, str, int]:
+    arch = architecture_of(net)
+    if arch not in EXPORTABLE:
+        raise ModelError(
+            f'ONNX export covers the cost-volume networks {EXPORTABLE}; got {arch!r} (its '
+            'input is a disparity map and an image)'
+        )
+    net = net.eval()
+    typed: Any = net  # each of the three has max_disparity; Lite and Fast fold themselves
+    folded = fold_batchnorm(typed) if arch == 'cvanet' else typed.fold_batchnorm()
+    return CostVolumeModel(folded).eval(), arch, int(typed.max_disparity)
+
+
+def export_onnx(
+    net: nn.Module,
+    path: str | os.PathLike[str],
+    opset: int = DEFAULT_OPSET,
+    example_size: tuple[int, int] = (32, 48),
+) -> Path:
+    """Write ``net`` as an ONNX graph with dynamic batch, height and width.
+
+    Args:
+        net: A CVA-Net, CVA-Net-Lite or CVA-Net-Fast (e.g. from :func:`load_weights`).
+        path: The ``.onnx`` file to write.
+        opset: ONNX opset version.
+        example_size: (H, W) of the volume traced through the network (any size works later).
+
+    Returns:
+        ``path`` as a :class:`~pathlib.Path`.
+
+    Raises:
+        ModelError: Another architecture, or the ``onnx`` package is missing.
+    """
+    model, _, depth = _deployable(net)
+    path = Path(path)
+    example = torch.rand(1, depth, *example_size)
+    try:
+        with warnings.catch_warnings(), torch.no_grad():
+            # The traced shape checks and ONNX's constant folding notes are expected.
+            warnings.simplefilter('ignore')
+            torch.onnx.export(
+                model,
+                (example,),
+                str(path),
+                dynamo=False,
+                opset_version=opset,
+                input_names=['cost_volume'],
+                output_names=['confidence'],
+                dynamic_axes={
+                    'cost_volume': {0: 'batch', 2: 'height', 3: 'width'},
+                    'confidence': {0: 'batch', 1: 'height', 2: 'width'},
+                },
+            )
+    except ModuleNotFoundError as exc:
+        raise ModelError(f'ONNX export needs the onnx package ({exc}): pip install onnx') from exc
+    return path
+
+
+def check_onnx(
+    path: str | os.PathLike[str],
+    net: nn.Module,
+    size: tuple[int, int] = (48, 64),
+    seed: int = 0,
+    repeat: int = 3,
+) -> dict[str, float]:
+    """Run the exported graph with ONNX Runtime beside PyTorch on one random volume.
+
+    Returns:
+        ``max_abs_diff`` between the two confidences, and the median ``onnxruntime_ms`` and
+        ``torch_ms`` of ``repeat`` runs (this machine's threads).
+
+    Raises:
+        ModelError: ONNX Runtime is not installed, or the graph does not run.
+    """
+    try:
+        import onnxruntime
+    except ImportError as exc:
+        raise ModelError('checking an export needs onnxruntime: pip install onnxruntime') from exc
+    model, _, depth = _deployable(net)
+    volume = np.random.default_rng(seed).random((1, depth, *size), dtype=np.float32)
+    try:
+        session = onnxruntime.InferenceSession(str(path), providers=['CPUExecutionProvider'])
+    except Exception as exc:  # onnxruntime raises its own types for a bad graph
+        raise ModelError(f'ONNX Runtime cannot load {path}: {exc}') from exc
+
+    def timed(run: Any) -> tuple[np.ndarray, float]:
+        times, out = [], None
+        for _ in range(max(1, repeat)):
+            tic = time.perf_counter()
+            out = run()
+            times.append((time.perf_counter() - tic) * 1e3)
+        return np.asarray(out), float(np.median(times))
+
+    ort_out, ort_ms = timed(lambda: session.run(None, {'cost_volume': volume})[0])
+    with torch.inference_mode():
+        torch_out, torch_ms = timed(lambda: model(torch.from_numpy(volume)).numpy())
+    return {
+        'max_abs_diff': float(np.abs(ort_out - torch_out).max()),
+        'onnxruntime_ms': ort_ms,
+        'torch_ms': torch_ms,
+    }
+
+
+def _size(text: str) -> tuple[int, int]:
+    height, _, width = text.partition('x')
+    if not (height.isdigit() and width.isdigit() and int(height) > 0 and int(width) > 0):
+        raise argparse.ArgumentTypeError(f'expected HxW, e.g. 240x320; got {text!r}')
+    return int(height), int(width)
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description='Export CVA-Net, CVA-Net-Lite or CVA-Net-Fast weights to ONNX: input '
+        'cost_volume (B, D, H, W) float32 in [0, 1], output confidence (B, H, W).',
+    )
+    parser.add_argument('weights', nargs='?', default=None,
+                        help='weights file (.pt); default: the shipped file for --arch, '
+                        '--matcher and --max-disparity')
+    parser.add_argument('--arch', default='cvanet_fast', choices=EXPORTABLE,
+                        help='architecture of the shipped weights to export (without WEIGHTS)')
+    parser.add_argument('--matcher', default='census_bm',
+                        help='matcher of the shipped weights (without WEIGHTS)')
+    parser.add_argument('--max-disparity', type=int, default=64,
+                        help='depth of the shipped weights (without WEIGHTS)')
+    parser.add_argument('--out', type=Path, required=True, help='the .onnx file to write')
+    parser.add_argument('--opset', type=int, default=DEFAULT_OPSET, help='ONNX opset version')
+    parser.add_argument('--check-size', type=_size, default=None, metavar='HxW',
+                        help='volume size of the ONNX Runtime check (default 240x320 for '
+                        'CVA-Net-Fast, 60x80 for the 3-D networks: seconds a frame on a CPU)')
+    parser.add_argument('--no-check', action='store_true', help='skip the ONNX Runtime check')
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    """Export for parsed arguments; raises ``CVAError`` on bad input."""
+    from cva_confidence_ros.outputs import check_output_file
+
+    out = check_output_file(args.out, '--out')
+    if out.suffix != '.onnx':
+        raise ModelError(f'--out must name a .onnx file; got {out}')
+    weights = Path(args.weights) if args.weights else default_weights_path(
+        args.matcher, args.max_disparity, args.arch
+    )
+    net, meta = load_weights(weights, arch=None)
+    _, arch, depth = _deployable(net)
+    tic = time.perf_counter()
+    export_onnx(net, out, opset=args.opset)
+    print(f'{PROG}: wrote {out} ({arch}, {meta.get("matcher")}, D = {depth}, opset '
+          f'{args.opset}, {out.stat().st_size / 1e6:.2f} MB) in {time.perf_counter() - tic:.1f} s',
+          file=sys.stderr)
+    record: dict[str, Any] = {
+        'arch': arch,
+        'matcher': meta.get('matcher'),
+        'max_disparity': depth,
+        'weights': str(weights),
+        'weights_facts': {k: meta[k] for k in ('samples_seen', 'command', 'date') if k in meta},
+        'opset': args.opset,
+        'input': {'name': 'cost_volume', 'shape': ['batch', depth, 'height', 'width'],
+                  'dtype': 'float32', 'range': [0.0, 1.0]},
+        'output': {'name': 'confidence', 'shape': ['batch', 'height', 'width'],
+                   'dtype': 'float32', 'range': [0.0, 1.0]},
+    }
+    if not args.no_check:
+        size = args.check_size or ((240, 320) if arch == 'cvanet_fast' else (60, 80))
+        check = check_onnx(out, net, size)
+        height, width = size
+        record['check'] = {'size': [height, width], **check}
+        print(f'{PROG}: ONNX Runtime vs PyTorch at {width}x{height}: max |difference| '
+              f'{check["max_abs_diff"]:.2e}; {check["onnxruntime_ms"]:.1f} ms against '
+              f'{check["torch_ms"]:.1f} ms (median of 3, {torch.get_num_threads()} torch threads)',
+              file=sys.stderr)
+        if not check['max_abs_diff'] < 1e-4:
+            raise ModelError(
+                f'the exported graph differs from PyTorch by {check["max_abs_diff"]:.2e} '
+                '(more than 1e-4)'
+            )
+    out.with_suffix('.json').write_text(json.dumps(record, indent=2) + '\n', encoding='utf-8')
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``cva-export`` (``ros2 run cva_confidence_ros export``).
+
+    Returns:
+        0 when written (and checked), 2 on bad input (one line on stderr), 1 if the file
+        cannot be written.
+    """
+    from cva_confidence_ros.evaluation.cli import exit_code
+
+    args = _build_parser().parse_args(argv)
+    return exit_code(PROG, lambda: run(args))
+
+
+if __name__ == '__main__':
+    sys.exit(main())
+
+
+class OnnxRuntimeNet:
+    """A folded cost-volume network run by ONNX Runtime on the CPU, called like the network.
+
+    The network is exported once (in memory) with dynamic batch, height and width, so it takes
+    what the torch network takes, (B, 1, D, h + 12, w + 12) padded tiles or 13×13 extracts, and
+    gives (B, h, w). :class:`~cva_confidence_ros.model.SparseEvaluator` runs it with
+    ``backend='onnxruntime'``.
+
+    Args:
+        net: A folded CVA-Net, CVA-Net-Lite or CVA-Net-Fast (``fold_batchnorm``), on the CPU.
+        threads: ONNX Runtime's intra-op threads; None = torch's current thread count.
+
+    Raises:
+        ModelError: ``onnx`` or ``onnxruntime`` is not installed, or the export fails.
+    """
+
+    def __init__(self, net: nn.Module, threads: int | None = None) -> None:
+        import tempfile
+
+        try:
+            import onnxruntime
+        except ImportError as exc:
+            raise ModelError(
+                "cva_backend 'onnxruntime' needs onnxruntime: pip install onnx onnxruntime"
+            ) from exc
+        typed: Any = net
+        depth = int(typed.max_disparity)
+        example = torch.rand(1, 1, depth, 2 * PAD + 8, 2 * PAD + 8)
+        try:
+            with tempfile.TemporaryDirectory() as folder, warnings.catch_warnings(), \
+                    torch.no_grad():
+                warnings.simplefilter('ignore')
+                path = Path(folder) / 'net.onnx'
+                torch.onnx.export(
+                    net.eval(),
+                    (example,),
+                    str(path),
+                    dynamo=False,
+                    opset_version=DEFAULT_OPSET,
+                    input_names=['padded'],
+                    output_names=['confidence'],
+                    dynamic_axes={'padded': {0: 'batch', 3: 'rows', 4: 'columns'},
+                                  'confidence': {0: 'batch', 1: 'height', 2: 'width'}},
+                )
+                graph = path.read_bytes()
+        except ModuleNotFoundError as exc:
+            raise ModelError(
+                f"cva_backend 'onnxruntime' exports the network with the onnx package ({exc}): "
+                'pip install onnx'
+            ) from exc
+        options = onnxruntime.SessionOptions()
+        options.intra_op_num_threads = threads or torch.get_num_threads()
+        self.session = onnxruntime.InferenceSession(
+            graph, options, providers=['CPUExecutionProvider']
+        )
+
+    def __call__(self, padded: torch.Tensor) -> torch.Tensor:
+        """(B, 1, D, h + 12, w + 12) float32 CPU tensor → (B, h, w) confidence tensor."""
+        feed = np.ascontiguousarray(padded.detach().numpy(), dtype=np.float32)
+        (out,) = self.session.run(None, {'padded': feed})
+        return torch.from_numpy(out)
