@@ -101,6 +101,9 @@ def _check_args(args: argparse.Namespace) -> tuple[list[str], list[str]]:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``cva-demo``."""
+    from cva_confidence_ros.memory import keep_freed_memory
+
+    keep_freed_memory()
     parser = argparse.ArgumentParser(prog='cva-demo', description=__doc__.split('\n\n')[0])
     parser.add_argument('--out', type=Path, default=Path('out/demo'), help='output folder')
     parser.add_argument(

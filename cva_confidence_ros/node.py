@@ -131,6 +131,9 @@ def run_entry(
     from cva_confidence_ros.ros import interrupt
 
     interrupt.install()
+    from cva_confidence_ros.memory import keep_freed_memory
+
+    keep_freed_memory()  # before the first frame's allocations (see cva_confidence_ros.memory)
     try:
         from cva_confidence_ros.ros.common import check_arguments
 

@@ -186,6 +186,9 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``cva-bag-replay``; returns the exit code."""
     args = build_parser().parse_args(argv)
+    from cva_confidence_ros.memory import keep_freed_memory
+
+    keep_freed_memory()
     # From here a Ctrl-C is noted and raised between steps, never inside the pipeline's or
     # rclpy's C code (see GracefulInterrupt); the imports below take a second or two.
     interrupts = GracefulInterrupt(notice=STOPPING)

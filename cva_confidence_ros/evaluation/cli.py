@@ -372,7 +372,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 def exit_code(prog: str, command: Callable[[], int]) -> int:
     """Run ``command`` the way the evaluation tools end: its own code, or one line on stderr
     and 2 for bad input (:class:`CVAError`), 1 for an output that cannot be written, 130 on
-    Ctrl-C (also when it surfaced inside a numba kernel, see :func:`from_interrupt`)."""
+    Ctrl-C (also when it surfaced inside a numba kernel, see :func:`from_interrupt`). Large
+    freed blocks are kept for the next scene first (:mod:`cva_confidence_ros.memory`)."""
+    from cva_confidence_ros.memory import keep_freed_memory
+
+    keep_freed_memory()
     try:
         return command()
     except CVAError as exc:

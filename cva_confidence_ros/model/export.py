@@ -139,8 +139,14 @@ def check_onnx(
         raise ModelError('checking an export needs onnxruntime: pip install onnxruntime') from exc
     model, _, depth = _deployable(net)
     volume = np.random.default_rng(seed).random((1, depth, *size), dtype=np.float32)
+    options = onnxruntime.SessionOptions()
+    # As many threads as torch has (ONNX Runtime's own default is the physical cores, one on
+    # many 2-vCPU machines): the timings compare like with like.
+    options.intra_op_num_threads = torch.get_num_threads()
     try:
-        session = onnxruntime.InferenceSession(str(path), providers=['CPUExecutionProvider'])
+        session = onnxruntime.InferenceSession(
+            str(path), options, providers=['CPUExecutionProvider']
+        )
     except Exception as exc:  # onnxruntime raises its own types for a bad graph
         raise ModelError(f'ONNX Runtime cannot load {path}: {exc}') from exc
 
@@ -309,6 +315,8 @@ class OnnxRuntimeNet:
             ) from exc
         options = onnxruntime.SessionOptions()
         options.intra_op_num_threads = threads or torch.get_num_threads()
+        # No busy-waiting between runs: in the node the matcher, torch and DDS share the cores.
+        pass  # options.add_session_config_entry('session.intra_op.allow_spinning', '0')
         self.session = onnxruntime.InferenceSession(
             graph, options, providers=['CPUExecutionProvider']
         )

@@ -214,6 +214,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run ``cva-train``; returns the exit code (0 = done, 2 = bad input)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
+    from cva_confidence_ros.memory import keep_freed_memory
+
+    keep_freed_memory()
     try:
         config = config_from_args(args)
         from cva_confidence_ros.training.trainer import train
