@@ -316,7 +316,7 @@ class OnnxRuntimeNet:
         options = onnxruntime.SessionOptions()
         options.intra_op_num_threads = threads or torch.get_num_threads()
         # No busy-waiting between runs: in the node the matcher, torch and DDS share the cores.
-        pass  # options.add_session_config_entry('session.intra_op.allow_spinning', '0')
+        options.add_session_config_entry('session.intra_op.allow_spinning', '0')
         self.session = onnxruntime.InferenceSession(
             graph, options, providers=['CPUExecutionProvider']
         )
