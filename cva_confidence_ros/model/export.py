@@ -72,6 +72,41 @@ def _deployable(net: nn.Module) -> tuple[CostVolumeModel, str, int]:
     return CostVolumeModel(folded).eval(), arch, int(typed.max_disparity)
 
 
+def _trace_to_onnx(
+    module: nn.Module,
+    example: torch.Tensor,
+    path: Path,
+    opset: int,
+    input_name: str,
+    input_axes: dict[int, str],
+) -> None:
+    """Trace ``module`` on ``example`` into an ONNX file with dynamic ``input_axes`` (the output
+    ``confidence`` (B, H, W) dynamic throughout).
+
+    Raises:
+        ModelError: The ``onnx`` package (which the exporter writes with) is missing.
+    """
+    try:
+        with warnings.catch_warnings(), torch.no_grad():
+            # The traced shape checks and ONNX's constant folding notes are expected.
+            warnings.simplefilter('ignore')
+            torch.onnx.export(
+                module,
+                (example,),
+                str(path),
+                dynamo=False,
+                opset_version=opset,
+                input_names=[input_name],
+                output_names=['confidence'],
+                dynamic_axes={
+                    input_name: input_axes,
+                    'confidence': {0: 'batch', 1: 'height', 2: 'width'},
+                },
+            )
+    except ModuleNotFoundError as exc:
+        raise ModelError(f'ONNX export needs the onnx package ({exc}): pip install onnx') from exc
+
+
 def export_onnx(
     net: nn.Module,
     path: str | os.PathLike[str],
@@ -94,26 +129,10 @@ def export_onnx(
     """
     model, _, depth = _deployable(net)
     path = Path(path)
-    example = torch.rand(1, depth, *example_size)
-    try:
-        with warnings.catch_warnings(), torch.no_grad():
-            # The traced shape checks and ONNX's constant folding notes are expected.
-            warnings.simplefilter('ignore')
-            torch.onnx.export(
-                model,
-                (example,),
-                str(path),
-                dynamo=False,
-                opset_version=opset,
-                input_names=['cost_volume'],
-                output_names=['confidence'],
-                dynamic_axes={
-                    'cost_volume': {0: 'batch', 2: 'height', 3: 'width'},
-                    'confidence': {0: 'batch', 1: 'height', 2: 'width'},
-                },
-            )
-    except ModuleNotFoundError as exc:
-        raise ModelError(f'ONNX export needs the onnx package ({exc}): pip install onnx') from exc
+    _trace_to_onnx(
+        model, torch.rand(1, depth, *example_size), path, opset, 'cost_volume',
+        {0: 'batch', 2: 'height', 3: 'width'},
+    )
     return path
 
 
@@ -291,28 +310,13 @@ class OnnxRuntimeNet:
         typed: Any = net
         depth = int(typed.max_disparity)
         example = torch.rand(1, 1, depth, 2 * PAD + 8, 2 * PAD + 8)
-        try:
-            with tempfile.TemporaryDirectory() as folder, warnings.catch_warnings(), \
-                    torch.no_grad():
-                warnings.simplefilter('ignore')
-                path = Path(folder) / 'net.onnx'
-                torch.onnx.export(
-                    net.eval(),
-                    (example,),
-                    str(path),
-                    dynamo=False,
-                    opset_version=DEFAULT_OPSET,
-                    input_names=['padded'],
-                    output_names=['confidence'],
-                    dynamic_axes={'padded': {0: 'batch', 3: 'rows', 4: 'columns'},
-                                  'confidence': {0: 'batch', 1: 'height', 2: 'width'}},
-                )
-                graph = path.read_bytes()
-        except ModuleNotFoundError as exc:
-            raise ModelError(
-                f"cva_backend 'onnxruntime' exports the network with the onnx package ({exc}): "
-                'pip install onnx'
-            ) from exc
+        with tempfile.TemporaryDirectory() as folder:
+            path = Path(folder) / 'net.onnx'
+            _trace_to_onnx(
+                net.eval(), example, path, DEFAULT_OPSET, 'padded',
+                {0: 'batch', 3: 'rows', 4: 'columns'},
+            )
+            graph = path.read_bytes()
         options = onnxruntime.SessionOptions()
         options.intra_op_num_threads = threads or torch.get_num_threads()
         # No busy-waiting between runs: in the node the matcher, torch and DDS share the cores.
