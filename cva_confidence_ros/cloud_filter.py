@@ -57,8 +57,8 @@ def usage(prog: str = 'cva-cloud-filter') -> str:
     from dataclasses import fields
 
     from cva_confidence_ros.ros.cloud_filter_node import (
-        _DESCRIPTIONS,
-        _READ_ONLY,
+        PARAMETER_DESCRIPTIONS,
+        READ_ONLY_PARAMETERS,
         CloudFilterConfig,
     )
     from cva_confidence_ros.ros.common import usage_text
@@ -67,9 +67,9 @@ def usage(prog: str = 'cva-cloud-filter') -> str:
     for spec in fields(CloudFilterConfig):
         # The declared range of threshold, the only one (CloudFilterNode.__init__).
         limits = '[0.0, 1.0]' if spec.name == 'threshold' else ''
-        if spec.name in _READ_ONLY:
+        if spec.name in READ_ONLY_PARAMETERS:
             limits = '(start-up only)'
-        parameters.append((spec.name, spec.default, limits, _DESCRIPTIONS[spec.name]))
+        parameters.append((spec.name, spec.default, limits, PARAMETER_DESCRIPTIONS[spec.name]))
     return usage_text(
         prog,
         'Point-cloud confidence filter: republishes the points of a cloud whose confidence is at '

@@ -37,7 +37,14 @@ from cva_confidence_ros.ros.common import (
 from cva_confidence_ros.ros.convert import point_cloud_to_records, records_to_point_cloud
 from cva_confidence_ros.ros.params import QOS_CHOICES
 
-__all__ = ['NODE_NAME', 'CloudFilterConfig', 'CloudFilterNode', 'run']
+__all__ = [
+    'NODE_NAME',
+    'PARAMETER_DESCRIPTIONS',
+    'READ_ONLY_PARAMETERS',
+    'CloudFilterConfig',
+    'CloudFilterNode',
+    'run',
+]
 
 NODE_NAME = 'cva_cloud_filter'
 
@@ -87,7 +94,8 @@ class CloudFilterConfig:
             )
 
 
-_DESCRIPTIONS = {
+#: Parameter name → its description (declared with it; ``cva-cloud-filter --help`` lists them).
+PARAMETER_DESCRIPTIONS = {
     'threshold': 'Points with confidence >= threshold are kept.',
     'organized': 'Keep the input grid with NaN for dropped points; false = kept points only.',
     'confidence_field': 'Name of the confidence field of the input cloud.',
@@ -95,7 +103,8 @@ _DESCRIPTIONS = {
     'output_qos': 'QoS of points2_filtered: sensor_data (best effort) or reliable.',
     'diagnostics_period_seconds': 'Period of /diagnostics messages, seconds.',
 }
-_READ_ONLY = frozenset({'input_qos', 'output_qos', 'diagnostics_period_seconds'})
+#: Parameters fixed at start-up.
+READ_ONLY_PARAMETERS = frozenset({'input_qos', 'output_qos', 'diagnostics_period_seconds'})
 
 
 @dataclass
@@ -132,7 +141,8 @@ class CloudFilterNode(Node):
         )
         for spec in fields(CloudFilterConfig):
             descriptor = ParameterDescriptor(
-                description=_DESCRIPTIONS[spec.name], read_only=spec.name in _READ_ONLY
+                description=PARAMETER_DESCRIPTIONS[spec.name],
+                read_only=spec.name in READ_ONLY_PARAMETERS,
             )
             if spec.name == 'threshold':
                 descriptor.floating_point_range = [
@@ -174,7 +184,7 @@ class CloudFilterNode(Node):
             return self._config
 
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
-        changes = {p.name: p.value for p in params if p.name in _DESCRIPTIONS}
+        changes = {p.name: p.value for p in params if p.name in PARAMETER_DESCRIPTIONS}
         if not changes:
             return SetParametersResult(successful=True)
         with self._lock:
