@@ -52,7 +52,7 @@ def check_output_file(path: str | os.PathLike[str], option: str) -> Path:
         raise ConfigError(f'{option} {path} is a folder; expected a file path')
     if path.exists() and not os.access(path, os.W_OK):
         raise ConfigError(f'{option} {path}: the file exists and is not writable')
-    _probe(path.parent if str(path.parent) else Path.cwd(), option, path)
+    _probe(path.parent, option, path)
     return path
 
 

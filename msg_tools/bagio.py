@@ -460,11 +460,18 @@ class OutputBag:
         old = staging / f'old-{self.path.name}'
         try:
             self.path.rename(old)
-            (staging / self.path.name).rename(self.path)
         except OSError as err:
             raise BagError(
                 f'cannot replace the old output bag {self.path}: {reason(err)}; the new one is '
                 f'{staging / self.path.name}'
+            ) from None
+        try:
+            (staging / self.path.name).rename(self.path)
+        except OSError as err:
+            old.rename(self.path)  # the old bag back where it was
+            raise BagError(
+                f'cannot move the new output bag into {self.path}: {reason(err)}; the old bag '
+                f'is there as before, the new one is {staging / self.path.name}'
             ) from None
         self._discard_staging(staging)
 

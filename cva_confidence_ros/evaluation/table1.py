@@ -501,9 +501,9 @@ def run(args: argparse.Namespace) -> int:
     if args.threads is not None and args.threads < 1:
         raise ConfigError(f'--threads must be ≥ 1; got {args.threads}')
     if args.train_datasets not in (None, 'none'):
-        from cva_confidence_ros.evaluation.cli import parse_dataset_names
+        from cva_confidence_ros.training.config import check_training_datasets
 
-        parse_dataset_names(args.train_datasets)
+        check_training_datasets(_names(args.train_datasets, 'data sets'))
     check_output_dir(args.out, '--out')
     if args.weights_dir is not None:
         check_output_dir(args.weights_dir, '--weights-dir')

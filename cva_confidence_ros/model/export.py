@@ -136,6 +136,16 @@ def export_onnx(
     return path
 
 
+def _cpu_session(onnxruntime: Any, graph: bytes, threads: int | None = None) -> Any:
+    """An ONNX Runtime CPU session on ``graph`` with torch's thread count (ONNX Runtime's own
+    default is the physical cores, one on many 2-vCPU machines) and no busy-waiting threads
+    between runs (in the node the matcher, torch and DDS share the cores)."""
+    options = onnxruntime.SessionOptions()
+    options.intra_op_num_threads = threads or torch.get_num_threads()
+    options.add_session_config_entry('session.intra_op.allow_spinning', '0')
+    return onnxruntime.InferenceSession(graph, options, providers=['CPUExecutionProvider'])
+
+
 def check_onnx(
     path: str | os.PathLike[str],
     net: nn.Module,
@@ -158,14 +168,8 @@ def check_onnx(
         raise ModelError('checking an export needs onnxruntime: pip install onnxruntime') from exc
     model, _, depth = _deployable(net)
     volume = np.random.default_rng(seed).random((1, depth, *size), dtype=np.float32)
-    options = onnxruntime.SessionOptions()
-    # As many threads as torch has (ONNX Runtime's own default is the physical cores, one on
-    # many 2-vCPU machines): the timings compare like with like.
-    options.intra_op_num_threads = torch.get_num_threads()
     try:
-        session = onnxruntime.InferenceSession(
-            str(path), options, providers=['CPUExecutionProvider']
-        )
+        session = _cpu_session(onnxruntime, Path(path).read_bytes())
     except Exception as exc:  # onnxruntime raises its own types for a bad graph
         raise ModelError(f'ONNX Runtime cannot load {path}: {exc}') from exc
 
@@ -185,6 +189,50 @@ def check_onnx(
         'onnxruntime_ms': ort_ms,
         'torch_ms': torch_ms,
     }
+
+
+class OnnxRuntimeNet:
+    """A folded cost-volume network run by ONNX Runtime on the CPU, called like the network.
+
+    The network is exported once (in memory) with dynamic batch, height and width, so it takes
+    what the torch network takes, (B, 1, D, h + 12, w + 12) padded tiles or 13×13 extracts, and
+    gives (B, h, w). :class:`~cva_confidence_ros.model.SparseEvaluator` runs it with
+    ``backend='onnxruntime'``.
+
+    Args:
+        net: A folded CVA-Net, CVA-Net-Lite or CVA-Net-Fast (``fold_batchnorm``), on the CPU.
+        threads: ONNX Runtime's intra-op threads; None = torch's current thread count.
+
+    Raises:
+        ModelError: ``onnx`` or ``onnxruntime`` is not installed, or the export fails.
+    """
+
+    def __init__(self, net: nn.Module, threads: int | None = None) -> None:
+        import tempfile
+
+        try:
+            import onnxruntime
+        except ImportError as exc:
+            raise ModelError(
+                "cva_backend 'onnxruntime' needs onnxruntime: pip install onnx onnxruntime"
+            ) from exc
+        typed: Any = net
+        depth = int(typed.max_disparity)
+        example = torch.rand(1, 1, depth, 2 * PAD + 8, 2 * PAD + 8)
+        with tempfile.TemporaryDirectory() as folder:
+            path = Path(folder) / 'net.onnx'
+            _trace_to_onnx(
+                net.eval(), example, path, DEFAULT_OPSET, 'padded',
+                {0: 'batch', 3: 'rows', 4: 'columns'},
+            )
+            graph = path.read_bytes()
+        self.session = _cpu_session(onnxruntime, graph, threads)
+
+    def __call__(self, padded: torch.Tensor) -> torch.Tensor:
+        """(B, 1, D, h + 12, w + 12) float32 CPU tensor → (B, h, w) confidence tensor."""
+        feed = np.ascontiguousarray(padded.detach().numpy(), dtype=np.float32)
+        (out,) = self.session.run(None, {'padded': feed})
+        return torch.from_numpy(out)
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -222,14 +270,15 @@ def run(args: argparse.Namespace) -> int:
     """Export for parsed arguments; raises ``CVAError`` on bad input."""
     from cva_confidence_ros.outputs import check_output_file
 
+    if Path(args.out).suffix != '.onnx':
+        raise ModelError(f'--out must name a .onnx file; got {args.out}')
     out = check_output_file(args.out, '--out')
-    if out.suffix != '.onnx':
-        raise ModelError(f'--out must name a .onnx file; got {out}')
     weights = Path(args.weights) if args.weights else default_weights_path(
         args.matcher, args.max_disparity, args.arch
     )
     net, meta = load_weights(weights, arch=None)
-    _, arch, depth = _deployable(net)
+    arch = architecture_of(net)
+    depth = int(meta.get('max_disparity') or net.max_disparity)
     tic = time.perf_counter()
     export_onnx(net, out, opset=args.opset)
     print(f'{PROG}: wrote {out} ({arch}, {meta.get("matcher")}, D = {depth}, opset '
@@ -281,52 +330,3 @@ def main(argv: Sequence[str] | None = None) -> int:
 if __name__ == '__main__':
     sys.exit(main())
 
-
-class OnnxRuntimeNet:
-    """A folded cost-volume network run by ONNX Runtime on the CPU, called like the network.
-
-    The network is exported once (in memory) with dynamic batch, height and width, so it takes
-    what the torch network takes, (B, 1, D, h + 12, w + 12) padded tiles or 13×13 extracts, and
-    gives (B, h, w). :class:`~cva_confidence_ros.model.SparseEvaluator` runs it with
-    ``backend='onnxruntime'``.
-
-    Args:
-        net: A folded CVA-Net, CVA-Net-Lite or CVA-Net-Fast (``fold_batchnorm``), on the CPU.
-        threads: ONNX Runtime's intra-op threads; None = torch's current thread count.
-
-    Raises:
-        ModelError: ``onnx`` or ``onnxruntime`` is not installed, or the export fails.
-    """
-
-    def __init__(self, net: nn.Module, threads: int | None = None) -> None:
-        import tempfile
-
-        try:
-            import onnxruntime
-        except ImportError as exc:
-            raise ModelError(
-                "cva_backend 'onnxruntime' needs onnxruntime: pip install onnx onnxruntime"
-            ) from exc
-        typed: Any = net
-        depth = int(typed.max_disparity)
-        example = torch.rand(1, 1, depth, 2 * PAD + 8, 2 * PAD + 8)
-        with tempfile.TemporaryDirectory() as folder:
-            path = Path(folder) / 'net.onnx'
-            _trace_to_onnx(
-                net.eval(), example, path, DEFAULT_OPSET, 'padded',
-                {0: 'batch', 3: 'rows', 4: 'columns'},
-            )
-            graph = path.read_bytes()
-        options = onnxruntime.SessionOptions()
-        options.intra_op_num_threads = threads or torch.get_num_threads()
-        # No busy-waiting between runs: in the node the matcher, torch and DDS share the cores.
-        options.add_session_config_entry('session.intra_op.allow_spinning', '0')
-        self.session = onnxruntime.InferenceSession(
-            graph, options, providers=['CPUExecutionProvider']
-        )
-
-    def __call__(self, padded: torch.Tensor) -> torch.Tensor:
-        """(B, 1, D, h + 12, w + 12) float32 CPU tensor → (B, h, w) confidence tensor."""
-        feed = np.ascontiguousarray(padded.detach().numpy(), dtype=np.float32)
-        (out,) = self.session.run(None, {'padded': feed})
-        return torch.from_numpy(out)

@@ -190,12 +190,8 @@ class ConfidenceNode(Node):
         self.context.on_shutdown(self._mailbox.close)
 
         in_qos, out_qos = qos_profile(node_config.input_qos), qos_profile(node_config.output_qos)
-        for key, msg_type, topic in (
-            ('left', Image, 'left/image_rect'),
-            ('right', Image, 'right/image_rect'),
-            ('left_info', CameraInfo, 'left/camera_info'),
-            ('right_info', CameraInfo, 'right/camera_info'),
-        ):
+        for key, topic in _TOPICS.items():
+            msg_type = CameraInfo if key.endswith('_info') else Image
             self.create_subscription(msg_type, topic, partial(self._on_message, key), in_qos)
         self._pub_disparity = self.create_publisher(DisparityImage, 'disparity', out_qos)
         self._pub_filtered = self.create_publisher(DisparityImage, 'disparity_filtered', out_qos)
@@ -304,7 +300,8 @@ class ConfidenceNode(Node):
             self._stats.window_messages += 1
             self._stats.window_keys[key] = self._stats.window_keys.get(key, 0) + 1
             self._stats.last_stamps_ns[key] = stamp
-            loose_tolerance = key == 'left' and self._note_left_stamp(stamp)
+            loose_period = self._note_left_stamp(stamp) if key == 'left' else None
+            tolerance_ns = self._node_config.tolerance_ns
             sync = self._sync
             before = sync.dropped
             matched = sync.add(key, stamp, msg)
@@ -320,15 +317,13 @@ class ConfidenceNode(Node):
                 self._stats.window_pairs += 1
                 if self._mailbox.put(item):
                     self._stats.dropped += 1
-        if loose_tolerance:
-            config = self.node_config
-            period = self._stats.left_period_ns or 0.0
+        if loose_period is not None:
             self._log_throttle.log(
                 self.get_logger(),
                 'approximate sync tolerance too wide',
-                f'approximate_sync_tolerance_seconds = {config.tolerance_ns / 1e9:g} is at least '
-                f'half the frame period ({period / 1e9:.3f} s between left images): images of '
-                f'different frames can pair; set it below {period / 2e9:.3f}',
+                f'approximate_sync_tolerance_seconds = {tolerance_ns / 1e9:g} is at least '
+                f'half the frame period ({loose_period / 1e9:.3f} s between left images): images '
+                f'of different frames can pair; set it below {loose_period / 2e9:.3f}',
             )
         for previous, now in jumps:
             self._log_throttle.log(
@@ -339,21 +334,21 @@ class ConfidenceNode(Node):
                 'reset?): pairing starts over from there',
             )
 
-    def _note_left_stamp(self, stamp: int) -> bool:
+    def _note_left_stamp(self, stamp: int) -> float | None:
         """Track the spacing of the left images (call with the lock held).
 
         Returns:
-            Whether approximate sync is on with a tolerance of half that spacing or more, so
-            that an image can pair with its neighbour's partner.
+            The frame period (ns) when approximate sync is on with a tolerance of half of it or
+            more, so that an image can pair with its neighbour's partner; else None.
         """
         stats = self._stats
         previous, stats.left_stamp_ns = stats.left_stamp_ns, stamp
-        if previous is None or stamp <= previous:
-            return False
+        config = self._node_config
+        if not config.approximate_sync or previous is None or stamp <= previous:
+            return None
         stats.left_gaps_ns.append(stamp - previous)
         period = stats.left_period_ns
-        config = self._node_config
-        return period is not None and config.approximate_sync and 2 * config.tolerance_ns >= period
+        return period if period is not None and 2 * config.tolerance_ns >= period else None
 
     def _unpaired_reason(self, stats: _Stats, elapsed: float) -> str:
         """Why messages arrive but none pair up, naming the topics (lock held)."""

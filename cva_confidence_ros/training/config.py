@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
 import math
 from typing import Any
@@ -13,6 +14,7 @@ __all__ = [
     'MODES',
     'TRAIN_PRECISIONS',
     'TrainConfig',
+    'check_training_datasets',
     'default_synthetic_size',
     'parse_dataset_spec',
 ]
@@ -41,6 +43,29 @@ def parse_dataset_spec(spec: str) -> tuple[str, str | None]:
     if not name:
         raise ConfigError(f"expected a data set as 'name' or 'name:split'; got {spec!r}")
     return name, split.strip() or None
+
+
+def check_training_datasets(
+    specs: Sequence[str], validation: bool = False
+) -> list[tuple[str, str | None]]:
+    """Parse ``name[:split]`` data set specs and refuse unknown names and, for training, the
+    develop data sets.
+
+    Raises:
+        ConfigError: An unknown data set, or a develop one to train on.
+    """
+    from cva_confidence_ros.datasets import DATASETS, DEVELOP_DATASETS
+
+    parsed = [parse_dataset_spec(spec) for spec in specs]
+    for name, _ in parsed:
+        if name not in DATASETS:
+            raise ConfigError(f'unknown data set {name!r}; expected one of {DATASETS.names()}')
+        if not validation and name in DEVELOP_DATASETS:
+            raise ConfigError(
+                f'{name} is a develop data set ({", ".join(DEVELOP_DATASETS)}): never train '
+                'on it, or the reported numbers mean nothing'
+            )
+    return parsed
 
 
 @dataclass(frozen=True)
@@ -128,7 +153,6 @@ class TrainConfig:
     fusion_split: str = 'alternate'
 
     def __post_init__(self) -> None:
-        from cva_confidence_ros.datasets import DATASETS, DEVELOP_DATASETS
         from cva_confidence_ros.model import ARCHITECTURES
 
         object.__setattr__(self, 'datasets', tuple(self.datasets))
@@ -185,17 +209,8 @@ class TrainConfig:
             raise ConfigError('no training data: give --datasets and/or --synthetic N (N > 0)')
         if (self.datasets or self.val_datasets) and not self.data_root:
             raise ConfigError('--datasets / --val-datasets need --data-root')
-        train = [parse_dataset_spec(s) for s in self.datasets]
-        val = [parse_dataset_spec(s) for s in self.val_datasets]
-        for name, _ in train + val:
-            if name not in DATASETS:
-                raise ConfigError(f'unknown data set {name!r}; expected one of {DATASETS.names()}')
-        for name, _ in train:
-            if name in DEVELOP_DATASETS:
-                raise ConfigError(
-                    f'{name} is a develop data set ({", ".join(DEVELOP_DATASETS)}): never train '
-                    'on it, or the reported numbers mean nothing'
-                )
+        train = check_training_datasets(self.datasets)
+        val = check_training_datasets(self.val_datasets, validation=True)
         overlap = set(train) & set(val)
         if overlap:
             raise ConfigError(

@@ -186,6 +186,8 @@ def test_bad_options_and_reuse_files_exit_2_before_any_work(data_root, tmp_path,
         ([*out, '--seed', '-1'], '--seed', 'must be ≥ 0'),
         ([*out, '--max-disparity', '0'], '--max-disparity', 'must be in [1, 1024]'),
         ([*out, '--train-datasets', 'kitti2012,nosuch'], "'nosuch'", 'unknown data set'),
+        ([*out, '--train-datasets', 'kitti2012:train,kitti2015'], 'kitti2015',
+         'is a develop data set'),
     ]
     for extra, option, message in cases:
         assert main([*base, *extra]) == 2
