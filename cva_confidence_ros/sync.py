@@ -37,9 +37,37 @@ from typing import Any
 
 from cva_confidence_ros.errors import ConfigError, InputError
 
-__all__ = ['DEFAULT_KEYS', 'MatchedSet', 'StampSynchronizer']
+__all__ = ['DEFAULT_KEYS', 'DROP_KINDS', 'Drop', 'MatchedSet', 'StampSynchronizer']
+
+#: Why a message left the synchroniser without a set (:class:`Drop`):
+#: ``duplicate``: its key already held a message with that stamp;
+#: ``repeat``: its stamp is the one just emitted on its key (paired before);
+#: ``late``: older than the last set of its key, by less than a jump;
+#: ``overflow``: its key's queue was full, and it was the oldest;
+#: ``passed``: a set of later stamps was emitted first;
+#: ``jump``: it waited when the stamps jumped back and pairing started over;
+#: ``unmatched``: still waiting when :meth:`StampSynchronizer.drain` was called.
+DROP_KINDS = ('duplicate', 'repeat', 'late', 'overflow', 'passed', 'jump', 'unmatched')
 
 DEFAULT_KEYS: tuple[str, ...] = ('left', 'right', 'left_info', 'right_info')
+
+
+@dataclass(frozen=True)
+class Drop:
+    """One message that left the synchroniser without a set (``record_drops=True``).
+
+    Attributes:
+        key: Its stream.
+        stamp_ns: Its stamp.
+        kind: Why (one of :data:`DROP_KINDS`).
+        others: For every other key, the stamps it held then (waiting, and the last emitted
+            one), to say which partner was missing and how near the nearest came.
+    """
+
+    key: Hashable
+    stamp_ns: int
+    kind: str
+    others: dict[Hashable, tuple[int, ...]]
 
 
 @dataclass(frozen=True)
@@ -76,6 +104,8 @@ class StampSynchronizer:
             dropped: a complete frame delivered after a newer one never resets the streams,
             and a jump back by less than this heals by itself once the stamps pass the old
             ones.
+        record_drops: Keep a :class:`Drop` for every message that leaves without a set
+            (:meth:`take_drops`), for tools that report them one by one; off in the node.
 
     Attributes:
         dropped: Messages evicted without being part of a set.
@@ -96,6 +126,7 @@ class StampSynchronizer:
         approximate: bool = False,
         tolerance_ns: int = 0,
         min_jump_ns: int = 1_000_000_000,
+        record_drops: bool = False,
     ) -> None:
         keys = tuple(keys)
         if not keys:
@@ -123,6 +154,39 @@ class StampSynchronizer:
         self._last: dict[Hashable, int | None] = {key: None for key in keys}
         self._last_set_ns: int | None = None
         self._lock = threading.Lock()
+        self.record_drops = bool(record_drops)
+        self._drops: list[Drop] = []
+
+    def _note(self, key: Hashable, stamps: Sequence[int], kind: str) -> None:
+        """Record ``stamps`` of ``key`` as dropped for ``kind`` (before the queues change)."""
+        if not self.record_drops or not stamps:
+            return
+        others = {}
+        for other in self.keys:
+            if other == key:
+                continue
+            held = [s for s, _ in self._queues[other]] + [s for s, _ in self._stale[other]]
+            last = self._last[other]
+            others[other] = tuple(sorted(held + ([last] if last is not None else [])))
+        self._drops.extend(Drop(key, int(stamp), kind, others) for stamp in stamps)
+
+    def take_drops(self) -> list[Drop]:
+        """The drops recorded since the last call, oldest first (``record_drops=True``)."""
+        with self._lock:
+            drops, self._drops = self._drops, []
+            return drops
+
+    def drain(self) -> None:
+        """End of input: drop everything still waiting (counted, and recorded as
+        ``unmatched``, or ``late`` for messages kept aside as a possible jump back)."""
+        with self._lock:
+            for key in self.keys:
+                self._note(key, [s for s, _ in self._queues[key]], 'unmatched')
+                self._note(key, [s for s, _ in self._stale[key]], 'late')
+            for key in self.keys:
+                self.dropped += len(self._queues[key])  # held-aside ones counted already
+                self._queues[key] = []
+                self._stale[key] = []
 
     def add(self, key: Hashable, stamp_ns: int, msg: Any) -> list[MatchedSet]:
         """Offer one message; return the sets it completes (empty or one element).
@@ -154,25 +218,30 @@ class StampSynchronizer:
                 if last - stamp_ns < self.min_jump_ns:
                     # A repeat of what was just emitted (a second publisher, a resent
                     # message) or a late straggler.
+                    self._note(key, [stamp_ns], 'repeat' if stamp_ns == last else 'late')
                     return []
                 return self._add_stale(key, stamp_ns, msg)
             queue = self._queues[key]
-            if not self._insert(queue, stamp_ns, msg):
+            if not self._insert(key, queue, stamp_ns, msg):
                 return []
             chosen = self._best_set(self._queues, key, stamp_ns)
             if chosen is None:
                 return []
             return [self._emit(chosen)]
 
-    def _insert(self, queue: list[tuple[int, Any]], stamp_ns: int, msg: Any) -> bool:
+    def _insert(
+        self, key: Hashable, queue: list[tuple[int, Any]], stamp_ns: int, msg: Any
+    ) -> bool:
         """Put a message into a queue (sorted, bounded); False if it did not stay there."""
         if any(stamp == stamp_ns for stamp, _ in queue):
             # A repeated stamp on one stream: keep the first, the newcomer is a duplicate.
             self.dropped += 1
+            self._note(key, [stamp_ns], 'duplicate')
             return False
         queue.append((stamp_ns, msg))
         queue.sort(key=lambda entry: entry[0])
         if len(queue) > self.queue_size:
+            self._note(key, [queue[0][0]], 'overflow')
             queue.pop(0)
             self.dropped += 1
         return any(entry[0] == stamp_ns for entry in queue)
@@ -184,7 +253,7 @@ class StampSynchronizer:
         a jump brings back is taken off :attr:`dropped` again.
         """
         before = self.dropped
-        kept = self._insert(self._stale[key], stamp_ns, msg)
+        kept = self._insert(key, self._stale[key], stamp_ns, msg)
         # Held-aside messages were counted when they came; evicting or refusing one is no news.
         self.dropped = before
         if not kept:
@@ -195,6 +264,8 @@ class StampSynchronizer:
         # A whole set older than the last one: the streams went back in time, not astray.
         jumped_from = self._last_set_ns
         self.jumps += 1
+        for other in self.keys:
+            self._note(other, [s for s, _ in self._queues[other]], 'jump')
         self.dropped += sum(len(queue) for queue in self._queues.values())
         self.dropped -= sum(len(queue) for queue in self._stale.values())
         self._queues = self._stale
@@ -239,6 +310,9 @@ class StampSynchronizer:
 
     def _emit(self, chosen: dict[Hashable, int]) -> MatchedSet:
         items: dict[Hashable, Any] = {}
+        # Recorded before any queue changes, so each drop sees the stamps its partners had.
+        for key in self.keys:
+            self._note(key, [s for s, _ in self._queues[key] if s < chosen[key]], 'passed')
         for key in self.keys:
             stamp = chosen[key]
             queue = self._queues[key]

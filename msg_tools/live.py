@@ -443,12 +443,12 @@ def _play(
                     continue
                 player.publishers[topic].publish(raw)
                 recorder.published(stamp)
-                session.offer(key_of[topic], stamp)
                 for matched in sync.add(key_of[topic], stamp, msg):
-                    session.paired(matched)
                     recorder.expect(matched, session.counts['pairs'], timestamp)
                     session.counts['pairs'] += 1
-            session.end_of_input()
+                session.report_drops(sync)
+            sync.drain()
+            session.report_drops(sync)
             recorder.finish(node, progress)
         finally:
             session.counts['unpaired'] = sync.dropped + sum(sync.pending().values())

@@ -80,8 +80,6 @@ _MAX_SKIP_LOGS = 20
 # The same for unpaired input messages, and for unscored frames (per reason).
 _MAX_UNPAIRED_LOGS = 10
 _MAX_UNSCORED_LOGS = 3
-# Stamps of paired messages remembered per input, to name a later repeat a duplicate.
-_PAIRED_MEMORY = 1000
 # Readable names of the synchroniser keys.
 _KEY_NAMES = {
     'left': 'left image', 'right': 'right image', 'left_info': 'left camera info',
@@ -548,9 +546,9 @@ class ReplaySession:
     ground truth never comes is reported unscored. A frame that cannot be scored (no usable
     ground truth) is logged with the reason (the first few times per reason).
 
-    Input messages are followed through the synchroniser (:meth:`offer`, :meth:`paired`,
-    :meth:`end_of_input`): each one that matches no pair is logged (the first few) and
-    recorded in the report with its topic, stamp and why (no partner, duplicate stamp).
+    The synchroniser records the input messages it lets go without a pair
+    (:meth:`report_drops`): each is logged (the first few) and recorded in the report with its
+    topic, stamp and why (no partner, duplicate stamp, late).
 
     Args:
         options: The run's options.
@@ -588,12 +586,6 @@ class ReplaySession:
         self._pending: OrderedDict[int, FrameResult] = OrderedDict()
         self._truth: OrderedDict[int, Any] = OrderedDict()
         self._skip_logs = 0
-        # Per input key: stamps offered to the synchroniser and not paired yet (in order),
-        # and the latest paired ones (to tell a duplicate).
-        self._waiting: dict[str, dict[int, None]] = {key: {} for key in INPUT_KEYS}
-        self._paired: dict[str, OrderedDict[int, None]] = {
-            key: OrderedDict() for key in INPUT_KEYS
-        }
         self._unpaired_logs = 0
         self._unscored_logs: Counter[str] = Counter()
 
@@ -646,72 +638,40 @@ class ReplaySession:
         elif self._skip_logs == _MAX_SKIP_LOGS + 1:
             self.log('more frames skipped; only counting them from now on')
 
-    def offer(self, key: str, stamp_ns: int) -> None:
-        """Note an input message about to be offered to the synchroniser.
+    def report_drops(self, sync: Any) -> None:
+        """Log and record the input messages the synchroniser let go without a pair
+        (``record_drops=True``; call after each message and after ``sync.drain()``)."""
+        for drop in sync.take_drops():
+            self._unpaired(drop.key, drop.stamp_ns, self._why(drop))
 
-        A stamp its input has already (waiting or just paired) is a duplicate, which the
-        synchroniser drops: it is reported at once.
-        """
-        if stamp_ns in self._waiting[key] or stamp_ns in self._paired[key]:
-            self._unpaired(
-                key, stamp_ns,
-                f'duplicate stamp: an earlier message on {self.plan.inputs[key]} has the same '
-                f'stamp' + (' and was paired' if stamp_ns in self._paired[key] else ''),
-            )
-            return
-        waiting = self._waiting[key]
-        waiting[stamp_ns] = None
-        if len(waiting) > self.options.queue_size:
-            # The synchroniser's queue is full: its oldest message goes.
-            self._drop_waiting({key: [min(waiting)]})
-
-    def paired(self, matched: Any) -> None:
-        """Note a matched set: what waited on an input before its stamp can no longer pair."""
-        evicted: dict[str, list[int]] = {}
-        for key in INPUT_KEYS:
-            stamp = int(matched.stamps_ns.get(key, matched.stamp_ns))
-            waiting = self._waiting[key]
-            waiting.pop(stamp, None)
-            evicted[key] = [s for s in waiting if s < stamp]
-            memory = self._paired[key]
-            memory[stamp] = None
-            while len(memory) > _PAIRED_MEMORY:
-                memory.popitem(last=False)
-        self._drop_waiting(evicted)
-
-    def end_of_input(self) -> None:
-        """Report what still waits in the synchroniser when the input ends."""
-        self._drop_waiting({key: list(waiting) for key, waiting in self._waiting.items()})
-
-    def _drop_waiting(self, evicted: dict[str, list[int]]) -> None:
-        """Report waiting messages that will never pair, saying what they lacked."""
-        reasons = {
-            (key, stamp): self._no_partner(key, stamp)
-            for key, stamps in evicted.items() for stamp in stamps
-        }
-        for (key, stamp), why in sorted(reasons.items(), key=lambda item: item[0][1]):
-            self._waiting[key].pop(stamp, None)
-            self._unpaired(key, stamp, why)
-
-    def _no_partner(self, key: str, stamp_ns: int) -> str:
-        """Why a message found no partner: the inputs without its stamp, and the nearest
-        stamp each of them had."""
+    def _why(self, drop: Any) -> str:
+        """A drop's reason in words, naming the inputs that lacked its stamp."""
+        topic = self.plan.inputs[drop.key]
+        if drop.kind == 'duplicate':
+            return f'duplicate stamp: an earlier message on {topic} has the same stamp'
+        if drop.kind == 'repeat':
+            return (f'duplicate stamp: an earlier message on {topic} has the same stamp and '
+                    'was paired')
+        if drop.kind == 'late':
+            return f'late: older than the last pair on {topic}'
+        if drop.kind == 'overflow':
+            return (f'the queue of {topic} was full ({self.options.queue_size} messages): the '
+                    'oldest went')
+        if drop.kind == 'jump':
+            return 'the stamps jumped back while it waited; pairing started over'
         if self.options.approximate_sync:
             return (
                 f'no partner within the sync tolerance ({self.options.sync_tolerance_s:g} s) '
                 f'on every input'
             )
         missing = []
-        for other in INPUT_KEYS:
-            if other == key:
-                continue
-            stamps = [*self._waiting[other], *self._paired[other]]
-            if stamp_ns in stamps:
+        for other, stamps in drop.others.items():
+            if drop.stamp_ns in stamps:
                 continue
             text = self.plan.inputs[other]
             if stamps:
-                nearest = min(stamps, key=lambda s: abs(s - stamp_ns))
-                text += f' (nearest {_offset(nearest - stamp_ns)})'
+                nearest = min(stamps, key=lambda s: abs(s - drop.stamp_ns))
+                text += f' (nearest {_offset(nearest - drop.stamp_ns)})'
             missing.append(text)
         if not missing:
             return 'no partner (its partners were paired or dropped before it came)'
@@ -958,6 +918,7 @@ def make_synchronizer(options: ReplayOptions) -> Any:
         queue_size=options.queue_size,
         approximate=options.approximate_sync,
         tolerance_ns=int(round(options.sync_tolerance_s * 1e9)),
+        record_drops=True,
     )
 
 
@@ -1013,14 +974,14 @@ def run_offline(
                     if topic == plan.ground_truth:
                         session.add_ground_truth(stamp, msg)
                         continue
-                    session.offer(key_of[topic], stamp)
                     for matched in sync.add(key_of[topic], stamp, (msg, timestamp)):
-                        session.paired(matched)
                         frame = session.counts['pairs']
                         session.counts['pairs'] += 1
                         _process_pair(session, pipeline, matched, frame)
                         progress.update()
-                session.end_of_input()
+                    session.report_drops(sync)
+                sync.drain()
+                session.report_drops(sync)
             finally:
                 session.counts['unpaired'] = sync.dropped + sum(sync.pending().values())
         progress.finish()

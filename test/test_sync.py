@@ -370,3 +370,55 @@ def test_min_jump_must_be_a_positive_integer() -> None:
     for bad in (0, -1, 1.5, True):
         with pytest.raises(ConfigError, match='min_jump_ns must be an integer >= 1'):
             StampSynchronizer(min_jump_ns=bad)  # type: ignore[arg-type]
+
+
+def test_every_message_let_go_is_recorded_once_with_why() -> None:
+    sync = StampSynchronizer(keys=('a', 'b'), queue_size=2, record_drops=True)
+    assert sync.add('a', 10, 'a10') == []
+    assert sync.add('a', 10, 'again') == []  # duplicate while waiting
+    assert sync.add('a', 20, 'a20') == [] and sync.add('a', 30, 'a30') == []  # 10 overflows
+    assert sync.add('b', 25, 'b25') == []
+    (matched,) = sync.add('b', 30, 'b30')  # a20 and b25 are passed by the set at 30
+    assert matched.stamp_ns == 30
+    assert sync.add('b', 30, 'b30 again') == []  # the stamp just paired: a repeat
+    assert sync.add('b', 29, 'b29') == []  # older than the last set by less than a jump
+    assert sync.add('a', 40, 'a40') == []
+    sync.drain()  # end of input: a40 never found a partner
+    drops = sync.take_drops()
+    assert [(d.key, d.stamp_ns, d.kind) for d in drops] == [
+        ('a', 10, 'duplicate'),
+        ('a', 10, 'overflow'),
+        ('a', 20, 'passed'),
+        ('b', 25, 'passed'),
+        ('b', 30, 'repeat'),
+        ('b', 29, 'late'),
+        ('a', 40, 'unmatched'),
+    ]
+    assert len(drops) == sync.dropped and sync.pending() == {'a': 0, 'b': 0}
+    # Each drop says what the other stream held then: b had 25 (and 30 arriving) for a20.
+    passed = next(d for d in drops if (d.key, d.stamp_ns) == ('a', 20))
+    assert passed.others == {'b': (25, 30)}
+    assert sync.take_drops() == []
+
+
+def test_a_jump_back_records_what_waited_and_nothing_twice() -> None:
+    second = 1_000_000_000
+    sync = StampSynchronizer(keys=('a', 'b'), record_drops=True)
+    sync.add('a', 100 * second, 1)
+    sync.add('b', 100 * second, 1)  # a set at 100 s
+    sync.add('a', 101 * second, 2)  # waits for b, which never comes
+    sync.add('a', 5 * second, 3)  # 95 s back: held aside
+    (matched,) = sync.add('b', 5 * second, 3)  # the old ones pair: the streams jumped
+    assert matched.jumped_from_ns == 100 * second
+    sync.drain()
+    drops = sync.take_drops()
+    assert [(d.key, d.stamp_ns, d.kind) for d in drops] == [('a', 101 * second, 'jump')]
+    assert len(drops) == sync.dropped
+
+
+def test_drops_are_not_kept_unless_asked() -> None:
+    sync = StampSynchronizer(keys=('a', 'b'))
+    sync.add('a', 1, 'x')
+    sync.add('a', 1, 'dup')
+    sync.drain()
+    assert sync.dropped == 2 and sync.take_drops() == []
