@@ -51,6 +51,7 @@ from dataclasses import dataclass, field
 import json
 import os
 from pathlib import Path
+import platform
 import resource
 import statistics
 import subprocess
@@ -71,6 +72,7 @@ __all__ = [
     'RECORD_KEYS',
     'BenchSettings',
     'Case',
+    'host_summary',
     'main',
     'make_pairs',
     'run_case',
@@ -660,6 +662,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except CVAError as error:
         parser.exit(2, f'cva-benchmark: error: {error}\n')
     print(format_table(records, os.cpu_count() or 1))
+    print(f'host: {host_summary()}')
     if args.json is not None:
         write_records(args.json, records, ('extrapolated', 'note'))
     return 0
@@ -688,17 +691,49 @@ def run_suite(
     except CVAError as error:
         parser.exit(2, f'cva-benchmark: error: {error}\n')
     print(table(records))
+    print(f'host: {host_summary()}')
     if args.json is not None:
         write_records(args.json, records, extra_keys)
     return 0
 
 
+def host_summary() -> str:
+    """The machine the numbers belong to: CPU model, cores, and the vector ISA torch uses.
+
+    Two hosts sold as the same 2-core VM ran CVA-Net-Fast 2.3× apart (oneDNN picks its
+    convolution kernels by the vector ISA), so a table without this line cannot be compared.
+    """
+    model = platform.processor() or platform.machine() or 'unknown CPU'
+    try:
+        with open('/proc/cpuinfo', encoding='utf-8') as cpuinfo:
+            for line in cpuinfo:
+                if line.startswith('model name'):
+                    model = line.split(':', 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    try:
+        import torch
+
+        isa = torch.backends.cpu.get_cpu_capability()
+    except (ImportError, AttributeError):
+        isa = 'unknown'
+    return f'{model}, {os.cpu_count() or 1} CPU cores, torch CPU kernels {isa}'
+
+
 def write_records(
     path: Path, records: Sequence[dict[str, Any]], extra_keys: Sequence[str] = ()
 ) -> None:
-    """Write the records as a JSON list: :data:`RECORD_KEYS`, then ``extra_keys`` where set."""
+    """Write the records as a JSON list: :data:`RECORD_KEYS`, ``extra_keys`` where set, ``host``.
+
+    ``host`` (:func:`host_summary`) is the same in every row: the machine they were taken on.
+    """
     keys = (*RECORD_KEYS, *extra_keys)
-    rows = [{key: record[key] for key in keys if key in record} for record in records]
+    host = host_summary()
+    rows = [
+        {**{key: record[key] for key in keys if key in record}, 'host': host}
+        for record in records
+    ]
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(rows, indent=2) + '\n', encoding='utf-8')
     print(f'wrote {path}', file=sys.stderr)

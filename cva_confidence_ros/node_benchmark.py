@@ -64,7 +64,7 @@ from typing import Any, cast
 import numpy as np
 
 from cva_confidence_ros.benchmark import RECORD_KEYS as MATCHER_RECORD_KEYS
-from cva_confidence_ros.benchmark import BenchSettings, make_pairs, memory_kb
+from cva_confidence_ros.benchmark import BenchSettings, host_summary, make_pairs, memory_kb
 from cva_confidence_ros.errors import ConfigError, CVAError, ModelError
 
 __all__ = [
@@ -1316,10 +1316,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         records = run_suite(settings, args.matchers, args.methods)
     except CVAError as error:
         parser.exit(2, f'cva-benchmark --suite node: error: {error}\n')
+    host = host_summary()
     print(format_table(records, os.cpu_count() or 1))
+    print(f'host: {host}')
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(records, indent=2) + '\n', encoding='utf-8')
+        rows = [{**record, 'host': host} for record in records]
+        args.json.write_text(json.dumps(rows, indent=2) + '\n', encoding='utf-8')
         _log(f'wrote {args.json}')
     return 0
 

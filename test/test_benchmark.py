@@ -60,12 +60,14 @@ def test_tiny_run_writes_the_records(tmp_path: Path, capsys: pytest.CaptureFixtu
     records = json.loads(out.read_text())
     assert [r['config'] for r in records] == ['census_bm', 'opencv_sgbm']
     for record in records:
-        assert tuple(record) == benchmark.RECORD_KEYS
+        assert tuple(record) == (*benchmark.RECORD_KEYS, 'host')
+        assert record['host'] == benchmark.host_summary()
         assert (record['width'], record['height'], record['max_disparity']) == (64, 48, 16)
         assert record['device'] == 'cpu'
         assert record['ms_per_frame'] > 0 and record['peak_mem_mb'] >= 0
         assert record['network_gflops'] is None and record['auc_rel'] is None
-    assert 'opencv_sgbm' in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert 'opencv_sgbm' in printed and f'host: {benchmark.host_summary()}' in printed
 
 
 def test_unknown_configuration_exits_with_a_usage_error(

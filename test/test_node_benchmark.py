@@ -160,6 +160,7 @@ def test_tiny_run_through_the_real_node(tmp_path: Path) -> None:
     measured, extrapolated = rows
     for row in rows:
         assert set(node_benchmark.RECORD_KEYS) <= set(row)
+        assert row['host'] == benchmark.host_summary()
         assert (row['width'], row['height'], row['max_disparity']) == (96, 64, 16)
         assert row['latency_ms_median'] > 0
         assert row['fps'] == pytest.approx(1000.0 / row['latency_ms_median'])
