@@ -19,6 +19,7 @@ import sys
 import textwrap
 import threading
 import time
+from typing import NoReturn
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import rclpy
@@ -307,6 +308,10 @@ def run_node(factory: Callable[[], Node], name: str, argv: Sequence[str] | None 
     :func:`cva_confidence_ros.node.run_entry`, a Ctrl-C is noted rather than raised
     (:mod:`cva_confidence_ros.ros.interrupt`) and the start stops once the node is built.
 
+    A node whose ``destroy_node`` leaves a frame running (its ``frame_left_running`` is True)
+    ends the process here with the code, without finalising the interpreter: a worker thread
+    still inside torch would otherwise abort it. Run it as a process's body, not in-process.
+
     Args:
         factory: Builds the node once rclpy is initialised; may raise :class:`CVAError` or
             rclpy's ``ParameterException`` for a configuration it refuses.
@@ -363,4 +368,18 @@ def run_node(factory: Callable[[], Node], name: str, argv: Sequence[str] | None 
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+    if getattr(node, 'frame_left_running', False):
+        # Finalising the interpreter under a worker thread that is inside torch's C++ ends a
+        # thread there that cannot be ended (std::terminate: the process aborts, SIGABRT).
+        _end_process(code)
     return code
+
+
+def _end_process(code: int) -> NoReturn:
+    """End the process with ``code`` at once, output flushed, no interpreter finalisation."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)

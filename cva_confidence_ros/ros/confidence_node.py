@@ -18,6 +18,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.context import Context
+import rclpy.logging
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
@@ -52,9 +53,11 @@ from cva_confidence_ros.ros.params import (
 )
 from cva_confidence_ros.sync import MatchedSet, StampSynchronizer
 
-__all__ = ['NODE_NAME', 'ConfidenceNode', 'run']
+__all__ = ['NODE_NAME', 'STOP_TIMEOUT_S', 'ConfidenceNode', 'run']
 
 NODE_NAME = 'cva_confidence'
+#: How long a stop waits for the frame in progress, in seconds.
+STOP_TIMEOUT_S = 10.0
 _OWN_PARAMETERS = frozenset(spec.name for spec in PARAMETERS)
 # Synchroniser key → the topic it subscribes to (named in the logs).
 _TOPICS = {
@@ -205,6 +208,8 @@ class ConfidenceNode(Node):
         self._diag_timer = self.create_timer(
             node_config.diagnostics_period_seconds, self._publish_diagnostics
         )
+        #: Set by :meth:`destroy_node` when a frame outlasted the stop's wait.
+        self.frame_left_running = False
         self._worker = threading.Thread(target=self._work, name='cva_confidence_worker')
         self._worker.daemon = True
         self._worker.start()
@@ -557,15 +562,32 @@ class ConfidenceNode(Node):
 
     # Life cycle ---------------------------------------------------------------------------
 
-    def stop(self, timeout: float = 10.0) -> None:
-        """Stop the worker thread (waits for the frame in progress, up to ``timeout`` s)."""
+    def stop(self, timeout: float = STOP_TIMEOUT_S) -> bool:
+        """Stop the worker thread (waits for the frame in progress, up to ``timeout`` s).
+
+        Returns:
+            Whether the worker has ended: False while a frame is still being processed.
+        """
         self._mailbox.close()
         if self._worker.is_alive() and self._worker is not threading.current_thread():
             self._worker.join(timeout)
+        return not self._worker.is_alive()
 
     def destroy_node(self) -> None:
-        """Stop the worker, then destroy the node."""
-        self.stop()
+        """Stop the worker, then destroy the node.
+
+        A frame that outlasts :data:`STOP_TIMEOUT_S` (the paper network on a CPU takes minutes)
+        is logged and left running; :attr:`frame_left_running` is then True, and
+        :func:`~cva_confidence_ros.ros.common.run_node` ends the process without waiting.
+        """
+        if not self.stop():
+            self.frame_left_running = True
+            # Not the node's own logger: its /rosout publisher dies with the context.
+            rclpy.logging.get_logger(f'{self.get_name()}.stop').warning(
+                f'a frame was still being processed {STOP_TIMEOUT_S:g} s after the stop '
+                f'(confidence_method {self._pipeline_config.confidence_method} on '
+                f'{self._pipeline.device}); stopping without it'
+            )
         super().destroy_node()
 
 

@@ -11,6 +11,7 @@ import sys
 import threading
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray
 from node_test_utils import (
     Spinner,
     StereoClient,
@@ -152,6 +153,60 @@ def test_cva_net_with_given_weights_and_sigterm(client: StereoClient, tmp_path: 
     assert confidence.std() > 0
     assert code == 0, node.output
     assert 'Traceback' not in node.output, node.output
+
+
+def _frames_received(client: StereoClient) -> int:
+    """The node's ``frames_received`` in the newest diagnostics that carry it, else 0."""
+    for array in reversed(client.received['/diagnostics']):
+        for entry in array.status:
+            for value in entry.values:
+                if value.key == 'frames_received':
+                    return int(value.value)
+    return 0
+
+
+def test_stop_during_a_long_frame_ends_the_process_cleanly(
+    client: StereoClient, tmp_path: Path
+) -> None:
+    # The paper network on a CPU takes longer a frame than the stop waits: the process must
+    # still end with 0 and a warning, not abort (SIGABRT) while finalising under torch.
+    torch = pytest.importorskip('torch')
+    from cva_confidence_ros.model import CVANet, save_weights
+    from cva_confidence_ros.ros.confidence_node import STOP_TIMEOUT_S
+
+    torch.manual_seed(0)
+    weights = tmp_path / 'random_cvanet_d64.pt'
+    save_weights(CVANet(64), weights, meta={'matcher': 'census_bm', 'max_disparity': 64})
+    node = NodeProcess(
+        '-p', 'confidence_method:=cva_net',
+        '-p', f'model_path:={weights}',
+        '-p', 'max_disparity:=64',
+    )  # fmt: skip
+    try:
+        _started(node)
+        assert client.wait_connected(30), node.output
+        # 240×320 at D = 64: ≈ 2.7 T multiply-adds, tens of seconds on one thread. Sent again
+        # (a new stamp) until the node's diagnostics count it: a first publish can be lost.
+        client.subscribe('/diagnostics', DiagnosticArray)
+        left, right = textured_pair(height=240, width=320, seed=14)
+        deadline = time.monotonic() + 30.0
+        sent = []
+        for stamp in range(first_stamp() + 2 * 10**12, first_stamp() + 3 * 10**12, 10**9):
+            client.publish_frame(left, right, stamp)
+            sent.append(stamp)
+            if client.wait_for(lambda: _frames_received(client) > 0, timeout=1.5):
+                break
+            assert time.monotonic() < deadline, f'the node counted no frame:\n{node.output}'
+        time.sleep(2.0)  # past matching: the network is running
+        done = [stamp for stamp in sent if client.by_stamp('confidence', stamp) is not None]
+        assert not done, 'the frame ended before the stop'
+        start = time.monotonic()
+    finally:
+        code = node.stop(signal.SIGINT, timeout=STOP_TIMEOUT_S + 50)
+    assert time.monotonic() - start < STOP_TIMEOUT_S + 20
+    assert code == 0, node.output
+    assert 'still being processed' in node.output, node.output
+    assert 'terminate called' not in node.output and 'Traceback' not in node.output
 
 
 @pytest.mark.parametrize(
