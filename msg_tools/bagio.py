@@ -215,8 +215,10 @@ class InputBag:
             )
         return topics[topic]
 
-    def messages(self, topics: Sequence[str]) -> Iterator[tuple[str, str, int, bytes]]:
-        """Raw messages of ``topics`` in bag-time order.
+    def messages(
+        self, topics: Sequence[str], start: int | None = None
+    ) -> Iterator[tuple[str, str, int, bytes]]:
+        """Raw messages of ``topics`` in bag-time order, from bag time ``start`` (ns) on.
 
         Yields:
             (topic, message type, bag timestamp in ns, CDR bytes).
@@ -230,7 +232,7 @@ class InputBag:
         if not wanted:
             return
         count = 0
-        iterator = self.reader.messages(connections=wanted)
+        iterator = self.reader.messages(connections=wanted, start=start)
         while True:
             try:
                 item = next(iterator)

@@ -423,11 +423,13 @@ def _play(
     )
     recorder = _Recorder(session, store, options, player.received)
     with session:
+        position: int | None = None  # bag time of the last message read
         try:
             start_bag: int | None = None
             start_wall = 0.0
             for topic, msgtype, timestamp, raw in bag.messages(plan.topics):
                 interrupts.check()
+                position = timestamp
                 if start_bag is None:
                     start_bag, start_wall = timestamp, time.monotonic()
                 due = start_wall + (timestamp - start_bag) / 1e9 / options.rate_scale
@@ -453,6 +455,8 @@ def _play(
         finally:
             session.counts['unpaired'] = sync.dropped + sum(sync.pending().values())
             session.counts['dropped'] = recorder.unanswered()
+            if interrupts.requested:
+                session.read_ahead_ground_truth(bag, position, store)
     progress.finish()
     return session.outcome()
 

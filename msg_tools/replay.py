@@ -788,6 +788,34 @@ class ReplaySession:
         elif count == _MAX_UNSCORED_LOGS + 1:
             self.log(f'more frames not scored for "{kind}"; only counting them from now on')
 
+    def read_ahead_ground_truth(self, bag: InputBag, since_ns: int | None, store: Any) -> None:
+        """Look further into ``bag`` for the ground truth of frames still waiting for it.
+
+        A replay stopped early (Ctrl-C) has processed frames whose ground truth lies a little
+        later in the bag; they are scored rather than reported without metrics. Reads the
+        ground-truth topic only, from bag time ``since_ns``, and at most a few messages more
+        than frames wait. A bag that fails here is left to what was already read.
+        """
+        if not self._pending or self.plan.ground_truth is None or since_ns is None:
+            return
+        from rosbags.serde import SerdeError
+
+        budget = 2 * len(self._pending) + 4
+        try:
+            for _, msgtype, _, raw in bag.messages([self.plan.ground_truth], start=since_ns):
+                budget -= 1
+                try:
+                    msg = store.deserialize_cdr(raw, msgtype)
+                except SerdeError:
+                    continue
+                stamp = stamp_to_ns(msg.header.stamp)
+                if stamp in self._pending:
+                    self.add_ground_truth(stamp, msg)
+                if not self._pending or budget <= 0:
+                    return
+        except BagError:
+            return
+
     def finish(self) -> None:
         """Score what still waits, close the output bag, write the report."""
         for result in list(self._pending.values()):
@@ -961,10 +989,12 @@ def run_offline(
         key_of = plan.key_of
         progress = Progress(plan.pairs_expected, prefix='[cva-bag-replay] offline: ')
         session = ReplaySession(options, plan, log, interrupts=interrupts)
+        position: int | None = None  # bag time of the last message read
         with session:
             try:
                 for topic, msgtype, timestamp, raw in bag.messages(plan.topics):
                     interrupts.check()
+                    position = timestamp
                     try:
                         msg = store.deserialize_cdr(raw, msgtype)
                     except SerdeError as err:
@@ -984,6 +1014,8 @@ def run_offline(
                 session.report_drops(sync)
             finally:
                 session.counts['unpaired'] = sync.dropped + sum(sync.pending().values())
+                if interrupts.requested:
+                    session.read_ahead_ground_truth(bag, position, store)
         progress.finish()
     return session.outcome()
 

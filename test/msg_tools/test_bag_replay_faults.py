@@ -305,6 +305,30 @@ def test_report_and_output_must_not_overlap(
     assert len(read_bag(tmp_path / 'run' / 'bag')['/disparity']) == 1
 
 
+def test_ctrl_c_during_a_frame_still_scores_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # The signal lands while the second frame is processed; its ground truth comes after its
+    # images in the bag, so the replay reads ahead for it rather than report the frame bare.
+    from msg_tools import replay
+
+    bag = write_stereo_bag(tmp_path / 'in', [{'shift': 3}, {'shift': 4}, {'shift': 5}])
+    process_pair = replay._process_pair
+
+    def signal_during_second(session: replay.ReplaySession, *args: object) -> None:
+        if session.counts['pairs'] == 2:
+            os.kill(os.getpid(), signal.SIGINT)  # taken by the replay's own handler
+        process_pair(session, *args)
+
+    monkeypatch.setattr(replay, '_process_pair', signal_during_second)
+    code = _replay_into(bag, tmp_path / 'out', tmp_path / 'report')
+    assert code == 130, capsys.readouterr().err
+    report = json.loads((tmp_path / 'report' / 'report.json').read_text())
+    assert report['summary']['interrupted'] is True
+    assert [frame['frame'] for frame in report['frames']] == [0, 1]
+    assert all(frame['auc'] is not None and not frame['note'] for frame in report['frames'])
+
+
 def test_ctrl_c_leaves_a_readable_bag(tmp_path: Path) -> None:
     # Enough frames that the run is still going when the signal comes (PNGs make each slow).
     bag = write_stereo_bag(tmp_path / 'in', [{'shift': 2 + i % 5} for i in range(150)])
