@@ -661,10 +661,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             records.append(_run_in_subprocess(name, settings, crop))
     except CVAError as error:
         parser.exit(2, f'cva-benchmark: error: {error}\n')
+    host = host_summary()
     print(format_table(records, os.cpu_count() or 1))
-    print(f'host: {host_summary()}')
+    print(f'host: {host}')
     if args.json is not None:
-        write_records(args.json, records, ('extrapolated', 'note'))
+        write_records(args.json, records, ('extrapolated', 'note'), host=host)
     return 0
 
 
@@ -690,10 +691,11 @@ def run_suite(
         records = measure(args, settings)
     except CVAError as error:
         parser.exit(2, f'cva-benchmark: error: {error}\n')
+    host = host_summary()
     print(table(records))
-    print(f'host: {host_summary()}')
+    print(f'host: {host}')
     if args.json is not None:
-        write_records(args.json, records, extra_keys)
+        write_records(args.json, records, extra_keys, host=host)
     return 0
 
 
@@ -722,14 +724,18 @@ def host_summary() -> str:
 
 
 def write_records(
-    path: Path, records: Sequence[dict[str, Any]], extra_keys: Sequence[str] = ()
+    path: Path,
+    records: Sequence[dict[str, Any]],
+    extra_keys: Sequence[str] = (),
+    host: str | None = None,
 ) -> None:
     """Write the records as a JSON list: :data:`RECORD_KEYS`, ``extra_keys`` where set, ``host``.
 
-    ``host`` (:func:`host_summary`) is the same in every row: the machine they were taken on.
+    ``host`` is the same in every row: the machine they were taken on (None =
+    :func:`host_summary`).
     """
     keys = (*RECORD_KEYS, *extra_keys)
-    host = host_summary()
+    host = host_summary() if host is None else host
     rows = [
         {**{key: record[key] for key in keys if key in record}, 'host': host}
         for record in records
