@@ -6,10 +6,12 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 # torch is pinned: 2.13.0 is the CPU build that lies on this machine's disk; a bare `torch`
-# pulls a multi-GB CUDA build from the index.
+# pulls a multi-GB CUDA build from the index. rclpy.lifecycle (cva-lifecycle-node) imports
+# lifecycle_msgs, which a ROS install of rclpy brings along and its wheel does not.
 TORCH := torch==2.13.0
 DEPS := numpy scipy opencv-python-headless scikit-image numba matplotlib tqdm \
-	rosbags 'ros-jazzy-rclpy[fastrtps]' ros-jazzy-common-interfaces mccnn onnx onnxruntime
+	rosbags 'ros-jazzy-rclpy[fastrtps]' ros-jazzy-common-interfaces \
+	ros-jazzy-lifecycle-msgs mccnn onnx onnxruntime
 TEST_DEPS := pytest pyyaml pytest-timeout colcon-core colcon-python-setup-py colcon-ros ruff mypy
 DEMO_OUT ?= out/demo
 

@@ -38,8 +38,18 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from cva_confidence_ros.ros.confidence_node import NODE_NAME, ConfidenceNode
+    from cva_confidence_ros.ros.lifecycle_node import ManagedConfidenceNode
 
-__all__ = ['NODE_NAME', 'ConfidenceNode', 'main', 'run_entry', 'usage']
+__all__ = [
+    'NODE_NAME',
+    'ConfidenceNode',
+    'ManagedConfidenceNode',
+    'lifecycle_main',
+    'lifecycle_usage',
+    'main',
+    'run_entry',
+    'usage',
+]
 
 _EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a Ctrl-C
 
@@ -76,9 +86,55 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
 
 
+def lifecycle_main(argv: Sequence[str] | None = None) -> int:
+    """Run the managed (lifecycle) node (``cva-lifecycle-node`` / ``ros2 run cva_confidence_ros
+    lifecycle_node``); arguments and exit codes as :func:`main`."""
+    return run_entry(
+        'cva_confidence_ros.ros.lifecycle_node',
+        argv,
+        usage=lifecycle_usage,
+        example=_EXAMPLE,
+    )
+
+
 def usage(prog: str = 'cva-node') -> str:
     """The node's ``--help``: its topics, and its parameters with defaults and descriptions."""
     from cva_confidence_ros.ros.common import usage_text
+
+    return usage_text(
+        prog,
+        'Stereo confidence node: rectified stereo in; disparity, confidence and a '
+        'confidence-filtered point cloud out.',
+        _TOPICS,
+        _parameter_lines(),
+        example=_EXAMPLE,
+    )
+
+
+def lifecycle_usage(prog: str = 'cva-lifecycle-node') -> str:
+    """The managed node's ``--help``: :func:`usage` plus its states and ``autostart``."""
+    from cva_confidence_ros.ros.common import usage_text
+
+    parameters = [
+        ('autostart', False, '(start-up only)',
+         'Configure and activate at start-up, without a lifecycle manager.'),
+        *_parameter_lines(),
+    ]
+    return usage_text(
+        prog,
+        'Stereo confidence node as a ROS 2 managed (lifecycle) node: it starts unconfigured; '
+        'configure loads the weights and warms up the matcher (a refused configuration fails '
+        'the transition and leaves it unconfigured), activate subscribes and publishes, '
+        'deactivate unsubscribes, cleanup releases the pipeline. Transitions through the '
+        'standard lifecycle services (ros2 lifecycle set /cva_confidence configure, a '
+        'lifecycle manager) or autostart:=true.',
+        _TOPICS,
+        parameters,
+        example=_EXAMPLE,
+    )
+
+
+def _parameter_lines() -> list[tuple[str, object, str, str]]:
     from cva_confidence_ros.ros.params import PARAMETERS
 
     parameters = []
@@ -92,14 +148,7 @@ def usage(prog: str = 'cva-node') -> str:
         if spec.constraints:
             description += f' Allowed: {spec.constraints}.'
         parameters.append((spec.name, spec.default, ' '.join(limits), description))
-    return usage_text(
-        prog,
-        'Stereo confidence node: rectified stereo in; disparity, confidence and a '
-        'confidence-filtered point cloud out.',
-        _TOPICS,
-        parameters,
-        example=_EXAMPLE,
-    )
+    return parameters
 
 
 def run_entry(
@@ -155,6 +204,10 @@ def __getattr__(name: str) -> Any:
         from cva_confidence_ros.ros import confidence_node
 
         return getattr(confidence_node, name)
+    if name == 'ManagedConfidenceNode':
+        from cva_confidence_ros.ros import lifecycle_node
+
+        return lifecycle_node.ManagedConfidenceNode
     raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
 
 

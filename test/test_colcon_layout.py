@@ -105,8 +105,8 @@ def test_colcon_install_layout(workspace: Path) -> None:
     assert executable.is_file()
     assert os.access(executable, os.X_OK)
     scripts = {path.name for path in (prefix / 'lib' / PACKAGE).iterdir()}
-    assert {'node', 'cloud_filter', 'train', 'evaluate', 'table1', 'benchmark', 'demo',
-            'bag_replay'} <= scripts
+    assert {'node', 'lifecycle_node', 'cloud_filter', 'train', 'evaluate', 'table1',
+            'benchmark', 'demo', 'bag_replay'} <= scripts
     assert not any(name.startswith('cva-') for name in scripts)
     assert not (prefix / 'bin').exists()
     marker = prefix / 'share' / 'ament_index' / 'resource_index' / 'packages' / PACKAGE

@@ -22,6 +22,7 @@ import rclpy.logging
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
+from rclpy.timer import Timer
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
@@ -53,7 +54,7 @@ from cva_confidence_ros.ros.params import (
 )
 from cva_confidence_ros.sync import MatchedSet, StampSynchronizer
 
-__all__ = ['NODE_NAME', 'STOP_TIMEOUT_S', 'ConfidenceNode', 'run']
+__all__ = ['NODE_NAME', 'STOP_TIMEOUT_S', 'ConfidenceCore', 'ConfidenceNode', 'run']
 
 NODE_NAME = 'cva_confidence'
 #: How long a stop waits for the frame in progress, in seconds.
@@ -93,6 +94,13 @@ class _Mailbox:
                 return None
             item, self._item = self._item, None
             return item
+
+    def clear(self) -> bool:
+        """Drop the item waiting, if any; return whether there was one."""
+        with self._cond:
+            dropped = self._item is not None
+            self._item = None
+            return dropped
 
     @property
     def closed(self) -> bool:
@@ -151,69 +159,138 @@ class _Stats:
             self.mean_timings_ms[key] = value if previous is None else 0.9 * previous + 0.1 * value
 
 
-class ConfidenceNode(Node):
-    """rclpy node around :class:`StereoPipeline`; see the module docstring for topics.
+class ConfidenceCore(Node):
+    """The confidence node's work, shared by :class:`ConfidenceNode` and the managed node.
 
-    Args:
-        context: rclpy context (tests use one per node); None = the global one.
-        parameter_overrides: Start-up parameter values, as with ``--ros-args -p``.
-        **kwargs: Passed on to :class:`rclpy.node.Node`.
+    Mixed into an rclpy ``Node`` (or ``LifecycleNode``); the stages below are the managed
+    node's transitions, and :class:`ConfidenceNode` runs the first three in its constructor:
 
-    Raises:
-        CVAError: The start-up parameters give an invalid configuration or weights that cannot
-            be loaded.
+    * :meth:`_init_core` — declare the parameters and the parameter callback (nothing runs);
+    * :meth:`_configure` — build and warm up the pipeline, create the publishers, the
+      diagnostics timer and the worker thread (raises :class:`CVAError` for a configuration it
+      refuses: missing weights, a device that is not there, …);
+    * :meth:`_activate` / :meth:`_deactivate` — subscribe to / unsubscribe from the inputs;
+    * :meth:`_cleanup` — stop the worker and release everything :meth:`_configure` made.
     """
 
-    def __init__(
-        self,
-        *,
-        context: Context | None = None,
-        parameter_overrides: list[Parameter] | None = None,
-        **kwargs: Any,
-    ) -> None:
-        super().__init__(
-            NODE_NAME, context=context, parameter_overrides=parameter_overrides, **kwargs
-        )
+    _pipeline: StereoPipeline | None
+    _worker: threading.Thread | None
+
+    def _init_core(self) -> None:
         declare_parameters(self)
-        pipeline_config, node_config = build_configs(parameter_values(self))
         self._lock = threading.Lock()
-        self._pipeline = StereoPipeline(pipeline_config)
-        self._pipeline.warm_up()
-        self._pipeline_config = pipeline_config
-        self._node_config = node_config
-        # (width, height) of the last images received: a parameter change that could not
-        # process them (max_disparity, downsample) is refused.
-        self._input_size: tuple[int, int] | None = None
-        self._sync = self._make_sync(node_config)
-        self._stats = _Stats()
-        self._log_throttle = ReasonThrottle()
+        self._pipeline = None
+        self._worker = None
+        self._subscriptions_in: list[Any] = []
+        self._owned: list[Any] = []
         self._mailbox = _Mailbox()
+        self._mailbox.close()  # nothing to hand over before the first configuration
+        #: Set by :meth:`destroy_node` when a frame outlasted the stop's wait.
+        self.frame_left_running = False
         # rclpy.shutdown() from another thread: the worker must not publish on a dead context.
         # (Ctrl-C shuts the context down in C without these callbacks; see _work.)
-        self.context.on_shutdown(self._mailbox.close)
+        self.context.on_shutdown(lambda: self._mailbox.close())
+        self.add_on_set_parameters_callback(self._on_set_parameters)
 
-        in_qos, out_qos = qos_profile(node_config.input_qos), qos_profile(node_config.output_qos)
-        for key, topic in _TOPICS.items():
-            msg_type = CameraInfo if key.endswith('_info') else Image
-            self.create_subscription(msg_type, topic, partial(self._on_message, key), in_qos)
-        self._pub_disparity = self.create_publisher(DisparityImage, 'disparity', out_qos)
-        self._pub_filtered = self.create_publisher(DisparityImage, 'disparity_filtered', out_qos)
-        self._pub_confidence = self.create_publisher(Image, 'confidence', out_qos)
-        self._pub_points = self.create_publisher(PointCloud2, 'points2', out_qos)
-        self._pub_info = self.create_publisher(CameraInfo, 'camera_info', out_qos)
+    def _create_output_publisher(self, msg_type: type, topic: str, qos: Any) -> Any:
+        """A publisher of the node's outputs (the managed node's are lifecycle publishers)."""
+        return self.create_publisher(msg_type, topic, qos)
+
+    def _configure(self) -> None:
+        pipeline_config, node_config = build_configs(parameter_values(self))
+        pipeline = StereoPipeline(pipeline_config)
+        pipeline.warm_up()
+        with self._lock:
+            self._pipeline = pipeline
+            self._pipeline_config = pipeline_config
+            self._node_config = node_config
+            # (width, height) of the last images received: a parameter change that could not
+            # process them (max_disparity, downsample) is refused.
+            self._input_size: tuple[int, int] | None = None
+            self._sync = self._make_sync(node_config)
+            self._stats = _Stats()
+        self._log_throttle = ReasonThrottle()
+        self._mailbox = _Mailbox()
+        out_qos = qos_profile(node_config.output_qos)
+        publish = self._create_output_publisher
+        self._pub_disparity = publish(DisparityImage, 'disparity', out_qos)
+        self._pub_filtered = publish(DisparityImage, 'disparity_filtered', out_qos)
+        self._pub_confidence = publish(Image, 'confidence', out_qos)
+        self._pub_points = publish(PointCloud2, 'points2', out_qos)
+        self._pub_info = publish(CameraInfo, 'camera_info', out_qos)
         self._pub_diagnostics = self.create_publisher(
             DiagnosticArray, '/diagnostics', QoSProfile(depth=10)
         )
-        self.add_on_set_parameters_callback(self._on_set_parameters)
         self._diag_timer = self.create_timer(
             node_config.diagnostics_period_seconds, self._publish_diagnostics
         )
-        #: Set by :meth:`destroy_node` when a frame outlasted the stop's wait.
-        self.frame_left_running = False
-        self._worker = threading.Thread(target=self._work, name='cva_confidence_worker')
+        self._owned = [
+            self._pub_disparity, self._pub_filtered, self._pub_confidence, self._pub_points,
+            self._pub_info, self._pub_diagnostics, self._diag_timer,
+        ]
+        self._worker = threading.Thread(
+            target=self._work, args=(self._mailbox,), name='cva_confidence_worker'
+        )
         self._worker.daemon = True
         self._worker.start()
-        self._warn_if_slow(self._pipeline)
+        self._warn_if_slow(pipeline)
+
+    def _activate(self) -> None:
+        in_qos = qos_profile(self.node_config.input_qos)
+        for key, topic in _TOPICS.items():
+            msg_type = CameraInfo if key.endswith('_info') else Image
+            self._subscriptions_in.append(
+                self.create_subscription(msg_type, topic, partial(self._on_message, key), in_qos)
+            )
+
+    def _deactivate(self) -> None:
+        """Unsubscribe; a frame waiting in the mailbox is dropped, pairing starts afresh."""
+        for subscription in self._subscriptions_in:
+            self.destroy_subscription(subscription)
+        self._subscriptions_in = []
+        with self._lock:
+            if self._mailbox.clear():
+                self._stats.dropped += 1
+            self._stats.unmatched += sum(self._sync.pending().values())
+            self._sync = self._make_sync(self._node_config)
+
+    def _cleanup(self) -> bool:
+        """Stop the worker and release the pipeline, publishers and timer.
+
+        Returns:
+            Whether the worker has ended (False: a frame outlasted :data:`STOP_TIMEOUT_S` and
+            was left running, logged).
+        """
+        self._deactivate()
+        stopped = self._stop_worker()
+        for entity in self._owned:
+            if isinstance(entity, Timer):
+                self.destroy_timer(entity)
+            else:
+                self.destroy_publisher(entity)
+        self._owned = []
+        with self._lock:
+            self._pipeline = None
+        return stopped
+
+    def _stop_worker(self) -> bool:
+        if self.stop():
+            return True
+        self.frame_left_running = True
+        device = self._pipeline.device if self._pipeline is not None else 'its device'
+        # Not the node's own logger: its /rosout publisher dies with the context.
+        rclpy.logging.get_logger(f'{self.get_name()}.stop').warning(
+            f'a frame was still being processed {STOP_TIMEOUT_S:g} s after the stop '
+            f'(confidence_method {self._pipeline_config.confidence_method} on '
+            f'{device}); stopping without it'
+        )
+        return False
+
+    @property
+    def configured(self) -> bool:
+        """Whether a pipeline is built (the managed node between configure and cleanup)."""
+        with self._lock:
+            return self._pipeline is not None
 
     def summary(self) -> str:
         """One line on what the node computes, for its ready line."""
@@ -270,6 +347,16 @@ class ConfidenceNode(Node):
         if not params:
             return SetParametersResult(successful=True)
         asked = ', '.join(f'{p.name}={p.value!r}' for p in params)
+        if not self.configured:
+            # The managed node before configure (or after cleanup): the next configure builds
+            # the pipeline; here the values only have to make a valid configuration.
+            try:
+                build_configs(parameter_values(self), params)
+            except CVAError as error:
+                self.get_logger().warning(f'parameter change refused ({asked}): {error}')
+                return SetParametersResult(successful=False, reason=str(error))
+            self.get_logger().info(f'parameters set: {asked}')
+            return SetParametersResult(successful=True)
         try:
             pipeline_config, node_config = build_configs(parameter_values(self), params)
             pipeline = None
@@ -378,14 +465,17 @@ class ConfidenceNode(Node):
 
     # Worker side --------------------------------------------------------------------------
 
-    def _stopping(self) -> bool:
-        """Whether the node is being stopped: its worker closed or its context shut down."""
-        return self._mailbox.closed or not self.context.ok()
+    def _stopping(self, mailbox: _Mailbox) -> bool:
+        """Whether the worker of ``mailbox`` is being stopped: the mailbox closed (a stop, a
+        cleanup) or the context shut down."""
+        return mailbox.closed or not self.context.ok()
 
-    def _work(self) -> None:
+    def _work(self, mailbox: _Mailbox) -> None:
+        # The worker's own mailbox, not the node's: after a cleanup and a new configure, a
+        # worker left running with a long frame must not take the new worker's frames.
         while True:
-            item = self._mailbox.take()
-            if item is None or self._stopping():
+            item = mailbox.take()
+            if item is None or self._stopping(mailbox):
                 return
             try:
                 self._process(item)
@@ -398,7 +488,7 @@ class ConfidenceNode(Node):
                     self.get_logger(), str(error), f'dropped frame {item.stamp_ns}: {error}'
                 )
             except Exception as error:  # noqa: BLE001  (the worker must outlive any frame)
-                if self._stopping():
+                if self._stopping(mailbox):
                     # Ctrl-C shuts the context down (in C, before any Python runs), and the
                     # frame in progress then fails to publish: that is the stop, not a fault.
                     return
@@ -426,6 +516,8 @@ class ConfidenceNode(Node):
                 self._pipeline_config,
                 self._node_config,
             )
+        if pipeline is None:  # cleaned up (the managed node) while this frame waited
+            return
         convert_ms = (time.perf_counter() - start) * 1e3
 
         result = pipeline.process(left, right)
@@ -571,9 +663,12 @@ class ConfidenceNode(Node):
             Whether the worker has ended: False while a frame is still being processed.
         """
         self._mailbox.close()
-        if self._worker.is_alive() and self._worker is not threading.current_thread():
-            self._worker.join(timeout)
-        return not self._worker.is_alive()
+        worker = self._worker
+        if worker is None:
+            return True
+        if worker.is_alive() and worker is not threading.current_thread():
+            worker.join(timeout)
+        return not worker.is_alive()
 
     def destroy_node(self) -> None:
         """Stop the worker, then destroy the node.
@@ -582,15 +677,39 @@ class ConfidenceNode(Node):
         is logged and left running; :attr:`frame_left_running` is then True, and
         :func:`~cva_confidence_ros.ros.common.run_node` ends the process without waiting.
         """
-        if not self.stop():
-            self.frame_left_running = True
-            # Not the node's own logger: its /rosout publisher dies with the context.
-            rclpy.logging.get_logger(f'{self.get_name()}.stop').warning(
-                f'a frame was still being processed {STOP_TIMEOUT_S:g} s after the stop '
-                f'(confidence_method {self._pipeline_config.confidence_method} on '
-                f'{self._pipeline.device}); stopping without it'
-            )
+        self._stop_worker()
         super().destroy_node()
+
+
+class ConfidenceNode(ConfidenceCore):
+    """rclpy node around :class:`StereoPipeline`; see the module docstring for topics.
+
+    Configured and subscribed as soon as it is built; the managed (lifecycle) variant is
+    :class:`~cva_confidence_ros.ros.lifecycle_node.ManagedConfidenceNode`.
+
+    Args:
+        context: rclpy context (tests use one per node); None = the global one.
+        parameter_overrides: Start-up parameter values, as with ``--ros-args -p``.
+        **kwargs: Passed on to :class:`rclpy.node.Node`.
+
+    Raises:
+        CVAError: The start-up parameters give an invalid configuration or weights that cannot
+            be loaded.
+    """
+
+    def __init__(
+        self,
+        *,
+        context: Context | None = None,
+        parameter_overrides: list[Parameter] | None = None,
+        **kwargs: Any,
+    ) -> None:
+        super().__init__(
+            NODE_NAME, context=context, parameter_overrides=parameter_overrides, **kwargs
+        )
+        self._init_core()
+        self._configure()
+        self._activate()
 
 
 def run(argv: Sequence[str] | None = None) -> int:

@@ -30,6 +30,9 @@ BIN = Path(sys.executable).parent
 #: script → (its parameter names, a ``name:=value`` of its own for the hint)
 SCRIPTS = {
     'cva-node': ([spec.name for spec in PARAMETERS], 'confidence_threshold:=0.8'),
+    'cva-lifecycle-node': (
+        ['autostart', *(spec.name for spec in PARAMETERS)], 'confidence_threshold:=0.8'
+    ),
     'cva-cloud-filter': ([spec.name for spec in fields(CloudFilterConfig)], 'threshold:=0.8'),
 }
 

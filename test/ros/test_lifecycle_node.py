@@ -1,0 +1,277 @@
+"""The managed (lifecycle) node: driven through the standard lifecycle services over real DDS,
+in this process and as the installed ``cva-lifecycle-node``."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import threading
+import time
+from typing import Any
+
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState, GetState
+from node_test_utils import (
+    Spinner,
+    StereoClient,
+    first_stamp,
+    localhost_context,
+    spare_domain_id,
+    textured_pair,
+)
+import numpy as np
+import pytest
+from rcl_interfaces.msg import Log
+from rclpy.context import Context
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile
+
+from cva_confidence_ros.node import ManagedConfidenceNode
+from cva_confidence_ros.ros.convert import disparity_from_message, float_image_to_array
+
+pytestmark = pytest.mark.timeout(240)
+
+MAX_DISPARITY = 16
+# CVA-Net-Fast has no shipped weights for D = 16: a configuration the node must refuse.
+REFUSED = [
+    Parameter('matcher', value='census_bm'),
+    Parameter('max_disparity', value=MAX_DISPARITY),
+    Parameter('confidence_method', value='cva_net_fast'),
+]
+SERVICE_TIMEOUT_S = 60.0
+
+
+class _Managed:
+    """A managed node and a client node in one localhost context, spun in the background."""
+
+    def __init__(self, context: Context, overrides: list[Parameter]) -> None:
+        self.node = ManagedConfidenceNode(context=context, parameter_overrides=overrides)
+        self.client = StereoClient(context)
+        self.client.subscribe('/rosout', Log, QoSProfile(depth=200))
+        self.spinner = Spinner(context, self.node, self.client.node)
+        self.stamp = first_stamp()
+
+    def next_stamp(self) -> int:
+        self.stamp += 10_000_000_000
+        return self.stamp
+
+    def call(self, srv_type: Any, name: str, request: Any) -> Any:
+        """Call one of the node's services over DDS, as ``ros2 lifecycle`` / ``ros2 param`` do."""
+        client = self.client.node.create_client(srv_type, name)
+        try:
+            assert client.wait_for_service(timeout_sec=20.0), f'no service {name}'
+            future = client.call_async(request)
+            deadline = time.monotonic() + SERVICE_TIMEOUT_S
+            while not future.done() and time.monotonic() < deadline:
+                time.sleep(0.02)
+            assert future.done(), f'no answer from {name}'
+            return future.result()
+        finally:
+            self.client.node.destroy_client(client)
+
+    def transition(self, label: str) -> bool:
+        request = ChangeState.Request(transition=Transition(label=label))
+        return bool(self.call(ChangeState, '/cva_confidence/change_state', request).success)
+
+    def state(self) -> str:
+        return str(self.call(GetState, '/cva_confidence/get_state', GetState.Request())
+                   .current_state.label)
+
+    def inputs_subscribed(self) -> int:
+        """How many of the four input topics the node subscribes to (seen from the client)."""
+        return sum(pub.get_subscription_count() > 0 for pub in self.client.pubs.values())
+
+    def wait_inputs(self, count: int, timeout: float = 20.0) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.inputs_subscribed() == count:
+                return True
+            time.sleep(0.05)
+        return False
+
+    def logged(self, text: str, level: int) -> list[str]:
+        return [
+            msg.msg
+            for msg in list(self.client.received['/rosout'])
+            if msg.name == 'cva_confidence' and msg.level == level and text in msg.msg
+        ]
+
+    def close(self) -> None:
+        self.spinner.stop()
+        self.node.destroy_node()
+        self.client.node.destroy_node()
+
+
+@pytest.fixture
+def managed() -> Iterator[_Managed]:
+    with localhost_context(spare_domain_id()) as context:
+        state = _Managed(context, list(REFUSED))
+        try:
+            yield state
+        finally:
+            state.close()
+
+
+def _answers(managed: _Managed) -> dict[str, Any]:
+    left, right = textured_pair(seed=3)
+    return managed.client.send_until_output(
+        left, right, managed.next_stamp(), topics=('disparity', 'confidence'), timeout=40
+    )
+
+
+def test_a_refused_configure_leaves_it_unconfigured_until_the_parameters_are_fixed(
+    managed: _Managed,
+) -> None:
+    assert managed.state() == 'unconfigured'
+    assert not managed.node.configured
+    time.sleep(1.0)  # discovery: an unconfigured node subscribes to nothing
+    assert managed.inputs_subscribed() == 0
+
+    assert managed.transition('configure') is False
+    assert managed.state() == 'unconfigured'
+    assert managed.client.wait_for(
+        lambda: bool(managed.logged('configure failed', Log.ERROR)), timeout=10
+    )
+    (line,) = managed.logged('configure failed', Log.ERROR)
+    assert 'cvanet_fast' in line and 'D = 16' in line, line
+
+    # Unconfigured, parameters are checked as a configuration, not built.
+    refused = managed.node.set_parameters([Parameter('matcher', value='no_such_matcher')])
+    assert not refused[0].successful
+    assert 'no_such_matcher' in refused[0].reason
+    accepted = managed.node.set_parameters([Parameter('confidence_method', value='mlm')])
+    assert accepted[0].successful, accepted[0].reason
+
+    assert managed.transition('configure') is True
+    assert managed.state() == 'inactive'
+    assert managed.node.configured
+    assert managed.node.pipeline_config.confidence_method == 'mlm'
+
+
+def test_only_an_active_node_subscribes_and_publishes(managed: _Managed) -> None:
+    managed.node.set_parameters([Parameter('confidence_method', value='mlm')])
+    assert managed.transition('configure') is True
+    time.sleep(1.0)
+    assert managed.inputs_subscribed() == 0, 'inactive, the node must not subscribe'
+
+    assert managed.transition('activate') is True
+    assert managed.state() == 'active'
+    assert managed.wait_inputs(4)
+    out = _answers(managed)
+    disparity = disparity_from_message(out['disparity'])
+    assert disparity.shape == (64, 96)
+    assert np.mean(np.abs(disparity[4:-4, MAX_DISPARITY + 4:-4] - 5.0) < 0.5) > 0.95
+    confidence = float_image_to_array(out['confidence'])
+    assert np.all((confidence >= 0) & (confidence <= 1))
+
+    assert managed.transition('deactivate') is True
+    assert managed.state() == 'inactive'
+    assert managed.wait_inputs(0)
+    # (the counter moves just after the outputs are published)
+    assert managed.client.wait_for(lambda: managed.node.stats()['frames_processed'] >= 1)
+    processed = managed.node.stats()['frames_processed']
+    stamp = managed.next_stamp()
+    left, right = textured_pair(seed=4)
+    managed.client.publish_frame(left, right, stamp)
+    time.sleep(1.5)
+    assert managed.client.by_stamp('disparity', stamp) is None
+    assert managed.node.stats()['frames_processed'] == processed
+
+    # Active again: pairing starts afresh and frames are answered.
+    assert managed.transition('activate') is True
+    assert managed.wait_inputs(4)
+    _answers(managed)
+    assert managed.client.wait_for(
+        lambda: managed.node.stats()['frames_processed'] > processed, timeout=10
+    )
+
+
+def test_cleanup_releases_the_pipeline_and_configure_builds_it_again(managed: _Managed) -> None:
+    managed.node.set_parameters([Parameter('confidence_method', value='mlm')])
+    assert managed.transition('configure') is True
+    assert managed.transition('activate') is True
+    assert managed.wait_inputs(4)
+    _answers(managed)
+    worker = managed.node._worker
+    assert worker is not None and worker.is_alive()
+
+    # cleanup is refused from active (the standard state machine), allowed from inactive
+    assert managed.transition('cleanup') is False
+    assert managed.state() == 'active'
+    assert managed.transition('deactivate') is True
+    assert managed.transition('cleanup') is True
+    assert managed.state() == 'unconfigured'
+    assert not managed.node.configured
+    worker.join(5.0)
+    assert not worker.is_alive()
+    assert managed.wait_inputs(0)
+
+    # Another configuration this time: census_sgm.
+    managed.node.set_parameters([Parameter('matcher', value='census_sgm')])
+    assert managed.transition('configure') is True
+    assert managed.transition('activate') is True
+    assert managed.node.pipeline_config.matcher == 'census_sgm'
+    assert managed.wait_inputs(4)
+    _answers(managed)
+    assert managed.transition('shutdown') is True
+    assert managed.state() == 'finalized'
+    assert not managed.node.configured
+
+
+CVA_LIFECYCLE_NODE = Path(sys.executable).parent / 'cva-lifecycle-node'
+
+
+def test_installed_lifecycle_node_autostarts_serves_and_stops_on_sigint() -> None:
+    if not CVA_LIFECYCLE_NODE.exists():
+        pytest.skip(f'{CVA_LIFECYCLE_NODE.name} is not installed next to the interpreter')
+    domain = spare_domain_id()
+    env = dict(
+        os.environ,
+        ROS_DOMAIN_ID=str(domain),
+        ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+        PYTHONUNBUFFERED='1',
+        OMP_NUM_THREADS='1',
+    )
+    process = subprocess.Popen(
+        [str(CVA_LIFECYCLE_NODE), '--ros-args', '-p', 'autostart:=true',
+         '-p', 'confidence_method:=mlm', '-p', f'max_disparity:={MAX_DISPARITY}'],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )  # fmt: skip
+    lines: list[str] = []
+    reader = threading.Thread(
+        target=lambda: lines.extend(iter(process.stdout.readline, '')), daemon=True
+    )
+    reader.start()
+    try:
+        with localhost_context(domain) as context:
+            client = StereoClient(context)
+            spinner = Spinner(context, client.node)
+            try:
+                left, right = textured_pair(seed=5)
+                out = client.send_until_output(
+                    left, right, first_stamp(), topics=('disparity', 'confidence'), timeout=90
+                )
+            finally:
+                spinner.stop()
+                client.node.destroy_node()
+    finally:
+        process.send_signal(signal.SIGINT)
+        try:
+            code = process.wait(30)
+        finally:
+            if process.poll() is None:
+                process.kill()
+                process.wait(10)
+        reader.join(10)
+    output = ''.join(lines)
+    assert code == 0, output
+    assert disparity_from_message(out['disparity']).shape == (64, 96)
+    assert 'ready: active; matcher=census_bm' in output, output
+    assert 'configured: matcher=census_bm' in output, output
