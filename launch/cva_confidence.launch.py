@@ -13,6 +13,10 @@ namespace, like ``stereo_image_proc``. Launch arguments left empty keep the file
 ``cloud_filter_threshold:=0.8`` also starts the ``cloud_filter`` node in that namespace: the
 confidence node then publishes every point with its confidence (``points_confidence: true``) and
 the filter republishes those with confidence >= 0.8 on ``points2_filtered``.
+
+``lifecycle:=true`` starts the managed node (``lifecycle_node``) instead, as a
+``launch_ros`` ``LifecycleNode`` for a lifecycle manager to configure and activate;
+``autostart:=true`` with it makes the node configure and activate itself.
 """
 
 # The repository's own launch/ folder makes ruff take the `launch` package for first-party.
@@ -26,7 +30,7 @@ from ament_index_python.packages import get_package_share_directory
 from launch import LaunchContext, LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
-from launch_ros.actions import Node
+from launch_ros.actions import LifecycleNode, Node
 
 PACKAGE = 'cva_confidence_ros'
 
@@ -42,13 +46,20 @@ OVERRIDES: dict[str, type] = {
 }
 
 
-def _node(context: LaunchContext) -> list[Node]:
+def _node(context: LaunchContext) -> list[Node | LifecycleNode]:
     overrides = {}
     for name, kind in OVERRIDES.items():
         value = LaunchConfiguration(name).perform(context)
         if value:
             overrides[name] = kind(value)
     use_sim_time = LaunchConfiguration('use_sim_time').perform(context).lower() == 'true'
+    lifecycle = LaunchConfiguration('lifecycle').perform(context).lower() == 'true'
+    node_class, executable = Node, 'node'
+    if lifecycle:
+        node_class, executable = LifecycleNode, 'lifecycle_node'
+        overrides['autostart'] = (
+            LaunchConfiguration('autostart').perform(context).lower() == 'true'
+        )
     namespace = LaunchConfiguration('stereo_namespace')
     cloud_threshold = LaunchConfiguration('cloud_filter_threshold').perform(context)
     nodes = []
@@ -66,9 +77,9 @@ def _node(context: LaunchContext) -> list[Node]:
             )
         )
     return [
-        Node(
+        node_class(
             package=PACKAGE,
-            executable='node',
+            executable=executable,
             name='cva_confidence',
             namespace=namespace,
             output='screen',
@@ -97,6 +108,16 @@ def generate_launch_description() -> LaunchDescription:
         ),
         DeclareLaunchArgument(
             'use_sim_time', default_value='false', description='Use the /clock topic.'
+        ),
+        DeclareLaunchArgument(
+            'lifecycle',
+            default_value='false',
+            description='Start the managed (lifecycle) node instead of the plain one.',
+        ),
+        DeclareLaunchArgument(
+            'autostart',
+            default_value='false',
+            description='With lifecycle:=true: configure and activate at once.',
         ),
         DeclareLaunchArgument(
             'cloud_filter_threshold',

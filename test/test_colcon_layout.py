@@ -127,7 +127,7 @@ def test_launch_file_is_valid_python_that_runs_node(workspace: Path) -> None:
     functions = {node.name for node in ast.walk(tree) if isinstance(node, ast.FunctionDef)}
     assert 'generate_launch_description' in functions
     strings = {n.value for n in ast.walk(tree) if isinstance(n, ast.Constant)}
-    assert {PACKAGE, 'node', 'cva_confidence.yaml', 'config'} <= strings
+    assert {PACKAGE, 'node', 'lifecycle_node', 'cva_confidence.yaml', 'config'} <= strings
 
 
 def _ros2_run_env(prefix: Path) -> dict[str, str]:

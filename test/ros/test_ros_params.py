@@ -129,6 +129,10 @@ class _Action:
         self.args, self.kwargs = args, kwargs
 
 
+class _LifecycleAction(_Action):
+    """Stand-in for ``launch_ros.actions.LifecycleNode``."""
+
+
 def _launch_module(monkeypatch: pytest.MonkeyPatch) -> object:
     """Import the launch file with stand-ins for the ROS launch packages (not on the index)."""
     import importlib.util
@@ -142,7 +146,7 @@ def _launch_module(monkeypatch: pytest.MonkeyPatch) -> object:
         'launch.actions': {'DeclareLaunchArgument': _Action, 'OpaqueFunction': _Action},
         'launch.substitutions': {'LaunchConfiguration': _Config},
         'launch_ros': {},
-        'launch_ros.actions': {'Node': _Action},
+        'launch_ros.actions': {'Node': _Action, 'LifecycleNode': _LifecycleAction},
     }
     for name, attributes in fakes.items():
         module = types.ModuleType(name)
@@ -167,11 +171,13 @@ def test_launch_file_starts_the_cloud_filter_on_request(monkeypatch: pytest.Monk
     ]
     ros_names = {ros_name for ros_name, _, _ in entry_points}  # what colcon installs
     base = {name: '' for name in launch.OVERRIDES}
-    base.update(stereo_namespace='/stereo', use_sim_time='true', params_file='p.yaml')
+    base.update(stereo_namespace='/stereo', use_sim_time='true', params_file='p.yaml',
+                lifecycle='false', autostart='false')
 
     monkeypatch.setattr(_Config, 'values', {**base, 'cloud_filter_threshold': ''})
     (alone,) = launch._node(None)
     assert alone.kwargs['executable'] == 'node'
+    assert not isinstance(alone, _LifecycleAction)
     assert 'points_confidence' not in alone.kwargs['parameters'][2]
 
     monkeypatch.setattr(
@@ -183,3 +189,22 @@ def test_launch_file_starts_the_cloud_filter_on_request(monkeypatch: pytest.Monk
     assert {'node', 'cloud_filter'} <= ros_names
     assert cloud_filter.kwargs['parameters'] == [{'threshold': 0.8, 'use_sim_time': True}]
     assert cloud_filter.kwargs['namespace'] is node.kwargs['namespace']
+
+
+def test_launch_file_starts_the_managed_node_on_request(monkeypatch: pytest.MonkeyPatch) -> None:
+    launch = _launch_module(monkeypatch)
+    description = launch.generate_launch_description()
+    declared = [a.args[0] if a.args else a.kwargs['name'] for a in description.args[0][:-1]]
+    assert {'lifecycle', 'autostart'} <= set(declared)
+    base = {name: '' for name in launch.OVERRIDES}
+    base.update(stereo_namespace='/stereo', use_sim_time='false', params_file='p.yaml',
+                cloud_filter_threshold='')
+    monkeypatch.setattr(_Config, 'values', {**base, 'lifecycle': 'true', 'autostart': 'true'})
+    (node,) = launch._node(None)
+    assert isinstance(node, _LifecycleAction)
+    assert node.kwargs['executable'] == 'lifecycle_node'
+    assert node.kwargs['name'] == 'cva_confidence'
+    assert node.kwargs['parameters'][2] == {'autostart': True}
+    monkeypatch.setattr(_Config, 'values', {**base, 'lifecycle': 'true', 'autostart': 'false'})
+    (node,) = launch._node(None)
+    assert node.kwargs['parameters'][2] == {'autostart': False}
