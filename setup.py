@@ -23,6 +23,7 @@ PACKAGE = 'cva_confidence_ros'
 ENTRY_POINTS = [
     ('node', 'cva-node', 'cva_confidence_ros.node:main'),
     ('lifecycle_node', 'cva-lifecycle-node', 'cva_confidence_ros.node:lifecycle_main'),
+    ('lifecycle', 'cva-lifecycle', 'cva_confidence_ros.ros.lifecycle_cli:main'),
     ('cloud_filter', 'cva-cloud-filter', 'cva_confidence_ros.cloud_filter:main'),
     ('train', 'cva-train', 'cva_confidence_ros.training.cli:main'),
     ('evaluate', 'cva-evaluate', 'cva_confidence_ros.evaluation.cli:main'),

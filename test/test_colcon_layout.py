@@ -105,7 +105,7 @@ def test_colcon_install_layout(workspace: Path) -> None:
     assert executable.is_file()
     assert os.access(executable, os.X_OK)
     scripts = {path.name for path in (prefix / 'lib' / PACKAGE).iterdir()}
-    assert {'node', 'lifecycle_node', 'cloud_filter', 'train', 'evaluate', 'table1',
+    assert {'node', 'lifecycle_node', 'lifecycle', 'cloud_filter', 'train', 'evaluate', 'table1',
             'benchmark', 'demo', 'bag_replay'} <= scripts
     assert not any(name.startswith('cva-') for name in scripts)
     assert not (prefix / 'bin').exists()

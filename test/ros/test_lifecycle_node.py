@@ -223,6 +223,7 @@ def test_cleanup_releases_the_pipeline_and_configure_builds_it_again(managed: _M
 
 
 CVA_LIFECYCLE_NODE = Path(sys.executable).parent / 'cva-lifecycle-node'
+PROCESS_NAMESPACE = '/lifecycle_process'
 
 
 def test_installed_lifecycle_node_autostarts_serves_and_stops_on_sigint() -> None:
@@ -237,7 +238,9 @@ def test_installed_lifecycle_node_autostarts_serves_and_stops_on_sigint() -> Non
         OMP_NUM_THREADS='1',
     )
     process = subprocess.Popen(
-        [str(CVA_LIFECYCLE_NODE), '--ros-args', '-p', 'autostart:=true',
+        # In a namespace of its own: the other tests talk to /cva_confidence in this domain.
+        [str(CVA_LIFECYCLE_NODE), '--ros-args', '-r', f'__ns:={PROCESS_NAMESPACE}',
+         '-p', 'autostart:=true',
          '-p', 'confidence_method:=mlm', '-p', f'max_disparity:={MAX_DISPARITY}'],
         env=env,
         stdout=subprocess.PIPE,
@@ -251,7 +254,7 @@ def test_installed_lifecycle_node_autostarts_serves_and_stops_on_sigint() -> Non
     reader.start()
     try:
         with localhost_context(domain) as context:
-            client = StereoClient(context)
+            client = StereoClient(context, namespace=PROCESS_NAMESPACE)
             spinner = Spinner(context, client.node)
             try:
                 left, right = textured_pair(seed=5)
@@ -275,3 +278,45 @@ def test_installed_lifecycle_node_autostarts_serves_and_stops_on_sigint() -> Non
     assert disparity_from_message(out['disparity']).shape == (64, 96)
     assert 'ready: active; matcher=census_bm' in output, output
     assert 'configured: matcher=census_bm' in output, output
+
+
+CVA_LIFECYCLE = Path(sys.executable).parent / 'cva-lifecycle'
+
+
+def _cli(domain: int, *args: str) -> subprocess.CompletedProcess[str]:
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    return subprocess.run(
+        [str(CVA_LIFECYCLE), '--timeout', '20', *args],
+        capture_output=True, text=True, timeout=90, env=env,
+    )  # fmt: skip
+
+
+def test_cva_lifecycle_drives_the_node_as_ros2_lifecycle_would() -> None:
+    if not CVA_LIFECYCLE.exists():
+        pytest.skip(f'{CVA_LIFECYCLE.name} is not installed next to the interpreter')
+    domain = spare_domain_id()
+    with localhost_context(domain) as context:
+        managed = _Managed(context, list(REFUSED))
+        try:
+            got = _cli(domain, 'get', '/cva_confidence')
+            assert (got.returncode, got.stdout.strip()) == (0, 'unconfigured [1]'), got
+            refused = _cli(domain, 'set', 'cva_confidence', 'configure')
+            assert refused.returncode == 1, refused
+            assert "refused 'configure'" in refused.stderr
+            managed.node.set_parameters([Parameter('confidence_method', value='mlm')])
+            for transition in ('configure', 'activate'):
+                done = _cli(domain, 'set', '/cva_confidence', transition)
+                assert (done.returncode, done.stdout.strip()) == (0, 'Transitioning successful')
+            assert managed.state() == 'active'
+            listed = _cli(domain, 'list', '/cva_confidence')
+            assert listed.returncode == 0, listed
+            labels = {line[2:].split(' [')[0] for line in listed.stdout.splitlines()
+                      if line.startswith('- ')}
+            assert {'deactivate', 'shutdown'} <= labels and 'configure' not in labels, labels
+            wrong = _cli(domain, 'set', '/cva_confidence', 'configure')  # not from active
+            assert wrong.returncode == 1 and managed.state() == 'active'
+        finally:
+            managed.close()
+        missing = _cli(domain, '--timeout', '1', 'get', '/no_such_node')
+        assert missing.returncode == 2
+        assert '/no_such_node/get_state' in missing.stderr

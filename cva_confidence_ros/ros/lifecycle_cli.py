@@ -1,0 +1,156 @@
+"""``cva-lifecycle``: the part of ``ros2 lifecycle`` a managed node needs, for installs without
+ros2cli (the pip wheels of ROS 2 do not have it).
+
+    cva-lifecycle get /cva_confidence              # current state, e.g. "unconfigured [1]"
+    cva-lifecycle list /cva_confidence             # transitions possible from it
+    cva-lifecycle set /cva_confidence configure    # a transition, by label
+
+It calls the node's standard ``lifecycle_msgs`` services (``<node>/get_state``,
+``<node>/change_state``, ``<node>/get_available_transitions``) as ``ros2 lifecycle`` does, so it
+drives any managed node, not only this package's. Exit status: 0 on success, 1 when the node
+refused the transition, 2 for bad arguments or a node that does not answer in ``--timeout``.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+import os
+import sys
+import time
+from typing import Any
+
+__all__ = ['main']
+
+EXIT_REFUSED = 1
+EXIT_NO_ANSWER = 2
+#: Seconds to wait for an answer before sending the request again (see :func:`_ask`).
+ATTEMPT_S = 3.0
+#: The state each transition of the standard state machine ends in.
+GOALS = {
+    'configure': 'inactive',
+    'activate': 'active',
+    'deactivate': 'inactive',
+    'cleanup': 'unconfigured',
+    'shutdown': 'finalized',
+}
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog='cva-lifecycle',
+        description='Get or change the state of a ROS 2 managed (lifecycle) node, as '
+        '`ros2 lifecycle` does.',
+    )
+    parser.add_argument('--timeout', type=float, default=10.0,
+                        help='seconds to wait for the node and its answer (default 10)')
+    commands = parser.add_subparsers(dest='command', required=True)
+    get = commands.add_parser('get', help="print the node's current state")
+    get.add_argument('node', help='node name, e.g. /cva_confidence')
+    listing = commands.add_parser('list', help='print the transitions possible from it')
+    listing.add_argument('node')
+    change = commands.add_parser('set', help='trigger a transition by its label')
+    change.add_argument('node')
+    change.add_argument('transition', help='configure, activate, deactivate, cleanup, shutdown')
+    return parser
+
+
+def _node_name(name: str) -> str:
+    return name if name.startswith('/') else f'/{name}'
+
+
+def _ask(node: Any, client: Any, request: Any, deadline: float) -> tuple[Any, int]:
+    """Send ``request`` until one copy is answered or ``deadline`` (monotonic s) passes.
+
+    ``wait_for_service`` sees the request path only: a reply the node sends before it has
+    discovered this client's reply reader is lost (a known race of DDS services, likelier in a
+    domain where many participants come and go). So while nothing is answered the request is
+    sent again every :data:`ATTEMPT_S` seconds, and the first answer to any copy counts.
+
+    Returns:
+        ``(answer or None, requests sent)``.
+    """
+    from rclpy.executors import SingleThreadedExecutor
+
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    futures: list[Any] = []
+    next_send = time.monotonic()
+    try:
+        while (now := time.monotonic()) < deadline:
+            done = [future for future in futures if future.done()]
+            if done:
+                return done[0].result(), len(futures)
+            if now >= next_send:
+                futures.append(client.call_async(request))
+                next_send = now + ATTEMPT_S
+            executor.spin_once(timeout_sec=min(0.05, max(deadline - now, 0.0)))
+        done = [future for future in futures if future.done()]
+        return (done[0].result() if done else None), len(futures)
+    finally:
+        executor.remove_node(node)
+        executor.shutdown()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
+    args = _parser().parse_args(list(sys.argv[1:] if argv is None else argv))
+    if args.timeout <= 0:
+        print(f'cva-lifecycle: --timeout must be > 0 s; got {args.timeout:g}', file=sys.stderr)
+        return EXIT_NO_ANSWER
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState, GetAvailableTransitions, GetState
+    import rclpy
+
+    target = _node_name(args.node)
+    deadline = time.monotonic() + args.timeout
+    rclpy.init(args=['cva-lifecycle'])  # the command line is argparse's, not rclpy's
+    try:
+        node = rclpy.create_node(f'cva_lifecycle_{os.getpid()}')
+        try:
+            if args.command == 'get':
+                service, srv_type, request = f'{target}/get_state', GetState, GetState.Request()
+            elif args.command == 'list':
+                service, srv_type = f'{target}/get_available_transitions', GetAvailableTransitions
+                request = GetAvailableTransitions.Request()
+            else:
+                service, srv_type = f'{target}/change_state', ChangeState
+                request = ChangeState.Request(transition=Transition(label=args.transition))
+            client = node.create_client(srv_type, service)
+            answer, sent = None, 0
+            if client.wait_for_service(timeout_sec=args.timeout):
+                answer, sent = _ask(node, client, request, deadline)
+            if args.command == 'set' and answer is not None and not answer.success and sent > 1:
+                # A resent transition is refused when the first one went through and only its
+                # reply was lost: the state tells.
+                state_client = node.create_client(GetState, f'{target}/get_state')
+                state, _ = _ask(node, state_client, GetState.Request(), deadline + ATTEMPT_S)
+                goal = GOALS.get(args.transition)
+                if state is not None and goal is not None and state.current_state.label == goal:
+                    answer.success = True
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown()
+    if answer is None:
+        print(f'cva-lifecycle: no answer from {service} within {args.timeout:g} s (is {target} '
+              'running, a managed node, and in this ROS_DOMAIN_ID?)', file=sys.stderr)
+        return EXIT_NO_ANSWER
+    if args.command == 'get':
+        print(f'{answer.current_state.label} [{answer.current_state.id}]')
+        return 0
+    if args.command == 'list':
+        for item in answer.available_transitions:
+            print(f'- {item.transition.label} [{item.transition.id}]\n'
+                  f'\tStart: {item.start_state.label}\n\tGoal: {item.goal_state.label}')
+        return 0
+    if answer.success:
+        print('Transitioning successful')
+        return 0
+    print(f'Transitioning failed: {target} refused {args.transition!r} (see its log; '
+          f'`cva-lifecycle list {target}` shows what its state allows)', file=sys.stderr)
+    return EXIT_REFUSED
+
+
+if __name__ == '__main__':
+    sys.exit(main())
