@@ -6,8 +6,8 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 # torch is pinned: 2.13.0 is the CPU build that lies on this machine's disk; a bare `torch`
-# pulls a multi-GB CUDA build from the index. rclpy.lifecycle (cva-lifecycle-node) imports
-# lifecycle_msgs, which a ROS install of rclpy brings along and its wheel does not.
+# pulls a multi-GB CUDA build from the index. lifecycle_msgs (cva-lifecycle-node, cva-lifecycle)
+# comes with a ROS install of rclpy, not with its wheel.
 TORCH := torch==2.13.0
 DEPS := numpy scipy opencv-python-headless scikit-image numba matplotlib tqdm \
 	rosbags 'ros-jazzy-rclpy[fastrtps]' ros-jazzy-common-interfaces \

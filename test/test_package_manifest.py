@@ -27,6 +27,7 @@ DECLARATIONS: dict[str, tuple[str | None, str | None]] = {
     'stereo_msgs': ('stereo_msgs', None),
     'std_msgs': ('std_msgs', None),
     'diagnostic_msgs': ('diagnostic_msgs', None),
+    'lifecycle_msgs': ('lifecycle_msgs', None),
     'builtin_interfaces': ('builtin_interfaces', None),
     'ament_index_python': ('ament_index_python', None),
     'launch': ('launch', None),

@@ -125,6 +125,17 @@ class ManagedConfidenceNode(ConfidenceCore, LifecycleNode):
             self._cleanup()
         return TransitionCallbackReturn.SUCCESS
 
+    def destroy_node(self) -> None:
+        """Stop the worker and destroy the node, its lifecycle state machine included.
+
+        rclpy's own ``destroy_node`` leaves the state machine, which holds the node's handle:
+        the node then ends only when the garbage collector gets to it, and ending it there
+        unregisters the ``/rosout`` publisher of its name, which by then may be a later node's
+        of the same name (whose log lines then never reach ``/rosout``).
+        """
+        super().destroy_node()
+        self._state_machine.destroy_when_not_in_use()
+
     def _create_output_publisher(self, msg_type: type, topic: str, qos: Any) -> Any:
         return self.create_lifecycle_publisher(msg_type, topic, qos)
 

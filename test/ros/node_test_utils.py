@@ -5,6 +5,8 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 import contextlib
 import os
+from pathlib import Path
+import subprocess
 import threading
 import time
 from typing import Any
@@ -294,3 +296,51 @@ def running_nodes(domain: int, make: Callable[[Context], Any]) -> Iterator[Any]:
             state.spinner.stop()
             state.node.destroy_node()
             state.client.node.destroy_node()
+
+
+class NodeProcess:
+    """A node executable in a subprocess, on ``domain`` (localhost discovery), with its output
+    collected line by line; :attr:`ready` is set once it logs its ``ready:`` line."""
+
+    def __init__(self, executable: Path, domain: int, *ros_args: str) -> None:
+        env = dict(
+            os.environ,
+            ROS_DOMAIN_ID=str(domain),
+            ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+            PYTHONUNBUFFERED='1',
+            OMP_NUM_THREADS='1',
+        )
+        self.process = subprocess.Popen(
+            [str(executable), '--ros-args', *ros_args],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        self.lines: list[str] = []
+        self.ready = threading.Event()
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        assert self.process.stdout is not None
+        for line in self.process.stdout:
+            self.lines.append(line)
+            if 'ready:' in line:
+                self.ready.set()
+
+    @property
+    def output(self) -> str:
+        return ''.join(self.lines)
+
+    def stop(self, sig: int, timeout: float = 30.0) -> int:
+        """Send ``sig`` and return the exit code (kills it if it does not stop in time)."""
+        self.process.send_signal(sig)
+        try:
+            code = self.process.wait(timeout)
+        finally:
+            if self.process.poll() is None:
+                self.process.kill()
+                self.process.wait(10)
+        self._reader.join(10)
+        return code

@@ -3,15 +3,13 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
-import os
 from pathlib import Path
 import signal
-import subprocess
 import sys
-import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
+from node_test_utils import NodeProcess as SharedNodeProcess
 from node_test_utils import (
     Spinner,
     StereoClient,
@@ -33,51 +31,11 @@ DOMAIN = domain_id(2)
 NAMESPACE = '/stereo'
 
 
-class NodeProcess:
-    """``cva-node`` in a subprocess with its output collected line by line."""
+class NodeProcess(SharedNodeProcess):
+    """``cva-node`` in a subprocess in this module's domain and namespace."""
 
     def __init__(self, *ros_args: str) -> None:
-        env = dict(
-            os.environ,
-            ROS_DOMAIN_ID=str(DOMAIN),
-            ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-            PYTHONUNBUFFERED='1',
-            OMP_NUM_THREADS='1',
-        )
-        self.process = subprocess.Popen(
-            [str(CVA_NODE), '--ros-args', '-r', f'__ns:={NAMESPACE}', *ros_args],
-            env=env,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-        self.lines: list[str] = []
-        self.ready = threading.Event()
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.process.stdout is not None
-        for line in self.process.stdout:
-            self.lines.append(line)
-            if 'ready:' in line:
-                self.ready.set()
-
-    @property
-    def output(self) -> str:
-        return ''.join(self.lines)
-
-    def stop(self, sig: int, timeout: float = 30.0) -> int:
-        """Send ``sig`` and return the exit code (kills it if it does not stop in time)."""
-        self.process.send_signal(sig)
-        try:
-            code = self.process.wait(timeout)
-        finally:
-            if self.process.poll() is None:
-                self.process.kill()
-                self.process.wait(10)
-        self._reader.join(10)
-        return code
+        super().__init__(CVA_NODE, DOMAIN, '-r', f'__ns:={NAMESPACE}', *ros_args)
 
 
 @pytest.fixture(scope='module')
