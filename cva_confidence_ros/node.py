@@ -55,7 +55,8 @@ _EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a Ctrl-C
 
 #: ``(direction, name, type, note)`` of every topic, for :func:`usage`.
 _TOPICS = (
-    ('in', 'left/image_rect', 'sensor_msgs/Image', 'mono8/16, rgb8, bgr8, rgba8, bgra8'),
+    ('in', 'left/image_rect', 'sensor_msgs/Image', 'mono8/16, rgb8, bgr8, rgba8, bgra8 '
+     '(image_transport:=compressed: <topic>/compressed)'),
     ('in', 'right/image_rect', 'sensor_msgs/Image', 'paired with the left one by stamp'),
     ('in', 'left/camera_info', 'sensor_msgs/CameraInfo', ''),
     ('in', 'right/camera_info', 'sensor_msgs/CameraInfo', ''),

@@ -19,6 +19,7 @@ from cva_confidence_ros.errors import InputError
 from cva_confidence_ros.pointcloud import StereoGeometry
 
 __all__ = [
+    'COMPRESSED_IMAGE',
     'DISPARITY_IMAGE',
     'IMAGE',
     'POINT_CLOUD2',
@@ -35,6 +36,7 @@ __all__ = [
 ]
 
 IMAGE = 'sensor_msgs/msg/Image'
+COMPRESSED_IMAGE = 'sensor_msgs/msg/CompressedImage'
 CAMERA_INFO = 'sensor_msgs/msg/CameraInfo'
 DISPARITY_IMAGE = 'stereo_msgs/msg/DisparityImage'
 POINT_CLOUD2 = 'sensor_msgs/msg/PointCloud2'

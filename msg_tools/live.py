@@ -80,12 +80,16 @@ def _ros_value(value: object) -> str:
     return str(value)
 
 
-def node_arguments(options: ReplayOptions, node_name: str) -> list[str]:
+def node_arguments(
+    options: ReplayOptions, node_name: str, image_transport: str = 'raw'
+) -> list[str]:
     """``--ros-args`` for a ``cva-node`` that computes what the replay asks for.
 
     Parameters: every ``PipelineConfig`` field, the sync and point-cloud options, and
     reliable QoS on inputs and outputs (so that DDS itself loses nothing and every drop is
-    the node's). Remappings put the node's topics onto the replay's resolved names.
+    the node's). Remappings put the node's topics onto the replay's resolved names; with
+    ``image_transport='compressed'`` the node's ``left/image_rect/compressed`` (and right) go
+    onto the bag's image topics.
     """
     from cva_confidence_ros.ros.params import NodeConfig
 
@@ -98,6 +102,7 @@ def node_arguments(options: ReplayOptions, node_name: str) -> list[str]:
         approximate_sync=options.approximate_sync,
         approximate_sync_tolerance_seconds=float(options.sync_tolerance_s),
         queue_size=options.queue_size,
+        image_transport=image_transport,
     )
     params = {**asdict(options.pipeline), **asdict(node_config)}
     args = ['--ros-args', '-r', f'__node:={node_name}']
@@ -108,6 +113,8 @@ def node_arguments(options: ReplayOptions, node_name: str) -> list[str]:
     inputs = options.topics.inputs()
     outputs = options.topics.outputs()
     for key, topic in _NODE_INPUTS.items():
+        if image_transport == 'compressed' and not key.endswith('_info'):
+            topic = f'{topic}/compressed'
         args += ['-r', f'{topic}:={inputs[key]}']
     for key, topic in _NODE_OUTPUTS.items():
         args += ['-r', f'{topic}:={outputs[key]}']
@@ -139,16 +146,19 @@ class NodeProcess:
     Args:
         options: The replay options (parameters and topic names).
         log_path: File that receives the node's stdout and stderr.
+        image_transport: ``raw`` or ``compressed``, as the bag stores the images.
     """
 
     #: Exit codes of a node that ended on :meth:`stop`'s SIGINT: 0 once it is up, 130 while
     #: it is still starting, −SIGINT before its Python handles signals at all.
     STOPPED_CODES = (0, 130, -signal.SIGINT)
 
-    def __init__(self, options: ReplayOptions, log_path: Path) -> None:
+    def __init__(
+        self, options: ReplayOptions, log_path: Path, image_transport: str = 'raw'
+    ) -> None:
         self.name = f'cva_confidence_replay_{os.getpid()}'
         command, self.env = _node_command()
-        self.command = command + node_arguments(options, self.name)
+        self.command = command + node_arguments(options, self.name, image_transport)
         self.log_path = log_path
         self.process: subprocess.Popen[bytes] | None = None
 
@@ -341,7 +351,9 @@ def run_live(
         if options.overwrite:
             clear_report(options.report)  # the files of an earlier report, node.log too
         if options.start_node:
-            node = NodeProcess(options, Path(options.report) / 'node.log').start()
+            node = NodeProcess(
+                options, Path(options.report) / 'node.log', plan.image_transport
+            ).start()
             log(f'started cva-node (log {node.log_path})')
         player = None
         try:

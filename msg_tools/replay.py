@@ -35,6 +35,7 @@ from msg_tools.bagio import (
 )
 from msg_tools.convert import (
     CAMERA_INFO,
+    COMPRESSED_IMAGE,
     DISPARITY_IMAGE,
     IMAGE,
     POINT_CLOUD2,
@@ -73,7 +74,13 @@ __all__ = [
 Logger = Callable[[str], None]
 
 INPUT_KEYS = DEFAULT_KEYS
-_INPUT_TYPES = {'left': IMAGE, 'right': IMAGE, 'left_info': CAMERA_INFO, 'right_info': CAMERA_INFO}
+# Images raw or as image_transport's compressed (JPEG / PNG); decoded by the node's decoder.
+_INPUT_TYPES = {
+    'left': (IMAGE, COMPRESSED_IMAGE),
+    'right': (IMAGE, COMPRESSED_IMAGE),
+    'left_info': (CAMERA_INFO,),
+    'right_info': (CAMERA_INFO,),
+}
 GT_TYPES = (DISPARITY_IMAGE, IMAGE)
 # Skips are counted always but logged only this often, so a bag of bad frames stays readable.
 _MAX_SKIP_LOGS = 20
@@ -107,7 +114,7 @@ class TopicNames:
 
     Attributes:
         prefix: Namespace of every relative name ('' = root).
-        left, right: Rectified images (sensor_msgs/Image).
+        left, right: Rectified images (sensor_msgs/Image, or CompressedImage: JPEG / PNG).
         left_info, right_info: Camera infos (sensor_msgs/CameraInfo).
         ground_truth: Ground-truth disparity (stereo_msgs/DisparityImage or 32FC1 Image).
         disparity, confidence, points, disparity_filtered: What the node publishes.
@@ -336,6 +343,21 @@ class TopicPlan:
         """Every topic the replay reads."""
         return [*self.inputs.values(), *([self.ground_truth] if self.ground_truth else [])]
 
+    @property
+    def image_transport(self) -> str:
+        """``raw`` or ``compressed``: how both images are stored (the node's parameter).
+
+        Raises:
+            ConfigError: One image raw, the other compressed (one node takes one transport).
+        """
+        kinds = {self.input_types[self.inputs[key]] for key in ('left', 'right')}
+        if len(kinds) > 1:
+            raise ConfigError(
+                f'left and right images differ in type ({", ".join(sorted(kinds))}); a node '
+                'subscribes to both with one image_transport'
+            )
+        return 'compressed' if kinds == {COMPRESSED_IMAGE} else 'raw'
+
 
 def plan_topics(bag: InputBag, options: ReplayOptions, log: Logger = log_stderr) -> TopicPlan:
     """Check that the bag has the input topics (and the ground truth if asked for).
@@ -349,7 +371,7 @@ def plan_topics(bag: InputBag, options: ReplayOptions, log: Logger = log_stderr)
     inputs = options.topics.inputs()
     types = {}
     for key, topic in inputs.items():
-        types[topic] = bag.require(topic, (_INPUT_TYPES[key],), key.replace('_', ' '))
+        types[topic] = bag.require(topic, _INPUT_TYPES[key], key.replace('_', ' '))
     gt_topic = options.topics.resolve('ground_truth')
     gt_type = ''
     ground_truth: str | None = gt_topic

@@ -23,7 +23,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 from rclpy.timer import Timer
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
 from cva_confidence_ros.errors import CVAError
@@ -235,10 +235,23 @@ class ConfidenceCore(Node):
         self._worker.start()
         self._warn_if_slow(pipeline)
 
+    def _input_topics(self) -> dict[str, tuple[str, type]]:
+        """Synchroniser key → (topic, message type) of the four inputs (no lock taken: called
+        with it held too; ``image_transport`` is start-up only)."""
+        compressed = self._node_config.image_transport == 'compressed'
+        topics: dict[str, tuple[str, type]] = {}
+        for key, topic in _TOPICS.items():
+            if key.endswith('_info'):
+                topics[key] = (topic, CameraInfo)
+            elif compressed:
+                topics[key] = (f'{topic}/compressed', CompressedImage)
+            else:
+                topics[key] = (topic, Image)
+        return topics
+
     def _activate(self) -> None:
         in_qos = qos_profile(self.node_config.input_qos)
-        for key, topic in _TOPICS.items():
-            msg_type = CameraInfo if key.endswith('_info') else Image
+        for key, (topic, msg_type) in self._input_topics().items():
             self._subscriptions_in.append(
                 self.create_subscription(msg_type, topic, partial(self._on_message, key), in_qos)
             )
@@ -446,14 +459,15 @@ class ConfidenceCore(Node):
 
     def _unpaired_reason(self, stats: _Stats, elapsed: float) -> str:
         """Why messages arrive but none pair up, naming the topics (lock held)."""
-        silent = [topic for key, topic in _TOPICS.items() if not stats.window_keys.get(key)]
+        names = {key: topic for key, (topic, _) in self._input_topics().items()}
+        silent = [topic for key, topic in names.items() if not stats.window_keys.get(key)]
         if silent:
             return (
                 f'messages arrive but none pair up: nothing on {", ".join(silent)} in the last '
                 f'{elapsed:.1f} s'
             )
         stamps = ', '.join(
-            f'{topic} {_seconds(stats.last_stamps_ns[key])}' for key, topic in _TOPICS.items()
+            f'{topic} {_seconds(stats.last_stamps_ns[key])}' for key, topic in names.items()
         )
         how = (
             f'approximate sync pairs stamps within {self._node_config.tolerance_ns / 1e9:g} s'

@@ -30,6 +30,7 @@ __all__ = [
     'camera_info_to_geometry',
     'cloud_to_array',
     'cloud_to_message',
+    'compressed_image_to_array',
     'disparity_from_message',
     'disparity_to_message',
     'float_image_to_array',
@@ -70,6 +71,9 @@ def ns_to_stamp(stamp_ns: int) -> Time:
 def image_to_array(msg: Image, name: str = 'image') -> np.ndarray:
     """Decode a ``sensor_msgs/Image`` into the array layout of the core.
 
+    A ``sensor_msgs/CompressedImage`` (it has ``format`` and no ``encoding``) goes to
+    :func:`compressed_image_to_array`.
+
     Args:
         msg: An image with one of :data:`SUPPORTED_ENCODINGS`; row padding (``step`` larger
             than a row) and big-endian mono16 are handled.
@@ -85,6 +89,8 @@ def image_to_array(msg: Image, name: str = 'image') -> np.ndarray:
             that is not ``height`` rows of ``step`` bytes (the last row's padding may be
             missing).
     """
+    if not hasattr(msg, 'encoding') and hasattr(msg, 'format'):
+        return compressed_image_to_array(msg, name)
     encoding = msg.encoding.lower()
     if encoding not in _ENCODINGS:
         raise InputError(
@@ -113,6 +119,49 @@ def image_to_array(msg: Image, name: str = 'image') -> np.ndarray:
     if order is None:
         return pixels[..., 0].copy()
     return np.ascontiguousarray(pixels[..., list(order)])
+
+
+def compressed_image_to_array(msg: Any, name: str = 'image') -> np.ndarray:
+    """Decode a ``sensor_msgs/CompressedImage`` (``image_transport``'s ``compressed``: JPEG or
+    PNG) into the array layout of :func:`image_to_array`.
+
+    The format string (``"bgr8; jpeg compressed bgr8"``, ``"mono8; png compressed"``, or a
+    bare ``"jpeg"`` / ``"png"``) is checked for what cannot be an intensity image; the pixels
+    are whatever the data decode to: gray stays gray, colour comes out RGB, a 16-bit PNG stays
+    uint16 (see :func:`pair_to_uint8`).
+
+    Raises:
+        InputError: A ``compressedDepth`` format (depth, not intensity), empty data, or data
+            that OpenCV cannot decode.
+    """
+    import cv2
+
+    text = str(msg.format)
+    if 'compresseddepth' in text.lower().replace(' ', ''):
+        raise InputError(
+            f'{name} is a compressedDepth image (format {text!r}): a depth map, not an '
+            'intensity image; expected image_transport compressed (jpeg or png)'
+        )
+    data = np.frombuffer(bytes(msg.data), dtype=np.uint8)
+    if data.size == 0:
+        raise InputError(f'{name} is a compressed image with no data (format {text!r})')
+    pixels = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    if pixels is None or pixels.size == 0:
+        raise InputError(
+            f'{name}: {data.size} bytes of compressed data (format {text!r}) do not decode as '
+            'an image (JPEG or PNG expected)'
+        )
+    if pixels.dtype not in (np.uint8, np.uint16):
+        raise InputError(f'{name} decodes to {pixels.dtype} pixels; expected 8 or 16 bits')
+    if pixels.ndim == 2:
+        return pixels
+    if pixels.shape[2] == 1:
+        return np.ascontiguousarray(pixels[..., 0])
+    rgb = cv2.cvtColor(pixels[..., :3], cv2.COLOR_BGR2RGB)
+    if rgb.dtype == np.uint16:
+        # 16-bit colour: the core takes 16-bit gray only (pair_to_uint8 scales it).
+        return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+    return rgb
 
 
 def pair_to_uint8(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -38,6 +38,8 @@ __all__ = [
 
 #: QoS presets: ``sensor_data`` (best effort, keep last 5) or ``reliable`` (keep last 10).
 QOS_CHOICES = ('sensor_data', 'reliable')
+#: Image transports the node subscribes with (``image_transport`` names).
+TRANSPORT_CHOICES = ('raw', 'compressed')
 
 
 @dataclass(frozen=True)
@@ -50,6 +52,9 @@ class NodeConfig:
         points_confidence: ``points2`` holds every point that can be triangulated, with a fifth
             float32 field ``confidence``, for consumers that filter with their own threshold
             (``cloud_filter``); false = only the points with confidence ≥ threshold.
+        image_transport: ``raw`` (``sensor_msgs/Image`` on ``left/image_rect``, …) or
+            ``compressed`` (``sensor_msgs/CompressedImage``, JPEG or PNG, on
+            ``left/image_rect/compressed``, …, as ``image_transport`` publishes them).
         input_qos: QoS of the four subscriptions, one of :data:`QOS_CHOICES`.
         output_qos: QoS of the outputs; ``reliable`` serves reliable and best-effort readers.
         approximate_sync: Pair messages whose stamps differ by up to the tolerance.
@@ -61,6 +66,7 @@ class NodeConfig:
     publish_points: bool = True
     points_organized: bool = True
     points_confidence: bool = False
+    image_transport: str = 'raw'
     input_qos: str = 'sensor_data'
     output_qos: str = 'reliable'
     approximate_sync: bool = False
@@ -69,6 +75,10 @@ class NodeConfig:
     diagnostics_period_seconds: float = 1.0
 
     def __post_init__(self) -> None:
+        if self.image_transport not in TRANSPORT_CHOICES:
+            raise ConfigError(
+                f'image_transport must be one of {TRANSPORT_CHOICES}; got {self.image_transport!r}'
+            )
         for name in ('input_qos', 'output_qos'):
             if getattr(self, name) not in QOS_CHOICES:
                 raise ConfigError(
@@ -259,6 +269,14 @@ NODE_PARAMETERS: tuple[ParamSpec, ...] = (
         'points2 holds every point that can be triangulated with a float32 confidence field, '
         'for consumers that filter with their own threshold (cloud_filter); false = only the '
         'points with confidence >= confidence_threshold, x y z rgb as stereo_image_proc.',
+    ),
+    _node(
+        'image_transport',
+        'How the images arrive: raw (sensor_msgs/Image on left/image_rect, right/image_rect) or '
+        'compressed (sensor_msgs/CompressedImage, JPEG or PNG, on left/image_rect/compressed, '
+        'right/image_rect/compressed, as image_transport publishes them).',
+        constraints='raw or compressed',
+        read_only=True,
     ),
     _node(
         'input_qos',

@@ -15,6 +15,7 @@ from cva_confidence_ros.pointcloud import StereoGeometry
 from msg_tools.bagio import OutputBag
 from msg_tools.convert import (
     CAMERA_INFO,
+    COMPRESSED_IMAGE,
     DISPARITY_IMAGE,
     IMAGE,
     camera_info_msgs,
@@ -119,7 +120,10 @@ def write_stereo_bag(
     ``stamp`` (ns, default ``START_NS`` + index × 0.1 s), ``stamp_right`` (ns, default the
     left stamp), ``encoding`` (forced on both images), ``info_size`` ((width, height) written
     into the camera infos), ``gt`` (a float32 ground-truth array instead of the true shift),
-    ``gt_bytes`` (the ground truth's image data cut to this many bytes).
+    ``gt_bytes`` (the ground truth's image data cut to this many bytes), ``transport``
+    (``'png'`` or ``'jpeg'``: the images as ``sensor_msgs/CompressedImage`` on
+    ``<image topic>/compressed``, as image_transport's compressed plugin writes them),
+    ``compressed_data`` (bytes written as the left image's compressed data instead).
     """
     store = jazzy_typestore()
     geometry = StereoGeometry(fx=50.0, fy=50.0, cx=20.0, cy=15.0, cx_right=20.0, baseline=0.1)
@@ -141,14 +145,23 @@ def write_stereo_bag(
             right_msg = image_to_msg(right, stamp_right, 'r', store)
             if 'encoding' in frame:
                 left_msg.encoding = right_msg.encoding = frame['encoding']
+            image_topic, image_type = 'image_rect', IMAGE
+            if 'transport' in frame:
+                image_topic, image_type = 'image_rect/compressed', COMPRESSED_IMAGE
+                left_msg, right_msg = (
+                    _compressed(array, msg, frame['transport'], store)
+                    for array, msg in ((left, left_msg), (right, right_msg))
+                )
+                if 'compressed_data' in frame:
+                    left_msg.data = np.frombuffer(frame['compressed_data'], np.uint8)
             gt = np.full((height, width), float(shift), np.float32)
             gt[:, :shift] = np.nan
             gt = frame.get('gt', gt)
             messages = [
                 ('left/camera_info', CAMERA_INFO, left_info),
                 ('right/camera_info', CAMERA_INFO, right_info),
-                ('left/image_rect', IMAGE, left_msg),
-                ('right/image_rect', IMAGE, right_msg),
+                (f'left/{image_topic}', image_type, left_msg),
+                (f'right/{image_topic}', image_type, right_msg),
             ]
             if ground_truth:
                 gt_msg = disparity_to_msg(gt, stamp, 'l', geometry, typestore=store)
@@ -160,6 +173,20 @@ def write_stereo_bag(
                     continue
                 bag.write(f'{prefix}/{topic}', msgtype, message, stamp)
     return path
+
+
+def _compressed(array: np.ndarray, raw: Any, transport: str, store: Any) -> Any:
+    """The CompressedImage image_transport would publish for ``raw`` (mono8 or rgb8)."""
+    encoding = raw.encoding
+    pixels = cv2.cvtColor(array, cv2.COLOR_RGB2BGR) if array.ndim == 3 else array
+    ok, data = cv2.imencode(f'.{"jpg" if transport == "jpeg" else "png"}', pixels)
+    assert ok
+    target = ' bgr8' if transport == 'jpeg' and array.ndim == 3 else ''
+    return store.types[COMPRESSED_IMAGE](
+        header=raw.header,
+        format=f'{encoding}; {transport} compressed{target}',
+        data=data.reshape(-1),
+    )
 
 
 def write_topics_without_messages(path: Path, topics: dict[str, str]) -> Path:

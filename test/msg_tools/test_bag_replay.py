@@ -185,3 +185,40 @@ def test_compressed_bags(tmp_path: Path, storage: str, compression: str) -> None
     code, report = _replay(bag, tmp_path)
     assert code == 0
     assert report['summary']['processed'] == 2 and report['summary']['frames_scored'] == 2
+
+
+def test_compressed_images_replay_like_raw_ones(tmp_path: Path) -> None:
+    # image_transport's compressed topics (PNG is lossless: the same outputs as the raw bag)
+    frames = [{'shift': 3}, {'shift': 5}]
+    raw = write_stereo_bag(tmp_path / 'raw', frames)
+    png = write_stereo_bag(tmp_path / 'png', [{**f, 'transport': 'png'} for f in frames])
+    assert _replay(raw, tmp_path, name='raw_out')[0] == 0
+    topics = ('--left-topic', 'left/image_rect/compressed',
+              '--right-topic', 'right/image_rect/compressed')  # fmt: skip
+    code, report = _replay(png, tmp_path, *topics, name='png_out')
+    assert code == 0 and report['summary']['processed'] == 2
+    from_raw, from_png = read_bag(tmp_path / 'raw_out_bag'), read_bag(tmp_path / 'png_out_bag')
+    pairs = zip(from_raw['/disparity'], from_png['/disparity'], strict=True)
+    for (_, expected), (_, got) in pairs:
+        assert np.array_equal(disparity_from_message(got), disparity_from_message(expected))
+    # JPEG is lossy, but a textured pair still matches almost everywhere.
+    jpeg = write_stereo_bag(tmp_path / 'jpeg', [{**f, 'transport': 'jpeg'} for f in frames])
+    code, report = _replay(jpeg, tmp_path, *topics, name='jpeg_out')
+    assert code == 0 and report['summary']['processed'] == 2
+    disparity = disparity_from_message(read_bag(tmp_path / 'jpeg_out_bag')['/disparity'][1][1])
+    assert np.mean(disparity[4:-4, 5 + 4 : -4] == 5) > 0.9
+
+
+def test_a_compressed_image_that_does_not_decode_is_skipped(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    frames = [{'transport': 'png'}, {'transport': 'png', 'compressed_data': b'not an image'},
+              {'transport': 'png'}]  # fmt: skip
+    bag = write_stereo_bag(tmp_path / 'in', frames)
+    code, report = _replay(bag, tmp_path, '--left-topic', 'left/image_rect/compressed',
+                           '--right-topic', 'right/image_rect/compressed')  # fmt: skip
+    assert code == 0
+    summary = report['summary']
+    assert (summary['pairs'], summary['processed'], summary['skipped']) == (3, 2, 1)
+    err = capsys.readouterr().err
+    assert 'skipped frame 1' in err and 'do not decode as an image' in err

@@ -129,3 +129,12 @@ def test_node_arguments_mirror_the_replay_options(tmp_path: Path) -> None:
     assert {'left/image_rect:=/cam0/image', 'right/image_rect:=/stereo/right/image_rect',
             'left/camera_info:=/stereo/left/camera_info', 'disparity:=/stereo/disparity',
             'points2:=/stereo/points2'} <= remaps
+    assert 'image_transport:=raw' in params
+    # A bag of image_transport compressed images: the node takes them on .../compressed.
+    args = node_arguments(options, 'replayed', 'compressed')
+    params = {args[i + 1] for i, a in enumerate(args) if a == '-p'}
+    remaps = {args[i + 1] for i, a in enumerate(args) if a == '-r'}
+    assert 'image_transport:=compressed' in params
+    assert {'left/image_rect/compressed:=/cam0/image',
+            'right/image_rect/compressed:=/stereo/right/image_rect',
+            'left/camera_info:=/stereo/left/camera_info'} <= remaps

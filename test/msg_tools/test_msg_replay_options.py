@@ -112,3 +112,20 @@ def test_valid_topic_names_resolve() -> None:
     assert names.inputs()['left'] == '/cam0/image'
     assert names.inputs()['right'] == '/stereo/right/image_rect'
     assert names.outputs()['points'] == '/stereo/points2'
+
+
+def test_topic_plan_names_the_image_transport_and_refuses_a_mixed_pair() -> None:
+    from msg_tools.convert import CAMERA_INFO, COMPRESSED_IMAGE, IMAGE
+    from msg_tools.replay import TopicPlan
+
+    inputs = {'left': '/l', 'right': '/r', 'left_info': '/li', 'right_info': '/ri'}
+
+    def plan(left: str, right: str) -> TopicPlan:
+        types = {'/l': left, '/r': right, '/li': CAMERA_INFO, '/ri': CAMERA_INFO}
+        return TopicPlan(inputs=inputs, input_types=types, ground_truth=None,
+                         ground_truth_type='', pairs_expected=1, input_counts={})
+
+    assert plan(IMAGE, IMAGE).image_transport == 'raw'
+    assert plan(COMPRESSED_IMAGE, COMPRESSED_IMAGE).image_transport == 'compressed'
+    with pytest.raises(ConfigError, match='one image_transport'):
+        _ = plan(COMPRESSED_IMAGE, IMAGE).image_transport

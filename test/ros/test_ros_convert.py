@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import cv2
 from node_test_utils import image_msg, info_msgs
 import numpy as np
 import pytest
-from sensor_msgs.msg import Image, PointCloud2, PointField
+from sensor_msgs.msg import CompressedImage, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
 from cva_confidence_ros.errors import InputError
@@ -326,3 +327,56 @@ def test_scale_camera_info() -> None:
     unchanged = scale_camera_info(left_info, 1, header)
     np.testing.assert_allclose(unchanged.k, left_info.k)
     assert (unchanged.width, unchanged.height) == (97, 65)
+
+
+def _compressed(array: np.ndarray, extension: str, fmt: str) -> CompressedImage:
+    pixels = cv2.cvtColor(array, cv2.COLOR_RGB2BGR) if array.ndim == 3 else array
+    ok, data = cv2.imencode(extension, pixels)
+    assert ok
+    return CompressedImage(header=Header(), format=fmt, data=data.tobytes())
+
+
+def test_compressed_png_decodes_exactly_in_the_core_layout() -> None:
+    rng = np.random.default_rng(0)
+    gray = rng.integers(0, 256, (12, 17), dtype=np.uint8)
+    rgb = rng.integers(0, 256, (12, 17, 3), dtype=np.uint8)
+    deep = rng.integers(0, 4096, (12, 17), dtype=np.uint16)
+    assert np.array_equal(image_to_array(_compressed(gray, '.png', 'mono8; png compressed')), gray)
+    decoded = image_to_array(_compressed(rgb, '.png', 'rgb8; png compressed'))
+    assert decoded.shape == (12, 17, 3) and np.array_equal(decoded, rgb)  # RGB, not OpenCV's BGR
+    sixteen = image_to_array(_compressed(deep, '.png', 'mono16; png compressed'))
+    assert sixteen.dtype == np.uint16 and np.array_equal(sixteen, deep)
+    # JPEG: lossy, same layout; a bare format string as older publishers write it
+    jpeg = image_to_array(_compressed(rgb, '.jpg', 'jpeg'))
+    assert jpeg.shape == (12, 17, 3) and jpeg.dtype == np.uint8
+
+
+def test_a_compressed_pair_decodes_like_the_raw_pair() -> None:
+    rng = np.random.default_rng(1)
+    left, right = (rng.integers(0, 256, (20, 30), dtype=np.uint8) for _ in range(2))
+    infos = info_msgs(0, 20, 30)
+    raw = stereo_pair_from_messages(image_msg(left, 0), image_msg(right, 0), *infos)
+    packed = stereo_pair_from_messages(
+        _compressed(left, '.png', 'mono8; png compressed'),
+        _compressed(right, '.png', 'mono8; png compressed'),
+        *infos,
+    )
+    assert np.array_equal(packed[0], raw[0]) and np.array_equal(packed[1], raw[1])
+    assert packed[2] == raw[2]
+
+
+@pytest.mark.parametrize(
+    ('fmt', 'data', 'message'),
+    [
+        ('16UC1; compressedDepth png', b'\x00' * 20, 'compressedDepth'),
+        ('mono8; png compressed', b'', 'no data'),
+        ('mono8; jpeg compressed', b'definitely not a jpeg', 'do not decode as an image'),
+    ],
+)
+def test_compressed_images_that_cannot_be_intensity_images_are_refused(
+    fmt: str, data: bytes, message: str
+) -> None:
+    msg = CompressedImage(header=Header(), format=fmt, data=data)
+    with pytest.raises(InputError, match=message) as caught:
+        image_to_array(msg, 'left image')
+    assert 'left image' in str(caught.value)
