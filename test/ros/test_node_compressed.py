@@ -12,7 +12,7 @@ from node_test_utils import (
     StereoClient,
     first_stamp,
     info_msgs,
-    localhost_context,
+    running_nodes,
     spare_domain_id,
     textured_pair,
 )
@@ -74,14 +74,8 @@ class _Compressed:
 
 @pytest.fixture
 def running() -> Iterator[_Compressed]:
-    with localhost_context(spare_domain_id()) as context:
-        state = _Compressed(context)
-        try:
-            yield state
-        finally:
-            state.spinner.stop()
-            state.node.destroy_node()
-            state.client.node.destroy_node()
+    with running_nodes(spare_domain_id(), _Compressed) as state:
+        yield state
 
 
 def test_compressed_images_are_matched_and_a_broken_one_is_skipped(running: _Compressed) -> None:
