@@ -162,8 +162,10 @@ class _Stats:
 class ConfidenceCore(Node):
     """The confidence node's work, shared by :class:`ConfidenceNode` and the managed node.
 
-    Mixed into an rclpy ``Node`` (or ``LifecycleNode``); the stages below are the managed
-    node's transitions, and :class:`ConfidenceNode` runs the first three in its constructor:
+    A ``Node`` whose set-up is split into stages: the managed node (this class before
+    ``rclpy.lifecycle.LifecycleNode`` in its bases) runs them as its transitions, and
+    :class:`ConfidenceNode` runs the first three in its constructor. A new configuration
+    starts its counters afresh.
 
     * :meth:`_init_core` — declare the parameters and the parameter callback (nothing runs);
     * :meth:`_configure` — build and warm up the pipeline, create the publishers, the
