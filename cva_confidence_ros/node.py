@@ -10,8 +10,10 @@ are matched by stamp (:mod:`cva_confidence_ros.sync`).
 Publishes: ``disparity`` and ``disparity_filtered`` (``stereo_msgs/DisparityImage``; the
 filtered one is invalid wherever confidence < ``confidence_threshold``), ``confidence``
 (``sensor_msgs/Image`` 32FC1 in [0, 1]), ``points2`` (``sensor_msgs/PointCloud2`` x, y, z, rgb
-of the pixels with confidence ≥ threshold), ``camera_info`` (the left camera info at the output
-resolution, for consumers of ``confidence``) and ``/diagnostics``. Everything is stamped with the
+of the pixels with confidence ≥ threshold), ``depth`` (``sensor_msgs/Image``, REP 118: the depth
+of those pixels, 32FC1 metres with NaN or 16UC1 millimetres with 0 where there is none),
+``camera_info`` (the left camera info at the output resolution, for consumers of ``confidence``
+and ``depth``) and ``/diagnostics``. Everything is stamped with the
 left image's header and published at the processed resolution (1/``downsample``).
 
 Threads: subscription callbacks only synchronise and drop the newest complete set into a
@@ -64,6 +66,7 @@ _TOPICS = (
     ('out', 'disparity_filtered', 'stereo_msgs/DisparityImage', 'invalid below the threshold'),
     ('out', 'confidence', 'sensor_msgs/Image', '32FC1 in [0, 1]'),
     ('out', 'points2', 'sensor_msgs/PointCloud2', 'x y z rgb of the confident pixels'),
+    ('out', 'depth', 'sensor_msgs/Image', 'depth of the confident pixels (REP 118)'),
     ('out', 'camera_info', 'sensor_msgs/CameraInfo', 'left, at the output resolution'),
     ('out', '/diagnostics', 'diagnostic_msgs/DiagnosticArray', ''),
 )

@@ -1,4 +1,4 @@
-"""Disparity → 3D points and colour packing, the ROS-free half of the ``points2`` output.
+"""Disparity → depth, 3D points and colour packing: the ROS-free half of ``depth`` and ``points2``.
 
 Geometry follows ``image_geometry.StereoCameraModel`` (what ``stereo_image_proc`` uses) for a
 rectified pair with projection matrices ``P_left`` and ``P_right`` (3×4)::
@@ -33,6 +33,7 @@ __all__ = [
     'CLOUD_CONFIDENCE_DTYPE',
     'CLOUD_DTYPE',
     'StereoGeometry',
+    'disparity_to_depth',
     'disparity_to_points',
     'filter_cloud',
     'make_cloud',
@@ -182,6 +183,66 @@ class StereoGeometry:
         )
 
 
+def _check_disparity(
+    disparity: np.ndarray, geometry: StereoGeometry, mask: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray | None]:
+    if not isinstance(geometry, StereoGeometry):
+        raise InputError(f'geometry must be a StereoGeometry; got {type(geometry).__name__}')
+    disparity = np.asarray(disparity)
+    if disparity.dtype.kind not in 'fiu':
+        raise InputError(
+            f'disparity must hold real numbers (float or int); got dtype {disparity.dtype}'
+        )
+    if disparity.ndim != 2:
+        raise InputError(f'disparity must be (H, W); got shape {disparity.shape}')
+    if mask is not None:
+        mask = np.asarray(mask)
+        if mask.shape != disparity.shape:
+            raise InputError(
+                f'mask must have the disparity shape {disparity.shape}; got {mask.shape}'
+            )
+        if mask.dtype != np.bool_:
+            raise InputError(f'mask must be a bool array (True = keep); got dtype {mask.dtype}')
+    return disparity, mask
+
+
+def _depth(disparity: np.ndarray, geometry: StereoGeometry, mask: np.ndarray | None) -> np.ndarray:
+    """Z = fx·B / (d + Δ) in float64, NaN where invalid or masked out (inputs checked)."""
+    shifted = disparity.astype(np.float64) + geometry.disparity_offset
+    with np.errstate(invalid='ignore'):
+        keep = np.isfinite(shifted) & (shifted > 0)
+    if mask is not None:
+        keep &= mask
+    depth = np.full(disparity.shape, np.nan)
+    np.divide(geometry.fx * geometry.baseline, shifted, out=depth, where=keep)
+    return depth
+
+
+def disparity_to_depth(
+    disparity: np.ndarray,
+    geometry: StereoGeometry,
+    mask: np.ndarray | None = None,
+) -> np.ndarray:
+    """The depth ``Z`` of every pixel of a left-reference disparity map (REP 118 float form).
+
+    Args:
+        disparity: (H, W) real array, raw disparity ``x_left − x_right`` in pixels; NaN =
+            invalid.
+        geometry: Intrinsics at the disparity map's resolution.
+        mask: Optional (H, W) bool, True = keep (e.g. confidence ≥ threshold).
+
+    Returns:
+        (H, W) float32 depth along the left camera's optical axis, in the baseline's units
+        (metres in ROS). NaN where the disparity is NaN, where ``d + Δ ≤ 0`` (at or beyond
+        infinity) or where ``mask`` is False. The ``Z`` of :func:`disparity_to_points`.
+
+    Raises:
+        InputError: As :func:`disparity_to_points`.
+    """
+    disparity, mask = _check_disparity(disparity, geometry, mask)
+    return _depth(disparity, geometry, mask).astype(np.float32)
+
+
 def disparity_to_points(
     disparity: np.ndarray,
     geometry: StereoGeometry,
@@ -206,31 +267,9 @@ def disparity_to_points(
         InputError: ``disparity`` is not a 2-D real array, ``geometry`` is not a
             :class:`StereoGeometry`, or ``mask`` is not bool or has another shape.
     """
-    if not isinstance(geometry, StereoGeometry):
-        raise InputError(f'geometry must be a StereoGeometry; got {type(geometry).__name__}')
-    disparity = np.asarray(disparity)
-    if disparity.dtype.kind not in 'fiu':
-        raise InputError(
-            f'disparity must hold real numbers (float or int); got dtype {disparity.dtype}'
-        )
-    if disparity.ndim != 2:
-        raise InputError(f'disparity must be (H, W); got shape {disparity.shape}')
-    if mask is not None:
-        mask = np.asarray(mask)
-        if mask.shape != disparity.shape:
-            raise InputError(
-                f'mask must have the disparity shape {disparity.shape}; got {mask.shape}'
-            )
-        if mask.dtype != np.bool_:
-            raise InputError(f'mask must be a bool array (True = keep); got dtype {mask.dtype}')
+    disparity, mask = _check_disparity(disparity, geometry, mask)
     height, width = disparity.shape
-    shifted = disparity.astype(np.float64) + geometry.disparity_offset
-    with np.errstate(invalid='ignore'):
-        keep = np.isfinite(shifted) & (shifted > 0)
-    if mask is not None:
-        keep &= mask
-    depth = np.full((height, width), np.nan)
-    np.divide(geometry.fx * geometry.baseline, shifted, out=depth, where=keep)
+    depth = _depth(disparity, geometry, mask)
     columns = np.arange(width, dtype=np.float64)[None, :]
     rows = np.arange(height, dtype=np.float64)[:, None]
     points = np.empty((height, width, 3), dtype=np.float32)

@@ -5,7 +5,7 @@ and camera infos by stamp with the node's synchroniser, runs the node's pipeline
 confidence method, weights, downsample, threshold), and writes
 
 * an output bag with what the node publishes (``disparity``, ``confidence``, ``points2``,
-  ``disparity_filtered``), stamped like the input;
+  ``disparity_filtered``, ``depth``, ``camera_info``), stamped like the input;
 * where the bag has ground truth: ``DIR/report.json`` (``frames``: records with ``frame``,
   ``stamp_ns``, ``error_rate``, ``auc``, ``auc_opt``, ``kept_density``, ``kept_error_rate``;
   ``summary``: their means and the frame counters), ``DIR/report.csv``, ``DIR/summary.md`` and
@@ -95,6 +95,9 @@ def build_parser() -> argparse.ArgumentParser:
     node.add_argument('--points-confidence', action='store_true',
                       help='points2 holds every triangulated point with a float32 confidence '
                            'field (the node parameter points_confidence), for filtering later')
+    node.add_argument('--no-depth', action='store_true', help='do not write depth')
+    node.add_argument('--depth-encoding', choices=('32FC1', '16UC1'), default='32FC1',
+                      help='depth as float metres (NaN = none) or uint16 millimetres (0 = none)')
 
     topics = parser.add_argument_group('topics (relative names are put under --topic-prefix)')
     topics.add_argument('--topic-prefix', default='', help='camera namespace, e.g. /stereo')
@@ -175,6 +178,8 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
         publish_points=not args.no_points,
         points_organized=not args.points_unorganized,
         points_confidence=args.points_confidence,
+        publish_depth=not args.no_depth,
+        depth_encoding=args.depth_encoding,
         overwrite=args.overwrite,
         rate_scale=args.rate_scale,
         start_node=not args.no_start_node,

@@ -61,14 +61,20 @@ _NODE_OUTPUTS = {
     'confidence': 'confidence',
     'disparity_filtered': 'disparity_filtered',
     'points': 'points2',
+    'depth': 'depth',
+    'camera_info': 'camera_info',
 }
 _OUTPUT_TYPES = {
     'disparity': 'stereo_msgs/msg/DisparityImage',
     'confidence': 'sensor_msgs/msg/Image',
     'disparity_filtered': 'stereo_msgs/msg/DisparityImage',
     'points': 'sensor_msgs/msg/PointCloud2',
+    'depth': 'sensor_msgs/msg/Image',
+    'camera_info': 'sensor_msgs/msg/CameraInfo',
 }
-# What a frame needs before it can be scored; points2 is only recorded.
+# Outputs that an option turns off.
+_OPTIONAL = {'points': 'publish_points', 'depth': 'publish_depth'}
+# What a frame needs before it can be scored; points2, depth and camera_info are only recorded.
 _SCORED = ('disparity', 'confidence', 'disparity_filtered')
 
 
@@ -97,6 +103,8 @@ def node_arguments(
         publish_points=options.publish_points,
         points_organized=options.points_organized,
         points_confidence=options.points_confidence,
+        publish_depth=options.publish_depth,
+        depth_encoding=options.depth_encoding,
         input_qos='reliable',
         output_qos='reliable',
         approximate_sync=options.approximate_sync,
@@ -272,7 +280,10 @@ class _Player:
             topic: self.node.create_publisher(_message_class(kind), topic, publish_qos)
             for topic, kind in plan.input_types.items()
         }
-        names = [name for name in _OUTPUT_TYPES if name != 'points' or options.publish_points]
+        names = [
+            name for name in _OUTPUT_TYPES
+            if name not in _OPTIONAL or getattr(options, _OPTIONAL[name])
+        ]
         outputs = options.topics.outputs()
         self.subscriptions = {
             name: self.node.create_subscription(
@@ -542,7 +553,8 @@ class _Recorder:
             except queue.Empty:
                 continue
             self._handle(*item, progress=progress)
-        # Late points2 of the last frame may still be in the queue: record them too.
+        # Late points2, depth or camera_info of the last frame may still be in the queue:
+        # record them too.
         while True:
             try:
                 item = self.received.get_nowait()

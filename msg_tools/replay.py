@@ -117,7 +117,8 @@ class TopicNames:
         left, right: Rectified images (sensor_msgs/Image, or CompressedImage: JPEG / PNG).
         left_info, right_info: Camera infos (sensor_msgs/CameraInfo).
         ground_truth: Ground-truth disparity (stereo_msgs/DisparityImage or 32FC1 Image).
-        disparity, confidence, points, disparity_filtered: What the node publishes.
+        disparity, confidence, points, disparity_filtered, depth, camera_info: What the node
+            publishes (``camera_info``: the left camera at the output resolution).
     """
 
     prefix: str = ''
@@ -130,6 +131,8 @@ class TopicNames:
     confidence: str = 'confidence'
     points: str = 'points2'
     disparity_filtered: str = 'disparity_filtered'
+    depth: str = 'depth'
+    camera_info: str = 'camera_info'
 
     def __post_init__(self) -> None:
         prefix = str(self.prefix).strip('/')
@@ -156,7 +159,9 @@ class TopicNames:
 
     def outputs(self) -> dict[str, str]:
         """Output name → absolute topic, for what the node publishes."""
-        names = ('disparity', 'confidence', 'points', 'disparity_filtered')
+        names = (
+            'disparity', 'confidence', 'points', 'disparity_filtered', 'depth', 'camera_info'
+        )
         return {name: self.resolve(name) for name in names}
 
 
@@ -184,6 +189,8 @@ class ReplayOptions:
         points_organized: Organised (H×W, NaN for dropped points) or dense cloud.
         points_confidence: ``points2`` holds every triangulated point with its confidence
             (the node's ``points_confidence``) instead of the kept ones only.
+        publish_depth: Write ``depth`` (the depth of the kept pixels, REP 118).
+        depth_encoding: ``32FC1`` (metres) or ``16UC1`` (millimetres), the node's parameter.
         overwrite: Replace an existing output bag (it is replaced only once the new one holds
             a frame) and the files of an earlier report in the report folder.
         rate_scale: Live mode: play at this multiple of the recorded speed.
@@ -210,6 +217,8 @@ class ReplayOptions:
     publish_points: bool = True
     points_organized: bool = True
     points_confidence: bool = False
+    publish_depth: bool = True
+    depth_encoding: str = '32FC1'
     overwrite: bool = False
     rate_scale: float = 1.0
     start_node: bool = True
@@ -223,6 +232,12 @@ class ReplayOptions:
             raise ConfigError(f'storage must be one of {STORAGES}; got {self.storage!r}')
         if self.queue_size < 1:
             raise ConfigError(f'queue_size must be >= 1; got {self.queue_size}')
+        from cva_confidence_ros.ros.convert import DEPTH_ENCODINGS
+
+        if self.depth_encoding not in DEPTH_ENCODINGS:
+            raise ConfigError(
+                f'depth encoding must be one of {DEPTH_ENCODINGS}; got {self.depth_encoding!r}'
+            )
         if not 0 <= self.sync_tolerance_s <= _MAX_SPAN_S:
             raise ConfigError(
                 f'sync tolerance must be a finite number of seconds >= 0 (at most '
@@ -423,7 +438,8 @@ class NodeOutputs:
 
     Attributes:
         messages: ``(output name, message type, CDR bytes)`` for ``disparity``,
-            ``confidence``, ``disparity_filtered`` and (optionally) ``points``.
+            ``confidence``, ``disparity_filtered`` and (optionally) ``points``, ``depth`` and
+            ``camera_info``.
         confidence: (h, w) float32 published confidence in [0, 1].
         kept: (h, w) bool, pixels kept by the threshold (finite in ``disparity_filtered``).
         geometry: Stereo geometry at the processed resolution.
@@ -445,6 +461,9 @@ def node_outputs(
     publish_points: bool = True,
     points_organized: bool = True,
     points_confidence: bool = False,
+    publish_depth: bool = True,
+    depth_encoding: str = '32FC1',
+    left_info: Any = None,
 ) -> NodeOutputs:
     """The messages the node publishes for one processed pair, built by the node's own code.
 
@@ -463,6 +482,10 @@ def node_outputs(
         points_organized: Organised cloud (H×W, NaN points) or only the kept points.
         points_confidence: Every triangulated point with a ``confidence`` field instead of
             only the kept ones.
+        publish_depth: Include ``depth``, the depth of the kept pixels.
+        depth_encoding: Its encoding, ``32FC1`` or ``16UC1``.
+        left_info: The left camera info of the input (``rosbags`` or rclpy); given, include
+            ``camera_info`` scaled to the output resolution, as the node publishes it.
 
     Returns:
         The :class:`NodeOutputs`.
@@ -471,11 +494,13 @@ def node_outputs(
     from rclpy.serialization import serialize_message
     from std_msgs.msg import Header
 
-    from cva_confidence_ros.pointcloud import stereo_cloud
+    from cva_confidence_ros.pointcloud import disparity_to_depth, stereo_cloud
     from cva_confidence_ros.ros.convert import (
         array_to_image,
         cloud_to_message,
+        depth_to_image,
         disparity_to_message,
+        scale_camera_info,
     )
 
     ros_header = Header(
@@ -507,6 +532,14 @@ def node_outputs(
             with_confidence=points_confidence,
         )
         messages.append(('points', POINT_CLOUD2, cloud_to_message(cloud, ros_header)))
+    if publish_depth:
+        depth = disparity_to_depth(disparity, geometry, kept)
+        messages.append(('depth', IMAGE, depth_to_image(depth, ros_header, depth_encoding)))
+    if left_info is not None:
+        messages.append(
+            ('camera_info', CAMERA_INFO,
+             scale_camera_info(left_info, config.downsample, ros_header))
+        )
     store = jazzy_typestore()
     # rclpy leaves CDR alignment padding uninitialised; a pass through rosbags zeroes it, so
     # that the same input always gives the same output bag, byte for byte.
@@ -1057,7 +1090,8 @@ def _process_pair(session: ReplaySession, pipeline: Any, matched: Any, frame: in
     outputs = node_outputs(
         result, geometry, left.shape[:2], items['left'].header, options.pipeline,
         publish_points=options.publish_points, points_organized=options.points_organized,
-        points_confidence=options.points_confidence,
+        points_confidence=options.points_confidence, publish_depth=options.publish_depth,
+        depth_encoding=options.depth_encoding, left_info=items['left_info'],
     )
     topics = options.topics.outputs()
     # The frame's messages and its line in the report go together, whenever the signal comes.

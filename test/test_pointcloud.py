@@ -10,6 +10,7 @@ from cva_confidence_ros.pointcloud import (
     CLOUD_CONFIDENCE_DTYPE,
     CLOUD_DTYPE,
     StereoGeometry,
+    disparity_to_depth,
     disparity_to_points,
     filter_cloud,
     make_cloud,
@@ -369,3 +370,39 @@ def test_stereo_cloud_thresholded_or_annotated() -> None:
         np.testing.assert_array_equal(refiltered[name], plain[name])
     dense = stereo_cloud(disparity, confidence, left, geometry, kept, organized=False)
     assert dense.shape == (2,)
+
+
+def test_depth_is_the_z_of_the_points() -> None:
+    geometry = StereoGeometry.from_projections(P_LEFT, P_RIGHT)
+    disparity = np.array([[10.0, 20.0, 5.0, np.nan], [0.0, 25.0, -1.0, 50.0]], np.float32)
+    depth = disparity_to_depth(disparity, geometry)
+    assert depth.shape == (2, 4) and depth.dtype == np.float32
+    # Z = fx·B / d = 50 / d, hand-computed; NaN, zero and negative disparities have none.
+    expected = np.array([[5.0, 2.5, 10.0, np.nan], [np.nan, 2.0, np.nan, 1.0]], np.float32)
+    np.testing.assert_array_equal(depth, expected)
+    np.testing.assert_array_equal(depth, disparity_to_points(disparity, geometry)[..., 2])
+    mask = np.isfinite(expected) & (expected < 6)
+    masked = disparity_to_depth(disparity, geometry, mask)
+    np.testing.assert_array_equal(masked, np.where(mask, expected, np.nan))
+
+
+def test_depth_with_principal_point_offset() -> None:
+    # cx_right − cx_left = 10: Z = fx·B / (d + 10).
+    geometry = StereoGeometry(fx=100.0, fy=100.0, cx=2.0, cy=1.0, cx_right=12.0, baseline=0.5)
+    depth = disparity_to_depth(np.array([[0.0, -10.0, 15.0]]), geometry)
+    np.testing.assert_allclose(depth, [[5.0, np.nan, 2.0]], rtol=1e-6)
+
+
+@pytest.mark.parametrize(
+    ('disparity', 'mask', 'match'),
+    [
+        (np.zeros((2, 2, 1), np.float32), None, r'\(H, W\)'),
+        (np.zeros((2, 2), bool), None, 'real numbers'),
+        (np.zeros((2, 2), np.float32), np.ones((2, 2)), 'bool'),
+        (np.zeros((2, 2), np.float32), np.ones((2, 3), bool), 'shape'),
+    ],
+)
+def test_depth_refuses(disparity: np.ndarray, mask: np.ndarray | None, match: str) -> None:
+    geometry = StereoGeometry.from_projections(P_LEFT, P_RIGHT)
+    with pytest.raises(InputError, match=match):
+        disparity_to_depth(disparity, geometry, mask)

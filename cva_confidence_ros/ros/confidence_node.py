@@ -28,7 +28,7 @@ from stereo_msgs.msg import DisparityImage
 
 from cva_confidence_ros.errors import CVAError
 from cva_confidence_ros.pipeline import PipelineConfig, PipelineResult, StereoPipeline
-from cva_confidence_ros.pointcloud import StereoGeometry, stereo_cloud
+from cva_confidence_ros.pointcloud import StereoGeometry, disparity_to_depth, stereo_cloud
 from cva_confidence_ros.ros.common import (
     LOG_THROTTLE_S,
     ReasonThrottle,
@@ -40,6 +40,7 @@ from cva_confidence_ros.ros.common import (
 from cva_confidence_ros.ros.convert import (
     array_to_image,
     cloud_to_message,
+    depth_to_image,
     disparity_to_message,
     scale_camera_info,
     stamp_to_ns,
@@ -219,6 +220,7 @@ class ConfidenceCore(Node):
         self._pub_filtered = publish(DisparityImage, 'disparity_filtered', out_qos)
         self._pub_confidence = publish(Image, 'confidence', out_qos)
         self._pub_points = publish(PointCloud2, 'points2', out_qos)
+        self._pub_depth = publish(Image, 'depth', out_qos)
         self._pub_info = publish(CameraInfo, 'camera_info', out_qos)
         self._pub_diagnostics = self.create_publisher(
             DiagnosticArray, '/diagnostics', QoSProfile(depth=10)
@@ -228,7 +230,7 @@ class ConfidenceCore(Node):
         )
         self._owned = [
             self._pub_disparity, self._pub_filtered, self._pub_confidence, self._pub_points,
-            self._pub_info, self._pub_diagnostics, self._diag_timer,
+            self._pub_depth, self._pub_info, self._pub_diagnostics, self._diag_timer,
         ]
         self._worker = threading.Thread(
             target=self._work, args=(self._mailbox,), name='cva_confidence_worker'
@@ -589,6 +591,9 @@ class ConfidenceCore(Node):
                 with_confidence=node_config.points_confidence,
             )
             self._pub_points.publish(cloud_to_message(cloud, header))
+        if node_config.publish_depth and self._pub_depth.get_subscription_count():
+            depth = disparity_to_depth(disparity, geometry, keep)
+            self._pub_depth.publish(depth_to_image(depth, header, node_config.depth_encoding))
 
     # Diagnostics --------------------------------------------------------------------------
 

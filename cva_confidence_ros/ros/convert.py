@@ -9,6 +9,9 @@ Conventions follow ``stereo_image_proc`` so that the node drops into existing pi
 * ``sensor_msgs/PointCloud2``: fields x, y, z, rgb (float32, 16-byte points), optionally a
   fifth float32 ``confidence`` (20-byte points). Clouds of other producers, with any fields,
   padding and row step, are read by :func:`point_cloud_to_records` for filtering.
+* depth ``sensor_msgs/Image`` as REP 118 lays it out, for depth consumers (``depth_image_proc``,
+  nvblox, RTAB-Map): ``32FC1`` metres with NaN where there is no depth, or ``16UC1``
+  millimetres with 0 there.
 """
 
 from __future__ import annotations
@@ -25,12 +28,15 @@ from cva_confidence_ros.errors import InputError
 from cva_confidence_ros.pointcloud import CLOUD_CONFIDENCE_DTYPE, CLOUD_DTYPE, StereoGeometry
 
 __all__ = [
+    'DEPTH_ENCODINGS',
     'SUPPORTED_ENCODINGS',
     'array_to_image',
     'camera_info_to_geometry',
     'cloud_to_array',
     'cloud_to_message',
     'compressed_image_to_array',
+    'depth_image_to_array',
+    'depth_to_image',
     'disparity_from_message',
     'disparity_to_message',
     'float_image_to_array',
@@ -55,6 +61,10 @@ _ENCODINGS: dict[str, tuple[int, int, tuple[int, ...] | None]] = {
 }
 #: Image encodings accepted on ``left/image_rect`` and ``right/image_rect``.
 SUPPORTED_ENCODINGS: tuple[str, ...] = tuple(_ENCODINGS)
+#: Encodings of the ``depth`` output (REP 118): float metres or integer millimetres.
+DEPTH_ENCODINGS: tuple[str, ...] = ('32FC1', '16UC1')
+# 16UC1 holds 1 mm … 65.535 m; 0 means no depth.
+_UINT16_MM_MAX = float(np.iinfo(np.uint16).max)
 
 
 def stamp_to_ns(stamp: Time) -> int:
@@ -234,6 +244,86 @@ def float_image_to_array(msg: Image) -> np.ndarray:
     dtype = np.dtype('>f4' if msg.is_bigendian else '<f4')
     rows = data[: step * height].reshape(height, step)[:, : 4 * width]
     return rows.copy().view(dtype).reshape(height, width).astype(np.float32)
+
+
+def depth_to_image(depth: np.ndarray, header: Header, encoding: str = '32FC1') -> Image:
+    """Encode an (H, W) depth map in metres as a REP 118 depth ``sensor_msgs/Image``.
+
+    Args:
+        depth: (H, W) real array, metres; NaN (or any non-finite or non-positive value) =
+            no depth.
+        header: The image header (the left image's: depth is in the left camera's frame).
+        encoding: ``32FC1`` (float32 metres, NaN = no depth) or ``16UC1`` (uint16 millimetres
+            rounded to the nearest, 0 = no depth; depths beyond 65.535 m, which 16 bits cannot
+            hold, and below 0.5 mm become 0 too: no depth rather than a wrong one).
+
+    Raises:
+        InputError: Not a 2-D real array, or another encoding.
+    """
+    if encoding not in DEPTH_ENCODINGS:
+        raise InputError(f'depth encoding must be one of {DEPTH_ENCODINGS}; got {encoding!r}')
+    depth = np.asarray(depth)
+    if depth.ndim != 2 or depth.dtype.kind not in 'fiu':
+        raise InputError(
+            f'a depth image must be a 2-D real array; got shape {depth.shape}, dtype {depth.dtype}'
+        )
+    with np.errstate(invalid='ignore'):
+        valid = np.isfinite(depth) & (depth > 0)
+    if encoding == '32FC1':
+        data = np.where(valid, depth, np.nan).astype('<f4')
+        bytes_per_pixel = 4
+    else:
+        millimetres = np.zeros(depth.shape)
+        np.multiply(depth, 1000.0, out=millimetres, where=valid)
+        millimetres = np.rint(millimetres)
+        millimetres[millimetres > _UINT16_MM_MAX] = 0.0
+        data = millimetres.astype('<u2')
+        bytes_per_pixel = 2
+    height, width = data.shape
+    return Image(
+        header=header,
+        height=height,
+        width=width,
+        encoding=encoding,
+        is_bigendian=0,
+        step=width * bytes_per_pixel,
+        data=np.ascontiguousarray(data).tobytes(),
+    )
+
+
+def depth_image_to_array(msg: Image) -> np.ndarray:
+    """Decode a REP 118 depth image (``32FC1`` metres or ``16UC1`` millimetres) into metres.
+
+    Returns:
+        (H, W) float32 metres, NaN where the image has no depth (NaN, ±inf or ≤ 0 in
+        ``32FC1``, 0 in ``16UC1``).
+
+    Raises:
+        InputError: Another encoding, or a buffer that does not fit the size.
+    """
+    encoding = str(msg.encoding)
+    if encoding not in DEPTH_ENCODINGS:
+        raise InputError(
+            f'expected a depth image ({" or ".join(DEPTH_ENCODINGS)}); got {encoding!r}'
+        )
+    height, width, step = int(msg.height), int(msg.width), int(msg.step)
+    size = 4 if encoding == '32FC1' else 2
+    data = np.frombuffer(msg.data, dtype=np.uint8)
+    if step < size * width or data.size < step * height:
+        raise InputError(
+            f'{encoding} image of {width}×{height} needs step ≥ {size * width} and '
+            f'{step * height} bytes; got step {step} and {data.size} bytes'
+        )
+    order = '>' if msg.is_bigendian else '<'
+    rows = data[: step * height].reshape(height, step)[:, : size * width]
+    if encoding == '32FC1':
+        depth = rows.copy().view(f'{order}f4').reshape(height, width).astype(np.float32)
+    else:
+        millimetres = rows.copy().view(f'{order}u2').reshape(height, width)
+        depth = np.where(millimetres > 0, millimetres / 1000.0, np.nan).astype(np.float32)
+    with np.errstate(invalid='ignore'):
+        depth[~(np.isfinite(depth) & (depth > 0))] = np.nan
+    return depth
 
 
 def camera_info_to_geometry(

@@ -23,6 +23,7 @@ from rclpy.parameter import Parameter
 
 from cva_confidence_ros.errors import ConfigError
 from cva_confidence_ros.pipeline import PipelineConfig
+from cva_confidence_ros.ros.convert import DEPTH_ENCODINGS
 
 __all__ = [
     'NODE_PARAMETERS',
@@ -52,6 +53,9 @@ class NodeConfig:
         points_confidence: ``points2`` holds every point that can be triangulated, with a fifth
             float32 field ``confidence``, for consumers that filter with their own threshold
             (``cloud_filter``); false = only the points with confidence ≥ threshold.
+        publish_depth: Publish ``depth``, the depth of the kept pixels (REP 118).
+        depth_encoding: ``32FC1`` (metres, NaN = no depth) or ``16UC1`` (millimetres, 0 = no
+            depth), one of :data:`~cva_confidence_ros.ros.convert.DEPTH_ENCODINGS`.
         image_transport: ``raw`` (``sensor_msgs/Image`` on ``left/image_rect``, …) or
             ``compressed`` (``sensor_msgs/CompressedImage``, JPEG or PNG, on
             ``left/image_rect/compressed``, …, as ``image_transport`` publishes them).
@@ -66,6 +70,8 @@ class NodeConfig:
     publish_points: bool = True
     points_organized: bool = True
     points_confidence: bool = False
+    publish_depth: bool = True
+    depth_encoding: str = '32FC1'
     image_transport: str = 'raw'
     input_qos: str = 'sensor_data'
     output_qos: str = 'reliable'
@@ -75,6 +81,10 @@ class NodeConfig:
     diagnostics_period_seconds: float = 1.0
 
     def __post_init__(self) -> None:
+        if self.depth_encoding not in DEPTH_ENCODINGS:
+            raise ConfigError(
+                f'depth_encoding must be one of {DEPTH_ENCODINGS}; got {self.depth_encoding!r}'
+            )
         if self.image_transport not in TRANSPORT_CHOICES:
             raise ConfigError(
                 f'image_transport must be one of {TRANSPORT_CHOICES}; got {self.image_transport!r}'
@@ -207,7 +217,8 @@ PIPELINE_PARAMETERS: tuple[ParamSpec, ...] = (
     ),
     _pipeline(
         'confidence_threshold',
-        'Pixels with confidence below it are dropped from points2 and disparity_filtered.',
+        'Pixels with confidence below it are dropped from points2, depth and '
+        'disparity_filtered.',
         low=0.0,
         high=1.0,
     ),
@@ -269,6 +280,17 @@ NODE_PARAMETERS: tuple[ParamSpec, ...] = (
         'points2 holds every point that can be triangulated with a float32 confidence field, '
         'for consumers that filter with their own threshold (cloud_filter); false = only the '
         'points with confidence >= confidence_threshold, x y z rgb as stereo_image_proc.',
+    ),
+    _node(
+        'publish_depth',
+        'Publish depth: the depth of the pixels with confidence >= confidence_threshold in the '
+        'left camera frame (REP 118), for depth-image consumers; pair it with camera_info.',
+    ),
+    _node(
+        'depth_encoding',
+        'Encoding of depth: 32FC1 (float metres, NaN = no depth) or 16UC1 (uint16 millimetres, '
+        '0 = no depth, at most 65.535 m).',
+        constraints='32FC1 or 16UC1',
     ),
     _node(
         'image_transport',

@@ -19,12 +19,18 @@ import pytest
 from cva_confidence_ros.confidence import CONFIDENCE_METHODS
 from cva_confidence_ros.datasets import load_dataset, resize_disparity
 from cva_confidence_ros.evaluation import evaluate_scene
-from cva_confidence_ros.ros.convert import disparity_from_message, float_image_to_array
+from cva_confidence_ros.ros.convert import (
+    depth_image_to_array,
+    disparity_from_message,
+    float_image_to_array,
+)
 from msg_tools.bag_replay import main
 from msg_tools.convert import stamp_to_ns
 from msg_tools.scoring import REPORT_KEYS
 
-OUTPUTS = {'/disparity', '/confidence', '/disparity_filtered', '/points2'}
+OUTPUTS = {
+    '/disparity', '/confidence', '/disparity_filtered', '/points2', '/depth', '/camera_info'
+}
 
 
 def _replay(bag: Path, tmp_path: Path, *extra: str, name: str = 'run') -> tuple[int, dict]:
@@ -82,6 +88,19 @@ def test_round_trip(tmp_path: Path, storage: str, capsys: pytest.CaptureFixture[
         assert confidence.min() >= 0.0 and confidence.max() <= 1.0
         assert kept.mean() == pytest.approx(frames[index]['kept_density'])
         assert outputs['/points2'][index][1].width == width  # organised cloud
+        # depth: Z = f·T / value of the filtered DisparityImage (its values are d + Δ), on
+        # exactly its kept pixels; camera_info: the left camera at the output size.
+        filtered = outputs['/disparity_filtered'][index][1]
+        depth = depth_image_to_array(outputs['/depth'][index][1])
+        np.testing.assert_array_equal(np.isfinite(depth), kept)
+        np.testing.assert_allclose(
+            depth[kept], filtered.f * filtered.t / disparity_from_message(filtered)[kept],
+            rtol=1e-5,
+        )
+        info = outputs['/camera_info'][index][1]
+        assert (info.width, info.height) == (width, msg.image.height)
+        assert info.p[0] == pytest.approx(filtered.f)
+        np.testing.assert_allclose(info.p, inputs['/left/camera_info'][index][1].p)
 
 
 def test_auc_equals_cva_evaluate(tmp_path: Path) -> None:
@@ -131,6 +150,27 @@ def test_points_confidence_writes_every_point_with_its_confidence(tmp_path: Path
     )
 
 
+def test_depth_encoding_and_no_depth(tmp_path: Path) -> None:
+    bag = dataset_bag(tmp_path, 'mcap', 1)
+    code, _ = _replay(bag, tmp_path, '--depth-encoding', '16UC1', '--downsample', '2')
+    assert code == 0
+    outputs = read_bag(tmp_path / 'run_bag')
+    msg = outputs['/depth'][0][1]
+    assert (msg.encoding, msg.step) == ('16UC1', 2 * msg.width)
+    millimetres = np.frombuffer(bytes(msg.data), '<u2').reshape(msg.height, msg.width)
+    # The same depth as the points' z (the kept pixels), in whole millimetres, 0 elsewhere.
+    cloud = outputs['/points2'][0][1]
+    z = np.frombuffer(bytes(cloud.data), '<f4').reshape(cloud.height, cloud.width, 4)[..., 2]
+    np.testing.assert_array_equal(millimetres > 0, np.isfinite(z))
+    np.testing.assert_allclose(millimetres[millimetres > 0], z[np.isfinite(z)] * 1000, atol=0.5)
+    info = outputs['/camera_info'][0][1]
+    assert (info.width, info.height) == (msg.width, msg.height)
+
+    code, _ = _replay(bag, tmp_path, '--no-depth', name='none')
+    assert code == 0
+    assert set(read_bag(tmp_path / 'none_bag')) == OUTPUTS - {'/depth'}
+
+
 def test_downsample_scales_ground_truth(tmp_path: Path) -> None:
     bag = dataset_bag(tmp_path, 'mcap', 2)
     code, report = _replay(bag, tmp_path, '--downsample', '2')
@@ -151,7 +191,8 @@ def test_topic_prefix_and_bag_without_ground_truth(tmp_path: Path) -> None:
     assert [f['auc'] for f in report['frames']] == [None, None]
     assert report['frames'][0]['note'] == 'no ground truth'
     assert set(read_bag(tmp_path / 'run_bag')) == {
-        '/stereo/disparity', '/stereo/confidence', '/stereo/disparity_filtered'
+        '/stereo/disparity', '/stereo/confidence', '/stereo/disparity_filtered',
+        '/stereo/depth', '/stereo/camera_info',
     }
     # Asking for a ground truth the bag does not have is an error.
     code, _ = _replay(bag, tmp_path, '--topic-prefix', '/stereo', '--gt-topic', 'gt', name='b')

@@ -16,6 +16,7 @@ import pytest
 
 from cva_confidence_ros.ros.convert import (
     cloud_to_array,
+    depth_image_to_array,
     disparity_from_message,
     float_image_to_array,
 )
@@ -65,13 +66,15 @@ def test_live_gives_the_offline_results(tmp_path: Path) -> None:
     # The node's messages are the offline ones: same stamps, arrays and clouds.
     first, second = read_bag(tmp_path / 'offline_bag'), read_bag(tmp_path / 'live_bag')
     assert first.keys() == second.keys() == {
-        '/disparity', '/confidence', '/disparity_filtered', '/points2'
+        '/disparity', '/confidence', '/disparity_filtered', '/points2', '/depth', '/camera_info'
     }
     for topic, read in (
         ('/disparity', disparity_from_message),
         ('/disparity_filtered', disparity_from_message),
         ('/confidence', float_image_to_array),
         ('/points2', cloud_to_array),
+        ('/depth', depth_image_to_array),
+        ('/camera_info', lambda info: np.concatenate([info.k, info.p, [info.width, info.height]])),
     ):
         assert [t for t, _ in first[topic]] == [t for t, _ in second[topic]]
         for (_, a), (_, b) in zip(first[topic], second[topic], strict=True):

@@ -27,12 +27,13 @@ import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
-from sensor_msgs.msg import CameraInfo
+from sensor_msgs.msg import CameraInfo, Image
 import torch
 
 from cva_confidence_ros.node import ConfidenceNode
 from cva_confidence_ros.ros.convert import (
     cloud_to_array,
+    depth_image_to_array,
     disparity_from_message,
     float_image_to_array,
 )
@@ -57,6 +58,7 @@ class _Running:
         self.client = StereoClient(context)
         self.client.subscribe('/diagnostics', DiagnosticArray)
         self.client.subscribe('camera_info', CameraInfo)
+        self.client.subscribe('depth', Image)
         self.client.subscribe('/rosout', Log, QoSProfile(depth=100))
         self.spinner = Spinner(context, self.node, self.client.node)
         self.stamp = first_stamp()
@@ -307,6 +309,38 @@ def test_downsample_publishes_at_lower_resolution(running: _Running) -> None:
     finally:
         result = running.set(downsample=1, max_disparity=MAX_DISPARITY)
         assert result.successful
+
+
+def test_depth_of_the_confident_pixels_in_both_encodings(running: _Running) -> None:
+    # REP 118 depth beside camera_info: Z = f·B/d on the pixels disparity_filtered keeps.
+    topics = ('disparity', 'confidence', 'depth', 'camera_info')
+    left, right = textured_pair(seed=6)
+    out = running.client.send_until_output(left, right, running.next_stamp(), topics=topics)
+    depth_msg = out['depth']
+    assert depth_msg.header == out['disparity'].header == out['camera_info'].header
+    assert (depth_msg.encoding, depth_msg.height, depth_msg.width) == ('32FC1', 64, 96)
+    disparity = disparity_from_message(out['disparity'])
+    confidence = float_image_to_array(out['confidence'])
+    keep = np.isfinite(disparity) & (confidence >= THRESHOLD) & (disparity > 0)
+    depth = depth_image_to_array(depth_msg)
+    np.testing.assert_array_equal(np.isfinite(depth), keep)
+    np.testing.assert_allclose(depth[keep], FX * BASELINE / disparity[keep], rtol=1e-5)
+    good = keep & (np.abs(disparity - TRUE_DISPARITY) < 0.5)
+    np.testing.assert_allclose(depth[good], 2.0, rtol=1e-5)  # f·B/5 = 2 m
+
+    # 16UC1 as a run-time change: whole millimetres, 0 where there is no depth.
+    assert running.set(depth_encoding='16UC1').successful
+    try:
+        out = running.client.send_until_output(left, right, running.next_stamp(), topics=topics)
+        depth_msg = out['depth']
+        assert (depth_msg.encoding, depth_msg.step) == ('16UC1', 2 * 96)
+        millimetres = np.frombuffer(bytes(depth_msg.data), '<u2').reshape(64, 96)
+        np.testing.assert_array_equal(millimetres > 0, keep)
+        np.testing.assert_allclose(millimetres[keep], depth[keep] * 1000, atol=0.5)
+        refused = running.set(depth_encoding='16UC2')
+        assert not refused.successful and 'depth_encoding' in refused.reason
+    finally:
+        assert running.set(depth_encoding='32FC1').successful
 
 
 def test_dense_cloud(running: _Running) -> None:

@@ -22,6 +22,8 @@ from cva_confidence_ros.ros.convert import (
     camera_info_to_geometry,
     cloud_to_array,
     cloud_to_message,
+    depth_image_to_array,
+    depth_to_image,
     disparity_from_message,
     disparity_to_message,
     float_image_to_array,
@@ -124,6 +126,54 @@ def test_float_image_round_trip() -> None:
     np.testing.assert_array_equal(float_image_to_array(msg), array)
     with pytest.raises(InputError, match='32FC1'):
         float_image_to_array(image_msg(np.zeros((2, 2), np.uint8), 0))
+
+
+def test_depth_image_32fc1_metres_with_nan() -> None:
+    depth = np.array([[0.5, np.nan, 2.25], [np.inf, -1.0, 70.0]], np.float32)
+    msg = depth_to_image(depth, Header(frame_id='left', stamp=ns_to_stamp(7)))
+    assert (msg.encoding, msg.height, msg.width, msg.step, msg.is_bigendian) == (
+        '32FC1', 2, 3, 12, 0
+    )
+    assert msg.header.frame_id == 'left' and stamp_to_ns(msg.header.stamp) == 7
+    values = np.frombuffer(bytes(msg.data), '<f4').reshape(2, 3)
+    # REP 118 float form: metres, NaN wherever there is no depth (±inf and ≤ 0 included).
+    np.testing.assert_array_equal(values, [[0.5, np.nan, 2.25], [np.nan, np.nan, 70.0]])
+    np.testing.assert_array_equal(depth_image_to_array(msg), values)
+
+
+def test_depth_image_16uc1_millimetres_with_zero() -> None:
+    depth = np.array([[0.5, np.nan, 2.2504], [65.535, 65.5356, 0.0004]], np.float32)
+    msg = depth_to_image(depth, Header(), '16UC1')
+    assert (msg.encoding, msg.step) == ('16UC1', 6)
+    values = np.frombuffer(bytes(msg.data), '<u2').reshape(2, 3)
+    # Millimetres rounded; no depth, beyond 65.535 m or below 0.5 mm: 0 (no depth).
+    np.testing.assert_array_equal(values, [[500, 0, 2250], [65535, 0, 0]])
+    np.testing.assert_allclose(
+        depth_image_to_array(msg), [[0.5, np.nan, 2.25], [65.535, np.nan, np.nan]], rtol=1e-6
+    )
+
+
+def test_depth_image_decoding_reads_big_endian_and_row_padding() -> None:
+    data = np.array([[1000, 0], [2500, 7]], '>u2')
+    padded = np.zeros((2, 6), np.uint8)
+    padded[:, :4] = data.view(np.uint8).reshape(2, 4)
+    msg = _raw(padded.tobytes(), 2, 2, '16UC1', step=6, big=True)
+    np.testing.assert_allclose(depth_image_to_array(msg), [[1.0, np.nan], [2.5, 0.007]])
+
+
+@pytest.mark.parametrize(
+    ('call', 'match'),
+    [
+        (lambda: depth_to_image(np.ones((2, 2)), Header(), '16UC2'), '32FC1'),
+        (lambda: depth_to_image(np.ones((2, 2, 1)), Header()), '2-D'),
+        (lambda: depth_to_image(np.ones((2, 2), bool), Header()), 'real'),
+        (lambda: depth_image_to_array(image_msg(np.zeros((2, 2), np.uint8), 0)), 'mono8'),
+        (lambda: depth_image_to_array(_raw(bytes(6), 2, 2, '16UC1', step=4)), 'bytes'),
+    ],
+)
+def test_depth_image_refuses(call, match: str) -> None:
+    with pytest.raises(InputError, match=match):
+        call()
 
 
 def test_camera_info_geometry_and_size_check() -> None:
