@@ -7,7 +7,9 @@ PKRN (the cloud stages do not depend on which), it times per frame:
   stereo_cloud`) encoded as ``PointCloud2``;
 * ``points2+confidence``: every point with its confidence (``points_confidence: true``);
 * ``cloud_filter organised`` / ``cloud_filter dense``: what the ``cloud_filter`` node does with
-  that message: decode, cut at the threshold, encode.
+  that message: decode, cut at the threshold, encode;
+* ``depth 32FC1`` / ``depth 16UC1``: the node's ``depth`` image of the kept pixels (REP 118),
+  computed and encoded.
 """
 
 from __future__ import annotations
@@ -51,9 +53,16 @@ def run_cloud(settings: BenchSettings, threshold: float) -> list[dict[str, Any]]
     from std_msgs.msg import Header
 
     from cva_confidence_ros.pipeline import PipelineConfig, StereoPipeline
-    from cva_confidence_ros.pointcloud import StereoGeometry, filter_cloud, stereo_cloud
+    from cva_confidence_ros.pointcloud import (
+        StereoGeometry,
+        disparity_to_depth,
+        filter_cloud,
+        stereo_cloud,
+    )
     from cva_confidence_ros.ros.convert import (
         cloud_to_message,
+        depth_image_to_array,
+        depth_to_image,
         point_cloud_to_records,
         records_to_point_cloud,
     )
@@ -88,7 +97,14 @@ def run_cloud(settings: BenchSettings, threshold: float) -> list[dict[str, Any]]
         records = point_cloud_to_records(annotated)
         return records_to_point_cloud(filter_cloud(records, threshold, organized), header)
 
+    def depth(encoding: str) -> Any:
+        return depth_to_image(
+            disparity_to_depth(result.disparity, geometry, result.valid), header, encoding
+        )
+
     def finite(msg: Any) -> int:
+        if hasattr(msg, 'encoding'):  # a depth image
+            return int(np.isfinite(depth_image_to_array(msg)).sum())
         records = point_cloud_to_records(msg)
         return int(np.isfinite(records['z']).sum())
 
@@ -97,6 +113,8 @@ def run_cloud(settings: BenchSettings, threshold: float) -> list[dict[str, Any]]
         ('points2+confidence', lambda: node_cloud(True), None),
         ('cloud_filter organised', lambda: filtered(True), annotated),
         ('cloud_filter dense', lambda: filtered(False), annotated),
+        ('depth 32FC1', lambda: depth('32FC1'), None),
+        ('depth 16UC1', lambda: depth('16UC1'), None),
     ]
     records = []
     for name, step, source in stages:
@@ -135,7 +153,8 @@ def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='cva-benchmark --suite cloud',
         description="Milliseconds per frame of the point-cloud stages: the node's points2 "
-        "with and without the confidence field, and the cloud_filter node's cut.",
+        "with and without the confidence field, the cloud_filter node's cut, and the node's "
+        "depth image in both encodings.",
     )
     parser.add_argument('--width', type=int, default=640)
     parser.add_argument('--height', type=int, default=480)

@@ -23,7 +23,8 @@ def test_cloud_suite_prints_and_writes_every_stage(
     assert '| cloud_filter dense | 96×64 |' in table
     records = {r['config']: r for r in json.loads(out.read_text())}
     assert list(records) == [
-        'points2', 'points2+confidence', 'cloud_filter organised', 'cloud_filter dense'
+        'points2', 'points2+confidence', 'cloud_filter organised', 'cloud_filter dense',
+        'depth 32FC1', 'depth 16UC1',
     ]
     assert all(r['ms_per_frame'] > 0 for r in records.values())
     annotated = records['points2+confidence']
@@ -34,6 +35,10 @@ def test_cloud_suite_prints_and_writes_every_stage(
     assert records['points2']['points_out'] < annotated['points_out']
     # 20-byte annotated points against 16-byte plain ones, both organised 96×64.
     assert (annotated['bytes'], records['points2']['bytes']) == (96 * 64 * 20, 96 * 64 * 16)
+    # The depth image has a value exactly where points2 has a point: 4 or 2 bytes a pixel.
+    for name, size in (('depth 32FC1', 4), ('depth 16UC1', 2)):
+        assert records[name]['points_out'] == records['points2']['points_out']
+        assert records[name]['bytes'] == 96 * 64 * size
 
 
 def test_cloud_suite_refuses_a_bad_threshold(capsys: pytest.CaptureFixture[str]) -> None:
