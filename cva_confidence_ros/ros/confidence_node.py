@@ -118,6 +118,10 @@ def _seconds(stamp_ns: int) -> str:
     return f'{stamp_ns // 1_000_000_000}.{stamp_ns % 1_000_000_000:09d}'
 
 
+def _fraction(value: float | None) -> str:
+    return '' if value is None else f'{value:.4f}'
+
+
 @dataclass
 class _Stats:
     """Counters and timings shown in ``/diagnostics`` (guarded by the node's lock)."""
@@ -137,6 +141,11 @@ class _Stats:
     window_pairs: int = 0
     window_processed: int = 0
     window_invalid: int = 0
+    # share of the pixels kept (finite disparity, confidence ≥ threshold): the last frame's
+    # and the sum over the window's processed frames; the last frame's mean confidence
+    last_kept_fraction: float | None = None
+    window_kept_sum: float = 0.0
+    last_mean_confidence: float | None = None
     window_start: float = field(default_factory=time.monotonic)
     # per synchroniser key: messages in the window, and the stamp of the newest one
     window_keys: dict[str, int] = field(default_factory=dict)
@@ -549,10 +558,15 @@ class ConfidenceCore(Node):
         timings['convert'] = convert_ms
         timings['publish'] = (time.perf_counter() - tic) * 1e3
         timings['frame'] = (time.perf_counter() - start) * 1e3
+        kept_fraction = float(np.mean(result.valid)) if result.valid.size else 0.0
+        mean_confidence = float(np.mean(np.nan_to_num(result.confidence, nan=0.0)))
         with self._lock:
             self._stats.processed += 1
             self._stats.window_processed += 1
             self._stats.record_timings(timings)
+            self._stats.last_kept_fraction = kept_fraction
+            self._stats.window_kept_sum += kept_fraction
+            self._stats.last_mean_confidence = mean_confidence
 
     def _publish(
         self,
@@ -605,6 +619,17 @@ class ConfidenceCore(Node):
             elapsed = max(now - stats.window_start, 1e-9)
             rate = stats.window_processed / elapsed
             level, message = DiagnosticStatus.OK, f'processing at {rate:.1f} Hz'
+            kept = (
+                stats.window_kept_sum / stats.window_processed if stats.window_processed else None
+            )
+            floor = self._node_config.min_kept_fraction
+            if kept is not None and kept < floor:
+                level = DiagnosticStatus.WARN
+                message = (
+                    f'only {100 * kept:.1f} % of the pixels are confident (min_kept_fraction '
+                    f'{floor:g}): a blinded or covered camera, no texture, or a wrong '
+                    'calibration?'
+                )
             if stats.window_invalid:
                 level = DiagnosticStatus.WARN
                 message = f'{stats.window_invalid} bad frame(s) dropped: {stats.last_error}'
@@ -627,6 +652,9 @@ class ConfidenceCore(Node):
                 'confidence_method': self._pipeline_config.confidence_method,
                 'max_disparity': self._pipeline_config.max_disparity,
                 'downsample': self._pipeline_config.downsample,
+                'kept_fraction': _fraction(kept),
+                'last_kept_fraction': _fraction(stats.last_kept_fraction),
+                'last_mean_confidence': _fraction(stats.last_mean_confidence),
             }
             for key, value in stats.last_timings_ms.items():
                 values[f'last_{key}_ms'] = f'{value:.2f}'
@@ -634,6 +662,7 @@ class ConfidenceCore(Node):
                 values[f'mean_{key}_ms'] = f'{value:.2f}'
             stats.window_messages = stats.window_pairs = 0
             stats.window_processed = stats.window_invalid = 0
+            stats.window_kept_sum = 0.0
             stats.window_keys = {}
             stats.window_start = now
         return diagnostic_status(self, 'stereo confidence', level, message, values)

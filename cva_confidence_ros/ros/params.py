@@ -65,6 +65,9 @@ class NodeConfig:
         approximate_sync_tolerance_seconds: Largest stamp spread of one set (≥ 0).
         queue_size: Messages held per topic while waiting for their partners (≥ 1).
         diagnostics_period_seconds: Period of ``/diagnostics`` messages and of the status log.
+        min_kept_fraction: ``/diagnostics`` warns when the share of the pixels kept (finite
+            disparity, confidence ≥ threshold), averaged over a diagnostics period, is below
+            it; 0 = never.
     """
 
     publish_points: bool = True
@@ -79,6 +82,7 @@ class NodeConfig:
     approximate_sync_tolerance_seconds: float = 0.01
     queue_size: int = 10
     diagnostics_period_seconds: float = 1.0
+    min_kept_fraction: float = 0.0
 
     def __post_init__(self) -> None:
         if self.depth_encoding not in DEPTH_ENCODINGS:
@@ -101,6 +105,8 @@ class NodeConfig:
             )
         if self.queue_size < 1:
             raise ConfigError(f'queue_size must be >= 1; got {self.queue_size}')
+        if not 0.0 <= self.min_kept_fraction <= 1.0:
+            raise ConfigError(f'min_kept_fraction must be in [0, 1]; got {self.min_kept_fraction}')
         if not self.diagnostics_period_seconds > 0:
             raise ConfigError(
                 f'diagnostics_period_seconds must be > 0; got {self.diagnostics_period_seconds}'
@@ -331,6 +337,14 @@ NODE_PARAMETERS: tuple[ParamSpec, ...] = (
         low=0.01,
         high=3600.0,
         read_only=True,
+    ),
+    _node(
+        'min_kept_fraction',
+        '/diagnostics warns when the share of pixels kept (valid disparity, confidence >= '
+        'confidence_threshold), averaged over a diagnostics period, falls below it: a blinded '
+        'or covered camera, a texture-less view, a broken calibration; 0 = never.',
+        low=0.0,
+        high=1.0,
     ),
 )
 

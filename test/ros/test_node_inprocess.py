@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 import time
 
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from node_test_utils import (
     BASELINE,
     FX,
@@ -224,6 +224,47 @@ def test_diagnostics(running: _Running) -> None:
     for stage in ('resize', 'matching', 'confidence', 'total', 'convert', 'publish', 'frame'):
         assert float(values[f'mean_{stage}_ms']) >= 0.0
     assert values['matcher'] == 'census_bm' and values['confidence_method'] == 'mlm'
+
+
+def test_diagnostics_give_the_confident_share_and_warn_below_a_floor(running: _Running) -> None:
+    client = running.client
+    left, right = textured_pair(seed=7)
+    topics = ('disparity', 'confidence')
+    out = client.send_until_output(left, right, running.next_stamp(), topics=topics)
+    disparity = disparity_from_message(out['disparity'])
+    confidence = float_image_to_array(out['confidence'])
+    share = float(np.mean(np.isfinite(disparity) & (confidence >= THRESHOLD)))
+    assert 0.0 < share < 1.0
+
+    def status(predicate):
+        for array in reversed(client.received['/diagnostics']):
+            for entry in array.status:
+                values = {kv.key: kv.value for kv in entry.values}
+                if entry.name.startswith('cva_confidence') and predicate(entry, values):
+                    return entry, values
+        return None
+
+    def reports_share(entry, values) -> bool:
+        return values.get('last_kept_fraction') == f'{share:.4f}'
+
+    assert client.wait_for(lambda: status(reports_share) is not None, timeout=10.0)
+    _, values = status(reports_share)
+    assert 0.0 <= float(values['last_mean_confidence']) <= 1.0
+
+    # A floor above the share: the period's status is a warning that says so.
+    assert running.set(min_kept_fraction=min(1.0, share + 0.2)).successful
+    try:
+        def warns(entry, values) -> bool:
+            return entry.level == DiagnosticStatus.WARN and 'are confident' in entry.message
+
+        client.send_until_output(left, right, running.next_stamp(), topics=topics)
+        assert client.wait_for(lambda: status(warns) is not None, timeout=10.0)
+        entry, values = status(warns)
+        assert f'only {100 * share:.1f} % of the pixels' in entry.message
+        assert float(values['kept_fraction']) == pytest.approx(share, abs=1e-4)
+        assert not running.set(min_kept_fraction=1.5).successful
+    finally:
+        assert running.set(min_kept_fraction=0.0).successful
 
 
 def test_parameters_are_declared_with_descriptions_and_ranges(running: _Running) -> None:
