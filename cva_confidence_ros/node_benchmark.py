@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import argparse
 from collections import Counter
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 import itertools
 import json
@@ -74,6 +74,7 @@ __all__ = [
     'ONLINE_HZ',
     'RECORD_KEYS',
     'NodeBenchSettings',
+    'NodeProcess',
     'extrapolate_cva_net',
     'format_table',
     'main',
@@ -321,12 +322,18 @@ def node_parameters(
     return args
 
 
-class _NodeProcess:
-    """``cva-node`` in a subprocess; its output is collected line by line."""
+class NodeProcess:
+    """A node executable in a subprocess; its output (stdout and stderr) is collected line by
+    line, and :attr:`ready` is set once it prints its ``ready:`` line.
 
-    def __init__(self, ros_args: Sequence[str], env: dict[str, str]) -> None:
+    Args:
+        command: The command line, e.g. ``[*node_command(), '--ros-args', ...]``.
+        env: Its environment.
+    """
+
+    def __init__(self, command: Sequence[str], env: Mapping[str, str]) -> None:
         self.process = subprocess.Popen(
-            [*node_command(), '--ros-args', *ros_args],
+            list(command),
             env=env,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
@@ -347,6 +354,11 @@ class _NodeProcess:
     def alive(self) -> bool:
         """Whether the process still runs."""
         return self.process.poll() is None
+
+    @property
+    def output(self) -> str:
+        """Everything the node printed so far."""
+        return ''.join(self.lines)
 
     def tail(self, lines: int = 30) -> str:
         """The last lines the node printed."""
@@ -383,16 +395,18 @@ class _NodeProcess:
             return None
         return None
 
-    def stop(self, timeout: float = 30.0) -> None:
-        """SIGINT (the node's clean stop), then SIGKILL if it does not end in ``timeout`` s."""
+    def stop(self, sig: int = signal.SIGINT, timeout: float = 30.0) -> int:
+        """Send ``sig`` (SIGINT: the node's clean stop), then SIGKILL if it does not end in
+        ``timeout`` s; returns the exit code."""
         if self.alive():
-            self.process.send_signal(signal.SIGINT)
+            self.process.send_signal(sig)
             try:
                 self.process.wait(timeout)
             except subprocess.TimeoutExpired:
                 self.process.kill()
                 self.process.wait(10)
         self._reader.join(10)
+        return self.process.returncode
 
 
 # The DDS client -----------------------------------------------------------------------------
@@ -598,14 +612,14 @@ def _stamps() -> Iterator[int]:
     return itertools.count(start, 1_000_000)
 
 
-def _check_frames(client: _Client, node: _NodeProcess) -> None:
+def _check_frames(client: _Client, node: NodeProcess) -> None:
     if client.counter('frames_invalid') or client.counter('frames_failed'):
         raise node.fail(f'the node rejected a frame: {client.diagnostics()}')
 
 
 def _warm_up(
     client: _Client,
-    node: _NodeProcess,
+    node: NodeProcess,
     pair: tuple[np.ndarray, np.ndarray],
     stamps: Iterator[int],
     timeout: float,
@@ -649,7 +663,7 @@ def _stage_times(values: dict[str, str] | None) -> dict[str, float]:
 
 def _burst(
     client: _Client,
-    node: _NodeProcess,
+    node: NodeProcess,
     pair: tuple[np.ndarray, np.ndarray],
     stamps: Iterator[int],
     settings: NodeBenchSettings,
@@ -733,7 +747,9 @@ def measure_node(
             else:
                 os.environ[name] = saved
     with client:
-        node = _NodeProcess(node_parameters(settings, matcher, method, model_path), env)
+        command = [*node_command(), '--ros-args']
+        command += node_parameters(settings, matcher, method, model_path)
+        node = NodeProcess(command, env)
         try:
             node.wait_ready(_START_TIMEOUT_S)
             rss_ready = node.memory_mb('VmRSS')

@@ -6,7 +6,6 @@ from collections.abc import Callable, Iterator
 import contextlib
 import os
 from pathlib import Path
-import subprocess
 import threading
 import time
 from typing import Any
@@ -21,6 +20,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import Header
 from stereo_msgs.msg import DisparityImage
 
+from cva_confidence_ros.node_benchmark import NodeProcess as BenchNodeProcess
 from cva_confidence_ros.ros.common import spin_until_shutdown
 from cva_confidence_ros.ros.convert import ns_to_stamp
 
@@ -298,7 +298,7 @@ def running_nodes(domain: int, make: Callable[[Context], Any]) -> Iterator[Any]:
             state.client.node.destroy_node()
 
 
-class NodeProcess:
+class NodeProcess(BenchNodeProcess):
     """A node executable in a subprocess, on ``domain`` (localhost discovery), with its output
     collected line by line; :attr:`ready` is set once it logs its ``ready:`` line."""
 
@@ -310,37 +310,4 @@ class NodeProcess:
             PYTHONUNBUFFERED='1',
             OMP_NUM_THREADS='1',
         )
-        self.process = subprocess.Popen(
-            [str(executable), '--ros-args', *ros_args],
-            env=env,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-        self.lines: list[str] = []
-        self.ready = threading.Event()
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.process.stdout is not None
-        for line in self.process.stdout:
-            self.lines.append(line)
-            if 'ready:' in line:
-                self.ready.set()
-
-    @property
-    def output(self) -> str:
-        return ''.join(self.lines)
-
-    def stop(self, sig: int, timeout: float = 30.0) -> int:
-        """Send ``sig`` and return the exit code (kills it if it does not stop in time)."""
-        self.process.send_signal(sig)
-        try:
-            code = self.process.wait(timeout)
-        finally:
-            if self.process.poll() is None:
-                self.process.kill()
-                self.process.wait(10)
-        self._reader.join(10)
-        return code
+        super().__init__([str(executable), '--ros-args', *ros_args], env)
