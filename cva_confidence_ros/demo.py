@@ -27,7 +27,9 @@ from cva_confidence_ros.outputs import check_output_dir
 
 __all__ = ['main']
 
-_SUMMARY_KEYS = ('error_rate', 'auc', 'auc_opt', 'kept_density', 'kept_error_rate')
+_SUMMARY_KEYS = (
+    'error_rate', 'auc', 'auc_opt', 'kept_density', 'kept_error_rate', 'expected_kept_error'
+)
 
 
 def _log(message: str) -> None:
@@ -172,12 +174,16 @@ def main(argv: list[str] | None = None) -> int:
     print(f'AUC x 100 on the Middlebury 2014 Motorcycle pair (scikit-image), '
           f'1/{args.downsample} resolution, D = {args.max_disparity}, all ground-truth pixels')
     print()
-    print('| matcher | method | error rate % | AUC | AUC opt | kept density % | kept error % |')
-    print('|---|---|---|---|---|---|---|')
+    # expected kept error: what the confidence itself predicts for the kept pixels (networks
+    # only, whose output is a probability), next to what the ground truth says
+    print('| matcher | method | error rate % | AUC | AUC opt | kept density % | kept error % '
+          '| expected kept error % |')
+    print('|---|---|---|---|---|---|---|---|')
     for matcher, method, summary in table:
-        values = [summary.get(key, float('nan')) for key in _SUMMARY_KEYS]
-        print(f'| {matcher} | {method} | {100 * values[0]:.2f} | {100 * values[1]:.2f} | '
-              f'{100 * values[2]:.2f} | {100 * values[3]:.1f} | {100 * values[4]:.2f} |')
+        values = [summary.get(key) for key in _SUMMARY_KEYS]
+        cells = ['–' if v is None else f'{100 * v:.{1 if i == 3 else 2}f}'
+                 for i, v in enumerate(values)]
+        print(f'| {matcher} | {method} | ' + ' | '.join(cells) + ' |')
     print()
     print(f'outputs: {out.resolve()} (disparity_*.png, cost_volume_summary.json, '
           f'motorcycle_bag/, replay/<matcher>__<method>/{{bag,report.json,*.png}})')

@@ -139,6 +139,8 @@ class PipelineResult:
         left: (H, W) or (H, W, 3) uint8 left image at the processed resolution.
         scale: Processed size / input size (1 / downsample).
         timings_ms: Milliseconds per stage (``resize``, ``matching``, ``confidence``, ``total``).
+        probabilistic: Whether ``confidence`` is meant as the probability that the disparity
+            is correct (the networks; ``ConfidenceMethod.probabilistic``).
     """
 
     disparity: np.ndarray
@@ -148,11 +150,32 @@ class PipelineResult:
     left: np.ndarray
     scale: float
     timings_ms: dict[str, float] = field(default_factory=dict)
+    probabilistic: bool = False
 
     @property
     def filtered_disparity(self) -> np.ndarray:
         """Disparity with NaN wherever :attr:`valid` is False."""
         return np.where(self.valid, self.disparity, np.float32(np.nan)).astype(np.float32)
+
+    @property
+    def kept_fraction(self) -> float:
+        """Share of the pixels in :attr:`valid` (0 for an empty map)."""
+        return float(np.mean(self.valid)) if self.valid.size else 0.0
+
+    @property
+    def expected_kept_error(self) -> float | None:
+        """The error rate the confidence predicts for the kept pixels: mean(1 − confidence)
+        over :attr:`valid`, without ground truth (``calibration.expected_error``).
+
+        None for a method whose confidence is no probability (the hand-crafted measures) or
+        when no pixel is kept. On the develop split it is within a few points of the measured
+        error (README, *Calibration*).
+        """
+        from cva_confidence_ros.calibration import expected_error
+
+        if not self.probabilistic:
+            return None
+        return expected_error(self.confidence, self.valid)
 
 
 class StereoPipeline:
@@ -187,6 +210,11 @@ class StereoPipeline:
             cva_precision=config.cva_precision,
             cva_backend=config.cva_backend,
         )
+
+    @property
+    def probabilistic(self) -> bool:
+        """Whether the method's confidence is meant as a probability of a correct disparity."""
+        return bool(getattr(self._method, 'probabilistic', False))
 
     def _matcher_params(self) -> dict[str, Any]:
         # MC-CNN is the one matcher with a network; it runs where the confidence network runs.
@@ -307,4 +335,5 @@ class StereoPipeline:
             left=left_s,
             scale=1.0 / cfg.downsample,
             timings_ms=timings,
+            probabilistic=self.probabilistic,
         )

@@ -1,7 +1,9 @@
-"""PNG helpers: confidence and disparity maps, the correctness overlay, ROC curves.
+"""PNG helpers: confidence and disparity maps, the correctness overlay, ROC curves and
+reliability diagrams.
 
 Arrays in, PNG path out. Maps are written pixel for pixel (one PNG pixel per array element,
-no axes), so they can be laid over the input image; ROC curves are a small matplotlib figure.
+no axes), so they can be laid over the input image; ROC curves and reliability diagrams are
+small matplotlib figures.
 Only the Agg canvas is used, never ``pyplot``, so importing this module changes no global
 matplotlib state and needs no display.
 """
@@ -11,10 +13,14 @@ from __future__ import annotations
 from collections.abc import Mapping
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from cva_confidence_ros.errors import InputError
+
+if TYPE_CHECKING:
+    from cva_confidence_ros.calibration import ReliabilityTable
 
 __all__ = [
     'CORRECT_RGB',
@@ -25,6 +31,7 @@ __all__ = [
     'save_confidence_map',
     'save_correctness_overlay',
     'save_disparity_map',
+    'save_reliability_diagram',
     'save_roc_curves',
 ]
 
@@ -307,6 +314,65 @@ def save_roc_curves(
     axes.grid(True, alpha=0.3)
     axes.legend(fontsize=8, loc='upper left')
     figure.tight_layout()
+    out = _prepare_path(path)
+    figure.savefig(out, format='png')
+    return out
+
+
+def save_reliability_diagram(
+    tables: Mapping[str, ReliabilityTable],
+    path: PathLike,
+    title: str | None = None,
+) -> Path:
+    """Plot reliability diagrams: accuracy over mean confidence per bin, and the pixels per bin.
+
+    A calibrated method lies on the diagonal (a confidence of 0.8 is right 80 % of the time);
+    below it a method is over-confident, above it under-confident. The lower panel shows how
+    the pixels spread over the bins (log scale): most of a good method's pixels sit in the last.
+
+    Args:
+        tables: Method name → ``calibration.ReliabilityTable`` (ECE shown in the legend).
+        path: Output PNG file; parent folders are created.
+        title: Figure title.
+
+    Returns:
+        The path written.
+
+    Raises:
+        InputError: No tables, or a table holds no pixels.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    if not tables:
+        raise InputError('no reliability tables to plot')
+    figure = Figure(figsize=(5.0, 5.5), dpi=100)
+    FigureCanvasAgg(figure)
+    top = figure.add_axes((0.14, 0.38, 0.82, 0.54))
+    bottom = figure.add_axes((0.14, 0.08, 0.82, 0.2), sharex=top)
+    top.plot([0.0, 1.0], [0.0, 1.0], 'k--', linewidth=1.0, label='calibrated')
+    for name, table in tables.items():
+        if table.n_pixels == 0:
+            raise InputError(f'reliability table of {name!r} holds no pixels')
+        filled = table.counts > 0
+        line = top.plot(
+            table.mean_confidence[filled], table.accuracy[filled], marker='o', markersize=3,
+            linewidth=1.5, label=f'{name} (ECE {100 * table.ece:.1f} %)',
+        )
+        centres = 0.5 * (table.edges[:-1] + table.edges[1:])
+        bottom.plot(centres[filled], table.counts[filled] / table.n_pixels, marker='o',
+                    markersize=3, linewidth=1.0, color=line[0].get_color())
+    top.set_xlim(0.0, 1.0)
+    top.set_ylim(0.0, 1.0)
+    top.set_ylabel('share of correct disparities')
+    top.grid(True, alpha=0.3)
+    top.legend(fontsize=8, loc='upper left')
+    if title:
+        top.set_title(title, fontsize=10)
+    bottom.set_yscale('log')
+    bottom.set_xlabel('confidence')
+    bottom.set_ylabel('share of pixels')
+    bottom.grid(True, alpha=0.3)
     out = _prepare_path(path)
     figure.savefig(out, format='png')
     return out

@@ -8,7 +8,8 @@ Usage (full ROS 2 install)::
 
 The node subscribes to ``<stereo_namespace>/{left,right}/{image_rect,camera_info}`` and
 publishes ``disparity``, ``disparity_filtered``, ``confidence``, ``points2``, ``depth`` and
-``camera_info`` in the same namespace, like ``stereo_image_proc``. Launch arguments left empty keep the file's value.
+``camera_info`` in the same namespace, like ``stereo_image_proc``. Launch arguments left empty
+keep the file's value.
 
 ``cloud_filter_threshold:=0.8`` also starts the ``cloud_filter`` node in that namespace: the
 confidence node then publishes every point with its confidence (``points_confidence: true``) and

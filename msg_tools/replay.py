@@ -810,6 +810,8 @@ class ReplaySession:
             self._score_now(result, msg, note)
 
     def _score_now(self, result: FrameResult, msg: Any | None, note: str) -> None:
+        from cva_confidence_ros.confidence import is_probabilistic
+
         gt = None
         if msg is not None:
             gt, note = self._ground_truth(result, msg)
@@ -817,6 +819,7 @@ class ReplaySession:
             score = score_frame(
                 result.frame, result.stamp_ns, result.disparity, result.confidence,
                 result.kept, gt, max_pixels=self.options.max_pixels, seed=self.options.seed,
+                probabilistic=is_probabilistic(self.options.pipeline.confidence_method),
             )
         except InputError as err:
             score = FrameScore(frame=result.frame, stamp_ns=result.stamp_ns)

@@ -11,7 +11,10 @@ Per frame, on the pixels with ground truth (or a fixed random subset of ``max_pi
 * ``auc`` / ``auc_opt``: area under the ROC curve of the confidence map and its optimum;
 * ``kept_density``: fraction of those pixels the node keeps (finite disparity and confidence
   ≥ threshold, i.e. finite in ``disparity_filtered``);
-* ``kept_error_rate``: fraction of wrong disparities among the kept pixels (None if none).
+* ``kept_error_rate``: fraction of wrong disparities among the kept pixels (None if none);
+* ``expected_kept_error``: for a method whose confidence is a probability (the networks), the
+  error rate it predicts for the same kept pixels, mean(1 − confidence) — what the node reports
+  in ``/diagnostics`` without ground truth — to compare with ``kept_error_rate``.
 """
 
 from __future__ import annotations
@@ -44,7 +47,9 @@ __all__ = [
 
 METRIC_KEYS = ('error_rate', 'auc', 'auc_opt', 'kept_density', 'kept_error_rate')
 REPORT_KEYS = ('frame', 'stamp_ns', *METRIC_KEYS)
-_EXTRA_KEYS = ('n_pixels', 'width', 'height', 'processing_ms', 'latency_ms', 'note')
+_EXTRA_KEYS = (
+    'expected_kept_error', 'n_pixels', 'width', 'height', 'processing_ms', 'latency_ms', 'note'
+)
 #: Names of the files a replay writes into its report folder (``node.log``: live mode).
 _REPORT_FILE = re.compile(
     r'report\.json|report\.json\.tmp|report\.csv|summary\.md|auc_over_time\.png|node\.log'
@@ -144,6 +149,8 @@ class FrameScore:
         auc_opt: Optimal AUC for ``error_rate``.
         kept_density: Fraction of the scored pixels kept by the confidence threshold.
         kept_error_rate: Error rate among the kept pixels; None if none is kept.
+        expected_kept_error: The error rate a probabilistic confidence predicts for the same
+            pixels, mean(1 − confidence); None for other methods or if none is kept.
         n_pixels: Number of scored pixels (0 without ground truth).
         width: Processed width. height: Processed height.
         processing_ms: Pipeline time (offline) for this frame.
@@ -159,6 +166,7 @@ class FrameScore:
     auc_opt: float | None = None
     kept_density: float | None = None
     kept_error_rate: float | None = None
+    expected_kept_error: float | None = None
     n_pixels: int = 0
     width: int = 0
     height: int = 0
@@ -193,6 +201,7 @@ def score_frame(
     *,
     max_pixels: int | None = None,
     seed: int = 0,
+    probabilistic: bool = False,
 ) -> FrameScore:
     """Score one processed frame against its ground truth.
 
@@ -204,6 +213,8 @@ def score_frame(
         gt: (h, w) float32 ground truth at the processed resolution (NaN unknown), or None.
         max_pixels: Score a fixed random subset of this many ground-truth pixels.
         seed: Seed of the subset (same pixels as ``cva-evaluate --max-pixels N --seed S``).
+        probabilistic: ``confidence`` is a probability of a correct disparity in [0, 1] (the
+            networks): also report ``expected_kept_error``.
 
     Returns:
         The :class:`FrameScore`; metrics None when ``gt`` is None or has no known pixel.
@@ -237,6 +248,9 @@ def score_frame(
     score.n_pixels = scored.n_pixels
     score.kept_density = float(kept_here.mean())
     score.kept_error_rate = float(error[kept_here].mean()) if kept_here.any() else None
+    if probabilistic and kept_here.any():
+        values = np.clip(np.asarray(confidence, dtype=np.float64)[ys, xs][kept_here], 0.0, 1.0)
+        score.expected_kept_error = float(1.0 - values.mean())
     score.density = scored.density
     score.roc_error = scored.roc_error
     return score
@@ -283,7 +297,7 @@ class ReplayReport:
     def summary(self) -> dict[str, Any]:
         """Means of the metrics over the frames that have them, plus the counters."""
         out: dict[str, Any] = {}
-        for key in METRIC_KEYS:
+        for key in (*METRIC_KEYS, 'expected_kept_error'):
             values = [getattr(f, key) for f in self.frames if getattr(f, key) is not None]
             out[key] = float(np.mean(values)) if values else None
         latencies = [f.latency_ms for f in self.frames if f.latency_ms is not None]
@@ -443,12 +457,13 @@ def format_summary(document: dict[str, Any], max_rows: int = 200) -> str:
     lines += [
         '',
         '| frames | scored | skipped | dropped | error rate % | AUC ×100 | AUC opt ×100 '
-        '| kept density % | kept error % |',
-        '|---|---|---|---|---|---|---|---|---|',
+        '| kept density % | kept error % | expected kept error % |',
+        '|---|---|---|---|---|---|---|---|---|---|',
         f"| {summary['frames']} | {summary['frames_scored']} | {summary.get('skipped', 0)} "
         f"| {summary.get('dropped', 0)} | {_fmt(summary['error_rate'], True)} "
         f"| {_fmt(summary['auc'], True)} | {_fmt(summary['auc_opt'], True)} "
-        f"| {_fmt(summary['kept_density'], True)} | {_fmt(summary['kept_error_rate'], True)} |",
+        f"| {_fmt(summary['kept_density'], True)} | {_fmt(summary['kept_error_rate'], True)} "
+        f"| {_fmt(summary.get('expected_kept_error'), True)} |",
         '',
     ]
     if summary.get('interrupted'):
@@ -478,15 +493,16 @@ def format_summary(document: dict[str, Any], max_rows: int = 200) -> str:
     if frames:
         lines += [
             '| frame | stamp (ns) | error rate % | AUC ×100 | AUC opt ×100 | kept density % '
-            '| kept error % | note |',
-            '|---|---|---|---|---|---|---|---|',
+            '| kept error % | expected kept error % | note |',
+            '|---|---|---|---|---|---|---|---|---|',
         ]
         for record in frames[:max_rows]:
             lines.append(
                 f"| {record['frame']} | {record['stamp_ns']} "
                 f"| {_fmt(record['error_rate'], True)} | {_fmt(record['auc'], True)} "
                 f"| {_fmt(record['auc_opt'], True)} | {_fmt(record['kept_density'], True)} "
-                f"| {_fmt(record['kept_error_rate'], True)} | {record['note']} |"
+                f"| {_fmt(record['kept_error_rate'], True)} "
+                f"| {_fmt(record.get('expected_kept_error'), True)} | {record['note']} |"
             )
         if len(frames) > max_rows:
             lines.append(f'\n({len(frames) - max_rows} more frames in report.csv)')

@@ -66,3 +66,25 @@ def test_images_smaller_than_the_downsample_factor():
     left, right = _pair(3, 64)
     with pytest.raises(InputError, match='cannot be shrunk by downsample = 4'):
         _pipeline(downsample=4).process(left, right)
+
+
+def test_expected_kept_error_only_for_a_probabilistic_method():
+    left, right = _pair(height=48, width=96)
+    handcrafted = _pipeline(downsample=1).process(left, right)
+    assert handcrafted.probabilistic is False and handcrafted.expected_kept_error is None
+
+    # The shipped CVA-Net-Fast weights (D = 64): its output is a probability.
+    network = _pipeline(
+        confidence_method='cva_net_fast', max_disparity=64, confidence_threshold=0.3
+    ).process(left, right)
+    assert network.probabilistic is True
+    kept = network.valid
+    assert 0 < kept.sum() < kept.size
+    assert network.kept_fraction == pytest.approx(kept.mean())
+    expected = 1.0 - network.confidence[kept].astype(np.float64).mean()
+    assert network.expected_kept_error == pytest.approx(expected, rel=1e-9)
+    # Nothing kept: no estimate rather than a made-up one.
+    none_kept = _pipeline(
+        confidence_method='cva_net_fast', max_disparity=64, confidence_threshold=1.0
+    ).process(np.zeros_like(left), np.zeros_like(right))
+    assert none_kept.kept_fraction == 0.0 and none_kept.expected_kept_error is None

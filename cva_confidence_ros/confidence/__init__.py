@@ -13,6 +13,7 @@ from cva_confidence_ros.confidence.base import (
     ConfidenceInputs,
     ConfidenceMethod,
     compute_confidence,
+    is_probabilistic,
 )
 
 __all__ = [
@@ -22,6 +23,7 @@ __all__ = [
     'ConfidenceInputs',
     'ConfidenceMethod',
     'compute_confidence',
+    'is_probabilistic',
 ]
 
 # Method modules, imported for their registrations: add one line per module, keep them sorted.

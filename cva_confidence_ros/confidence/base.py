@@ -24,6 +24,7 @@ __all__ = [
     'ConfidenceInputs',
     'ConfidenceMethod',
     'compute_confidence',
+    'is_probabilistic',
 ]
 
 #: Options the pipeline passes to every factory; methods that do not use them ignore them.
@@ -165,10 +166,14 @@ class ConfidenceMethod(ABC):
     """A confidence measure: ``method(inputs) -> (H, W) float32``, higher = more confident.
 
     Subclasses are (frozen) dataclasses whose fields are the method's options; they set
-    :attr:`needs_right` when they read the right-reference volume or disparity.
+    :attr:`needs_right` when they read the right-reference volume or disparity, and
+    :attr:`probabilistic` when their value is meant as the probability that the disparity is
+    correct (networks trained with binary cross-entropy on the correctness label): only then
+    does ``1 − confidence`` estimate an error rate (:mod:`cva_confidence_ros.calibration`).
     """
 
     needs_right: ClassVar[bool] = False
+    probabilistic: ClassVar[bool] = False
 
     @abstractmethod
     def __call__(self, inputs: ConfidenceInputs) -> np.ndarray:
@@ -239,3 +244,12 @@ def compute_confidence(name: str, inputs: ConfidenceInputs, **options: Any) -> n
     """
     method = CONFIDENCE_METHODS.get(name)(**options)
     return np.asarray(method(inputs), dtype=np.float32)
+
+
+def is_probabilistic(name: str) -> bool:
+    """Whether the registered method ``name`` gives the probability of a correct disparity.
+
+    Raises:
+        ConfigError: Unknown method name.
+    """
+    return bool(getattr(CONFIDENCE_METHODS.get(name), 'probabilistic', False))

@@ -45,6 +45,7 @@ class _DisparityNetConfidence(ConfidenceMethod):
     arch: ClassVar[str] = ''
     method: ClassVar[str] = ''
     needs_right: ClassVar[bool] = False
+    probabilistic: ClassVar[bool] = True
 
     def __init__(
         self,

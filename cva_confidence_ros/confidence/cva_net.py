@@ -64,6 +64,7 @@ class CVANetConfidence(ConfidenceMethod):
     """
 
     needs_right: ClassVar[bool] = False
+    probabilistic: ClassVar[bool] = True
     #: Network architecture of the weights (``model.ARCHITECTURES``); subclasses change it.
     arch: ClassVar[str] = 'cvanet'
 

@@ -10,7 +10,10 @@ Sec. 4.1), then writes
   method per row in bold) to stdout and, with ``--out DIR``, to ``DIR/table.md``;
 * with ``--out DIR``: PNGs under ``DIR/<dataset>/<scene>/<matcher>/``: ``disparity.png``;
   per method ``confidence_<method>.png`` (black = low, white = high) and
-  ``correct_<method>.png``; ``roc.png`` (all methods and the optimal curve).
+  ``correct_<method>.png``; ``roc.png`` (all methods and the optimal curve); for the networks,
+  whose confidence is meant as a probability, ``reliability.png`` there and, over the scenes,
+  ``DIR/calibration.md``, ``DIR/calibration.json`` and ``DIR/reliability_<dataset>_<matcher>
+  .png`` (:mod:`cva_confidence_ros.evaluation.reliability`).
 
 The correctness overlay follows the paper's Fig. 4: a scored pixel is green if its disparity is
 correct and its confidence > τ, or wrong and confidence ≤ τ; red otherwise. τ = 0.5 for
@@ -309,6 +312,7 @@ def run(args: argparse.Namespace) -> int:
     methods = _split_names(args.methods, 'confidence methods')
     built = _build_methods(args, matchers, methods)
     jobs = _scene_lists(datasets, args.data_root, args.split, args.max_scenes)
+    calibration: dict[tuple[str, str, str], Any] = {}
 
     def work(index: int, job: tuple[str, str]) -> list[Any]:
         dataset, scene = job
@@ -320,6 +324,7 @@ def run(args: argparse.Namespace) -> int:
         _log(f'{prefix} loaded {sample.left.shape[1]}x{sample.left.shape[0]} '
              f'{time.perf_counter() - tic:.2f} s')
         records: list[Any] = []
+        tables: dict[tuple[str, str, str], Any] = {}
         for matcher in matchers:
             plot_dir = None
             if args.out is not None:
@@ -337,8 +342,12 @@ def run(args: argparse.Namespace) -> int:
                              lambda message, p=prefix: _log(f'{p} {message}')),
                     method_order=methods,
                     progress=True,
+                    reliability=tables,
                 )
             )
+        # Only a scene that finished counts, as for its records.
+        for key, table in tables.items():
+            calibration[key] = table if key not in calibration else calibration[key].merge(table)
         return records
 
     outcome = run_scenes(jobs, lambda job: f'{job[0]}/{job[1]}', work)
@@ -352,10 +361,24 @@ def run(args: argparse.Namespace) -> int:
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / 'table.md').write_text(table, encoding='utf-8')
+        _write_calibration(calibration, args.out)
     sys.stdout.write(table)
     sys.stdout.flush()
     _log(f'wrote {len(records)} records to {args.json}')
     return outcome.ending(PROG, f'the records of the {outcome.done} done are in {args.json}')
+
+
+def _write_calibration(tables: dict[tuple[str, str, str], Any], out: Path) -> None:
+    from cva_confidence_ros.evaluation.reliability import pooled, write_calibration
+
+    if not tables:
+        return
+    write_calibration(tables, out)
+    for (dataset, matcher, method), table in pooled(tables).items():
+        _log(f'calibration {dataset} {matcher} {method}: mean confidence '
+             f'{100 * table.overall_confidence:.1f} %, correct '
+             f'{100 * table.overall_accuracy:.1f} %, ECE {100 * table.ece:.2f} %')
+    _log(f'wrote {out / "calibration.md"}, calibration.json and reliability PNGs')
 
 
 def main(argv: Sequence[str] | None = None) -> int:

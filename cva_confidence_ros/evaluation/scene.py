@@ -12,17 +12,20 @@ the same pixels, so every method is scored on exactly the same pixels.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, MutableMapping, Sequence
 import contextlib
 from dataclasses import dataclass
 from pathlib import Path
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from cva_confidence_ros.errors import InputError
 from cva_confidence_ros.evaluation.records import EvalRecord
+
+if TYPE_CHECKING:
+    from cva_confidence_ros.calibration import ReliabilityTable
 
 __all__ = [
     'ScoredMethod',
@@ -263,6 +266,7 @@ def evaluate_scene(
     log: Logger | None = None,
     method_order: Sequence[str] | None = None,
     progress: bool = False,
+    reliability: MutableMapping[tuple[str, str, str], ReliabilityTable] | None = None,
 ) -> list[EvalRecord]:
     """Score confidence methods on one scene for one matcher.
 
@@ -287,6 +291,10 @@ def evaluate_scene(
         method_order: Order of the records; default the order of ``methods``.
         progress: Show a progress bar on stderr (pixels) while a network method runs: on a
             CPU, CVA-Net on a whole Middlebury v3 image takes minutes.
+        reliability: If given, the reliability table (``calibration.reliability``) of each
+            probabilistic method (``ConfidenceMethod.probabilistic``: the networks) on the
+            scored pixels is merged into it under ``(dataset, matcher, method)``. With
+            ``plot_dir``, such methods also get ``reliability.png`` there.
 
     Returns:
         One :class:`EvalRecord` per method, in ``method_order``.
@@ -338,6 +346,7 @@ def evaluate_scene(
     records: list[EvalRecord] = []
     maps: dict[str, np.ndarray] = {}
     scores: dict[str, ScoredMethod] = {}
+    tables: dict[str, ReliabilityTable] = {}
     for name in names:
         tic = time.perf_counter()
         with _network_progress(methods[name], f'{matcher} {name}', progress):
@@ -362,6 +371,14 @@ def evaluate_scene(
              f'AUC {100 * score.auc:.2f} (opt {100 * score.auc_opt:.2f})')
         maps[name] = dense
         scores[name] = score
+        if getattr(methods[name], 'probabilistic', False):
+            from cva_confidence_ros.calibration import reliability as reliability_table
+
+            tables[name] = reliability_table(values, ~error)
+            if reliability is not None:
+                key = (sample.dataset, matcher, name)
+                held = reliability.get(key)
+                reliability[key] = tables[name] if held is None else held.merge(tables[name])
         records.append(
             EvalRecord(
                 dataset=sample.dataset,
@@ -378,4 +395,11 @@ def evaluate_scene(
         _write_plots(
             Path(plot_dir), sample, disparity, max_disparity, error_map, ys, xs, maps, scores
         )
+        if tables:
+            from cva_confidence_ros.plots import save_reliability_diagram
+
+            save_reliability_diagram(
+                tables, Path(plot_dir) / 'reliability.png',
+                title=f'{sample.dataset}/{sample.scene}  {matcher}',
+            )
     return records

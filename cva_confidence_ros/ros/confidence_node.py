@@ -146,6 +146,12 @@ class _Stats:
     last_kept_fraction: float | None = None
     window_kept_sum: float = 0.0
     last_mean_confidence: float | None = None
+    # the error rate a probabilistic confidence predicts for the kept pixels (mean of
+    # 1 − confidence there): the last frame's; over the window's frames that have one, the
+    # sums of it × kept share and of the kept share
+    last_expected_kept_error: float | None = None
+    window_expected_wrong: float = 0.0
+    window_expected_kept: float = 0.0
     window_start: float = field(default_factory=time.monotonic)
     # per synchroniser key: messages in the window, and the stamp of the newest one
     window_keys: dict[str, int] = field(default_factory=dict)
@@ -558,8 +564,9 @@ class ConfidenceCore(Node):
         timings['convert'] = convert_ms
         timings['publish'] = (time.perf_counter() - tic) * 1e3
         timings['frame'] = (time.perf_counter() - start) * 1e3
-        kept_fraction = float(np.mean(result.valid)) if result.valid.size else 0.0
+        kept_fraction = result.kept_fraction
         mean_confidence = float(np.mean(np.nan_to_num(result.confidence, nan=0.0)))
+        expected_error = result.expected_kept_error
         with self._lock:
             self._stats.processed += 1
             self._stats.window_processed += 1
@@ -567,6 +574,11 @@ class ConfidenceCore(Node):
             self._stats.last_kept_fraction = kept_fraction
             self._stats.window_kept_sum += kept_fraction
             self._stats.last_mean_confidence = mean_confidence
+            self._stats.last_expected_kept_error = expected_error
+            if expected_error is not None:
+                # Weighted by the kept pixels: the predicted share of wrong ones among all kept.
+                self._stats.window_expected_wrong += expected_error * kept_fraction
+                self._stats.window_expected_kept += kept_fraction
 
     def _publish(
         self,
@@ -622,6 +634,11 @@ class ConfidenceCore(Node):
             kept = (
                 stats.window_kept_sum / stats.window_processed if stats.window_processed else None
             )
+            expected = (
+                stats.window_expected_wrong / stats.window_expected_kept
+                if stats.window_expected_kept > 0
+                else None
+            )
             floor = self._node_config.min_kept_fraction
             if kept is not None and kept < floor:
                 level = DiagnosticStatus.WARN
@@ -655,6 +672,8 @@ class ConfidenceCore(Node):
                 'kept_fraction': _fraction(kept),
                 'last_kept_fraction': _fraction(stats.last_kept_fraction),
                 'last_mean_confidence': _fraction(stats.last_mean_confidence),
+                'expected_kept_error': _fraction(expected),
+                'last_expected_kept_error': _fraction(stats.last_expected_kept_error),
             }
             for key, value in stats.last_timings_ms.items():
                 values[f'last_{key}_ms'] = f'{value:.2f}'
@@ -663,6 +682,7 @@ class ConfidenceCore(Node):
             stats.window_messages = stats.window_pairs = 0
             stats.window_processed = stats.window_invalid = 0
             stats.window_kept_sum = 0.0
+            stats.window_expected_wrong = stats.window_expected_kept = 0.0
             stats.window_keys = {}
             stats.window_start = now
         return diagnostic_status(self, 'stereo confidence', level, message, values)

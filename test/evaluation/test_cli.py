@@ -50,6 +50,8 @@ def test_handcrafted_methods_end_to_end(tmp_path, capsys) -> None:
     assert names == sorted(['disparity.png', 'roc.png'] + [
         f'{kind}_{m}.png' for kind in ('confidence', 'correct') for m in ('pkrn', 'mlm', 'lrd')
     ])
+    # Hand-crafted measures are no probabilities: no calibration report.
+    assert not (out / 'calibration.json').exists() and not list(out.glob('reliability_*'))
 
 
 def test_cva_net_patch_mode_with_random_weights(tmp_path, capsys) -> None:
@@ -71,6 +73,23 @@ def test_cva_net_patch_mode_with_random_weights(tmp_path, capsys) -> None:
     assert records[0]['error_rate'] == records[1]['error_rate']
     assert 0.0 <= records[0]['auc'] <= 1.0
     assert np.isfinite(records[0]['auc'])
+
+    # CVA-Net's output is meant as a probability: its calibration on the same 200 pixels.
+    out = tmp_path / 'out'
+    calibration = json.loads((out / 'calibration.json').read_text())
+    assert [(c['dataset'], c['matcher'], c['method']) for c in calibration] == [
+        ('motorcycle', 'census_bm', 'cva_net')
+    ]
+    row = calibration[0]
+    assert row['n_pixels'] == 200 and sum(row['bins']['counts']) == 200
+    assert row['accuracy'] == pytest.approx(1.0 - records[0]['error_rate'])
+    assert 0.0 <= row['ece'] <= 1.0 and 0.0 <= row['brier'] <= 1.0
+    table = _rows((out / 'calibration.md').read_text())
+    assert table[0][:5] == ['data set', 'matcher', 'method', 'pixels', 'ECE %']
+    assert table[2][:5] == ['motorcycle', 'census_bm', 'cva_net', '200', f"{100 * row['ece']:.2f}"]
+    assert (out / 'reliability_motorcycle_census_bm.png').stat().st_size > 0
+    assert (next((out / 'motorcycle').iterdir()) / 'census_bm' / 'reliability.png').exists()
+    assert 'calibration motorcycle census_bm cva_net' in captured.err
 
     # Same seed, same subset, same numbers; another seed draws other pixels.
     again = tmp_path / 'again.json'

@@ -263,3 +263,42 @@ def test_a_compressed_image_that_does_not_decode_is_skipped(
     assert (summary['pairs'], summary['processed'], summary['skipped']) == (3, 2, 1)
     err = capsys.readouterr().err
     assert 'skipped frame 1' in err and 'do not decode as an image' in err
+
+
+def test_a_network_reports_the_error_it_predicts_for_the_kept_pixels(tmp_path: Path) -> None:
+    torch = pytest.importorskip('torch')
+    from cva_confidence_ros.model import CVANet, save_weights
+
+    bag = dataset_bag(tmp_path, 'mcap', 2)
+    # MLM's values are no probabilities: no prediction, an empty CSV cell.
+    code, report = _replay(bag, tmp_path, name='mlm')
+    assert code == 0
+    assert [f['expected_kept_error'] for f in report['frames']] == [None, None]
+    assert report['summary']['expected_kept_error'] is None
+    with (tmp_path / 'mlm' / 'report.csv').open() as stream:
+        assert {row['expected_kept_error'] for row in csv.DictReader(stream)} == {''}
+
+    torch.manual_seed(0)
+    weights = tmp_path / 'random.pt'
+    save_weights(CVANet(MAX_DISPARITY), weights, {'matcher': 'census_bm'})
+    code = main([
+        str(bag), '--out', str(tmp_path / 'net_bag'), '--report', str(tmp_path / 'net'),
+        '--matcher', 'census_bm', '--max-disparity', str(MAX_DISPARITY),
+        '--confidence-method', 'cva_net', '--weights', str(weights),
+        '--confidence-threshold', '0.3',
+    ])
+    assert code == 0
+    report = json.loads((tmp_path / 'net' / 'report.json').read_text())
+    outputs = read_bag(tmp_path / 'net_bag')
+    samples = list(load_dataset('middlebury2014', tmp_path / 'data'))
+    for index, (frame, sample) in enumerate(zip(report['frames'], samples, strict=True)):
+        confidence = float_image_to_array(outputs['/confidence'][index][1]).astype(np.float64)
+        kept = np.isfinite(disparity_from_message(outputs['/disparity_filtered'][index][1]))
+        scored = kept & np.isfinite(sample.disparity)
+        assert scored.any()
+        # mean(1 − confidence) over the scored kept pixels: the pixels of kept_error_rate.
+        assert frame['expected_kept_error'] == pytest.approx(1.0 - confidence[scored].mean())
+    assert report['summary']['expected_kept_error'] == pytest.approx(
+        np.mean([f['expected_kept_error'] for f in report['frames']])
+    )
+    assert '| expected kept error % |' in (tmp_path / 'net' / 'summary.md').read_text()

@@ -267,6 +267,52 @@ def test_diagnostics_give_the_confident_share_and_warn_below_a_floor(running: _R
         assert running.set(min_kept_fraction=0.0).successful
 
 
+def test_diagnostics_give_the_error_a_network_predicts_for_the_kept_pixels(
+    running: _Running,
+) -> None:
+    client = running.client
+    left, right = textured_pair(seed=12)
+    topics = ('disparity', 'confidence')
+
+    def status(predicate):
+        for array in reversed(client.received['/diagnostics']):
+            for entry in array.status:
+                values = {kv.key: kv.value for kv in entry.values}
+                if entry.name.startswith('cva_confidence') and predicate(values):
+                    return values
+        return None
+
+    # MLM's values are no probabilities: no estimate.
+    client.send_until_output(left, right, running.next_stamp(), topics=topics)
+    assert client.wait_for(
+        lambda: status(lambda v: v.get('confidence_method') == 'mlm'
+                       and v.get('last_kept_fraction')) is not None, timeout=10.0
+    )
+    values = status(lambda v: v.get('confidence_method') == 'mlm')
+    assert values['expected_kept_error'] == values['last_expected_kept_error'] == ''
+
+    # CVA-Net-Fast's are: mean(1 − confidence) over the pixels the node keeps.
+    assert running.set(confidence_method='cva_net_fast', max_disparity=64).successful
+    try:
+        out = client.send_until_output(left, right, running.next_stamp(), topics=topics)
+        disparity = disparity_from_message(out['disparity'])
+        confidence = float_image_to_array(out['confidence']).astype(np.float64)
+        kept = np.isfinite(disparity) & (confidence >= THRESHOLD)
+        assert kept.any()
+        expected = 1.0 - confidence[kept].mean()
+
+        def reports_it(values) -> bool:
+            text = values.get('last_expected_kept_error', '')
+            return bool(text) and abs(float(text) - expected) <= 1e-4
+
+        assert client.wait_for(lambda: status(reports_it) is not None, timeout=10.0)
+        values = status(reports_it)
+        assert values['confidence_method'] == 'cva_net_fast'
+        assert 0.0 <= float(values['expected_kept_error']) <= 1.0
+    finally:
+        assert running.set(confidence_method='mlm', max_disparity=MAX_DISPARITY).successful
+
+
 def test_parameters_are_declared_with_descriptions_and_ranges(running: _Running) -> None:
     node = running.node
     names = {spec.name for spec in PARAMETERS}

@@ -1,0 +1,114 @@
+"""Calibration report of an evaluation: is each network's confidence a probability?
+
+``cva-evaluate --out DIR`` collects the reliability table (:mod:`cva_confidence_ros.calibration`)
+of every probabilistic method per data set and matcher over all its scenes, and writes
+
+* ``DIR/calibration.json``: a list of ``{dataset, matcher, method, n_pixels, ece, max_gap,
+  brier, mean_confidence, accuracy, bins}``, one per data set, matcher and method, and one
+  with ``dataset: "all"`` over every scored pixel;
+* ``DIR/calibration.md``: the same as a Markdown table (percentages), with what is kept at
+  the thresholds 0.5 and 0.8: the share, its error rate and the error rate the confidence
+  predicts for it;
+* ``DIR/reliability_<dataset>_<matcher>.png``: the reliability diagrams of the methods.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+import json
+from pathlib import Path
+from typing import Any
+
+from cva_confidence_ros.calibration import ReliabilityTable
+
+__all__ = [
+    'ALL_DATASETS',
+    'KEPT_THRESHOLDS',
+    'format_calibration_table',
+    'pooled',
+    'write_calibration',
+]
+
+#: ``dataset`` of the rows over every data set.
+ALL_DATASETS = 'all'
+
+Key = tuple[str, str, str]
+
+
+def pooled(tables: Mapping[Key, ReliabilityTable]) -> dict[Key, ReliabilityTable]:
+    """The tables per (dataset, matcher, method) plus one per (matcher, method) over all data
+    sets (``dataset`` = :data:`ALL_DATASETS`), in a stable order."""
+    rows: dict[Key, ReliabilityTable] = dict(sorted(tables.items()))
+    datasets = {key[0] for key in tables}
+    if len(datasets) > 1:
+        for matcher, method in sorted({(key[1], key[2]) for key in tables}):
+            parts = [t for key, t in tables.items() if key[1:] == (matcher, method)]
+            rows[(ALL_DATASETS, matcher, method)] = ReliabilityTable.combine(parts)
+    return rows
+
+
+#: Thresholds at which the table shows what is kept (bin edges of the default 10 bins).
+KEPT_THRESHOLDS = (0.5, 0.8)
+
+
+def _percent(value: float | None, decimals: int = 1) -> str:
+    return '–' if value is None else f'{100 * value:.{decimals}f}'
+
+
+def format_calibration_table(
+    tables: Mapping[Key, ReliabilityTable], thresholds: tuple[float, ...] = KEPT_THRESHOLDS
+) -> str:
+    """Markdown table of the calibration of each data set, matcher and method.
+
+    Columns: pixels; ECE, the largest gap of a bin and the Brier score; then per threshold τ
+    (bin edges) the share of pixels with confidence ≥ τ, their error rate (ground truth) and
+    the error rate their confidence predicts, mean(1 − confidence) — what the node reports in
+    ``/diagnostics`` as ``expected_kept_error``. All in percent.
+    """
+    head = '| data set | matcher | method | pixels | ECE % | max bin gap % | Brier % |'
+    rule = '|:---|:---|:---|---:|---:|---:|---:|'
+    for tau in thresholds:
+        head += f' kept ≥ {tau:g} % | its error % | predicted % |'
+        rule += '---:|---:|---:|'
+    lines = [head, rule]
+    for (dataset, matcher, method), table in pooled(tables).items():
+        row = (
+            f'| {dataset} | {matcher} | {method} | {table.n_pixels} | {100 * table.ece:.2f} '
+            f'| {100 * table.max_gap:.1f} | {100 * table.brier:.2f} |'
+        )
+        for tau in thresholds:
+            kept, measured, predicted = table.kept_at(tau)
+            row += f' {_percent(kept)} | {_percent(measured, 2)} | {_percent(predicted, 2)} |'
+        lines.append(row)
+    return '\n'.join(lines) + '\n'
+
+
+def write_calibration(tables: Mapping[Key, ReliabilityTable], out_dir: str | Path) -> list[Path]:
+    """Write ``calibration.json``, ``calibration.md`` and the reliability PNGs into ``out_dir``.
+
+    Returns:
+        The paths written (none if ``tables`` is empty).
+    """
+    from cva_confidence_ros.plots import save_reliability_diagram
+
+    if not tables:
+        return []
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = pooled(tables)
+    records: list[dict[str, Any]] = [
+        {'dataset': dataset, 'matcher': matcher, 'method': method, **table.as_dict()}
+        for (dataset, matcher, method), table in rows.items()
+    ]
+    written = [out / 'calibration.json', out / 'calibration.md']
+    written[0].write_text(json.dumps(records, indent=1) + '\n', encoding='utf-8')
+    written[1].write_text(format_calibration_table(tables), encoding='utf-8')
+    for dataset, matcher in sorted({(key[0], key[1]) for key in rows}):
+        per_method = {key[2]: t for key, t in rows.items() if key[:2] == (dataset, matcher)}
+        written.append(
+            save_reliability_diagram(
+                per_method, out / f'reliability_{dataset}_{matcher}.png',
+                title=f'{dataset}  {matcher}',
+            )
+        )
+    return written
