@@ -647,6 +647,14 @@ class ConfidenceCore(Node):
                     f'{floor:g}): a blinded or covered camera, no texture, or a wrong '
                     'calibration?'
                 )
+            ceiling = self._node_config.max_expected_kept_error
+            if expected is not None and expected > ceiling:
+                level = DiagnosticStatus.WARN
+                message = (
+                    f'the confidence predicts {100 * expected:.1f} % wrong disparities among the '
+                    f'kept pixels (max_expected_kept_error {ceiling:g}): blur, fog, or a '
+                    'rectification gone wrong?'
+                )
             if stats.window_invalid:
                 level = DiagnosticStatus.WARN
                 message = f'{stats.window_invalid} bad frame(s) dropped: {stats.last_error}'

@@ -68,6 +68,10 @@ class NodeConfig:
         min_kept_fraction: ``/diagnostics`` warns when the share of the pixels kept (finite
             disparity, confidence ≥ threshold), averaged over a diagnostics period, is below
             it; 0 = never.
+        max_expected_kept_error: ``/diagnostics`` warns when the error rate the confidence
+            predicts for the kept pixels (``expected_kept_error``: mean of 1 − confidence over
+            them, averaged over a diagnostics period; only for the networks, whose confidence
+            is a probability) is above it; 1 = never.
     """
 
     publish_points: bool = True
@@ -83,6 +87,7 @@ class NodeConfig:
     queue_size: int = 10
     diagnostics_period_seconds: float = 1.0
     min_kept_fraction: float = 0.0
+    max_expected_kept_error: float = 1.0
 
     def __post_init__(self) -> None:
         if self.depth_encoding not in DEPTH_ENCODINGS:
@@ -107,6 +112,10 @@ class NodeConfig:
             raise ConfigError(f'queue_size must be >= 1; got {self.queue_size}')
         if not 0.0 <= self.min_kept_fraction <= 1.0:
             raise ConfigError(f'min_kept_fraction must be in [0, 1]; got {self.min_kept_fraction}')
+        if not 0.0 <= self.max_expected_kept_error <= 1.0:
+            raise ConfigError(
+                f'max_expected_kept_error must be in [0, 1]; got {self.max_expected_kept_error}'
+            )
         if not self.diagnostics_period_seconds > 0:
             raise ConfigError(
                 f'diagnostics_period_seconds must be > 0; got {self.diagnostics_period_seconds}'
@@ -343,6 +352,15 @@ NODE_PARAMETERS: tuple[ParamSpec, ...] = (
         '/diagnostics warns when the share of pixels kept (valid disparity, confidence >= '
         'confidence_threshold), averaged over a diagnostics period, falls below it: a blinded '
         'or covered camera, a texture-less view, a broken calibration; 0 = never.',
+        low=0.0,
+        high=1.0,
+    ),
+    _node(
+        'max_expected_kept_error',
+        '/diagnostics warns when the error rate the confidence predicts for the kept pixels '
+        '(mean of 1 - confidence over them, averaged over a diagnostics period; the networks '
+        'only, whose confidence is a probability) rises above it: blur, fog, a rectification '
+        'gone wrong; 1 = never.',
         low=0.0,
         high=1.0,
     ),

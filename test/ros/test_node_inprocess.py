@@ -309,8 +309,28 @@ def test_diagnostics_give_the_error_a_network_predicts_for_the_kept_pixels(
         values = status(reports_it)
         assert values['confidence_method'] == 'cva_net_fast'
         assert 0.0 <= float(values['expected_kept_error']) <= 1.0
+
+        # A ceiling below it: the period's status is a warning that names the prediction.
+        assert running.set(max_expected_kept_error=expected / 2).successful
+
+        def warns(entry) -> bool:
+            return entry.level == DiagnosticStatus.WARN and 'wrong disparities' in entry.message
+
+        def warning():
+            for array in reversed(client.received['/diagnostics']):
+                for entry in array.status:
+                    if entry.name.startswith('cva_confidence') and warns(entry):
+                        return entry
+            return None
+
+        client.send_until_output(left, right, running.next_stamp(), topics=topics)
+        assert client.wait_for(lambda: warning() is not None, timeout=10.0)
+        assert f'predicts {100 * expected:.1f} %' in warning().message
+        assert not running.set(max_expected_kept_error=-0.1).successful
     finally:
-        assert running.set(confidence_method='mlm', max_disparity=MAX_DISPARITY).successful
+        assert running.set(
+            confidence_method='mlm', max_disparity=MAX_DISPARITY, max_expected_kept_error=1.0
+        ).successful
 
 
 def test_parameters_are_declared_with_descriptions_and_ranges(running: _Running) -> None:

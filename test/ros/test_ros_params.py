@@ -74,6 +74,8 @@ def test_build_configs_applies_changes() -> None:
         ('cva_cascade', 'mlm', 'cva_cascade'),
         ('cva_cascade_fraction', 0.0, 'cva_cascade_fraction'),
         ('cva_precision', 'int8', 'cva_precision'),
+        ('min_kept_fraction', 1.5, 'min_kept_fraction'),
+        ('max_expected_kept_error', 1.2, 'max_expected_kept_error'),
     ],
 )
 def test_build_configs_rejects(name: str, value: object, match: str) -> None:

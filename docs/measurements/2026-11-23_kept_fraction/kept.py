@@ -3,8 +3,10 @@
 Runs the node's pipeline (default matcher and method: Census-BM, CVA-Net-Fast, D = 64,
 threshold 0.5) on the scikit-image Motorcycle pair at half size (370×248 after the pipeline's
 crop) and on degraded copies of it, and prints the share of pixels kept (finite disparity,
-confidence ≥ threshold; what ``/diagnostics`` reports) and, against the pair's ground truth,
-the error rate of the kept pixels (KITTI criterion, ground truth at the processed size):
+confidence ≥ threshold; what ``/diagnostics`` reports), the error rate the confidence
+predicts for them (``expected_kept_error``, mean(1 − confidence); also in ``/diagnostics``)
+and, against the pair's ground truth, their measured error rate (KITTI criterion, ground truth
+at the processed size):
 
 * ``rows off by k px``: the right image shifted down by k rows (a rectification gone wrong);
 * ``blur σ``: both images Gaussian-blurred (fog, condensation, defocus);
@@ -59,8 +61,9 @@ def main() -> None:
     cases.append(('left half covered', covered(left), right))
     cases.append(('right lens covered', left, np.full_like(right, 128)))
 
-    print('| input | kept fraction | mean confidence | error % of the kept pixels | s |')
-    print('|---|---:|---:|---:|---:|')
+    print('| input | kept fraction | mean confidence | predicted error % of the kept pixels '
+          '| error % of the kept pixels | s |')
+    print('|---|---:|---:|---:|---:|---:|')
     for name, a, b in cases:
         tic = time.perf_counter()
         result = pipeline.process(a, b)
@@ -70,9 +73,11 @@ def main() -> None:
         known = np.isfinite(truth) & result.valid
         wrong = kitti_error(result.disparity[known], truth[known])
         error = f'{100 * wrong.mean():.1f}' if wrong.size else '– (none kept)'
+        predicted = result.expected_kept_error
+        guess = '–' if predicted is None else f'{100 * predicted:.1f}'
         print(
             f'| {name} | {result.valid.mean():.3f} | {np.nanmean(result.confidence):.3f} '
-            f'| {error} | {seconds:.1f} |',
+            f'| {guess} | {error} | {seconds:.1f} |',
             flush=True,
         )
 
