@@ -302,7 +302,8 @@ def expected_error(confidence: Any, mask: Any = None) -> float | None:
     Raises:
         InputError: Values outside [0, 1], or a mask of another shape.
     """
-    values = np.asarray(confidence, dtype=np.float64)
+    # Called on every frame by the node: pick the pixels first, convert only those.
+    values = np.asarray(confidence)
     if mask is not None:
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != values.shape:
@@ -310,12 +311,15 @@ def expected_error(confidence: Any, mask: Any = None) -> float | None:
                 f'mask must have the shape of confidence {values.shape}; got {mask.shape}'
             )
         values = values[mask]
-    values = values[~np.isnan(values)]
+    values = values.ravel()
+    missing = np.isnan(values)
+    if missing.any():
+        values = values[~missing]
     if values.size == 0:
         return None
-    if values.min() < 0.0 or values.max() > 1.0:
+    low, high = float(values.min()), float(values.max())
+    if low < 0.0 or high > 1.0:
         raise InputError(
-            'confidence must be a probability in [0, 1]; got values in '
-            f'[{values.min():g}, {values.max():g}]'
+            f'confidence must be a probability in [0, 1]; got values in [{low:g}, {high:g}]'
         )
-    return float(1.0 - values.mean())
+    return float(1.0 - values.mean(dtype=np.float64))

@@ -169,7 +169,7 @@ class PipelineResult:
 
         None for a method whose confidence is no probability (the hand-crafted measures) or
         when no pixel is kept. On the develop split it is within a few points of the measured
-        error (README, *Calibration*).
+        error (README, *What a confidence of 0.8 means*).
         """
         from cva_confidence_ros.calibration import expected_error
 

@@ -248,9 +248,11 @@ def score_frame(
     score.n_pixels = scored.n_pixels
     score.kept_density = float(kept_here.mean())
     score.kept_error_rate = float(error[kept_here].mean()) if kept_here.any() else None
-    if probabilistic and kept_here.any():
-        values = np.clip(np.asarray(confidence, dtype=np.float64)[ys, xs][kept_here], 0.0, 1.0)
-        score.expected_kept_error = float(1.0 - values.mean())
+    if probabilistic:
+        from cva_confidence_ros.calibration import expected_error
+
+        values = np.clip(np.asarray(confidence, dtype=np.float32)[ys, xs], 0.0, 1.0)
+        score.expected_kept_error = expected_error(values, kept_here)
     score.density = scored.density
     score.roc_error = scored.roc_error
     return score

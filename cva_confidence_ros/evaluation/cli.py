@@ -369,12 +369,15 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _write_calibration(tables: dict[tuple[str, str, str], Any], out: Path) -> None:
-    from cva_confidence_ros.evaluation.reliability import pooled, write_calibration
+    from cva_confidence_ros.evaluation.reliability import ALL_DATASETS, pooled, write_calibration
 
     if not tables:
         return
     write_calibration(tables, out)
-    for (dataset, matcher, method), table in pooled(tables).items():
+    rows = pooled(tables)
+    # One line per matcher and method: the rows over all data sets where there are several.
+    summary = {k: t for k, t in rows.items() if k[0] == ALL_DATASETS} or rows
+    for (dataset, matcher, method), table in summary.items():
         _log(f'calibration {dataset} {matcher} {method}: mean confidence '
              f'{100 * table.overall_confidence:.1f} %, correct '
              f'{100 * table.overall_accuracy:.1f} %, ECE {100 * table.ece:.2f} %')
