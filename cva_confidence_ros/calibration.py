@@ -19,7 +19,7 @@ order of the measure but are no probabilities; they are scored by their ranking 
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Hashable, Iterable, Mapping, MutableMapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -30,6 +30,7 @@ from cva_confidence_ros.errors import InputError
 __all__ = [
     'DEFAULT_BINS',
     'ReliabilityTable',
+    'add_table',
     'expected_error',
     'reliability',
 ]
@@ -249,6 +250,14 @@ class ReliabilityTable:
             correct_sums=counts * acc,
             squared_error_sum=brier * int(counts.sum()),
         )
+
+
+def add_table(
+    tables: MutableMapping[Any, ReliabilityTable], key: Hashable, table: ReliabilityTable
+) -> None:
+    """Merge ``table`` into ``tables[key]`` (or store it there if the key is new)."""
+    held = tables.get(key)
+    tables[key] = table if held is None else held.merge(table)
 
 
 def reliability(confidence: Any, correct: Any, bins: int = DEFAULT_BINS) -> ReliabilityTable:

@@ -299,6 +299,7 @@ def _scene_lists(
 
 def run(args: argparse.Namespace) -> int:
     """Run the evaluation for parsed arguments; raises ``CVAError`` on bad input."""
+    from cva_confidence_ros.calibration import add_table
     from cva_confidence_ros.datasets import load_scene, resize_sample
     from cva_confidence_ros.evaluation.records import format_table, write_records
     from cva_confidence_ros.evaluation.scene import evaluate_scene
@@ -347,7 +348,7 @@ def run(args: argparse.Namespace) -> int:
             )
         # Only a scene that finished counts, as for its records.
         for key, table in tables.items():
-            calibration[key] = table if key not in calibration else calibration[key].merge(table)
+            add_table(calibration, key, table)
         return records
 
     outcome = run_scenes(jobs, lambda job: f'{job[0]}/{job[1]}', work)

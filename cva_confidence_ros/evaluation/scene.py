@@ -372,13 +372,12 @@ def evaluate_scene(
         maps[name] = dense
         scores[name] = score
         if getattr(methods[name], 'probabilistic', False):
+            from cva_confidence_ros.calibration import add_table
             from cva_confidence_ros.calibration import reliability as reliability_table
 
             tables[name] = reliability_table(values, ~error)
             if reliability is not None:
-                key = (sample.dataset, matcher, name)
-                held = reliability.get(key)
-                reliability[key] = tables[name] if held is None else held.merge(tables[name])
+                add_table(reliability, (sample.dataset, matcher, name), tables[name])
         records.append(
             EvalRecord(
                 dataset=sample.dataset,
