@@ -28,7 +28,8 @@ from cva_confidence_ros.outputs import check_output_dir
 __all__ = ['main']
 
 _SUMMARY_KEYS = (
-    'error_rate', 'auc', 'auc_opt', 'kept_density', 'kept_error_rate', 'expected_kept_error'
+    'error_rate', 'auc', 'auc_opt', 'kept_density', 'kept_error_rate', 'expected_kept_error',
+    'kept_epe',
 )
 
 
@@ -175,14 +176,19 @@ def main(argv: list[str] | None = None) -> int:
           f'1/{args.downsample} resolution, D = {args.max_disparity}, all ground-truth pixels')
     print()
     # expected kept error: what the confidence itself predicts for the kept pixels (networks
-    # only, whose output is a probability), next to what the ground truth says
+    # only, whose output is a probability), next to what the ground truth says; kept EPE: their
+    # mean |d − d_gt| in pixels (sub-pixel disparities)
     print('| matcher | method | error rate % | AUC | AUC opt | kept density % | kept error % '
-          '| expected kept error % |')
-    print('|---|---|---|---|---|---|---|---|')
+          '| expected kept error % | kept EPE px |')
+    print('|---|---|---|---|---|---|---|---|---|')
     for matcher, method, summary in table:
         values = [summary.get(key) for key in _SUMMARY_KEYS]
-        cells = ['–' if v is None else f'{100 * v:.{1 if i == 3 else 2}f}'
-                 for i, v in enumerate(values)]
+        cells = [
+            '–' if v is None
+            else f'{v:.3f}' if key == 'kept_epe'
+            else f'{100 * v:.{1 if key == "kept_density" else 2}f}'
+            for key, v in zip(_SUMMARY_KEYS, values, strict=True)
+        ]
         print(f'| {matcher} | {method} | ' + ' | '.join(cells) + ' |')
     print()
     print(f'outputs: {out.resolve()} (disparity_*.png, cost_volume_summary.json, '

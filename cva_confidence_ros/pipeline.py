@@ -37,6 +37,10 @@ class PipelineConfig:
         confidence_threshold: Pixels with confidence below it are invalid in the filtered output.
         downsample: 1, 2 or 4; images are shrunk by this factor before matching.
         lr_check: Also run a left–right consistency check and mark failing pixels invalid.
+        subpixel: ``equiangular`` (default), ``parabola`` or ``none``: the curve through the
+            costs around the winner-takes-all minimum that places the published disparity
+            between the integers (``matching.refine_subpixel``); the confidence is that of the
+            winner-takes-all disparity, which the refinement moves by at most 0.5 px.
         tile_budget_mb: Memory budget of one network tile at inference.
         cva_stride: 1, 2, 4 or 8: the network runs on every stride-th pixel of each axis, the
             rest is filled by joint-bilateral interpolation (1 = every pixel, exact).
@@ -58,6 +62,7 @@ class PipelineConfig:
     confidence_threshold: float = 0.5
     downsample: int = 1
     lr_check: bool = False
+    subpixel: str = 'equiangular'
     tile_budget_mb: float = 512.0
     cva_stride: int = 1
     cva_cascade: str = 'none'
@@ -91,6 +96,12 @@ class PipelineConfig:
             )
         if not is_int(self.downsample) or self.downsample not in (1, 2, 4):
             raise ConfigError(f'downsample must be 1, 2 or 4; got {self.downsample!r}')
+        from cva_confidence_ros.matching import SUBPIXEL_METHODS
+
+        if self.subpixel not in SUBPIXEL_METHODS:
+            raise ConfigError(
+                f'subpixel must be one of {SUBPIXEL_METHODS}; got {self.subpixel!r}'
+            )
         if not is_real(self.tile_budget_mb) or not (
             math.isfinite(self.tile_budget_mb) and self.tile_budget_mb > 0
         ):
@@ -111,6 +122,12 @@ class PipelineConfig:
         if self.cva_backend not in BACKENDS:
             raise ConfigError(f'cva_backend must be one of {BACKENDS}; got {self.cva_backend!r}')
 
+    @property
+    def disparity_step(self) -> float:
+        """The disparity increment of the output (``DisparityImage.delta_d``): 1 for integer
+        winner-takes-all disparities, 0 for sub-pixel ones (continuous values)."""
+        return 1.0 if self.subpixel == 'none' else 0.0
+
     def replace(self, **changes: object) -> PipelineConfig:
         """Return a copy with ``changes`` applied (validated)."""
         names = {f.name for f in fields(self)}
@@ -129,7 +146,8 @@ class PipelineResult:
     """What one stereo pair yields, at the processed (possibly downsampled) resolution.
 
     Attributes:
-        disparity: (H, W) float32 winner-takes-all disparity; NaN where the LR check failed.
+        disparity: (H, W) float32 disparity: winner-takes-all, refined to sub-pixel by
+            ``PipelineConfig.subpixel``; NaN where the LR check failed.
         confidence: (H, W) float32 in [0, 1], higher = more trustworthy: the method's output
             through its fixed increasing map ``to_unit_interval`` (the identity for
             ``cva_net``), so the threshold means the same on every frame.
@@ -138,7 +156,8 @@ class PipelineResult:
         valid: (H, W) bool, True where the disparity is finite and confidence ≥ threshold.
         left: (H, W) or (H, W, 3) uint8 left image at the processed resolution.
         scale: Processed size / input size (1 / downsample).
-        timings_ms: Milliseconds per stage (``resize``, ``matching``, ``confidence``, ``total``).
+        timings_ms: Milliseconds per stage (``resize``, ``matching``, ``confidence``,
+            ``subpixel`` when refined, ``total``).
         probabilistic: Whether ``confidence`` is meant as the probability that the disparity
             is correct (the networks; ``ConfidenceMethod.probabilistic``).
     """
@@ -280,6 +299,7 @@ class StereoPipeline:
             check_image_pair,
             compute_cost_volume,
             left_right_check,
+            refine_subpixel,
             wta_disparity,
         )
 
@@ -325,6 +345,10 @@ class StereoPipeline:
             disparity = np.where(
                 left_right_check(disparity, disparity_right), disparity, np.float32(np.nan)
             ).astype(np.float32)
+        if cfg.subpixel != 'none':
+            tic = time.perf_counter()
+            disparity = refine_subpixel(volume, disparity, cfg.subpixel)
+            timings['subpixel'] = (time.perf_counter() - tic) * 1e3
         valid = np.isfinite(disparity) & (confidence >= cfg.confidence_threshold)
         timings['total'] = (time.perf_counter() - start) * 1e3
         return PipelineResult(

@@ -37,6 +37,7 @@ from pathlib import Path
 import sys
 
 from cva_confidence_ros.errors import CVAError, from_interrupt
+from cva_confidence_ros.matching.subpixel import SUBPIXEL_METHODS
 from cva_confidence_ros.pipeline import PipelineConfig
 from msg_tools.bagio import STORAGES
 from msg_tools.progress import GracefulInterrupt
@@ -82,6 +83,9 @@ def build_parser() -> argparse.ArgumentParser:
                       help='pixels below it are dropped from the filtered outputs')
     node.add_argument('--device', default=_default('device'), help='cpu, cuda or auto')
     node.add_argument('--lr-check', action='store_true', help='left-right consistency check')
+    node.add_argument('--subpixel', choices=SUBPIXEL_METHODS, default=_default('subpixel'),
+                      help='sub-pixel disparity: equiangular, parabola or none (integer '
+                           'disparities); default %(default)s')
     node.add_argument('--tile-budget-mb', type=float, default=_default('tile_budget_mb'),
                       help='memory budget of one network tile')
     node.add_argument('--approximate-sync', action='store_true',
@@ -150,6 +154,7 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
         confidence_threshold=args.confidence_threshold,
         downsample=args.downsample,
         lr_check=args.lr_check,
+        subpixel=args.subpixel,
         tile_budget_mb=args.tile_budget_mb,
     )
     topics = TopicNames(

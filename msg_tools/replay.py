@@ -516,10 +516,14 @@ def node_outputs(
     filtered = np.where(kept, disparity, np.float32(np.nan)).astype(np.float32)
     messages = [
         ('disparity', DISPARITY_IMAGE,
-         disparity_to_message(disparity, ros_header, geometry, config.max_disparity)),
+         disparity_to_message(
+             disparity, ros_header, geometry, config.max_disparity, config.disparity_step
+         )),
         ('confidence', IMAGE, array_to_image(confidence, ros_header)),
         ('disparity_filtered', DISPARITY_IMAGE,
-         disparity_to_message(filtered, ros_header, geometry, config.max_disparity)),
+         disparity_to_message(
+             filtered, ros_header, geometry, config.max_disparity, config.disparity_step
+         )),
     ]
     if publish_points:
         cloud = stereo_cloud(

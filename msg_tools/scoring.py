@@ -14,7 +14,9 @@ Per frame, on the pixels with ground truth (or a fixed random subset of ``max_pi
 * ``kept_error_rate``: fraction of wrong disparities among the kept pixels (None if none);
 * ``expected_kept_error``: for a method whose confidence is a probability (the networks), the
   error rate it predicts for the same kept pixels, mean(1 − confidence) — what the node reports
-  in ``/diagnostics`` without ground truth — to compare with ``kept_error_rate``.
+  in ``/diagnostics`` without ground truth — to compare with ``kept_error_rate``;
+* ``kept_epe``: mean absolute disparity error |d − d_gt| of the kept pixels (end-point error,
+  pixels at the processed resolution; what sub-pixel refinement lowers).
 """
 
 from __future__ import annotations
@@ -48,7 +50,8 @@ __all__ = [
 METRIC_KEYS = ('error_rate', 'auc', 'auc_opt', 'kept_density', 'kept_error_rate')
 REPORT_KEYS = ('frame', 'stamp_ns', *METRIC_KEYS)
 _EXTRA_KEYS = (
-    'expected_kept_error', 'n_pixels', 'width', 'height', 'processing_ms', 'latency_ms', 'note'
+    'expected_kept_error', 'kept_epe', 'n_pixels', 'width', 'height', 'processing_ms',
+    'latency_ms', 'note',
 )
 #: Names of the files a replay writes into its report folder (``node.log``: live mode).
 _REPORT_FILE = re.compile(
@@ -151,6 +154,7 @@ class FrameScore:
         kept_error_rate: Error rate among the kept pixels; None if none is kept.
         expected_kept_error: The error rate a probabilistic confidence predicts for the same
             pixels, mean(1 − confidence); None for other methods or if none is kept.
+        kept_epe: Mean |d − d_gt| of the kept pixels, in pixels; None if none is kept.
         n_pixels: Number of scored pixels (0 without ground truth).
         width: Processed width. height: Processed height.
         processing_ms: Pipeline time (offline) for this frame.
@@ -167,6 +171,7 @@ class FrameScore:
     kept_density: float | None = None
     kept_error_rate: float | None = None
     expected_kept_error: float | None = None
+    kept_epe: float | None = None
     n_pixels: int = 0
     width: int = 0
     height: int = 0
@@ -248,6 +253,9 @@ def score_frame(
     score.n_pixels = scored.n_pixels
     score.kept_density = float(kept_here.mean())
     score.kept_error_rate = float(error[kept_here].mean()) if kept_here.any() else None
+    if kept_here.any():
+        deviation = np.abs(np.asarray(disparity, np.float64)[ys, xs] - gt[ys, xs])[kept_here]
+        score.kept_epe = float(deviation.mean())
     if probabilistic:
         from cva_confidence_ros.calibration import expected_error
 
@@ -299,7 +307,7 @@ class ReplayReport:
     def summary(self) -> dict[str, Any]:
         """Means of the metrics over the frames that have them, plus the counters."""
         out: dict[str, Any] = {}
-        for key in (*METRIC_KEYS, 'expected_kept_error'):
+        for key in (*METRIC_KEYS, 'expected_kept_error', 'kept_epe'):
             values = [getattr(f, key) for f in self.frames if getattr(f, key) is not None]
             out[key] = float(np.mean(values)) if values else None
         latencies = [f.latency_ms for f in self.frames if f.latency_ms is not None]
@@ -327,11 +335,11 @@ class ReplayReport:
         }
 
 
-def _fmt(value: Any, percent: bool = False) -> str:
+def _fmt(value: Any, percent: bool = False, digits: int = 1) -> str:
     if value is None:
         return '–'
     if isinstance(value, float):
-        return f'{100 * value:.2f}' if percent else f'{value:.1f}'
+        return f'{100 * value:.2f}' if percent else f'{value:.{digits}f}'
     return str(value)
 
 
@@ -459,13 +467,14 @@ def format_summary(document: dict[str, Any], max_rows: int = 200) -> str:
     lines += [
         '',
         '| frames | scored | skipped | dropped | error rate % | AUC ×100 | AUC opt ×100 '
-        '| kept density % | kept error % | expected kept error % |',
-        '|---|---|---|---|---|---|---|---|---|---|',
+        '| kept density % | kept error % | expected kept error % | kept EPE px |',
+        '|---|---|---|---|---|---|---|---|---|---|---|',
         f"| {summary['frames']} | {summary['frames_scored']} | {summary.get('skipped', 0)} "
         f"| {summary.get('dropped', 0)} | {_fmt(summary['error_rate'], True)} "
         f"| {_fmt(summary['auc'], True)} | {_fmt(summary['auc_opt'], True)} "
         f"| {_fmt(summary['kept_density'], True)} | {_fmt(summary['kept_error_rate'], True)} "
-        f"| {_fmt(summary.get('expected_kept_error'), True)} |",
+        f"| {_fmt(summary.get('expected_kept_error'), True)} "
+        f"| {_fmt(summary.get('kept_epe'), digits=3)} |",
         '',
     ]
     if summary.get('interrupted'):
@@ -495,8 +504,8 @@ def format_summary(document: dict[str, Any], max_rows: int = 200) -> str:
     if frames:
         lines += [
             '| frame | stamp (ns) | error rate % | AUC ×100 | AUC opt ×100 | kept density % '
-            '| kept error % | expected kept error % | note |',
-            '|---|---|---|---|---|---|---|---|---|',
+            '| kept error % | expected kept error % | kept EPE px | note |',
+            '|---|---|---|---|---|---|---|---|---|---|',
         ]
         for record in frames[:max_rows]:
             lines.append(
@@ -504,7 +513,8 @@ def format_summary(document: dict[str, Any], max_rows: int = 200) -> str:
                 f"| {_fmt(record['error_rate'], True)} | {_fmt(record['auc'], True)} "
                 f"| {_fmt(record['auc_opt'], True)} | {_fmt(record['kept_density'], True)} "
                 f"| {_fmt(record['kept_error_rate'], True)} "
-                f"| {_fmt(record.get('expected_kept_error'), True)} | {record['note']} |"
+                f"| {_fmt(record.get('expected_kept_error'), True)} "
+                f"| {_fmt(record.get('kept_epe'), digits=3)} | {record['note']} |"
             )
         if len(frames) > max_rows:
             lines.append(f'\n({len(frames) - max_rows} more frames in report.csv)')

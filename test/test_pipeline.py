@@ -25,7 +25,34 @@ def test_downsampled_pair_through_the_real_matcher():
     assert result.disparity.shape == result.confidence.shape == (16, 32)
     assert result.scale == 0.5
     inner = result.disparity[4:-4, 8:-8]
-    assert np.nanmedian(inner) == 2.0  # the 4 px shift at half size
+    assert np.nanmedian(inner) == pytest.approx(2.0, abs=0.05)  # the 4 px shift at half size
+
+
+def test_subpixel_moves_the_integer_disparity_by_at_most_half_a_pixel():
+    left, right = _pair()
+    integer = _pipeline(subpixel='none').process(left, right)
+    assert np.all(integer.disparity == np.round(integer.disparity))
+    assert 'subpixel' not in integer.timings_ms
+    assert integer.disparity.dtype == np.float32
+    for method in ('equiangular', 'parabola'):
+        refined = _pipeline(subpixel=method).process(left, right)
+        step = refined.disparity - integer.disparity
+        assert np.all(np.abs(step) <= 0.5) and np.any(step != 0)
+        np.testing.assert_array_equal(refined.confidence, integer.confidence)
+        assert refined.timings_ms['subpixel'] >= 0
+    assert PipelineConfig().subpixel == 'equiangular'
+    assert PipelineConfig().disparity_step == 0.0
+    assert PipelineConfig(subpixel='none').disparity_step == 1.0
+    with pytest.raises(ConfigError, match="subpixel must be one of .*'cubic'"):
+        PipelineConfig(subpixel='cubic')
+
+
+def test_subpixel_keeps_the_left_right_check():
+    left, right = _pair()
+    checked = _pipeline(lr_check=True).process(left, right)
+    unchecked = _pipeline(lr_check=True, subpixel='none').process(left, right)
+    np.testing.assert_array_equal(np.isnan(checked.disparity), np.isnan(unchecked.disparity))
+    assert np.isnan(checked.disparity).any()
 
 
 @pytest.mark.parametrize(

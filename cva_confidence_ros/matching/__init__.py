@@ -1,4 +1,5 @@
-"""Dense stereo matching: cost volumes, winner-takes-all disparity, left–right check.
+"""Dense stereo matching: cost volumes, winner-takes-all and sub-pixel disparity, left–right
+check.
 
 One cost-volume layout everywhere (see docs/ARCHITECTURE.md): (D, H, W) float32 in [0, 1],
 0 = perfect match, entry [d, y, x] = cost of left (y, x) with right (y, x − d), 1.0 where
@@ -26,10 +27,12 @@ from cva_confidence_ros.matching.census_bm import CensusBlockMatcher, CensusBMCo
 from cva_confidence_ros.matching.census_sgm import CensusSGMConfig, CensusSGMMatcher
 from cva_confidence_ros.matching.disparity import left_right_check, wta_disparity
 from cva_confidence_ros.matching.mccnn_fast import MCCNNFastConfig, MCCNNFastMatcher
+from cva_confidence_ros.matching.subpixel import SUBPIXEL_METHODS, refine_subpixel
 from cva_confidence_ros.registry import Registry
 
 __all__ = [
     'MATCHERS',
+    'SUBPIXEL_METHODS',
     'VIEWS',
     'CensusBMConfig',
     'CensusBlockMatcher',
@@ -40,6 +43,7 @@ __all__ = [
     'Matcher',
     'compute_cost_volume',
     'left_right_check',
+    'refine_subpixel',
     'wta_disparity',
 ]
 

@@ -597,14 +597,18 @@ class ConfidenceCore(Node):
         keep = result.valid
         if self._pub_disparity.get_subscription_count():
             self._pub_disparity.publish(
-                disparity_to_message(disparity, header, geometry, config.max_disparity)
+                disparity_to_message(
+                    disparity, header, geometry, config.max_disparity, config.disparity_step
+                )
             )
         if self._pub_confidence.get_subscription_count():
             self._pub_confidence.publish(array_to_image(confidence, header))
         if self._pub_filtered.get_subscription_count():
             filtered = np.where(keep, disparity, np.float32(np.nan)).astype(np.float32)
             self._pub_filtered.publish(
-                disparity_to_message(filtered, header, geometry, config.max_disparity)
+                disparity_to_message(
+                    filtered, header, geometry, config.max_disparity, config.disparity_step
+                )
             )
         if node_config.publish_points and self._pub_points.get_subscription_count():
             cloud = stereo_cloud(

@@ -442,7 +442,7 @@ def disparity_to_message(
         header: Header of the left image (stamp and optical frame).
         geometry: Stereo geometry at the disparity's resolution.
         max_disparity: Cost-volume depth D; raw disparities 0 … D − 1 were searched.
-        delta_d: Smallest disparity step of the matcher (1 for integer WTA).
+        delta_d: Smallest disparity step (1 for integer WTA, 0 for continuous sub-pixel values).
 
     Returns:
         The message; its image holds ``d + Δ`` (Δ = cx_right − cx_left) and

@@ -246,6 +246,12 @@ PIPELINE_PARAMETERS: tuple[ParamSpec, ...] = (
     ),
     _pipeline('lr_check', 'Invalidate pixels that fail a left-right consistency check.'),
     _pipeline(
+        'subpixel',
+        'Sub-pixel disparity: the curve through the costs around the winner-takes-all minimum '
+        '(equiangular, parabola); none = integer disparities (depth in layers).',
+        constraints='one of equiangular, parabola, none',
+    ),
+    _pipeline(
         'tile_budget_mb',
         'Memory budget of one network tile at inference, MB.',
         low=1.0,

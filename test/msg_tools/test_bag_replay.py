@@ -104,10 +104,13 @@ def test_round_trip(tmp_path: Path, storage: str, capsys: pytest.CaptureFixture[
 
 
 def test_auc_equals_cva_evaluate(tmp_path: Path) -> None:
+    # cva-evaluate scores the integer winner-takes-all disparity (the paper's protocol).
     bag = dataset_bag(tmp_path, 'mcap', 2)
-    code, report = _replay(bag, tmp_path)
+    code, report = _replay(bag, tmp_path, '--subpixel', 'none')
     assert code == 0
-    code, subset = _replay(bag, tmp_path, '--max-pixels', '300', '--seed', '7', name='subset')
+    code, subset = _replay(
+        bag, tmp_path, '--subpixel', 'none', '--max-pixels', '300', '--seed', '7', name='subset'
+    )
     assert code == 0
     method = CONFIDENCE_METHODS.get('mlm')(matcher='census_bm', max_disparity=MAX_DISPARITY)
     samples = list(load_dataset('middlebury2014', tmp_path / 'data'))
@@ -212,9 +215,10 @@ def test_offline_is_deterministic(tmp_path: Path) -> None:
     assert _replay(bag, tmp_path, name='b')[0] == 0
     assert _raw_messages(tmp_path / 'a_bag') == _raw_messages(tmp_path / 'b_bag')
     first = read_bag(tmp_path / 'a_bag')
-    # A constant shift on random texture is found exactly where the texture is visible.
+    # A constant shift on random texture is found where the texture is visible (the integer
+    # exactly; the sub-pixel curve moves it by less than half a pixel).
     disparity = disparity_from_message(first['/disparity'][1][1])
-    assert np.all(disparity[4:-4, 5 + 4 : -4] == 5)
+    assert np.all(np.abs(disparity[4:-4, 5 + 4 : -4] - 5) < 0.5)
 
 
 @pytest.mark.parametrize(('storage', 'compression'), [('sqlite3', 'message'), ('mcap', 'file')])
@@ -247,7 +251,7 @@ def test_compressed_images_replay_like_raw_ones(tmp_path: Path) -> None:
     code, report = _replay(jpeg, tmp_path, *topics, name='jpeg_out')
     assert code == 0 and report['summary']['processed'] == 2
     disparity = disparity_from_message(read_bag(tmp_path / 'jpeg_out_bag')['/disparity'][1][1])
-    assert np.mean(disparity[4:-4, 5 + 4 : -4] == 5) > 0.9
+    assert np.mean(np.abs(disparity[4:-4, 5 + 4 : -4] - 5) < 0.5) > 0.9
 
 
 def test_a_compressed_image_that_does_not_decode_is_skipped(
@@ -302,3 +306,31 @@ def test_a_network_reports_the_error_it_predicts_for_the_kept_pixels(tmp_path: P
         np.mean([f['expected_kept_error'] for f in report['frames']])
     )
     assert '| expected kept error % |' in (tmp_path / 'net' / 'summary.md').read_text()
+
+
+def test_kept_epe_is_the_mean_disparity_error_of_the_kept_pixels(tmp_path: Path) -> None:
+    # Synthetic slanted planes: sub-pixel ground truth, which the sub-pixel disparity follows
+    # more closely than the integers do.
+    bag = dataset_bag(tmp_path, 'mcap', 2)
+    samples = list(load_dataset('middlebury2014', tmp_path / 'data'))
+    epe = {}
+    for subpixel in ('equiangular', 'none'):
+        code, report = _replay(bag, tmp_path, '--subpixel', subpixel, name=subpixel)
+        assert code == 0
+        outputs = read_bag(tmp_path / f'{subpixel}_bag')
+        for index, (frame, sample) in enumerate(zip(report['frames'], samples, strict=True)):
+            msg = outputs['/disparity_filtered'][index][1]
+            # The message holds d + Δ (Δ = cx_right − cx_left, its min_disparity); scored is d.
+            filtered = disparity_from_message(msg) - np.float32(msg.min_disparity)
+            scored = np.isfinite(filtered) & np.isfinite(sample.disparity)
+            expected = np.abs(filtered[scored] - sample.disparity[scored]).mean()
+            assert frame['kept_epe'] == pytest.approx(expected, rel=1e-6)
+        epe[subpixel] = report['summary']['kept_epe']
+        assert epe[subpixel] == pytest.approx(np.mean([f['kept_epe'] for f in report['frames']]))
+        with (tmp_path / subpixel / 'report.csv').open() as stream:
+            rows = list(csv.DictReader(stream))
+        assert [float(row['kept_epe']) for row in rows] == pytest.approx(
+            [f['kept_epe'] for f in report['frames']]
+        )
+        assert '| kept EPE px |' in (tmp_path / subpixel / 'summary.md').read_text()
+    assert epe['equiangular'] < epe['none']
