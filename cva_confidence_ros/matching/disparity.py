@@ -9,7 +9,7 @@ import numpy as np
 
 from cva_confidence_ros.errors import ConfigError, InputError
 
-__all__ = ['left_right_check', 'wta_disparity']
+__all__ = ['check_cost_volume', 'check_disparity', 'left_right_check', 'wta_disparity']
 
 
 # Serial: the scan is memory-bound, and parallel kernels compile far slower. No fastmath, so
@@ -41,6 +41,25 @@ def _argmin_depth(volume: np.ndarray, out: np.ndarray) -> bool | np.bool_:
     return nan_seen.any()
 
 
+def check_cost_volume(cost_volume: object) -> np.ndarray:
+    """A non-empty (D, H, W) float array as C-contiguous float32 (no copy if it is one).
+
+    Raises:
+        InputError: Not a numpy array, not 3-D, empty, or not float.
+    """
+    if not isinstance(cost_volume, np.ndarray):
+        raise InputError(
+            f'cost_volume must be a (D, H, W) numpy array; got {type(cost_volume).__name__}'
+        )
+    if cost_volume.ndim != 3 or 0 in cost_volume.shape:
+        raise InputError(
+            f'cost_volume must be a non-empty (D, H, W) array; got shape {cost_volume.shape}'
+        )
+    if cost_volume.dtype.kind != 'f':
+        raise InputError(f'cost_volume must be float (float32); got dtype {cost_volume.dtype}')
+    return np.ascontiguousarray(cost_volume, dtype=np.float32)
+
+
 def wta_disparity(cost_volume: np.ndarray) -> np.ndarray:
     """Winner-takes-all disparity: the d of the lowest cost of every pixel.
 
@@ -54,17 +73,7 @@ def wta_disparity(cost_volume: np.ndarray) -> np.ndarray:
     Raises:
         InputError: Not a non-empty 3-D float array, or NaN costs.
     """
-    if not isinstance(cost_volume, np.ndarray):
-        raise InputError(
-            f'cost_volume must be a (D, H, W) numpy array; got {type(cost_volume).__name__}'
-        )
-    if cost_volume.ndim != 3 or 0 in cost_volume.shape:
-        raise InputError(
-            f'cost_volume must be a non-empty (D, H, W) array; got shape {cost_volume.shape}'
-        )
-    if cost_volume.dtype.kind != 'f':
-        raise InputError(f'cost_volume must be float (float32); got dtype {cost_volume.dtype}')
-    volume = np.ascontiguousarray(cost_volume, dtype=np.float32)
+    volume = check_cost_volume(cost_volume)
     disparity = np.empty(volume.shape[1:], np.float32)
     if _argmin_depth(volume, disparity):
         nans = int(np.count_nonzero(np.isnan(volume)))
@@ -72,7 +81,7 @@ def wta_disparity(cost_volume: np.ndarray) -> np.ndarray:
     return disparity
 
 
-def _check_disparity(name: str, disparity: object) -> np.ndarray:
+def check_disparity(name: str, disparity: object) -> np.ndarray:
     if not isinstance(disparity, np.ndarray):
         raise InputError(f'{name} must be an (H, W) numpy array; got {type(disparity).__name__}')
     if disparity.ndim != 2 or disparity.size == 0:
@@ -103,8 +112,8 @@ def left_right_check(
         InputError: Not 2-D numeric arrays, or different shapes.
         ConfigError: ``max_diff`` negative or not finite.
     """
-    left = _check_disparity('disp_left', disp_left)
-    right = _check_disparity('disp_right', disp_right)
+    left = check_disparity('disp_left', disp_left)
+    right = check_disparity('disp_right', disp_right)
     if left.shape != right.shape:
         raise InputError(
             f'disp_left and disp_right must have the same shape; got {left.shape} and '

@@ -25,6 +25,7 @@ import numpy as np
 
 from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.matching.base import check_view
+from cva_confidence_ros.matching.disparity import check_cost_volume, check_disparity
 
 __all__ = ['SUBPIXEL_METHODS', 'refine_subpixel']
 
@@ -103,24 +104,13 @@ def refine_subpixel(
     if method not in SUBPIXEL_METHODS:
         raise ConfigError(f'subpixel must be one of {SUBPIXEL_METHODS}; got {method!r}')
     view = check_view(view)
-    if not isinstance(cost_volume, np.ndarray) or cost_volume.ndim != 3 or 0 in cost_volume.shape:
+    volume = check_cost_volume(cost_volume)
+    values = np.ascontiguousarray(check_disparity('disparity', disparity), dtype=np.float32)
+    if values.shape != volume.shape[1:]:
         raise InputError(
-            'cost_volume must be a non-empty (D, H, W) numpy array; got '
-            + (f'shape {cost_volume.shape}' if isinstance(cost_volume, np.ndarray)
-               else type(cost_volume).__name__)
+            f'disparity must have the (H, W) = {volume.shape[1:]} of the cost volume; got '
+            f'shape {values.shape}'
         )
-    if cost_volume.dtype.kind != 'f':
-        raise InputError(f'cost_volume must be float (float32); got dtype {cost_volume.dtype}')
-    if not isinstance(disparity, np.ndarray) or disparity.shape != cost_volume.shape[1:]:
-        raise InputError(
-            f'disparity must be an (H, W) = {cost_volume.shape[1:]} numpy array; got '
-            + (f'shape {disparity.shape}' if isinstance(disparity, np.ndarray)
-               else type(disparity).__name__)
-        )
-    if disparity.dtype.kind not in 'fiu':
-        raise InputError(f'disparity must be a float (or integer) array; got {disparity.dtype}')
-    values = np.ascontiguousarray(disparity, dtype=np.float32)
-    volume = np.ascontiguousarray(cost_volume, dtype=np.float32)
     out = np.empty(values.shape, np.float32)
     # 'none' runs the kernel too (code -1 refines nothing), so that it checks the same.
     code = _KERNEL_CODES.get(method, -1)
