@@ -1,8 +1,10 @@
 """Per-frame confidence metrics of a replay and its report (JSON, CSV, Markdown, PNGs).
 
 Scoring reuses the evaluation module (``evaluation.select_pixels``,
-``evaluation.score_confidence``, ``metrics.kitti_error``), so a frame's AUC is exactly what
-``cva-evaluate`` reports for the same images, ground truth and pixel subset.
+``evaluation.score_confidence``, ``metrics.kitti_error``) on the disparity the node publishes,
+so with ``--subpixel none`` (integer disparities, the paper's protocol) a frame's AUC is exactly
+what ``cva-evaluate`` reports for the same images, ground truth and pixel subset; with sub-pixel
+disparities (the default) the error labels of a few pixels near 3 px differ.
 
 Per frame, on the pixels with ground truth (or a fixed random subset of ``max_pixels`` of them):
 
