@@ -82,6 +82,12 @@ def wta_disparity(cost_volume: np.ndarray) -> np.ndarray:
 
 
 def check_disparity(name: str, disparity: object) -> np.ndarray:
+    """A non-empty (H, W) float or integer array as float32 (no copy if it is one).
+
+    Raises:
+        InputError: Not a numpy array, not 2-D, empty, or of another dtype; ``name`` says
+            which argument.
+    """
     if not isinstance(disparity, np.ndarray):
         raise InputError(f'{name} must be an (H, W) numpy array; got {type(disparity).__name__}')
     if disparity.ndim != 2 or disparity.size == 0:
