@@ -74,6 +74,9 @@ def run_cloud(settings: BenchSettings, threshold: float) -> list[dict[str, Any]]
             max_disparity=settings.max_disparity,
             confidence_method='pkrn',
             confidence_threshold=threshold,
+            # Kept = confidence ≥ threshold, the one rule a cloud_filter downstream can apply
+            # (it sees confidences, not the node's speckle regions), so both keep the same.
+            speckle_size=0,
         )
     )
     result = pipeline.process(left, right)

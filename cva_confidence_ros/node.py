@@ -8,10 +8,11 @@ mono8, mono16, rgb8, bgr8, rgba8, bgra8), ``left/camera_info``, ``right/camera_i
 are matched by stamp (:mod:`cva_confidence_ros.sync`).
 
 Publishes: ``disparity`` and ``disparity_filtered`` (``stereo_msgs/DisparityImage``; the
-filtered one is invalid wherever confidence < ``confidence_threshold``), ``confidence``
-(``sensor_msgs/Image`` 32FC1 in [0, 1]), ``points2`` (``sensor_msgs/PointCloud2`` x, y, z, rgb
-of the pixels with confidence ≥ threshold), ``depth`` (``sensor_msgs/Image``, REP 118: the depth
-of those pixels, 32FC1 metres with NaN or 16UC1 millimetres with 0 where there is none),
+filtered one is invalid wherever confidence < ``confidence_threshold`` or the pixel lies in a
+speckle, ``speckle_size``), ``confidence`` (``sensor_msgs/Image`` 32FC1 in [0, 1]), ``points2``
+(``sensor_msgs/PointCloud2`` x, y, z, rgb of those kept pixels), ``depth``
+(``sensor_msgs/Image``, REP 118: the depth of those pixels, 32FC1 metres with NaN or 16UC1
+millimetres with 0 where there is none),
 ``camera_info`` (the left camera info at the output resolution, for consumers of ``confidence``
 and ``depth``) and ``/diagnostics``. Everything is stamped with the
 left image's header and published at the processed resolution (1/``downsample``).

@@ -19,6 +19,7 @@ from cva_confidence_ros.errors import ConfigError, InputError
 __all__ = ['PipelineConfig', 'PipelineResult', 'StereoPipeline']
 
 _DEVICES = ('cpu', 'cuda', 'auto')
+_MAX_SPECKLE_SIZE = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -41,6 +42,10 @@ class PipelineConfig:
             costs around the winner-takes-all minimum that places the published disparity
             between the integers (``matching.refine_subpixel``); the confidence is that of the
             winner-takes-all disparity, which the refinement moves by at most 0.5 px.
+        speckle_size: Kept pixels in a connected region of at most this many pixels (at the
+            processed resolution) are dropped too (``matching.remove_speckles``, on the pixels
+            the threshold keeps); 0 = off.
+        speckle_range: Largest disparity step between neighbours of one region, in pixels.
         tile_budget_mb: Memory budget of one network tile at inference.
         cva_stride: 1, 2, 4 or 8: the network runs on every stride-th pixel of each axis, the
             rest is filled by joint-bilateral interpolation (1 = every pixel, exact).
@@ -63,6 +68,8 @@ class PipelineConfig:
     downsample: int = 1
     lr_check: bool = False
     subpixel: str = 'equiangular'
+    speckle_size: int = 100
+    speckle_range: float = 1.0
     tile_budget_mb: float = 512.0
     cva_stride: int = 1
     cva_cascade: str = 'none'
@@ -101,6 +108,15 @@ class PipelineConfig:
         if self.subpixel not in SUBPIXEL_METHODS:
             raise ConfigError(
                 f'subpixel must be one of {SUBPIXEL_METHODS}; got {self.subpixel!r}'
+            )
+        if not is_int(self.speckle_size) or not 0 <= self.speckle_size <= _MAX_SPECKLE_SIZE:
+            raise ConfigError(
+                f'speckle_size must be an integer in [0, {_MAX_SPECKLE_SIZE}]; '
+                f'got {self.speckle_size!r}'
+            )
+        if not is_real(self.speckle_range) or not 0 <= self.speckle_range <= 1024:
+            raise ConfigError(
+                f'speckle_range must be a number in [0, 1024]; got {self.speckle_range!r}'
             )
         if not is_real(self.tile_budget_mb) or not (
             math.isfinite(self.tile_budget_mb) and self.tile_budget_mb > 0
@@ -153,11 +169,12 @@ class PipelineResult:
             ``cva_net``), so the threshold means the same on every frame.
         raw_confidence: (H, W) float32, the method's own values (what the AUC is computed on;
             same order as ``confidence``, without the ties a squashing map can create).
-        valid: (H, W) bool, True where the disparity is finite and confidence ≥ threshold.
+        valid: (H, W) bool, True where the disparity is finite, confidence ≥ threshold and
+            the pixel is not in a speckle of the pixels that pass (``speckle_size``).
         left: (H, W) or (H, W, 3) uint8 left image at the processed resolution.
         scale: Processed size / input size (1 / downsample).
         timings_ms: Milliseconds per stage (``resize``, ``matching``, ``confidence``,
-            ``subpixel`` when refined, ``total``).
+            ``subpixel`` when refined, ``speckle`` when filtered, ``total``).
         probabilistic: Whether ``confidence`` is meant as the probability that the disparity
             is correct (the networks; ``ConfidenceMethod.probabilistic``).
     """
@@ -300,6 +317,7 @@ class StereoPipeline:
             compute_cost_volume,
             left_right_check,
             refine_subpixel,
+            remove_speckles,
             wta_disparity,
         )
 
@@ -350,6 +368,10 @@ class StereoPipeline:
             disparity = refine_subpixel(volume, disparity, cfg.subpixel)
             timings['subpixel'] = (time.perf_counter() - tic) * 1e3
         valid = np.isfinite(disparity) & (confidence >= cfg.confidence_threshold)
+        if cfg.speckle_size > 0:
+            tic = time.perf_counter()
+            valid = remove_speckles(disparity, valid, cfg.speckle_size, cfg.speckle_range)
+            timings['speckle'] = (time.perf_counter() - tic) * 1e3
         timings['total'] = (time.perf_counter() - start) * 1e3
         return PipelineResult(
             disparity=disparity,

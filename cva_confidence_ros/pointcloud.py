@@ -409,8 +409,9 @@ def stereo_cloud(
         left: (H, W) or (H, W, 3) uint8 left image, the points' colours.
         geometry: Intrinsics at the disparity map's resolution.
         kept: (H, W) bool, the pixels the node keeps (finite disparity, confidence ≥ its
-            threshold: ``PipelineResult.valid``); without ``with_confidence`` only their points
-            are in the cloud, with it every point is and ``kept`` is not used.
+            threshold, not in a speckle: ``PipelineResult.valid``); without ``with_confidence``
+            only their points are in the cloud, with it every point is and ``kept`` is not
+            used.
         organized: (H, W) grid with NaN points, or only the valid points as (N,).
         with_confidence: Keep every point that can be triangulated and carry its confidence
             (:data:`CLOUD_CONFIDENCE_DTYPE`), so that consumers filter with their own threshold

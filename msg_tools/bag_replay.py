@@ -86,6 +86,12 @@ def build_parser() -> argparse.ArgumentParser:
     node.add_argument('--subpixel', choices=SUBPIXEL_METHODS, default=_default('subpixel'),
                       help='sub-pixel disparity: equiangular, parabola or none (integer '
                            'disparities); default %(default)s')
+    node.add_argument('--speckle-size', type=int, default=_default('speckle_size'),
+                      help='drop kept regions of at most this many pixels (0 = off; default '
+                           '%(default)s)')
+    node.add_argument('--speckle-range', type=float, default=_default('speckle_range'),
+                      help='largest disparity step within one such region, px (default '
+                           '%(default)s)')
     node.add_argument('--tile-budget-mb', type=float, default=_default('tile_budget_mb'),
                       help='memory budget of one network tile')
     node.add_argument('--approximate-sync', action='store_true',
@@ -155,6 +161,8 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
         downsample=args.downsample,
         lr_check=args.lr_check,
         subpixel=args.subpixel,
+        speckle_size=args.speckle_size,
+        speckle_range=args.speckle_range,
         tile_budget_mb=args.tile_budget_mb,
     )
     topics = TopicNames(

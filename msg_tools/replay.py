@@ -441,7 +441,8 @@ class NodeOutputs:
             ``confidence``, ``disparity_filtered`` and (optionally) ``points``, ``depth`` and
             ``camera_info``.
         confidence: (h, w) float32 published confidence in [0, 1].
-        kept: (h, w) bool, pixels kept by the threshold (finite in ``disparity_filtered``).
+        kept: (h, w) bool, pixels kept by the threshold and the speckle filter (finite in
+            ``disparity_filtered``).
         geometry: Stereo geometry at the processed resolution.
     """
 
@@ -468,9 +469,9 @@ def node_outputs(
     """The messages the node publishes for one processed pair, built by the node's own code.
 
     Mirrors ``ConfidenceNode._publish``: geometry scaled to the processed size, confidence
-    in [0, 1] (the pipeline's fixed per-method map), kept = finite disparity and confidence ≥
-    threshold, messages from ``ros.convert`` serialised by rclpy, so the bytes are those the
-    node would send.
+    in [0, 1] (the pipeline's fixed per-method map), kept = ``result.valid`` (finite disparity,
+    confidence ≥ threshold, not in a speckle), messages from ``ros.convert`` serialised by
+    rclpy, so the bytes are those the node would send.
 
     Args:
         result: The pipeline's output at the processed resolution.
@@ -512,7 +513,7 @@ def node_outputs(
     if (out_h, out_w) != tuple(input_shape):
         geometry = geometry.scaled(out_w / input_shape[1], out_h / input_shape[0])
     confidence = np.clip(np.nan_to_num(result.confidence, nan=0.0), 0.0, 1.0)
-    kept = np.isfinite(disparity) & (confidence >= config.confidence_threshold)
+    kept = result.valid
     filtered = np.where(kept, disparity, np.float32(np.nan)).astype(np.float32)
     messages = [
         ('disparity', DISPARITY_IMAGE,

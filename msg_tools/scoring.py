@@ -11,8 +11,8 @@ Per frame, on the pixels with ground truth (or a fixed random subset of ``max_pi
 * ``error_rate``: fraction of wrong disparities (KITTI criterion: |d − d_gt| ≥ 3 px and
   ≥ 5 % of d_gt; a NaN disparity is wrong);
 * ``auc`` / ``auc_opt``: area under the ROC curve of the confidence map and its optimum;
-* ``kept_density``: fraction of those pixels the node keeps (finite disparity and confidence
-  ≥ threshold, i.e. finite in ``disparity_filtered``);
+* ``kept_density``: fraction of those pixels the node keeps (finite disparity, confidence ≥
+  threshold and not in a speckle, i.e. finite in ``disparity_filtered``);
 * ``kept_error_rate``: fraction of wrong disparities among the kept pixels (None if none);
 * ``expected_kept_error``: for a method whose confidence is a probability (the networks), the
   error rate it predicts for the same kept pixels, mean(1 − confidence) — what the node reports
@@ -463,7 +463,8 @@ def format_summary(document: dict[str, Any], max_rows: int = 200) -> str:
     config = document['config']
     lines = ['# Bag replay report', '']
     for key in ('bag', 'mode', 'matcher', 'confidence_method', 'max_disparity', 'downsample',
-                'confidence_threshold', 'gt_topic', 'max_pixels'):
+                'confidence_threshold', 'subpixel', 'speckle_size', 'speckle_range', 'gt_topic',
+                'max_pixels'):
         if key in config:
             lines.append(f'- {key}: {config[key]}')
     lines += [

@@ -55,6 +55,33 @@ def test_subpixel_keeps_the_left_right_check():
     assert np.isnan(checked.disparity).any()
 
 
+def test_speckle_filter_drops_small_regions_of_the_kept_pixels():
+    from scipy import ndimage
+
+    left, right = _pair()
+    left[:, 20:24] = 128  # a texture-less strip: disparities that agree with nothing
+    right = np.roll(left, -4, axis=1)
+    plain = _pipeline(subpixel='none', speckle_size=0).process(left, right)
+    assert 'speckle' not in plain.timings_ms
+    np.testing.assert_array_equal(
+        plain.valid, np.isfinite(plain.disparity) & (plain.confidence >= 0.5)
+    )
+    filtered = _pipeline(subpixel='none', speckle_size=12, speckle_range=0.0).process(left, right)
+    np.testing.assert_array_equal(filtered.disparity, plain.disparity)
+    np.testing.assert_array_equal(filtered.confidence, plain.confidence)
+    assert filtered.timings_ms['speckle'] >= 0
+    # With range 0 a region is a 4-connected run of one integer disparity among the kept
+    # pixels: scipy's labelling, value by value, gives the same answer.
+    expected = np.zeros_like(plain.valid)
+    for value in np.unique(plain.disparity[plain.valid]):
+        labels, count = ndimage.label(plain.valid & (plain.disparity == value))
+        sizes = np.bincount(labels.ravel())
+        expected |= (labels > 0) & (sizes[labels] > 12)
+    np.testing.assert_array_equal(filtered.valid, expected)
+    assert 0 < filtered.valid.sum() < plain.valid.sum()
+    assert PipelineConfig().speckle_size == 100 and PipelineConfig().speckle_range == 1.0
+
+
 @pytest.mark.parametrize(
     ('changes', 'message'),
     [
@@ -68,6 +95,10 @@ def test_subpixel_keeps_the_left_right_check():
         ({'tile_budget_mb': 'x'}, 'tile_budget_mb must be a finite number'),
         ({'tile_budget_mb': float('nan')}, 'tile_budget_mb must be a finite number'),
         ({'tile_budget_mb': float('inf')}, 'tile_budget_mb must be a finite number'),
+        ({'speckle_size': -1}, 'speckle_size must be an integer in \\[0, 1000000\\]'),
+        ({'speckle_size': 10.0}, 'speckle_size must be an integer'),
+        ({'speckle_range': float('nan')}, 'speckle_range must be a number in \\[0, 1024\\]'),
+        ({'speckle_range': -1.0}, 'speckle_range must be a number'),
     ],
 )
 def test_config_refuses_wrong_types_and_non_finite_values(changes, message):

@@ -1,5 +1,5 @@
 """Dense stereo matching: cost volumes, winner-takes-all and sub-pixel disparity, left–right
-check.
+check, speckle filter.
 
 One cost-volume layout everywhere (see docs/ARCHITECTURE.md): (D, H, W) float32 in [0, 1],
 0 = perfect match, entry [d, y, x] = cost of left (y, x) with right (y, x − d), 1.0 where
@@ -27,6 +27,7 @@ from cva_confidence_ros.matching.census_bm import CensusBlockMatcher, CensusBMCo
 from cva_confidence_ros.matching.census_sgm import CensusSGMConfig, CensusSGMMatcher
 from cva_confidence_ros.matching.disparity import left_right_check, wta_disparity
 from cva_confidence_ros.matching.mccnn_fast import MCCNNFastConfig, MCCNNFastMatcher
+from cva_confidence_ros.matching.speckle import remove_speckles
 from cva_confidence_ros.matching.subpixel import SUBPIXEL_METHODS, refine_subpixel
 from cva_confidence_ros.registry import Registry
 
@@ -44,6 +45,7 @@ __all__ = [
     'compute_cost_volume',
     'left_right_check',
     'refine_subpixel',
+    'remove_speckles',
     'wta_disparity',
 ]
 

@@ -141,8 +141,9 @@ class _Stats:
     window_pairs: int = 0
     window_processed: int = 0
     window_invalid: int = 0
-    # share of the pixels kept (finite disparity, confidence ≥ threshold): the last frame's
-    # and the sum over the window's processed frames; the last frame's mean confidence
+    # share of the pixels kept (finite disparity, confidence ≥ threshold, no speckle): the
+    # last frame's and the sum over the window's processed frames; the last frame's mean
+    # confidence
     last_kept_fraction: float | None = None
     window_kept_sum: float = 0.0
     last_mean_confidence: float | None = None

@@ -66,8 +66,8 @@ class NodeConfig:
         queue_size: Messages held per topic while waiting for their partners (≥ 1).
         diagnostics_period_seconds: Period of ``/diagnostics`` messages and of the status log.
         min_kept_fraction: ``/diagnostics`` warns when the share of the pixels kept (finite
-            disparity, confidence ≥ threshold), averaged over a diagnostics period, is below
-            it; 0 = never.
+            disparity, confidence ≥ threshold, not in a speckle), averaged over a diagnostics
+            period, is below it; 0 = never.
         max_expected_kept_error: ``/diagnostics`` warns when the error rate the confidence
             predicts for the kept pixels (``expected_kept_error``: mean of 1 − confidence over
             them, averaged over a diagnostics period; only for the networks, whose confidence
@@ -252,6 +252,21 @@ PIPELINE_PARAMETERS: tuple[ParamSpec, ...] = (
         constraints='one of equiangular, parabola, none',
     ),
     _pipeline(
+        'speckle_size',
+        'Speckle filter: kept pixels in a connected region of at most this many pixels '
+        '(4-neighbours whose disparities differ by at most speckle_range) are dropped from '
+        'points2, depth and disparity_filtered too; 0 = off.',
+        low=0,
+        high=1000000,
+    ),
+    _pipeline(
+        'speckle_range',
+        'Largest disparity step between neighbouring pixels of one speckle-filter region, in '
+        'pixels at the processed resolution.',
+        low=0.0,
+        high=1024.0,
+    ),
+    _pipeline(
         'tile_budget_mb',
         'Memory budget of one network tile at inference, MB.',
         low=1.0,
@@ -299,13 +314,15 @@ NODE_PARAMETERS: tuple[ParamSpec, ...] = (
     _node(
         'points_confidence',
         'points2 holds every point that can be triangulated with a float32 confidence field, '
-        'for consumers that filter with their own threshold (cloud_filter); false = only the '
-        'points with confidence >= confidence_threshold, x y z rgb as stereo_image_proc.',
+        'for consumers that filter with their own threshold (cloud_filter; no speckle filter '
+        'then); false = only the kept points (confidence >= confidence_threshold, not in a '
+        'speckle), x y z rgb as stereo_image_proc.',
     ),
     _node(
         'publish_depth',
-        'Publish depth: the depth of the pixels with confidence >= confidence_threshold in the '
-        'left camera frame (REP 118), for depth-image consumers; pair it with camera_info.',
+        'Publish depth: the depth of the kept pixels (confidence >= confidence_threshold, not '
+        'in a speckle) in the left camera frame (REP 118), for depth-image consumers; pair it '
+        'with camera_info.',
     ),
     _node(
         'depth_encoding',
@@ -356,8 +373,9 @@ NODE_PARAMETERS: tuple[ParamSpec, ...] = (
     _node(
         'min_kept_fraction',
         '/diagnostics warns when the share of pixels kept (valid disparity, confidence >= '
-        'confidence_threshold), averaged over a diagnostics period, falls below it: a blinded '
-        'or covered camera, a texture-less view, a broken calibration; 0 = never.',
+        'confidence_threshold, not in a speckle), averaged over a diagnostics period, falls '
+        'below it: a blinded or covered camera, a texture-less view, a broken calibration; '
+        '0 = never.',
         low=0.0,
         high=1.0,
     ),

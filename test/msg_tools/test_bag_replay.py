@@ -67,7 +67,10 @@ def test_round_trip(tmp_path: Path, storage: str, capsys: pytest.CaptureFixture[
     with (tmp_path / 'run' / 'report.csv').open() as stream:
         rows = list(csv.DictReader(stream))
     assert [float(r['auc']) for r in rows] == [f['auc'] for f in frames]
-    assert '| frames | scored |' in (tmp_path / 'run' / 'summary.md').read_text()
+    summary_md = (tmp_path / 'run' / 'summary.md').read_text()
+    assert '| frames | scored |' in summary_md
+    assert '- speckle_size: 100' in summary_md and '- subpixel: equiangular' in summary_md
+    assert report['config']['speckle_range'] == 1.0
     for png in ('auc_over_time.png', 'confidence_00000.png', 'roc_00001.png'):
         assert (tmp_path / 'run' / png).read_bytes()[:4] == b'\x89PNG'
 
@@ -87,6 +90,7 @@ def test_round_trip(tmp_path: Path, storage: str, capsys: pytest.CaptureFixture[
         kept = np.isfinite(disparity_from_message(outputs['/disparity_filtered'][index][1]))
         assert confidence.min() >= 0.0 and confidence.max() <= 1.0
         assert kept.mean() == pytest.approx(frames[index]['kept_density'])
+        assert not np.any(kept & (confidence < 0.5))  # the speckle filter only drops more
         assert outputs['/points2'][index][1].width == width  # organised cloud
         # depth: Z = f·T / value of the filtered DisparityImage (its values are d + Δ), on
         # exactly its kept pixels; camera_info: the left camera at the output size.
@@ -131,7 +135,9 @@ def test_points_confidence_writes_every_point_with_its_confidence(tmp_path: Path
     from cva_confidence_ros.pointcloud import CLOUD_CONFIDENCE_DTYPE, filter_cloud
 
     bag = dataset_bag(tmp_path, 'mcap', 1)
-    code, _ = _replay(bag, tmp_path, '--points-confidence')
+    # The confidence field is all a consumer has to cut by: the speckle filter (on by
+    # default) is a decision of the node's own kept pixels, so it is off here for the check.
+    code, _ = _replay(bag, tmp_path, '--points-confidence', '--speckle-size', '0')
     assert code == 0
     outputs = read_bag(tmp_path / 'run_bag')
     msg = outputs['/points2'][0][1]

@@ -30,7 +30,9 @@ from rclpy.qos import QoSProfile
 from sensor_msgs.msg import CameraInfo, Image
 import torch
 
+from cva_confidence_ros.matching import remove_speckles
 from cva_confidence_ros.node import ConfidenceNode
+from cva_confidence_ros.pipeline import PipelineConfig
 from cva_confidence_ros.ros.convert import (
     cloud_to_array,
     depth_image_to_array,
@@ -49,6 +51,14 @@ OVERRIDES = [
     Parameter('confidence_method', value='mlm'),
     Parameter('confidence_threshold', value=THRESHOLD),
 ]
+
+
+def _kept(disparity: np.ndarray, confidence: np.ndarray) -> np.ndarray:
+    """The pixels the node keeps: finite disparity, confidence ≥ threshold, and not in a
+    speckle of those (the default speckle_size and speckle_range)."""
+    defaults = PipelineConfig()
+    keep = np.isfinite(disparity) & (confidence >= THRESHOLD)
+    return remove_speckles(disparity, keep, defaults.speckle_size, defaults.speckle_range)
 
 
 class _Running:
@@ -141,9 +151,12 @@ def test_outputs_for_a_known_disparity(running: _Running) -> None:
     assert confidence.shape == (64, 96)
     assert np.all((confidence >= 0) & (confidence <= 1))
 
-    # The filtered disparity keeps exactly the confident pixels.
-    keep = np.isfinite(disparity) & (confidence >= THRESHOLD)
-    assert 0 < keep.sum() < keep.size
+    # The filtered disparity keeps exactly the confident pixels outside speckles; the
+    # speckle filter drops some of the confident ones (the unmatched left border, where the
+    # disparities are noise).
+    confident = np.isfinite(disparity) & (confidence >= THRESHOLD)
+    keep = _kept(disparity, confidence)
+    assert 0 < keep.sum() < confident.sum()
     filtered = disparity_from_message(filtered_msg)
     np.testing.assert_array_equal(np.isfinite(filtered), keep)
     np.testing.assert_array_equal(filtered[keep], disparity[keep])
@@ -236,7 +249,7 @@ def test_diagnostics_give_the_confident_share_and_warn_below_a_floor(running: _R
     out = client.send_until_output(left, right, running.next_stamp(), topics=topics)
     disparity = disparity_from_message(out['disparity'])
     confidence = float_image_to_array(out['confidence'])
-    share = float(np.mean(np.isfinite(disparity) & (confidence >= THRESHOLD)))
+    share = float(np.mean(_kept(disparity, confidence)))
     assert 0.0 < share < 1.0
 
     def status(predicate):
@@ -300,7 +313,7 @@ def test_diagnostics_give_the_error_a_network_predicts_for_the_kept_pixels(
         out = client.send_until_output(left, right, running.next_stamp(), topics=topics)
         disparity = disparity_from_message(out['disparity'])
         confidence = float_image_to_array(out['confidence']).astype(np.float64)
-        kept = np.isfinite(disparity) & (confidence >= THRESHOLD)
+        kept = _kept(disparity, confidence.astype(np.float32))
         assert kept.any()
         expected = 1.0 - confidence[kept].mean()
 
@@ -431,7 +444,7 @@ def test_depth_of_the_confident_pixels_in_both_encodings(running: _Running) -> N
     assert (depth_msg.encoding, depth_msg.height, depth_msg.width) == ('32FC1', 64, 96)
     disparity = disparity_from_message(out['disparity'])
     confidence = float_image_to_array(out['confidence'])
-    keep = np.isfinite(disparity) & (confidence >= THRESHOLD) & (disparity > 0)
+    keep = _kept(disparity, confidence) & (disparity > 0)
     depth = depth_image_to_array(depth_msg)
     np.testing.assert_array_equal(np.isfinite(depth), keep)
     np.testing.assert_allclose(depth[keep], FX * BASELINE / disparity[keep], rtol=1e-5)
@@ -477,6 +490,39 @@ def test_subpixel_changes_at_run_time(running: _Running) -> None:
         assert running.set(subpixel='equiangular').successful
 
 
+def test_speckle_filter_changes_at_run_time(running: _Running) -> None:
+    # speckle_size: 0 keeps every confident pixel; a larger region size drops more of them.
+    left, right = textured_pair(seed=9)
+    topics = ('disparity', 'confidence', 'disparity_filtered')
+
+    def kept_pixels() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        out = running.client.send_until_output(left, right, running.next_stamp(), topics=topics)
+        disparity = disparity_from_message(out['disparity'])
+        confidence = float_image_to_array(out['confidence'])
+        return disparity, confidence, np.isfinite(disparity_from_message(
+            out['disparity_filtered']))
+
+    disparity, confidence, default = kept_pixels()
+    np.testing.assert_array_equal(default, _kept(disparity, confidence))
+    assert running.set(speckle_size=0).successful
+    try:
+        disparity, confidence, off = kept_pixels()
+        np.testing.assert_array_equal(off, np.isfinite(disparity) & (confidence >= THRESHOLD))
+        assert running.set(speckle_size=400, speckle_range=0.25).successful
+        disparity, confidence, strict = kept_pixels()
+        keep = np.isfinite(disparity) & (confidence >= THRESHOLD)
+        np.testing.assert_array_equal(strict, remove_speckles(disparity, keep, 400, 0.25))
+        assert strict.sum() < default.sum() < off.sum()
+        for bad in ({'speckle_size': -1}, {'speckle_range': -1.0}):
+            refused = running.set(**bad)
+            assert not refused.successful
+    finally:
+        defaults = PipelineConfig()
+        assert running.set(
+            speckle_size=defaults.speckle_size, speckle_range=defaults.speckle_range
+        ).successful
+
+
 def test_dense_cloud(running: _Running) -> None:
     result = running.set(points_organized=False)
     assert result.successful
@@ -489,7 +535,7 @@ def test_dense_cloud(running: _Running) -> None:
         assert np.isfinite(cloud['z']).all()
         confidence = float_image_to_array(out['confidence'])
         disparity = disparity_from_message(out['disparity'])
-        keep = np.isfinite(disparity) & (confidence >= THRESHOLD) & (disparity > 0)
+        keep = _kept(disparity, confidence) & (disparity > 0)
         assert cloud.shape[0] == keep.sum()
         np.testing.assert_allclose(cloud['z'], FX * BASELINE / disparity[keep], rtol=1e-5)
     finally:
