@@ -12,10 +12,11 @@ filtered one is invalid wherever confidence < ``confidence_threshold`` or the pi
 speckle, ``speckle_size``), ``confidence`` (``sensor_msgs/Image`` 32FC1 in [0, 1]), ``points2``
 (``sensor_msgs/PointCloud2`` x, y, z, rgb of those kept pixels), ``depth``
 (``sensor_msgs/Image``, REP 118: the depth of those pixels, 32FC1 metres with NaN or 16UC1
-millimetres with 0 where there is none),
-``camera_info`` (the left camera info at the output resolution, for consumers of ``confidence``
-and ``depth``) and ``/diagnostics``. Everything is stamped with the
-left image's header and published at the processed resolution (1/``downsample``).
+millimetres with 0 where there is none), ``confidence_overlay`` (``sensor_msgs/Image`` rgb8,
+for a person to look at: the kept pixels tinted red → yellow → green by confidence over the
+dimmed scene), ``camera_info`` (the left camera info at the output resolution, for consumers of
+``confidence`` and ``depth``) and ``/diagnostics``. Everything is stamped with the left image's
+header and published at the processed resolution (1/``downsample``).
 
 Threads: subscription callbacks only synchronise and drop the newest complete set into a
 one-slot mailbox; a worker thread processes whatever is in the slot. When frames come faster
@@ -64,10 +65,13 @@ _TOPICS = (
     ('in', 'left/camera_info', 'sensor_msgs/CameraInfo', ''),
     ('in', 'right/camera_info', 'sensor_msgs/CameraInfo', ''),
     ('out', 'disparity', 'stereo_msgs/DisparityImage', ''),
-    ('out', 'disparity_filtered', 'stereo_msgs/DisparityImage', 'invalid below the threshold'),
+    ('out', 'disparity_filtered', 'stereo_msgs/DisparityImage',
+     'invalid below the threshold and in speckles'),
     ('out', 'confidence', 'sensor_msgs/Image', '32FC1 in [0, 1]'),
     ('out', 'points2', 'sensor_msgs/PointCloud2', 'x y z rgb of the confident pixels'),
     ('out', 'depth', 'sensor_msgs/Image', 'depth of the confident pixels (REP 118)'),
+    ('out', 'confidence_overlay', 'sensor_msgs/Image',
+     'rgb8 for a person: the kept pixels red to green by confidence over the scene'),
     ('out', 'camera_info', 'sensor_msgs/CameraInfo', 'left, at the output resolution'),
     ('out', '/diagnostics', 'diagnostic_msgs/DiagnosticArray', ''),
 )

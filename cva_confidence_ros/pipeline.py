@@ -177,6 +177,8 @@ class PipelineResult:
             ``subpixel`` when refined, ``speckle`` when filtered, ``total``).
         probabilistic: Whether ``confidence`` is meant as the probability that the disparity
             is correct (the networks; ``ConfidenceMethod.probabilistic``).
+        speckle_fraction: Share of all pixels that pass the threshold but lie in a speckle
+            (dropped from :attr:`valid` by ``speckle_size``); 0 with the filter off.
     """
 
     disparity: np.ndarray
@@ -187,6 +189,7 @@ class PipelineResult:
     scale: float
     timings_ms: dict[str, float] = field(default_factory=dict)
     probabilistic: bool = False
+    speckle_fraction: float = 0.0
 
     @property
     def filtered_disparity(self) -> np.ndarray:
@@ -368,9 +371,12 @@ class StereoPipeline:
             disparity = refine_subpixel(volume, disparity, cfg.subpixel)
             timings['subpixel'] = (time.perf_counter() - tic) * 1e3
         valid = np.isfinite(disparity) & (confidence >= cfg.confidence_threshold)
+        speckle_fraction = 0.0
         if cfg.speckle_size > 0:
             tic = time.perf_counter()
+            confident = int(np.count_nonzero(valid))
             valid = remove_speckles(disparity, valid, cfg.speckle_size, cfg.speckle_range)
+            speckle_fraction = (confident - int(np.count_nonzero(valid))) / valid.size
             timings['speckle'] = (time.perf_counter() - tic) * 1e3
         timings['total'] = (time.perf_counter() - start) * 1e3
         return PipelineResult(
@@ -382,4 +388,5 @@ class StereoPipeline:
             scale=1.0 / cfg.downsample,
             timings_ms=timings,
             probabilistic=self.probabilistic,
+            speckle_fraction=speckle_fraction,
         )

@@ -79,6 +79,8 @@ def test_speckle_filter_drops_small_regions_of_the_kept_pixels():
         expected |= (labels > 0) & (sizes[labels] > 12)
     np.testing.assert_array_equal(filtered.valid, expected)
     assert 0 < filtered.valid.sum() < plain.valid.sum()
+    assert filtered.speckle_fraction == (plain.valid.sum() - filtered.valid.sum()) / 32 / 64
+    assert plain.speckle_fraction == 0.0
     assert PipelineConfig().speckle_size == 100 and PipelineConfig().speckle_range == 1.0
 
 

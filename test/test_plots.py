@@ -12,6 +12,7 @@ from cva_confidence_ros.plots import (
     CORRECT_RGB,
     UNKNOWN_RGB,
     WRONG_RGB,
+    confidence_overlay,
     correctness_classes,
     optimal_roc_curve,
     save_confidence_map,
@@ -93,6 +94,43 @@ def test_overlay_rejects_mismatched_image(tmp_path) -> None:
             np.zeros((2, 2)), np.zeros((2, 2), bool), tmp_path / 'o.png',
             image=np.zeros((3, 2), np.uint8),
         )
+
+
+def test_confidence_overlay_tints_the_kept_pixels_red_to_green() -> None:
+    image = np.full((2, 4), 100, np.uint8)
+    confidence = np.array([[0.0, 0.5, 1.0, np.nan], [0.9, 0.9, 2.0, -1.0]], np.float32)
+    kept = np.array([[True, True, True, True], [False, False, True, True]])
+    out = confidence_overlay(image, confidence, kept).astype(np.int64)
+    assert out.shape == (2, 4, 3) and out.dtype == np.int64
+    # 40 % of the grey 100 plus 60 % of the ramp: red at 0, yellow at 0.5, green at 1.
+    np.testing.assert_array_equal(out[0, 0], [40 + 138, 40, 40])
+    np.testing.assert_allclose(out[0, 1], [40 + 138, 40 + 120, 40], atol=1)  # 256-entry ramp
+    np.testing.assert_array_equal(out[0, 2], [40, 40 + 120, 40])
+    np.testing.assert_array_equal(out[0, 3], out[0, 0])  # NaN counts as 0
+    np.testing.assert_array_equal(out[1, 2], out[0, 2])  # clipped to [0, 1]
+    np.testing.assert_array_equal(out[1, 3], out[0, 0])
+    # Not kept: the dimmed grey scene, whatever the confidence.
+    np.testing.assert_array_equal(out[1, 0], [45, 45, 45])
+    np.testing.assert_array_equal(out[1, 1], [45, 45, 45])
+    # A colour image is shown in grey (the mean of its channels).
+    colour = np.zeros((2, 4, 3), np.uint8)
+    colour[..., 0] = 255
+    grey = confidence_overlay(colour, confidence, kept)
+    np.testing.assert_array_equal(grey[1, 0], [38, 38, 38])
+
+
+@pytest.mark.parametrize(
+    ('image', 'kept', 'message'),
+    [
+        (np.zeros((2, 3), np.uint8), np.ones((2, 4), bool), 'image must be uint8'),
+        (np.zeros((2, 4), np.float32), np.ones((2, 4), bool), 'image must be uint8'),
+        (np.zeros((2, 4), np.uint8), np.ones((2, 4), np.uint8), 'kept must be a bool array'),
+        (np.zeros((2, 4), np.uint8), np.ones((4, 2), bool), 'kept must be a bool array'),
+    ],
+)
+def test_confidence_overlay_names_what_does_not_fit(image, kept, message) -> None:
+    with pytest.raises(InputError, match=message):
+        confidence_overlay(image, np.zeros((2, 4), np.float32), kept)
 
 
 @pytest.mark.parametrize('eps', [0.0, 0.1, 0.5, 0.9])

@@ -31,11 +31,10 @@ __all__ = ['remove_speckles']
 @njit(cache=True)
 def _remove_speckles(
     disparity: np.ndarray, keep: np.ndarray, max_size: int, max_range: float, out: np.ndarray
-) -> int:
+) -> None:
     height, width = disparity.shape
     seen = np.zeros((height, width), np.bool_)
     region = np.empty(height * width, np.int64)
-    removed = 0
     for y0 in range(height):
         for x0 in range(width):
             if not keep[y0, x0] or seen[y0, x0]:
@@ -74,8 +73,6 @@ def _remove_speckles(
                     index = region[i]
                     y = index // width
                     out[y, index - y * width] = False
-                removed += size
-    return removed
 
 
 def remove_speckles(

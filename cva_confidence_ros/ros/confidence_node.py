@@ -28,6 +28,7 @@ from stereo_msgs.msg import DisparityImage
 
 from cva_confidence_ros.errors import CVAError
 from cva_confidence_ros.pipeline import PipelineConfig, PipelineResult, StereoPipeline
+from cva_confidence_ros.plots import confidence_overlay
 from cva_confidence_ros.pointcloud import StereoGeometry, disparity_to_depth, stereo_cloud
 from cva_confidence_ros.ros.common import (
     LOG_THROTTLE_S,
@@ -42,6 +43,7 @@ from cva_confidence_ros.ros.convert import (
     cloud_to_message,
     depth_to_image,
     disparity_to_message,
+    rgb_to_image,
     scale_camera_info,
     stamp_to_ns,
     stereo_pair_from_messages,
@@ -147,6 +149,8 @@ class _Stats:
     last_kept_fraction: float | None = None
     window_kept_sum: float = 0.0
     last_mean_confidence: float | None = None
+    # the share of the last frame's pixels that passed the threshold but were speckles
+    last_speckle_fraction: float | None = None
     # the error rate a probabilistic confidence predicts for the kept pixels (mean of
     # 1 − confidence there): the last frame's; over the window's frames that have one, the
     # sums of it × kept share and of the kept share
@@ -237,6 +241,7 @@ class ConfidenceCore(Node):
         self._pub_confidence = publish(Image, 'confidence', out_qos)
         self._pub_points = publish(PointCloud2, 'points2', out_qos)
         self._pub_depth = publish(Image, 'depth', out_qos)
+        self._pub_overlay = publish(Image, 'confidence_overlay', out_qos)
         self._pub_info = publish(CameraInfo, 'camera_info', out_qos)
         self._pub_diagnostics = self.create_publisher(
             DiagnosticArray, '/diagnostics', QoSProfile(depth=10)
@@ -246,7 +251,8 @@ class ConfidenceCore(Node):
         )
         self._owned = [
             self._pub_disparity, self._pub_filtered, self._pub_confidence, self._pub_points,
-            self._pub_depth, self._pub_info, self._pub_diagnostics, self._diag_timer,
+            self._pub_depth, self._pub_overlay, self._pub_info, self._pub_diagnostics,
+            self._diag_timer,
         ]
         self._worker = threading.Thread(
             target=self._work, args=(self._mailbox,), name='cva_confidence_worker'
@@ -575,6 +581,7 @@ class ConfidenceCore(Node):
             self._stats.last_kept_fraction = kept_fraction
             self._stats.window_kept_sum += kept_fraction
             self._stats.last_mean_confidence = mean_confidence
+            self._stats.last_speckle_fraction = result.speckle_fraction
             self._stats.last_expected_kept_error = expected_error
             if expected_error is not None:
                 # Weighted by the kept pixels: the predicted share of wrong ones among all kept.
@@ -625,6 +632,9 @@ class ConfidenceCore(Node):
         if node_config.publish_depth and self._pub_depth.get_subscription_count():
             depth = disparity_to_depth(disparity, geometry, keep)
             self._pub_depth.publish(depth_to_image(depth, header, node_config.depth_encoding))
+        if self._pub_overlay.get_subscription_count():
+            overlay = confidence_overlay(result.left, confidence, keep)
+            self._pub_overlay.publish(rgb_to_image(overlay, header))
 
     # Diagnostics --------------------------------------------------------------------------
 
@@ -685,6 +695,7 @@ class ConfidenceCore(Node):
                 'kept_fraction': _fraction(kept),
                 'last_kept_fraction': _fraction(stats.last_kept_fraction),
                 'last_mean_confidence': _fraction(stats.last_mean_confidence),
+                'last_speckle_fraction': _fraction(stats.last_speckle_fraction),
                 'expected_kept_error': _fraction(expected),
                 'last_expected_kept_error': _fraction(stats.last_expected_kept_error),
             }

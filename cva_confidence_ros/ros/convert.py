@@ -45,6 +45,7 @@ __all__ = [
     'pair_to_uint8',
     'point_cloud_to_records',
     'records_to_point_cloud',
+    'rgb_to_image',
     'scale_camera_info',
     'stamp_to_ns',
     'stereo_pair_from_messages',
@@ -223,6 +224,28 @@ def array_to_image(array: np.ndarray, header: Header) -> Image:
         is_bigendian=0,
         step=width * 4,
         data=data.tobytes(),
+    )
+
+
+def rgb_to_image(rgb: np.ndarray, header: Header) -> Image:
+    """Encode an (H, W, 3) uint8 RGB array as an ``rgb8`` ``sensor_msgs/Image``.
+
+    Raises:
+        InputError: Not an (H, W, 3) uint8 array.
+    """
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        raise InputError(
+            f'an rgb8 image must be (H, W, 3) uint8; got {rgb.dtype} {rgb.shape}'
+        )
+    height, width = rgb.shape[:2]
+    return Image(
+        header=header,
+        height=height,
+        width=width,
+        encoding='rgb8',
+        is_bigendian=0,
+        step=width * 3,
+        data=np.ascontiguousarray(rgb).tobytes(),
     )
 
 

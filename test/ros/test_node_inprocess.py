@@ -266,6 +266,10 @@ def test_diagnostics_give_the_confident_share_and_warn_below_a_floor(running: _R
     assert client.wait_for(lambda: status(reports_share) is not None, timeout=10.0)
     _, values = status(reports_share)
     assert 0.0 <= float(values['last_mean_confidence']) <= 1.0
+    # The pixels that passed the threshold but were dropped as speckles.
+    confident = np.isfinite(disparity) & (confidence >= THRESHOLD)
+    speckles = float(np.mean(confident)) - share
+    assert float(values['last_speckle_fraction']) == pytest.approx(speckles, abs=1e-4)
 
     # A floor above the share: the period's status is a warning that says so.
     assert running.set(min_kept_fraction=min(1.0, share + 0.2)).successful
@@ -521,6 +525,30 @@ def test_speckle_filter_changes_at_run_time(running: _Running) -> None:
         assert running.set(
             speckle_size=defaults.speckle_size, speckle_range=defaults.speckle_range
         ).successful
+
+
+def test_confidence_overlay_for_a_person_to_look_at(running: _Running) -> None:
+    # rgb8 at the output size with the left image's header: the kept pixels tinted (green above
+    # red where the confidence is high), the others a dimmed grey (r = g = b).
+    from cva_confidence_ros.plots import confidence_overlay
+    from cva_confidence_ros.ros.convert import image_to_array
+
+    running.client.subscribe('confidence_overlay', Image)
+    left, right = textured_pair(seed=10)
+    topics = ('disparity', 'confidence', 'disparity_filtered', 'confidence_overlay')
+    out = running.client.send_until_output(left, right, running.next_stamp(), topics=topics)
+    msg = out['confidence_overlay']
+    assert (msg.encoding, msg.height, msg.width) == ('rgb8', 64, 96)
+    assert msg.header == out['disparity'].header
+    overlay = image_to_array(msg)
+    confidence = float_image_to_array(out['confidence'])
+    kept = np.isfinite(disparity_from_message(out['disparity_filtered']))
+    assert 0 < kept.sum() < kept.size
+    np.testing.assert_array_equal(overlay, confidence_overlay(left, confidence, kept))
+    grey = (overlay[..., 0] == overlay[..., 1]) & (overlay[..., 1] == overlay[..., 2])
+    assert grey[~kept].all() and not grey[kept].any()
+    sure = kept & (confidence > 0.9)
+    assert sure.any() and np.all(overlay[sure, 1] > overlay[sure, 0])
 
 
 def test_dense_cloud(running: _Running) -> None:

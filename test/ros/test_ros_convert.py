@@ -32,6 +32,7 @@ from cva_confidence_ros.ros.convert import (
     pair_to_uint8,
     point_cloud_to_records,
     records_to_point_cloud,
+    rgb_to_image,
     scale_camera_info,
     stamp_to_ns,
     stereo_pair_from_messages,
@@ -126,6 +127,17 @@ def test_float_image_round_trip() -> None:
     np.testing.assert_array_equal(float_image_to_array(msg), array)
     with pytest.raises(InputError, match='32FC1'):
         float_image_to_array(image_msg(np.zeros((2, 2), np.uint8), 0))
+
+
+def test_rgb_image_round_trip() -> None:
+    rgb = np.arange(2 * 3 * 3, dtype=np.uint8).reshape(2, 3, 3)
+    msg = rgb_to_image(rgb, Header(frame_id='f', stamp=ns_to_stamp(5)))
+    assert (msg.encoding, msg.height, msg.width, msg.step) == ('rgb8', 2, 3, 9)
+    np.testing.assert_array_equal(image_to_array(msg), rgb)
+    with pytest.raises(InputError, match='rgb8 image must be \\(H, W, 3\\) uint8'):
+        rgb_to_image(rgb.astype(np.float32), Header())
+    with pytest.raises(InputError, match='rgb8'):
+        rgb_to_image(rgb[..., 0], Header())
 
 
 def test_depth_image_32fc1_metres_with_nan() -> None:
