@@ -106,6 +106,9 @@ def build_parser() -> argparse.ArgumentParser:
                       help='points2 holds every triangulated point with a float32 confidence '
                            'field (the node parameter points_confidence), for filtering later')
     node.add_argument('--no-depth', action='store_true', help='do not write depth')
+    node.add_argument('--overlay', action='store_true',
+                      help='also write confidence_overlay (rgb8: the kept pixels tinted red to '
+                           'green by confidence over the scene), to look at in Foxglove or rviz')
     node.add_argument('--depth-encoding', choices=('32FC1', '16UC1'), default='32FC1',
                       help='depth as float metres (NaN = none) or uint16 millimetres (0 = none)')
 
@@ -193,6 +196,7 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
         points_confidence=args.points_confidence,
         publish_depth=not args.no_depth,
         depth_encoding=args.depth_encoding,
+        publish_overlay=args.overlay,
         overwrite=args.overwrite,
         rate_scale=args.rate_scale,
         start_node=not args.no_start_node,

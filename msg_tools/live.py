@@ -62,6 +62,7 @@ _NODE_OUTPUTS = {
     'disparity_filtered': 'disparity_filtered',
     'points': 'points2',
     'depth': 'depth',
+    'overlay': 'confidence_overlay',
     'camera_info': 'camera_info',
 }
 _OUTPUT_TYPES = {
@@ -70,11 +71,13 @@ _OUTPUT_TYPES = {
     'disparity_filtered': 'stereo_msgs/msg/DisparityImage',
     'points': 'sensor_msgs/msg/PointCloud2',
     'depth': 'sensor_msgs/msg/Image',
+    'overlay': 'sensor_msgs/msg/Image',
     'camera_info': 'sensor_msgs/msg/CameraInfo',
 }
 # Outputs that an option turns off.
-_OPTIONAL = {'points': 'publish_points', 'depth': 'publish_depth'}
-# What a frame needs before it can be scored; points2, depth and camera_info are only recorded.
+_OPTIONAL = {'points': 'publish_points', 'depth': 'publish_depth', 'overlay': 'publish_overlay'}
+# What a frame needs before it can be scored; points2, depth, the overlay and camera_info are
+# only recorded.
 _SCORED = ('disparity', 'confidence', 'disparity_filtered')
 
 
@@ -553,7 +556,7 @@ class _Recorder:
             except queue.Empty:
                 continue
             self._handle(*item, progress=progress)
-        # Late points2, depth or camera_info of the last frame may still be in the queue:
+        # Late points2, depth, overlay or camera_info of the last frame may still be in the queue:
         # record them too.
         while True:
             try:

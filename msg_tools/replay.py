@@ -132,6 +132,7 @@ class TopicNames:
     points: str = 'points2'
     disparity_filtered: str = 'disparity_filtered'
     depth: str = 'depth'
+    overlay: str = 'confidence_overlay'
     camera_info: str = 'camera_info'
 
     def __post_init__(self) -> None:
@@ -160,7 +161,8 @@ class TopicNames:
     def outputs(self) -> dict[str, str]:
         """Output name → absolute topic, for what the node publishes."""
         names = (
-            'disparity', 'confidence', 'points', 'disparity_filtered', 'depth', 'camera_info'
+            'disparity', 'confidence', 'points', 'disparity_filtered', 'depth', 'overlay',
+            'camera_info',
         )
         return {name: self.resolve(name) for name in names}
 
@@ -191,6 +193,8 @@ class ReplayOptions:
             (the node's ``points_confidence``) instead of the kept ones only.
         publish_depth: Write ``depth`` (the depth of the kept pixels, REP 118).
         depth_encoding: ``32FC1`` (metres) or ``16UC1`` (millimetres), the node's parameter.
+        publish_overlay: Write ``confidence_overlay`` (rgb8, the kept pixels tinted by
+            confidence over the scene; the node computes it only for a subscriber).
         overwrite: Replace an existing output bag (it is replaced only once the new one holds
             a frame) and the files of an earlier report in the report folder.
         rate_scale: Live mode: play at this multiple of the recorded speed.
@@ -219,6 +223,7 @@ class ReplayOptions:
     points_confidence: bool = False
     publish_depth: bool = True
     depth_encoding: str = '32FC1'
+    publish_overlay: bool = False
     overwrite: bool = False
     rate_scale: float = 1.0
     start_node: bool = True
@@ -438,8 +443,8 @@ class NodeOutputs:
 
     Attributes:
         messages: ``(output name, message type, CDR bytes)`` for ``disparity``,
-            ``confidence``, ``disparity_filtered`` and (optionally) ``points``, ``depth`` and
-            ``camera_info``.
+            ``confidence``, ``disparity_filtered`` and (optionally) ``points``, ``depth``,
+            ``overlay`` and ``camera_info``.
         confidence: (h, w) float32 published confidence in [0, 1].
         kept: (h, w) bool, pixels kept by the threshold and the speckle filter (finite in
             ``disparity_filtered``).
@@ -464,6 +469,7 @@ def node_outputs(
     points_confidence: bool = False,
     publish_depth: bool = True,
     depth_encoding: str = '32FC1',
+    publish_overlay: bool = False,
     left_info: Any = None,
 ) -> NodeOutputs:
     """The messages the node publishes for one processed pair, built by the node's own code.
@@ -485,6 +491,7 @@ def node_outputs(
             only the kept ones.
         publish_depth: Include ``depth``, the depth of the kept pixels.
         depth_encoding: Its encoding, ``32FC1`` or ``16UC1``.
+        publish_overlay: Include ``confidence_overlay`` (``plots.confidence_overlay``, rgb8).
         left_info: The left camera info of the input (``rosbags`` or rclpy); given, include
             ``camera_info`` scaled to the output resolution, as the node publishes it.
 
@@ -495,12 +502,14 @@ def node_outputs(
     from rclpy.serialization import serialize_message
     from std_msgs.msg import Header
 
+    from cva_confidence_ros.plots import confidence_overlay
     from cva_confidence_ros.pointcloud import disparity_to_depth, stereo_cloud
     from cva_confidence_ros.ros.convert import (
         array_to_image,
         cloud_to_message,
         depth_to_image,
         disparity_to_message,
+        rgb_to_image,
         scale_camera_info,
     )
 
@@ -540,6 +549,9 @@ def node_outputs(
     if publish_depth:
         depth = disparity_to_depth(disparity, geometry, kept)
         messages.append(('depth', IMAGE, depth_to_image(depth, ros_header, depth_encoding)))
+    if publish_overlay:
+        overlay = confidence_overlay(result.left, confidence, kept)
+        messages.append(('overlay', IMAGE, rgb_to_image(overlay, ros_header)))
     if left_info is not None:
         messages.append(
             ('camera_info', CAMERA_INFO,
@@ -1099,7 +1111,8 @@ def _process_pair(session: ReplaySession, pipeline: Any, matched: Any, frame: in
         result, geometry, left.shape[:2], items['left'].header, options.pipeline,
         publish_points=options.publish_points, points_organized=options.points_organized,
         points_confidence=options.points_confidence, publish_depth=options.publish_depth,
-        depth_encoding=options.depth_encoding, left_info=items['left_info'],
+        depth_encoding=options.depth_encoding, publish_overlay=options.publish_overlay,
+        left_info=items['left_info'],
     )
     topics = options.topics.outputs()
     # The frame's messages and its line in the report go together, whenever the signal comes.

@@ -159,6 +159,30 @@ def test_points_confidence_writes_every_point_with_its_confidence(tmp_path: Path
     )
 
 
+def test_overlay_is_the_kept_pixels_coloured_over_the_scene(tmp_path: Path) -> None:
+    # --overlay: confidence_overlay (rgb8) of the processed left image, the published confidence
+    # and disparity_filtered's kept pixels; not written without the flag (test_round_trip).
+    from cva_confidence_ros.datasets.resize import resize_image
+    from cva_confidence_ros.plots import confidence_overlay
+    from cva_confidence_ros.ros.convert import image_to_array
+
+    bag = dataset_bag(tmp_path, 'mcap', 2)
+    code, report = _replay(bag, tmp_path, '--overlay', '--downsample', '2')
+    assert code == 0
+    assert report['config']['topics']['overlay'] == '/confidence_overlay'
+    inputs, outputs = read_bag(bag), read_bag(tmp_path / 'run_bag')
+    assert set(outputs) == OUTPUTS | {'/confidence_overlay'}
+    for index, (_, msg) in enumerate(outputs['/confidence_overlay']):
+        assert msg.encoding == 'rgb8'
+        assert msg.header.stamp == outputs['/confidence'][index][1].header.stamp
+        left = resize_image(image_to_array(inputs['/left/image_rect'][index][1]), 2)
+        confidence = float_image_to_array(outputs['/confidence'][index][1])
+        kept = np.isfinite(disparity_from_message(outputs['/disparity_filtered'][index][1]))
+        np.testing.assert_array_equal(
+            image_to_array(msg), confidence_overlay(left, confidence, kept)
+        )
+
+
 def test_depth_encoding_and_no_depth(tmp_path: Path) -> None:
     bag = dataset_bag(tmp_path, 'mcap', 1)
     code, _ = _replay(bag, tmp_path, '--depth-encoding', '16UC1', '--downsample', '2')

@@ -19,6 +19,7 @@ from cva_confidence_ros.ros.convert import (
     depth_image_to_array,
     disparity_from_message,
     float_image_to_array,
+    image_to_array,
 )
 import msg_tools
 from msg_tools.bag_replay import main
@@ -51,10 +52,12 @@ def _replay(bag: Path, tmp_path: Path, mode: str, *extra: str) -> tuple[int, dic
 def test_live_gives_the_offline_results(tmp_path: Path) -> None:
     # Three tiny frames at 2 Hz: slow enough that the node drops nothing.
     bag = dataset_bag(tmp_path, 'mcap', 3, '--rate', '2')
-    code, offline = _replay(bag, tmp_path, 'offline')
+    code, offline = _replay(bag, tmp_path, 'offline', '--overlay')
     assert code == 0
     # --rate-scale 0.5: one frame every second, margin for a loaded CI machine.
-    code, live = _replay(bag, tmp_path, 'live', '--startup-timeout', '90', '--rate-scale', '0.5')
+    code, live = _replay(
+        bag, tmp_path, 'live', '--overlay', '--startup-timeout', '90', '--rate-scale', '0.5'
+    )
     assert code == 0, (tmp_path / 'live' / 'node.log').read_text()
     assert live['summary']['dropped'] == 0 and live['summary']['processed'] == 3
     assert live['config']['mode'] == 'live'
@@ -66,7 +69,8 @@ def test_live_gives_the_offline_results(tmp_path: Path) -> None:
     # The node's messages are the offline ones: same stamps, arrays and clouds.
     first, second = read_bag(tmp_path / 'offline_bag'), read_bag(tmp_path / 'live_bag')
     assert first.keys() == second.keys() == {
-        '/disparity', '/confidence', '/disparity_filtered', '/points2', '/depth', '/camera_info'
+        '/disparity', '/confidence', '/disparity_filtered', '/points2', '/depth', '/camera_info',
+        '/confidence_overlay',
     }
     for topic, read in (
         ('/disparity', disparity_from_message),
@@ -74,6 +78,7 @@ def test_live_gives_the_offline_results(tmp_path: Path) -> None:
         ('/confidence', float_image_to_array),
         ('/points2', cloud_to_array),
         ('/depth', depth_image_to_array),
+        ('/confidence_overlay', image_to_array),
         ('/camera_info', lambda info: np.concatenate([info.k, info.p, [info.width, info.height]])),
     ):
         assert [t for t, _ in first[topic]] == [t for t, _ in second[topic]]
