@@ -19,9 +19,11 @@ over DDS like any client would:
    ``confidence``, ``publish``, ``frame``);
 4. the node's peak resident memory (``VmHWM`` of ``/proc/<pid>/status``, the whole process:
    interpreter, libraries, weights and frame buffers);
-5. optionally (``--rate``) a burst: frames published at a fixed rate without waiting; the node
-   keeps only the newest pending pair, so this shows the output rate it sustains and how many
-   pairs it drops.
+5. optionally (``--rate``) a burst: frames published at a fixed rate without waiting, stamped
+   as a camera at that rate would stamp them; the node keeps only the newest pending pair (and
+   with ``max_rate_hz`` skips the ones too close in time), so this shows the output rate it
+   sustains, how many pairs it drops or skips, and the CPU cores it uses meanwhile (its user +
+   system time over the burst's wall time).
 
 DDS: by default both sides use :data:`FASTDDS_LARGE_MESSAGES_XML`, a Fast DDS profile with a
 16 MB shared-memory segment. With stock Fast DDS (``--dds-profile inherit``), 640×480 frames
@@ -395,6 +397,17 @@ class NodeProcess:
             return None
         return None
 
+    def cpu_seconds(self) -> float | None:
+        """User + system CPU time of the node process so far (``/proc/<pid>/stat``), None
+        where unreadable."""
+        try:
+            with open(f'/proc/{self.process.pid}/stat', encoding='ascii') as stat:
+                # The command name (field 2) may hold spaces; the fields after it are plain.
+                fields = stat.read().rsplit(')', 1)[1].split()
+        except (OSError, IndexError):
+            return None
+        return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
     def stop(self, sig: int = signal.SIGINT, timeout: float = 30.0) -> int:
         """Send ``sig`` (SIGINT: the node's clean stop), then SIGKILL if it does not end in
         ``timeout`` s; returns the exit code."""
@@ -551,7 +564,10 @@ class _Client:
             return False
         handled = sum(
             self.counter(key)
-            for key in ('frames_processed', 'frames_dropped', 'frames_invalid', 'frames_failed')
+            for key in (
+                'frames_processed', 'frames_dropped', 'frames_throttled', 'frames_invalid',
+                'frames_failed',
+            )
         )
         return (
             self.counter('frames_processed') >= processed
@@ -606,10 +622,14 @@ def frame_messages(left: np.ndarray, right: np.ndarray, stamp_ns: int) -> dict[s
     return messages
 
 
+_STAMP_STEP_NS = 1_000_000_000
+
+
 def _stamps() -> Iterator[int]:
-    # Whole milliseconds from now on: unique within a run and across runs that share a domain.
+    # Whole milliseconds from now on, a second apart: unique within a run, and far enough
+    # apart that a node with max_rate_hz ≥ 1 takes every timed frame.
     start = time.time_ns() // 1_000_000 * 1_000_000
-    return itertools.count(start, 1_000_000)
+    return itertools.count(start, _STAMP_STEP_NS)
 
 
 def _check_frames(client: _Client, node: NodeProcess) -> None:
@@ -669,11 +689,18 @@ def _burst(
     settings: NodeBenchSettings,
 ) -> dict[str, Any]:
     assert settings.rate_hz is not None
-    frames = [next(stamps) for _ in range(settings.burst_frames)]
+    # Stamped as a camera at the burst's rate would stamp them (what max_rate_hz reads); the
+    # stamps handed out after the burst lie beyond its last one.
+    base, period = next(stamps), round(1e9 / settings.rate_hz)
+    frames = [base + index * period for index in range(settings.burst_frames)]
+    while next(stamps) <= frames[-1]:
+        pass
     messages = [frame_messages(*pair, stamp) for stamp in frames]
     received = client.counter('frames_received')
     processed = client.counter('frames_processed')
     dropped = client.counter('frames_dropped')
+    throttled = client.counter('frames_throttled')
+    cpu_start = node.cpu_seconds()
     start = time.perf_counter()
     for index, message in enumerate(messages):
         pause = start + index / settings.rate_hz - time.perf_counter()
@@ -687,15 +714,24 @@ def _burst(
         settings.timeout_s,
         node.alive,
     )
+    wall_s = time.perf_counter() - start
+    cpu_end = node.cpu_seconds()
     times = sorted(t for t in (client.answer_time(s) for s in frames) if t is not None)
     output_hz = (len(times) - 1) / (times[-1] - times[0]) if len(times) >= 2 else None
+    cpu_cores = (
+        (cpu_end - cpu_start) / wall_s
+        if cpu_start is not None and cpu_end is not None and wall_s > 0
+        else None
+    )
     return {
         'burst_rate_hz': settings.rate_hz,
         'burst_sent': len(frames),
         'burst_publish_hz': (len(frames) - 1) / published_s if published_s > 0 else None,
         'burst_answered': len(times),
         'burst_dropped': client.counter('frames_dropped') - dropped,
+        'burst_throttled': client.counter('frames_throttled') - throttled,
         'burst_output_hz': output_hz,
+        'burst_cpu_cores': cpu_cores,
     }
 
 
@@ -1234,17 +1270,21 @@ def format_table(records: Sequence[dict[str, Any]], threads: int) -> str:
     if bursts:
         lines += [
             '',
-            '| config | burst in Hz | sent | answered | dropped | out Hz |',
-            '|---|---:|---:|---:|---:|---:|',
+            '| config | burst in Hz | sent | answered | dropped | throttled | out Hz '
+            '| node CPU cores |',
+            '|---|---:|---:|---:|---:|---:|---:|---:|',
         ]
         lines += [
             f"| {r['config']} | {_cell(r['burst_publish_hz'])} | {r['burst_sent']} "
-            f"| {r['burst_answered']} | {r['burst_dropped']} | {_cell(r['burst_output_hz'], 2)} |"
+            f"| {r['burst_answered']} | {r['burst_dropped']} | {r['burst_throttled']} "
+            f"| {_cell(r['burst_output_hz'], 2)} | {_cell(r['burst_cpu_cores'], 2)} |"
             for r in bursts
         ]
         lines.append(
             'burst: pairs published at a fixed rate without waiting; the node works on the '
-            'newest pending pair and drops the ones it had no time for.'
+            'newest pending pair and drops the ones it had no time for, or skips them under '
+            'max_rate_hz (throttled); node CPU cores = its user + system CPU time over the '
+            "burst's wall time (publish of the first pair → the node idle again)."
         )
     extrapolated = [r for r in records if r['extrapolated']]
     if extrapolated:

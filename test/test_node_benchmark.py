@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from xml.etree import ElementTree
 
@@ -174,6 +175,10 @@ def test_tiny_run_through_the_real_node(tmp_path: Path) -> None:
     assert measured['peak_mem_mb'] >= measured['rss_ready_mb'] > 0
     assert measured['burst_sent'] == 3 and measured['burst_answered'] >= 1
     assert measured['burst_answered'] + measured['burst_dropped'] <= 3
+    assert measured['burst_throttled'] == 0  # no max_rate_hz here
+    # The node's CPU time over the burst, on at most the cores here plus slack for the 10 ms
+    # ticks of /proc/<pid>/stat (three tiny frames can take less than one tick: ≥ 0).
+    assert 0 <= measured['burst_cpu_cores'] <= (os.cpu_count() or 1) + 0.5
     assert extrapolated['extrapolated'] is True
     assert extrapolated['crop'] == [8, 16] and extrapolated['network_gflops'] > 0
     assert extrapolated['base_config'] == 'node:census_bm+pkrn'

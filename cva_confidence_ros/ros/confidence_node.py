@@ -136,6 +136,9 @@ class _Stats:
     invalid: int = 0
     failed: int = 0
     jumps: int = 0
+    throttled: int = 0
+    # stamp of the last set handed to the worker (max_rate_hz)
+    last_taken_ns: int | None = None
     last_error: str = ''
     last_timings_ms: dict[str, float] = field(default_factory=dict)
     mean_timings_ms: dict[str, float] = field(default_factory=dict)
@@ -448,7 +451,9 @@ class ConfidenceCore(Node):
             for item in matched:
                 self._stats.pairs += 1
                 self._stats.window_pairs += 1
-                if self._mailbox.put(item):
+                if self._throttled(item):
+                    self._stats.throttled += 1
+                elif self._mailbox.put(item):
                     self._stats.dropped += 1
         if loose_period is not None:
             self._log_throttle.log(
@@ -466,6 +471,17 @@ class ConfidenceCore(Node):
                 f'{_seconds(previous)} to {_seconds(now)} (bag loop, driver restart or simulator '
                 'reset?): pairing starts over from there',
             )
+
+    def _throttled(self, item: MatchedSet) -> bool:
+        """Whether ``max_rate_hz`` skips this set (call with the lock held): its stamp is
+        closer to the last set taken than the smallest period, and no jump back lies between."""
+        period = self._node_config.min_period_ns
+        last = self._stats.last_taken_ns
+        if period and last is not None and item.jumped_from_ns is None:
+            if item.stamp_ns - last < period:
+                return True
+        self._stats.last_taken_ns = item.stamp_ns
+        return False
 
     def _note_left_stamp(self, stamp: int) -> float | None:
         """Track the spacing of the left images (call with the lock held).
@@ -683,6 +699,7 @@ class ConfidenceCore(Node):
                 'frames_received': stats.pairs,
                 'frames_processed': stats.processed,
                 'frames_dropped': stats.dropped,
+                'frames_throttled': stats.throttled,
                 'messages_unmatched': stats.unmatched,
                 'frames_invalid': stats.invalid,
                 'frames_failed': stats.failed,
@@ -730,8 +747,9 @@ class ConfidenceCore(Node):
     def stats(self) -> dict[str, int]:
         """Counters since start.
 
-        ``frames_received`` counts synchronised sets; each is then processed, dropped (replaced
-        by a newer one before the worker took it), invalid (bad input) or failed.
+        ``frames_received`` counts synchronised sets; each is then throttled (skipped under
+        ``max_rate_hz``), processed, dropped (replaced by a newer one before the worker took
+        it), invalid (bad input) or failed.
         ``messages_unmatched`` counts single messages the synchroniser evicted unpaired;
         ``stamp_jumps`` the times the input stamps went back and pairing started over.
         """
@@ -742,6 +760,7 @@ class ConfidenceCore(Node):
                 'frames_received': s.pairs,
                 'frames_processed': s.processed,
                 'frames_dropped': s.dropped,
+                'frames_throttled': s.throttled,
                 'messages_unmatched': s.unmatched,
                 'frames_invalid': s.invalid,
                 'frames_failed': s.failed,

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 from dataclasses import MISSING, dataclass, fields
+import math
 from typing import Any
 
 from rcl_interfaces.msg import (
@@ -65,6 +66,10 @@ class NodeConfig:
         approximate_sync_tolerance_seconds: Largest stamp spread of one set (≥ 0).
         queue_size: Messages held per topic while waiting for their partners (≥ 1).
         diagnostics_period_seconds: Period of ``/diagnostics`` messages and of the status log.
+        max_rate_hz: Process at most this many frames per second of input time: a set whose
+            stamp is less than 0.98 / max_rate_hz after the last one taken is skipped
+            (``frames_throttled``), so the node leaves the rest of the CPU to the robot; 0 =
+            every frame it can.
         min_kept_fraction: ``/diagnostics`` warns when the share of the pixels kept (finite
             disparity, confidence ≥ threshold, not in a speckle), averaged over a diagnostics
             period, is below it; 0 = never.
@@ -86,6 +91,7 @@ class NodeConfig:
     approximate_sync_tolerance_seconds: float = 0.01
     queue_size: int = 10
     diagnostics_period_seconds: float = 1.0
+    max_rate_hz: float = 0.0
     min_kept_fraction: float = 0.0
     max_expected_kept_error: float = 1.0
 
@@ -110,6 +116,10 @@ class NodeConfig:
             )
         if self.queue_size < 1:
             raise ConfigError(f'queue_size must be >= 1; got {self.queue_size}')
+        if not (math.isfinite(self.max_rate_hz) and self.max_rate_hz >= 0):
+            raise ConfigError(
+                f'max_rate_hz must be a finite number >= 0 (0 = no limit); got {self.max_rate_hz}'
+            )
         if not 0.0 <= self.min_kept_fraction <= 1.0:
             raise ConfigError(f'min_kept_fraction must be in [0, 1]; got {self.min_kept_fraction}')
         if not 0.0 <= self.max_expected_kept_error <= 1.0:
@@ -120,6 +130,12 @@ class NodeConfig:
             raise ConfigError(
                 f'diagnostics_period_seconds must be > 0; got {self.diagnostics_period_seconds}'
             )
+
+    @property
+    def min_period_ns(self) -> int:
+        """The smallest stamp spacing of the frames taken under ``max_rate_hz`` (0 = none):
+        98 % of the period, so that a camera at exactly the limit is not halved by jitter."""
+        return 0 if self.max_rate_hz == 0 else round(0.98e9 / self.max_rate_hz)
 
     @property
     def tolerance_ns(self) -> int:
@@ -369,6 +385,14 @@ NODE_PARAMETERS: tuple[ParamSpec, ...] = (
         low=0.01,
         high=3600.0,
         read_only=True,
+    ),
+    _node(
+        'max_rate_hz',
+        'Process at most this many frames per second of input (stamp) time; the frames in '
+        'between are skipped (frames_throttled in /diagnostics), leaving the CPU to the rest '
+        'of the robot; 0 = every frame the node can.',
+        low=0.0,
+        high=1000.0,
     ),
     _node(
         'min_kept_fraction',

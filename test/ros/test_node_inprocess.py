@@ -611,6 +611,39 @@ def test_cloud_with_confidence_cut_downstream_by_the_filter_node(running: _Runni
         cloud_filter.destroy_node()
 
 
+def test_max_rate_skips_the_frames_in_between(running: _Running) -> None:
+    # A 10 Hz camera (stamps 0.1 s apart) into a node limited to 4 Hz: it takes the frames at
+    # 0, 0.3 and 0.6 s (the first ≥ 0.98 / 4 s after the last one taken), skips the others,
+    # and takes every frame again once the limit is off. Each frame waits for the node's
+    # answer (or its throttled count), so none is lost to the one-slot mailbox.
+    client, node = running.client, running.node
+    left, right = textured_pair(seed=11)
+    assert running.set(max_rate_hz=4.0).successful
+    try:
+        base = running.next_stamp()
+        for k in range(8):
+            if k == 7:
+                assert running.set(max_rate_hz=0.0).successful
+            stamp = base + k * 100_000_000
+            before = node.stats()['frames_throttled']
+            client.publish_frame(left, right, stamp)
+            taken = k in (0, 3, 6, 7)
+            if taken:
+                assert client.wait_for(
+                    lambda s=stamp: client.by_stamp('disparity', s) is not None, 30.0
+                ), f'no output for the frame at {k / 10:.1f} s'
+            else:
+                assert client.wait_for(
+                    lambda b=before: node.stats()['frames_throttled'] == b + 1, 30.0
+                ), f'the frame at {k / 10:.1f} s was not throttled'
+        answered = [k for k in range(8) if client.by_stamp('disparity', base + k * 100_000_000)]
+        assert answered == [0, 3, 6, 7]
+        refused = running.set(max_rate_hz=-1.0)
+        assert not refused.successful
+    finally:
+        assert running.set(max_rate_hz=0.0).successful
+
+
 def test_approximate_sync(running: _Running) -> None:
     client = running.client
     left, right = textured_pair(seed=6)
