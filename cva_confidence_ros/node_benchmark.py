@@ -594,26 +594,17 @@ def frame_messages(left: np.ndarray, right: np.ndarray, stamp_ns: int) -> dict[s
         ``left``, ``right`` (``rgb8`` Image) and ``left_info``, ``right_info`` (CameraInfo with
         fx = W, principal point in the centre and the right projection's Tx = −fx·B).
     """
-    from sensor_msgs.msg import CameraInfo, Image
+    from sensor_msgs.msg import CameraInfo
     from std_msgs.msg import Header
 
-    from cva_confidence_ros.ros.convert import ns_to_stamp
+    from cva_confidence_ros.ros.convert import ns_to_stamp, rgb_to_image
 
     height, width = left.shape[:2]
     focal = float(width)
     messages: dict[str, Any] = {}
     for side, image, tx in (('left', left, 0.0), ('right', right, -focal * _BASELINE_M)):
         header = Header(stamp=ns_to_stamp(stamp_ns), frame_id=f'{side}_optical')
-        data = np.ascontiguousarray(image, dtype=np.uint8)
-        messages[side] = Image(
-            header=header,
-            height=height,
-            width=width,
-            encoding='rgb8',
-            is_bigendian=0,
-            step=width * 3,
-            data=data.tobytes(),
-        )
+        messages[side] = rgb_to_image(np.ascontiguousarray(image, dtype=np.uint8), header)
         info = CameraInfo(header=header, height=height, width=width, distortion_model='plumb_bob')
         info.k = [focal, 0.0, width / 2.0, 0.0, focal, height / 2.0, 0.0, 0.0, 1.0]
         info.r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]

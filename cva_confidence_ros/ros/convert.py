@@ -206,6 +206,22 @@ def pair_to_uint8(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.n
     )
 
 
+def _packed_image(data: np.ndarray, header: Header, encoding: str) -> Image:
+    """An ``Image`` of ``data`` ((H, W) or (H, W, C), little-endian dtype) without row
+    padding."""
+    data = np.ascontiguousarray(data)
+    height, width = data.shape[:2]
+    return Image(
+        header=header,
+        height=height,
+        width=width,
+        encoding=encoding,
+        is_bigendian=0,
+        step=width * (data.itemsize * (data.shape[2] if data.ndim == 3 else 1)),
+        data=data.tobytes(),
+    )
+
+
 def array_to_image(array: np.ndarray, header: Header) -> Image:
     """Encode an (H, W) float32 array as a 32FC1 ``sensor_msgs/Image`` (little-endian).
 
@@ -214,17 +230,7 @@ def array_to_image(array: np.ndarray, header: Header) -> Image:
     """
     if array.ndim != 2:
         raise InputError(f'a 32FC1 image must be (H, W); got shape {array.shape}')
-    data = np.ascontiguousarray(array, dtype='<f4')
-    height, width = data.shape
-    return Image(
-        header=header,
-        height=height,
-        width=width,
-        encoding='32FC1',
-        is_bigendian=0,
-        step=width * 4,
-        data=data.tobytes(),
-    )
+    return _packed_image(np.asarray(array, dtype='<f4'), header, '32FC1')
 
 
 def rgb_to_image(rgb: np.ndarray, header: Header) -> Image:
@@ -237,16 +243,7 @@ def rgb_to_image(rgb: np.ndarray, header: Header) -> Image:
         raise InputError(
             f'an rgb8 image must be (H, W, 3) uint8; got {rgb.dtype} {rgb.shape}'
         )
-    height, width = rgb.shape[:2]
-    return Image(
-        header=header,
-        height=height,
-        width=width,
-        encoding='rgb8',
-        is_bigendian=0,
-        step=width * 3,
-        data=np.ascontiguousarray(rgb).tobytes(),
-    )
+    return _packed_image(rgb, header, 'rgb8')
 
 
 def float_image_to_array(msg: Image) -> np.ndarray:
@@ -294,24 +291,13 @@ def depth_to_image(depth: np.ndarray, header: Header, encoding: str = '32FC1') -
         valid = np.isfinite(depth) & (depth > 0)
     if encoding == '32FC1':
         data = np.where(valid, depth, np.nan).astype('<f4')
-        bytes_per_pixel = 4
     else:
         millimetres = np.zeros(depth.shape)
         np.multiply(depth, 1000.0, out=millimetres, where=valid)
         millimetres = np.rint(millimetres)
         millimetres[millimetres > _UINT16_MM_MAX] = 0.0
         data = millimetres.astype('<u2')
-        bytes_per_pixel = 2
-    height, width = data.shape
-    return Image(
-        header=header,
-        height=height,
-        width=width,
-        encoding=encoding,
-        is_bigendian=0,
-        step=width * bytes_per_pixel,
-        data=np.ascontiguousarray(data).tobytes(),
-    )
+    return _packed_image(data, header, encoding)
 
 
 def depth_image_to_array(msg: Image) -> np.ndarray:
