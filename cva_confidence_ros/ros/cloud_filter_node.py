@@ -24,7 +24,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import PointCloud2
 
-from cva_confidence_ros.checks import is_real
+from cva_confidence_ros.checks import is_int, is_real
 from cva_confidence_ros.errors import ConfigError, CVAError
 from cva_confidence_ros.pointcloud import filter_cloud
 from cva_confidence_ros.ros.common import (
@@ -107,6 +107,16 @@ PARAMETER_DESCRIPTIONS = {
 READ_ONLY_PARAMETERS = frozenset({'input_qos', 'output_qos', 'diagnostics_period_seconds'})
 
 
+def _values(values: dict[str, Any]) -> dict[str, Any]:
+    """Parameter values for :class:`CloudFilterConfig`, the doubles as floats (an integer
+    literal taken as its number; the config refuses what is no number)."""
+    doubles = {spec.name for spec in fields(CloudFilterConfig) if isinstance(spec.default, float)}
+    return {
+        name: float(value) if name in doubles and is_int(value) else value
+        for name, value in values.items()
+    }
+
+
 @dataclass
 class _Counts:
     clouds_received: int = 0
@@ -143,6 +153,8 @@ class CloudFilterNode(Node):
             descriptor = ParameterDescriptor(
                 description=PARAMETER_DESCRIPTIONS[spec.name],
                 read_only=spec.name in READ_ONLY_PARAMETERS,
+                # threshold:=1 (an integer to ROS 2) is a number too; _values converts it.
+                dynamic_typing=isinstance(spec.default, float),
             )
             if spec.name == 'threshold':
                 descriptor.floating_point_range = [
@@ -151,7 +163,7 @@ class CloudFilterNode(Node):
             self.declare_parameter(spec.name, spec.default, descriptor)
         names = [spec.name for spec in fields(CloudFilterConfig)]
         self._config = CloudFilterConfig(
-            **{name: self.get_parameter(name).value for name in names}
+            **_values({name: self.get_parameter(name).value for name in names})
         )
         self._lock = threading.Lock()
         self._counts = _Counts()
@@ -189,7 +201,7 @@ class CloudFilterNode(Node):
             return SetParametersResult(successful=True)
         with self._lock:
             try:
-                self._config = replace(self._config, **changes)
+                self._config = replace(self._config, **_values(changes))
             except (ConfigError, TypeError) as error:
                 return SetParametersResult(successful=False, reason=str(error))
         self.get_logger().info(

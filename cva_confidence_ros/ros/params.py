@@ -35,6 +35,7 @@ __all__ = [
     'ParamSpec',
     'build_configs',
     'declare_parameters',
+    'double_value',
     'parameter_values',
 ]
 
@@ -175,6 +176,9 @@ class ParamSpec:
             description=self.description,
             additional_constraints=self.constraints,
             read_only=self.read_only,
+            # A double also takes an integer literal (-p max_rate_hz:=2, a YAML 1), which
+            # ROS 2 types as an integer and would refuse; double_value checks and converts it.
+            dynamic_typing=isinstance(self.default, float),
         )
         if self.low is not None and self.high is not None:
             if isinstance(self.default, int) and not isinstance(self.default, bool):
@@ -418,6 +422,30 @@ NODE_PARAMETERS: tuple[ParamSpec, ...] = (
 PARAMETERS: tuple[ParamSpec, ...] = PIPELINE_PARAMETERS + NODE_PARAMETERS
 
 
+def double_value(
+    name: str, value: object, low: float | None = None, high: float | None = None
+) -> float:
+    """The value of a double parameter as a float.
+
+    ROS 2 types ``-p name:=2`` or a YAML ``2`` as an integer; such a value is taken as the
+    number it is. The parameters are declared with dynamic typing for that, so rclpy checks
+    neither their type nor their range: this does.
+
+    Raises:
+        ConfigError: Not a number (a string, a bool, an array), NaN, or outside
+            [``low``, ``high``].
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f'{name} must be a number; got {value!r}')
+    number = float(value)
+    if math.isnan(number) or (low is not None and number < low) or (
+        high is not None and number > high
+    ):
+        bounds = f'[{low:g}, {high:g}]' if low is not None and high is not None else 'range'
+        raise ConfigError(f'{name} must be a number in {bounds}; got {value!r}')
+    return number
+
+
 def declare_parameters(node: Node) -> None:
     """Declare every parameter of :data:`PARAMETERS` on ``node`` with its descriptor."""
     node.declare_parameters(
@@ -452,6 +480,9 @@ def build_configs(
         if param.name not in known:
             raise ConfigError(f'unknown parameter {param.name!r}; expected one of {sorted(known)}')
         merged[param.name] = param.value
+    for spec in PARAMETERS:
+        if isinstance(spec.default, float):
+            merged[spec.name] = double_value(spec.name, merged[spec.name], spec.low, spec.high)
     pipeline = {spec.name: merged[spec.name] for spec in PIPELINE_PARAMETERS}
     node = {spec.name: merged[spec.name] for spec in NODE_PARAMETERS}
     return PipelineConfig(**pipeline), NodeConfig(**node)

@@ -174,6 +174,13 @@ def test_threshold_and_layout_change_at_run_time(running: _Running) -> None:
         np.testing.assert_array_equal(records['confidence'][0], confidence[keep])
         refused = running.node.set_parameters([Parameter('threshold', value=1.5)])[0]
         assert not refused.successful and running.node.config.threshold == 0.8
+        # An integer is a number (ros2 param set ... threshold 1); a string is not.
+        assert running.node.set_parameters([Parameter('threshold', value=1)])[0].successful
+        assert running.node.config.threshold == 1.0
+        assert type(running.node.config.threshold) is float
+        refused = running.node.set_parameters([Parameter('threshold', value='high')])[0]
+        assert not refused.successful and 'threshold must be a number' in refused.reason
+        assert running.node.set_parameters([Parameter('threshold', value=0.8)])[0].successful
         refused = running.node.set_parameters([Parameter('confidence_field', value='')])[0]
         assert not refused.successful and 'confidence_field' in refused.reason
         read_only = running.node.set_parameters([Parameter('input_qos', value='reliable')])[0]

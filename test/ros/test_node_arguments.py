@@ -160,7 +160,14 @@ def test_ros_arguments_alone_are_not_checked_further() -> None:
     ('script', 'parameters', 'ready'),
     [
         ('cva-cloud-filter', 'threshold: 0.65', 'threshold=0.65'),
-        ('cva-node', 'confidence_method: mlm\n    max_disparity: 16', 'confidence_method=mlm'),
+        # Integers for doubles, as people write them (-p x:=2, a YAML 2): taken as numbers.
+        ('cva-cloud-filter', 'threshold: 1', 'threshold=1.0'),
+        (
+            'cva-node',
+            'confidence_method: mlm\n    max_disparity: 16\n    max_rate_hz: 2\n'
+            '    confidence_threshold: 0',
+            'confidence_method=mlm',
+        ),
     ],
 )
 def test_launch_style_ros_arguments_start_the_node(

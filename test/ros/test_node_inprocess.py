@@ -640,6 +640,11 @@ def test_max_rate_skips_the_frames_in_between(running: _Running) -> None:
         assert answered == [0, 3, 6, 7]
         refused = running.set(max_rate_hz=-1.0)
         assert not refused.successful
+        # ros2 param set ... max_rate_hz 2 sends an integer: a number like 2.0; text is not.
+        assert running.set(max_rate_hz=2).successful
+        assert running.node.node_config.max_rate_hz == 2.0
+        refused = running.set(max_rate_hz='fast')
+        assert not refused.successful and 'max_rate_hz must be a number' in refused.reason
     finally:
         assert running.set(max_rate_hz=0.0).successful
 

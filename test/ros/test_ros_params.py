@@ -51,6 +51,31 @@ def test_descriptors_have_types_descriptions_and_ranges() -> None:
     assert 'census_sgm' in by_name['matcher'].additional_constraints
 
 
+def test_doubles_take_integer_literals_and_are_checked_here() -> None:
+    # -p max_rate_hz:=2 or a YAML 2 arrive typed as integers; the doubles are declared with
+    # dynamic typing so that rclpy lets them through, and build_configs converts and checks.
+    by_name = {spec.name: spec.descriptor() for spec in PARAMETERS}
+    doubles = {name for name, d in by_name.items() if d.type == ParameterType.PARAMETER_DOUBLE}
+    assert {'confidence_threshold', 'max_rate_hz', 'speckle_range'} <= doubles
+    assert all(by_name[name].dynamic_typing for name in doubles)
+    assert not any(d.dynamic_typing for name, d in by_name.items() if name not in doubles)
+    changes = [Parameter('max_rate_hz', value=2), Parameter('confidence_threshold', value=1)]
+    pipeline, node = build_configs(DEFAULTS, changes)
+    assert type(node.max_rate_hz) is float and node.max_rate_hz == 2.0
+    assert type(pipeline.confidence_threshold) is float and pipeline.confidence_threshold == 1.0
+    # What rclpy no longer checks for them: the type and the declared range.
+    for name, value, match in (
+        ('confidence_threshold', 'high', "confidence_threshold must be a number; got 'high'"),
+        ('confidence_threshold', True, 'confidence_threshold must be a number; got True'),
+        ('confidence_threshold', 2, r'confidence_threshold must be a number in \[0, 1\]; got 2'),
+        ('tile_budget_mb', 0.5, r'tile_budget_mb must be a number in \[1, 1.04858e\+06\]'),
+        ('max_rate_hz', float('nan'), 'max_rate_hz must be a number in'),
+        ('speckle_range', [1.0], 'speckle_range must be a number'),
+    ):
+        with pytest.raises(ConfigError, match=match):
+            build_configs(DEFAULTS, [Parameter(name, value=value)])
+
+
 def test_build_configs_applies_changes() -> None:
     changes = [Parameter('max_disparity', value=128), Parameter('approximate_sync', value=True)]
     pipeline, node = build_configs(DEFAULTS, changes)
