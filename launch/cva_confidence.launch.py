@@ -7,9 +7,10 @@ Usage (full ROS 2 install)::
         matcher:=census_sgm max_disparity:=128
 
 The node subscribes to ``<stereo_namespace>/{left,right}/{image_rect,camera_info}`` and
-publishes ``disparity``, ``disparity_filtered``, ``confidence``, ``points2``, ``depth`` and
-``camera_info`` in the same namespace, like ``stereo_image_proc``. Launch arguments left empty
-keep the file's value.
+publishes ``disparity``, ``disparity_filtered``, ``confidence``, ``points2``, ``depth``,
+``confidence_overlay`` and ``camera_info`` in the same namespace, like ``stereo_image_proc``.
+Launch arguments left empty keep the file's value (e.g. ``max_rate_hz:=2.0`` caps the CPU the
+node takes, ``speckle_size:=0`` turns the speckle filter off).
 
 ``cloud_filter_threshold:=0.8`` also starts the ``cloud_filter`` node in that namespace: the
 confidence node then publishes every point with its confidence (``points_confidence: true``) and
@@ -44,6 +45,8 @@ OVERRIDES: dict[str, type] = {
     'device': str,
     'confidence_threshold': float,
     'downsample': int,
+    'speckle_size': int,
+    'max_rate_hz': float,
 }
 
 

@@ -114,7 +114,8 @@ def test_parameter_file_lists_exactly_the_declared_parameters() -> None:
     values = document[node_key]['ros__parameters']
     assert set(values) == set(DEFAULTS)
     for name, value in values.items():
-        # The file documents the defaults, with the declared types (rclpy rejects 1 for 1.0).
+        # The file documents the defaults, with the declared types (1.0 for a double, though
+        # the node would take 1 too).
         assert type(value) is type(DEFAULTS[name]), name
         assert value == DEFAULTS[name], name
 
