@@ -477,9 +477,10 @@ class ConfidenceCore(Node):
         closer to the last set taken than the smallest period, and no jump back lies between."""
         period = self._node_config.min_period_ns
         last = self._stats.last_taken_ns
-        if period and last is not None and item.jumped_from_ns is None:
-            if item.stamp_ns - last < period:
-                return True
+        if period and last is not None and item.jumped_from_ns is None and (
+            item.stamp_ns - last < period
+        ):
+            return True
         self._stats.last_taken_ns = item.stamp_ns
         return False
 
