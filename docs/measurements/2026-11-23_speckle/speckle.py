@@ -22,6 +22,8 @@ swept from 0.05 to 0.99, with the filter's points at threshold 0.5) and ``speckl
 (Middlebury 2014 Motorcycle, Census-BM: what the filter drops).
 
     python docs/measurements/2026-11-23_speckle/speckle.py --data-root ../shared/data
+    python docs/measurements/2026-11-23_speckle/speckle.py --data-root ../shared/data \
+        --downsample 2   # the tables at the node's downsample 2 (results_downsample2.txt)
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ from cva_confidence_ros.datasets import (
     fit_disparity_range,
     list_scenes,
     load_scene,
+    resize_disparity,
 )
 from cva_confidence_ros.matching import (
     compute_cost_volume,
@@ -158,11 +161,13 @@ def _example_png(root: Path, out: Path) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--data-root', type=Path, required=True)
+    parser.add_argument('--downsample', type=int, default=1, choices=(1, 2),
+                        help="the node's downsample (2: the tables only, at half size)")
     args = parser.parse_args()
     totals: dict[tuple[str, str], dict[str, float]] = defaultdict(lambda: defaultdict(float))
     pipelines = {
         m: StereoPipeline(PipelineConfig(matcher=m, speckle_size=0, confidence_threshold=0.0,
-                                         device='cpu'))
+                                         downsample=args.downsample, device='cpu'))
         for m in MATCHERS
     }
     for dataset in DEVELOP_DATASETS:
@@ -171,6 +176,8 @@ def main() -> None:
             print(f'{dataset}/{scene}: {sample.left.shape[1]}×{sample.left.shape[0]} '
                   f'(1/{factor})', flush=True)
             truth = sample.disparity
+            if args.downsample > 1:
+                truth = resize_disparity(truth, args.downsample)
             known = np.isfinite(truth)
             for matcher in MATCHERS:
                 t = totals[dataset, matcher]
@@ -217,6 +224,8 @@ def main() -> None:
                 for r in RANGES)
             print(f'| {dataset} | {matcher} | {size} | {cells} |')
 
+    if args.downsample > 1:
+        return
     # Cost at the size of a robot's camera: a real pair cut to 640×480, D = 128.
     sample = load_scene('kitti2015', args.data_root, list_scenes('kitti2015', args.data_root)[0])
     left, right = sample.left[:, :640], sample.right[:, :640]
