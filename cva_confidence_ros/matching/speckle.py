@@ -26,53 +26,55 @@ from cva_confidence_ros.matching.disparity import check_disparity
 __all__ = ['remove_speckles']
 
 
-# One pass over the image; every kept pixel is pushed once. A region is grown to its end even
-# after it is known to be large, so that none of its pixels seeds a second, smaller one.
+# One pass over the image; every kept pixel is queued once. ``flags`` holds 0 (not kept or in a
+# speckle), 1 (kept, in no region yet) and 2 (in a region); flat indices keep the inner loop
+# short. A region is grown to its end even after it is known to be large, so that none of its
+# pixels seeds a second, smaller one.
 @njit(cache=True)
 def _remove_speckles(
-    disparity: np.ndarray, keep: np.ndarray, max_size: int, max_range: float, out: np.ndarray
+    disparity: np.ndarray, flags: np.ndarray, max_size: int, max_range: float
 ) -> None:
     height, width = disparity.shape
-    seen = np.zeros((height, width), np.bool_)
-    region = np.empty(height * width, np.int64)
-    for y0 in range(height):
-        for x0 in range(width):
-            if not keep[y0, x0] or seen[y0, x0]:
-                continue
-            seen[y0, x0] = True
-            region[0] = y0 * width + x0
-            size = 1
-            head = 0
-            # ``region`` is the queue and, once grown, the list of the region's pixels.
-            while head < size:
-                index = region[head]
-                head += 1
-                y = index // width
-                x = index - y * width
-                value = disparity[y, x]
-                for step in range(4):
-                    ny, nx = y, x
-                    if step == 0:
-                        ny = y - 1
-                    elif step == 1:
-                        ny = y + 1
-                    elif step == 2:
-                        nx = x - 1
-                    else:
-                        nx = x + 1
-                    if ny < 0 or ny >= height or nx < 0 or nx >= width:
+    count = height * width
+    values = disparity.ravel()
+    state = flags.ravel()
+    region = np.empty(count, np.int32)  # the queue and, once grown, the region's pixels
+    for seed in range(count):
+        if state[seed] != 1:
+            continue
+        state[seed] = 2
+        region[0] = seed
+        size = 1
+        head = 0
+        while head < size:
+            index = region[head]
+            head += 1
+            value = values[index]
+            x = index % width
+            for step in range(4):
+                if step == 0:
+                    if x == 0:
                         continue
-                    if seen[ny, nx] or not keep[ny, nx]:
+                    other = index - 1
+                elif step == 1:
+                    if x == width - 1:
                         continue
-                    if abs(disparity[ny, nx] - value) <= max_range:
-                        seen[ny, nx] = True
-                        region[size] = ny * width + nx
-                        size += 1
-            if size <= max_size:
-                for i in range(size):
-                    index = region[i]
-                    y = index // width
-                    out[y, index - y * width] = False
+                    other = index + 1
+                elif step == 2:
+                    if index < width:
+                        continue
+                    other = index - width
+                else:
+                    other = index + width
+                    if other >= count:
+                        continue
+                if state[other] == 1 and abs(values[other] - value) <= max_range:
+                    state[other] = 2
+                    region[size] = other
+                    size += 1
+        if size <= max_size:
+            for i in range(size):
+                state[region[i]] = 0
 
 
 def remove_speckles(
@@ -122,9 +124,6 @@ def remove_speckles(
         raise ConfigError(f'max_range must be a finite number ≥ 0; got {max_range!r}')
     if max_size == 0:
         return mask
-    out = mask.copy()
-    _remove_speckles(
-        np.ascontiguousarray(values), np.ascontiguousarray(mask), int(max_size),
-        float(max_range), out,
-    )
-    return out
+    flags = mask.astype(np.uint8)
+    _remove_speckles(np.ascontiguousarray(values), flags, int(max_size), float(max_range))
+    return flags != 0
