@@ -212,6 +212,8 @@ def test_bad_options(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None
     for extra, message in (
         (('--matcher', 'nope'), "unknown matcher 'nope'"),
         (('--downsample', '3'), 'downsample must be 1, 2 or 4'),
+        (('--speckle-size', '-1'), 'speckle_size must be an integer in [0, 1000000]'),
+        (('--speckle-range', 'nan'), 'speckle_range must be a number in [0, 1024]'),
         (('--rate-scale', '0'), 'rate_scale must be a finite number > 0'),
         (('--rate-scale', 'inf'), 'rate_scale must be a finite number > 0'),
         (('--approximate-sync', '--sync-tolerance', 'nan'), 'sync tolerance must be a finite'),
