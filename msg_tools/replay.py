@@ -523,7 +523,7 @@ def node_outputs(
         geometry = geometry.scaled(out_w / input_shape[1], out_h / input_shape[0])
     confidence = np.clip(np.nan_to_num(result.confidence, nan=0.0), 0.0, 1.0)
     kept = result.valid
-    filtered = np.where(kept, disparity, np.float32(np.nan)).astype(np.float32)
+    filtered = result.filtered_disparity
     messages = [
         ('disparity', DISPARITY_IMAGE,
          disparity_to_message(

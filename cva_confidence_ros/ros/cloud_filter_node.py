@@ -24,7 +24,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import PointCloud2
 
-from cva_confidence_ros.checks import is_int, is_real
+from cva_confidence_ros.checks import is_real
 from cva_confidence_ros.errors import ConfigError, CVAError
 from cva_confidence_ros.pointcloud import filter_cloud
 from cva_confidence_ros.ros.common import (
@@ -35,7 +35,7 @@ from cva_confidence_ros.ros.common import (
     run_node,
 )
 from cva_confidence_ros.ros.convert import point_cloud_to_records, records_to_point_cloud
-from cva_confidence_ros.ros.params import QOS_CHOICES
+from cva_confidence_ros.ros.params import QOS_CHOICES, double_value
 
 __all__ = [
     'NODE_NAME',
@@ -108,11 +108,16 @@ READ_ONLY_PARAMETERS = frozenset({'input_qos', 'output_qos', 'diagnostics_period
 
 
 def _values(values: dict[str, Any]) -> dict[str, Any]:
-    """Parameter values for :class:`CloudFilterConfig`, the doubles as floats (an integer
-    literal taken as its number; the config refuses what is no number)."""
+    """Parameter values for :class:`CloudFilterConfig`, the doubles as floats through
+    :func:`~cva_confidence_ros.ros.params.double_value` (an integer literal taken as its
+    number; the config checks the ranges).
+
+    Raises:
+        ConfigError: A double that is no number.
+    """
     doubles = {spec.name for spec in fields(CloudFilterConfig) if isinstance(spec.default, float)}
     return {
-        name: float(value) if name in doubles and is_int(value) else value
+        name: double_value(name, value) if name in doubles else value
         for name, value in values.items()
     }
 

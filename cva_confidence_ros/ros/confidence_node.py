@@ -629,7 +629,7 @@ class ConfidenceCore(Node):
         if self._pub_confidence.get_subscription_count():
             self._pub_confidence.publish(array_to_image(confidence, header))
         if self._pub_filtered.get_subscription_count():
-            filtered = np.where(keep, disparity, np.float32(np.nan)).astype(np.float32)
+            filtered = result.filtered_disparity
             self._pub_filtered.publish(
                 disparity_to_message(
                     filtered, header, geometry, config.max_disparity, config.disparity_step
