@@ -14,9 +14,11 @@ speckle, ``speckle_size``), ``confidence`` (``sensor_msgs/Image`` 32FC1 in [0, 1
 (``sensor_msgs/Image``, REP 118: the depth of those pixels, 32FC1 metres with NaN or 16UC1
 millimetres with 0 where there is none), ``confidence_overlay`` (``sensor_msgs/Image`` rgb8,
 for a person to look at: the kept pixels tinted red → yellow → green by confidence over the
-dimmed scene), ``camera_info`` (the left camera info at the output resolution, for consumers of
-``confidence`` and ``depth``) and ``/diagnostics``. Everything is stamped with the left image's
-header and published at the processed resolution (1/``downsample``).
+dimmed scene), ``scan`` (``sensor_msgs/LaserScan`` of the kept pixels in a height band, for
+obstacle layers; in the camera's body frame, :mod:`cva_confidence_ros.scan`), ``camera_info``
+(the left camera info at the output resolution, for consumers of ``confidence`` and ``depth``)
+and ``/diagnostics``. Everything is stamped with the left image's header and published at the
+processed resolution (1/``downsample``).
 
 Threads: subscription callbacks only synchronise and drop the newest complete set into a
 one-slot mailbox; a worker thread processes whatever is in the slot. When frames come faster
@@ -72,6 +74,8 @@ _TOPICS = (
     ('out', 'depth', 'sensor_msgs/Image', 'depth of the confident pixels (REP 118)'),
     ('out', 'confidence_overlay', 'sensor_msgs/Image',
      'rgb8 for a person: the kept pixels red to green by confidence over the scene'),
+    ('out', 'scan', 'sensor_msgs/LaserScan',
+     'nearest kept point per bearing in scan_min/max_height; intensity = confidence'),
     ('out', 'camera_info', 'sensor_msgs/CameraInfo', 'left, at the output resolution'),
     ('out', '/diagnostics', 'diagnostic_msgs/DiagnosticArray', ''),
 )

@@ -8,9 +8,10 @@ Usage (full ROS 2 install)::
 
 The node subscribes to ``<stereo_namespace>/{left,right}/{image_rect,camera_info}`` and
 publishes ``disparity``, ``disparity_filtered``, ``confidence``, ``points2``, ``depth``,
-``confidence_overlay`` and ``camera_info`` in the same namespace, like ``stereo_image_proc``.
-Launch arguments left empty keep the file's value (e.g. ``max_rate_hz:=2.0`` caps the CPU the
-node takes, ``speckle_size:=0`` turns the speckle filter off).
+``confidence_overlay``, ``scan`` and ``camera_info`` in the same namespace, like
+``stereo_image_proc``. Launch arguments left empty keep the file's value (e.g.
+``max_rate_hz:=2.0`` caps the CPU the node takes, ``speckle_size:=0`` turns the speckle filter
+off, ``scan_frame_id:=camera_link`` names the frame of ``scan``).
 
 ``cloud_filter_threshold:=0.8`` also starts the ``cloud_filter`` node in that namespace: the
 confidence node then publishes every point with its confidence (``points_confidence: true``) and
@@ -47,6 +48,7 @@ OVERRIDES: dict[str, type] = {
     'downsample': int,
     'speckle_size': int,
     'max_rate_hz': float,
+    'scan_frame_id': str,
 }
 
 

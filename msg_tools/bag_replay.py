@@ -39,6 +39,7 @@ import sys
 from cva_confidence_ros.errors import CVAError, from_interrupt
 from cva_confidence_ros.matching.subpixel import SUBPIXEL_METHODS
 from cva_confidence_ros.pipeline import PipelineConfig
+from cva_confidence_ros.scan import ScanConfig
 from msg_tools.bagio import STORAGES
 from msg_tools.progress import GracefulInterrupt
 from msg_tools.replay import STOPPING, ReplayOptions, TopicNames
@@ -46,6 +47,7 @@ from msg_tools.replay import STOPPING, ReplayOptions, TopicNames
 __all__ = ['build_parser', 'main', 'options_from_args']
 
 _DEFAULTS = PipelineConfig.__dataclass_fields__
+_SCAN = ScanConfig()
 
 
 def _default(name: str) -> object:
@@ -111,6 +113,20 @@ def build_parser() -> argparse.ArgumentParser:
                            'green by confidence over the scene), to look at in Foxglove or rviz')
     node.add_argument('--depth-encoding', choices=('32FC1', '16UC1'), default='32FC1',
                       help='depth as float metres (NaN = none) or uint16 millimetres (0 = none)')
+    node.add_argument('--scan', action='store_true',
+                      help='also write scan (sensor_msgs/LaserScan of the kept pixels in a '
+                           'height band, for obstacle layers; the node parameter publish_scan)')
+    node.add_argument('--scan-frame-id', default='',
+                      help="frame of scan (x forward); default: the camera's body frame named "
+                           'after its optical frame')
+    node.add_argument('--scan-height', type=float, nargs=2, metavar=('MIN', 'MAX'),
+                      default=(_SCAN.min_height, _SCAN.max_height),
+                      help='height band of scan, metres above the camera (default %(default)s)')
+    node.add_argument('--scan-range', type=float, nargs=2, metavar=('MIN', 'MAX'),
+                      default=(_SCAN.range_min, _SCAN.range_max),
+                      help='range limits of scan, metres (default %(default)s)')
+    node.add_argument('--scan-pitch', type=float, default=_SCAN.pitch,
+                      help='radians the camera looks down from level (default %(default)s)')
 
     topics = parser.add_argument_group('topics (relative names are put under --topic-prefix)')
     topics.add_argument('--topic-prefix', default='', help='camera namespace, e.g. /stereo')
@@ -168,6 +184,13 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
         speckle_range=args.speckle_range,
         tile_budget_mb=args.tile_budget_mb,
     )
+    scan = ScanConfig(  # checked with or without --scan: a bad value is a mistake either way
+        min_height=args.scan_height[0],
+        max_height=args.scan_height[1],
+        range_min=args.scan_range[0],
+        range_max=args.scan_range[1],
+        pitch=args.scan_pitch,
+    )
     topics = TopicNames(
         prefix=args.topic_prefix,
         left=args.left_topic,
@@ -197,6 +220,8 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
         publish_depth=not args.no_depth,
         depth_encoding=args.depth_encoding,
         publish_overlay=args.overlay,
+        scan=scan if args.scan else None,
+        scan_frame_id=args.scan_frame_id,
         overwrite=args.overwrite,
         rate_scale=args.rate_scale,
         start_node=not args.no_start_node,

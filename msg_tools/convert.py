@@ -22,6 +22,7 @@ __all__ = [
     'COMPRESSED_IMAGE',
     'DISPARITY_IMAGE',
     'IMAGE',
+    'LASER_SCAN',
     'POINT_CLOUD2',
     'CAMERA_INFO',
     'camera_geometry',
@@ -40,6 +41,7 @@ COMPRESSED_IMAGE = 'sensor_msgs/msg/CompressedImage'
 CAMERA_INFO = 'sensor_msgs/msg/CameraInfo'
 DISPARITY_IMAGE = 'stereo_msgs/msg/DisparityImage'
 POINT_CLOUD2 = 'sensor_msgs/msg/PointCloud2'
+LASER_SCAN = 'sensor_msgs/msg/LaserScan'
 
 _FLOAT_ENCODINGS: dict[str, tuple[str, int]] = {'32FC1': ('f4', 1), '64FC1': ('f8', 1)}
 

@@ -63,6 +63,7 @@ _NODE_OUTPUTS = {
     'points': 'points2',
     'depth': 'depth',
     'overlay': 'confidence_overlay',
+    'scan': 'scan',
     'camera_info': 'camera_info',
 }
 _OUTPUT_TYPES = {
@@ -72,12 +73,18 @@ _OUTPUT_TYPES = {
     'points': 'sensor_msgs/msg/PointCloud2',
     'depth': 'sensor_msgs/msg/Image',
     'overlay': 'sensor_msgs/msg/Image',
+    'scan': 'sensor_msgs/msg/LaserScan',
     'camera_info': 'sensor_msgs/msg/CameraInfo',
 }
 # Outputs that an option turns off.
-_OPTIONAL = {'points': 'publish_points', 'depth': 'publish_depth', 'overlay': 'publish_overlay'}
-# What a frame needs before it can be scored; points2, depth, the overlay and camera_info are
-# only recorded.
+_OPTIONAL = {
+    'points': 'publish_points',
+    'depth': 'publish_depth',
+    'overlay': 'publish_overlay',
+    'scan': 'scan',
+}
+# What a frame needs before it can be scored; points2, depth, the overlay, the scan and
+# camera_info are only recorded.
 _SCORED = ('disparity', 'confidence', 'disparity_filtered')
 
 
@@ -101,8 +108,17 @@ def node_arguments(
     onto the bag's image topics.
     """
     from cva_confidence_ros.ros.params import NodeConfig
+    from cva_confidence_ros.scan import ScanConfig
 
+    scan = options.scan or ScanConfig()
     node_config = NodeConfig(
+        publish_scan=options.scan is not None,
+        scan_frame_id=options.scan_frame_id,
+        scan_min_height=scan.min_height,
+        scan_max_height=scan.max_height,
+        scan_range_min=scan.range_min,
+        scan_range_max=scan.range_max,
+        scan_pitch=scan.pitch,
         publish_points=options.publish_points,
         points_organized=options.points_organized,
         points_confidence=options.points_confidence,
@@ -556,7 +572,7 @@ class _Recorder:
             except queue.Empty:
                 continue
             self._handle(*item, progress=progress)
-        # Late points2, depth, overlay or camera_info of the last frame may still be in the queue:
+        # Late points2, depth, overlay, scan or camera_info of the last frame may still be queued:
         # record them too.
         while True:
             try:

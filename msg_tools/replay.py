@@ -24,6 +24,7 @@ import numpy as np
 from cva_confidence_ros.errors import BagError, ConfigError, CVAError, InputError, from_interrupt
 from cva_confidence_ros.pipeline import PipelineConfig, PipelineResult
 from cva_confidence_ros.pointcloud import StereoGeometry
+from cva_confidence_ros.scan import ScanConfig
 from cva_confidence_ros.sync import DEFAULT_KEYS
 from msg_tools.bagio import (
     STORAGES,
@@ -38,6 +39,7 @@ from msg_tools.convert import (
     COMPRESSED_IMAGE,
     DISPARITY_IMAGE,
     IMAGE,
+    LASER_SCAN,
     POINT_CLOUD2,
     disparity_from_msg,
     jazzy_typestore,
@@ -133,6 +135,7 @@ class TopicNames:
     disparity_filtered: str = 'disparity_filtered'
     depth: str = 'depth'
     overlay: str = 'confidence_overlay'
+    scan: str = 'scan'
     camera_info: str = 'camera_info'
 
     def __post_init__(self) -> None:
@@ -161,7 +164,7 @@ class TopicNames:
     def outputs(self) -> dict[str, str]:
         """Output name → absolute topic, for what the node publishes."""
         names = (
-            'disparity', 'confidence', 'points', 'disparity_filtered', 'depth', 'overlay',
+            'disparity', 'confidence', 'points', 'disparity_filtered', 'depth', 'overlay', 'scan',
             'camera_info',
         )
         return {name: self.resolve(name) for name in names}
@@ -195,6 +198,10 @@ class ReplayOptions:
         depth_encoding: ``32FC1`` (metres) or ``16UC1`` (millimetres), the node's parameter.
         publish_overlay: Write ``confidence_overlay`` (rgb8, the kept pixels tinted by
             confidence over the scene; the node computes it only for a subscriber).
+        scan: Write ``scan`` (``sensor_msgs/LaserScan`` of the kept pixels) with this band,
+            ranges and pitch (the node's ``scan_*`` parameters); None = no scan.
+        scan_frame_id: Frame of ``scan``; ``''`` = the camera's body frame
+            (:func:`cva_confidence_ros.scan.scan_frame_id`).
         overwrite: Replace an existing output bag (it is replaced only once the new one holds
             a frame) and the files of an earlier report in the report folder.
         rate_scale: Live mode: play at this multiple of the recorded speed.
@@ -224,6 +231,8 @@ class ReplayOptions:
     publish_depth: bool = True
     depth_encoding: str = '32FC1'
     publish_overlay: bool = False
+    scan: ScanConfig | None = None
+    scan_frame_id: str = ''
     overwrite: bool = False
     rate_scale: float = 1.0
     start_node: bool = True
@@ -444,7 +453,7 @@ class NodeOutputs:
     Attributes:
         messages: ``(output name, message type, CDR bytes)`` for ``disparity``,
             ``confidence``, ``disparity_filtered`` and (optionally) ``points``, ``depth``,
-            ``overlay`` and ``camera_info``.
+            ``overlay``, ``scan`` and ``camera_info``.
         confidence: (h, w) float32 published confidence in [0, 1].
         kept: (h, w) bool, pixels kept by the threshold and the speckle filter (finite in
             ``disparity_filtered``).
@@ -470,6 +479,8 @@ def node_outputs(
     publish_depth: bool = True,
     depth_encoding: str = '32FC1',
     publish_overlay: bool = False,
+    scan: ScanConfig | None = None,
+    scan_frame_id: str = '',
     left_info: Any = None,
 ) -> NodeOutputs:
     """The messages the node publishes for one processed pair, built by the node's own code.
@@ -492,6 +503,8 @@ def node_outputs(
         publish_depth: Include ``depth``, the depth of the kept pixels.
         depth_encoding: Its encoding, ``32FC1`` or ``16UC1``.
         publish_overlay: Include ``confidence_overlay`` (``plots.confidence_overlay``, rgb8).
+        scan: Include ``scan`` (``scan.disparity_to_scan`` with this config); None = not.
+        scan_frame_id: Its frame; ``''`` = ``scan.scan_frame_id`` of the left image's frame.
         left_info: The left camera info of the input (``rosbags`` or rclpy); given, include
             ``camera_info`` scaled to the output resolution, as the node publishes it.
 
@@ -511,7 +524,10 @@ def node_outputs(
         disparity_to_message,
         rgb_to_image,
         scale_camera_info,
+        scan_to_message,
     )
+    from cva_confidence_ros.scan import disparity_to_scan
+    from cva_confidence_ros.scan import scan_frame_id as body_frame
 
     ros_header = Header(
         stamp=Time(sec=int(header.stamp.sec), nanosec=int(header.stamp.nanosec)),
@@ -552,6 +568,12 @@ def node_outputs(
     if publish_overlay:
         overlay = confidence_overlay(result.left, confidence, kept)
         messages.append(('overlay', IMAGE, rgb_to_image(overlay, ros_header)))
+    if scan is not None:
+        scan_header = Header(
+            stamp=ros_header.stamp, frame_id=body_frame(ros_header.frame_id, scan_frame_id)
+        )
+        laser = disparity_to_scan(disparity, geometry, kept, confidence, scan)
+        messages.append(('scan', LASER_SCAN, scan_to_message(laser, scan_header)))
     if left_info is not None:
         messages.append(
             ('camera_info', CAMERA_INFO,
@@ -1112,6 +1134,7 @@ def _process_pair(session: ReplaySession, pipeline: Any, matched: Any, frame: in
         publish_points=options.publish_points, points_organized=options.points_organized,
         points_confidence=options.points_confidence, publish_depth=options.publish_depth,
         depth_encoding=options.depth_encoding, publish_overlay=options.publish_overlay,
+        scan=options.scan, scan_frame_id=options.scan_frame_id,
         left_info=items['left_info'],
     )
     topics = options.topics.outputs()

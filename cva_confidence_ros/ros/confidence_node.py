@@ -23,7 +23,8 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 from rclpy.timer import Timer
-from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, LaserScan, PointCloud2
+from std_msgs.msg import Header
 from stereo_msgs.msg import DisparityImage
 
 from cva_confidence_ros.errors import CVAError
@@ -45,6 +46,7 @@ from cva_confidence_ros.ros.convert import (
     disparity_to_message,
     rgb_to_image,
     scale_camera_info,
+    scan_to_message,
     stamp_to_ns,
     stereo_pair_from_messages,
 )
@@ -55,6 +57,7 @@ from cva_confidence_ros.ros.params import (
     declare_parameters,
     parameter_values,
 )
+from cva_confidence_ros.scan import disparity_to_scan, scan_frame_id
 from cva_confidence_ros.sync import MatchedSet, StampSynchronizer
 
 __all__ = ['NODE_NAME', 'STOP_TIMEOUT_S', 'ConfidenceCore', 'ConfidenceNode', 'run']
@@ -245,6 +248,8 @@ class ConfidenceCore(Node):
         self._pub_points = publish(PointCloud2, 'points2', out_qos)
         self._pub_depth = publish(Image, 'depth', out_qos)
         self._pub_overlay = publish(Image, 'confidence_overlay', out_qos)
+        self._pub_scan = publish(LaserScan, 'scan', out_qos)
+        self._scan_frame_warned = False
         self._pub_info = publish(CameraInfo, 'camera_info', out_qos)
         self._pub_diagnostics = self.create_publisher(
             DiagnosticArray, '/diagnostics', QoSProfile(depth=10)
@@ -254,8 +259,8 @@ class ConfidenceCore(Node):
         )
         self._owned = [
             self._pub_disparity, self._pub_filtered, self._pub_confidence, self._pub_points,
-            self._pub_depth, self._pub_overlay, self._pub_info, self._pub_diagnostics,
-            self._diag_timer,
+            self._pub_depth, self._pub_overlay, self._pub_scan, self._pub_info,
+            self._pub_diagnostics, self._diag_timer,
         ]
         self._worker = threading.Thread(
             target=self._work, args=(self._mailbox,), name='cva_confidence_worker'
@@ -652,6 +657,22 @@ class ConfidenceCore(Node):
         if self._pub_overlay.get_subscription_count():
             overlay = confidence_overlay(result.left, confidence, keep)
             self._pub_overlay.publish(rgb_to_image(overlay, header))
+        if node_config.publish_scan and self._pub_scan.get_subscription_count():
+            scan = disparity_to_scan(
+                disparity, geometry, keep, confidence, node_config.scan_config()
+            )
+            frame = scan_frame_id(header.frame_id, node_config.scan_frame_id)
+            if frame == header.frame_id and not (
+                node_config.scan_frame_id or self._scan_frame_warned
+            ):
+                self._scan_frame_warned = True
+                self.get_logger().warning(
+                    f'scan is published in the camera frame {frame!r}, which is not named as '
+                    'an optical frame (<name>_optical_frame); a LaserScan needs x forward and z '
+                    'up: set scan_frame_id to the camera body frame'
+                )
+            scan_header = Header(stamp=header.stamp, frame_id=frame)
+            self._pub_scan.publish(scan_to_message(scan, scan_header))
 
     # Diagnostics --------------------------------------------------------------------------
 

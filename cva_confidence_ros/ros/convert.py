@@ -12,6 +12,8 @@ Conventions follow ``stereo_image_proc`` so that the node drops into existing pi
 * depth ``sensor_msgs/Image`` as REP 118 lays it out, for depth consumers (``depth_image_proc``,
   nvblox, RTAB-Map): ``32FC1`` metres with NaN where there is no depth, or ``16UC1``
   millimetres with 0 there.
+* ``sensor_msgs/LaserScan`` of the kept pixels (:mod:`cva_confidence_ros.scan`), with the
+  confidence of each beam's point as its intensity.
 """
 
 from __future__ import annotations
@@ -20,12 +22,20 @@ from typing import Any
 
 from builtin_interfaces.msg import Time
 import numpy as np
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField, RegionOfInterest
+from sensor_msgs.msg import (
+    CameraInfo,
+    Image,
+    LaserScan,
+    PointCloud2,
+    PointField,
+    RegionOfInterest,
+)
 from std_msgs.msg import Header
 from stereo_msgs.msg import DisparityImage
 
 from cva_confidence_ros.errors import InputError
 from cva_confidence_ros.pointcloud import CLOUD_CONFIDENCE_DTYPE, CLOUD_DTYPE, StereoGeometry
+from cva_confidence_ros.scan import Scan
 
 __all__ = [
     'DEPTH_ENCODINGS',
@@ -47,6 +57,7 @@ __all__ = [
     'records_to_point_cloud',
     'rgb_to_image',
     'scale_camera_info',
+    'scan_to_message',
     'stamp_to_ns',
     'stereo_pair_from_messages',
 ]
@@ -298,6 +309,30 @@ def depth_to_image(depth: np.ndarray, header: Header, encoding: str = '32FC1') -
         millimetres[millimetres > _UINT16_MM_MAX] = 0.0
         data = millimetres.astype('<u2')
     return _packed_image(data, header, encoding)
+
+
+def scan_to_message(scan: Scan, header: Header) -> LaserScan:
+    """A ``sensor_msgs/LaserScan`` of ``scan``; ``header.frame_id`` is the scan's frame.
+
+    Every beam comes from one exposure at the header's stamp: ``time_increment`` is 0, and so
+    is ``scan_time`` (the time between scans, which one frame does not know).
+
+    Args:
+        scan: From :func:`cva_confidence_ros.scan.disparity_to_scan`.
+        header: Stamp of the images and the frame of the scan (x forward, z up).
+    """
+    return LaserScan(
+        header=header,
+        angle_min=float(scan.angle_min),
+        angle_max=float(scan.angle_max),
+        angle_increment=float(scan.angle_increment),
+        time_increment=0.0,
+        scan_time=0.0,
+        range_min=float(scan.range_min),
+        range_max=float(scan.range_max),
+        ranges=np.asarray(scan.ranges, dtype=np.float32),
+        intensities=np.asarray(scan.intensities, dtype=np.float32),
+    )
 
 
 def depth_image_to_array(msg: Image) -> np.ndarray:

@@ -25,6 +25,7 @@ from rclpy.parameter import Parameter
 from cva_confidence_ros.errors import ConfigError
 from cva_confidence_ros.pipeline import PipelineConfig
 from cva_confidence_ros.ros.convert import DEPTH_ENCODINGS
+from cva_confidence_ros.scan import ScanConfig
 
 __all__ = [
     'NODE_PARAMETERS',
@@ -78,6 +79,15 @@ class NodeConfig:
             predicts for the kept pixels (``expected_kept_error``: mean of 1 − confidence over
             them, averaged over a diagnostics period; only for the networks, whose confidence
             is a probability) is above it; 1 = never.
+        publish_scan: Publish ``scan``, a ``sensor_msgs/LaserScan`` of the kept pixels
+            (:mod:`cva_confidence_ros.scan`), for obstacle layers.
+        scan_frame_id: Frame of ``scan`` (x forward); ``''`` = the camera's body frame named
+            after its optical frame (:func:`~cva_confidence_ros.scan.scan_frame_id`).
+        scan_min_height: Lowest point in the scan, metres above the camera (negative = below).
+        scan_max_height: Highest point in the scan.
+        scan_range_min: Nearest range of the scan, metres.
+        scan_range_max: Farthest range of the scan, metres.
+        scan_pitch: How far the camera looks down from level, radians.
     """
 
     publish_points: bool = True
@@ -95,6 +105,13 @@ class NodeConfig:
     max_rate_hz: float = 0.0
     min_kept_fraction: float = 0.0
     max_expected_kept_error: float = 1.0
+    publish_scan: bool = True
+    scan_frame_id: str = ''
+    scan_min_height: float = -0.25
+    scan_max_height: float = 0.25
+    scan_range_min: float = 0.1
+    scan_range_max: float = 20.0
+    scan_pitch: float = 0.0
 
     def __post_init__(self) -> None:
         if self.depth_encoding not in DEPTH_ENCODINGS:
@@ -131,6 +148,21 @@ class NodeConfig:
             raise ConfigError(
                 f'diagnostics_period_seconds must be > 0; got {self.diagnostics_period_seconds}'
             )
+        self.scan_config()  # building it checks the scan_* values
+
+    def scan_config(self) -> ScanConfig:
+        """The ``scan_*`` parameters as a :class:`~cva_confidence_ros.scan.ScanConfig`.
+
+        Raises:
+            ConfigError: A band, range or pitch that the scan cannot take.
+        """
+        return ScanConfig(
+            min_height=self.scan_min_height,
+            max_height=self.scan_max_height,
+            range_min=self.scan_range_min,
+            range_max=self.scan_range_max,
+            pitch=self.scan_pitch,
+        )
 
     @property
     def min_period_ns(self) -> int:
@@ -415,6 +447,46 @@ NODE_PARAMETERS: tuple[ParamSpec, ...] = (
         'gone wrong; 1 = never.',
         low=0.0,
         high=1.0,
+    ),
+    _node(
+        'publish_scan',
+        'Publish scan: a sensor_msgs/LaserScan of the kept pixels (confidence >= '
+        'confidence_threshold, not in a speckle) in a height band, for obstacle layers (Nav2 '
+        'costmaps); each beam the nearest point, its confidence as intensity; NaN = no kept '
+        'pixel (unknown, not free), +inf = all beyond scan_range_max (REP 117).',
+    ),
+    _node(
+        'scan_frame_id',
+        "Frame of scan, which needs x forward and z up; '' = the camera's body frame named "
+        'after the left optical frame (<name>_optical_frame -> <name>_frame, <name>_optical '
+        '-> <name>).',
+    ),
+    _node(
+        'scan_min_height',
+        'Lowest point taken into scan, metres above the left camera (negative = below), '
+        'measured in the level frame of scan_pitch.',
+        low=-1000.0,
+        high=1000.0,
+    ),
+    _node(
+        'scan_max_height',
+        'Highest point taken into scan, metres above the left camera (> scan_min_height).',
+        low=-1000.0,
+        high=1000.0,
+    ),
+    _node('scan_range_min', 'Nearest range of scan, metres.', low=0.0, high=1e6),
+    _node(
+        'scan_range_max',
+        'Farthest range of scan, metres (> scan_range_min).',
+        low=0.0,
+        high=1e6,
+    ),
+    _node(
+        'scan_pitch',
+        'How far the camera looks down from level, radians (negative = up): heights and '
+        'ranges of scan are measured level.',
+        low=-1.57,
+        high=1.57,
     ),
 )
 

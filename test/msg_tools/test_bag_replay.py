@@ -183,6 +183,37 @@ def test_overlay_is_the_kept_pixels_coloured_over_the_scene(tmp_path: Path) -> N
         )
 
 
+def test_scan_is_the_laser_scan_of_the_kept_pixels(tmp_path: Path) -> None:
+    # --scan: a LaserScan per frame in the body frame beside the camera's optical frame, equal
+    # to disparity_to_scan of the written disparity and kept pixels with the given band.
+    from cva_confidence_ros.pointcloud import StereoGeometry
+    from cva_confidence_ros.scan import ScanConfig, disparity_to_scan
+
+    bag = dataset_bag(tmp_path, 'mcap', 2)
+    code, report = _replay(bag, tmp_path, '--scan', '--scan-height', '-5', '5',
+                           '--scan-range', '0.05', '50')
+    assert code == 0
+    assert report['config']['topics']['scan'] == '/scan'
+    inputs, outputs = read_bag(bag), read_bag(tmp_path / 'run_bag')
+    assert set(outputs) == OUTPUTS | {'/scan'}
+    config = ScanConfig(min_height=-5.0, max_height=5.0, range_min=0.05, range_max=50.0)
+    for index, (_, msg) in enumerate(outputs['/scan']):
+        left_info = inputs['/left/camera_info'][index][1]
+        right_info = inputs['/right/camera_info'][index][1]
+        assert msg.header.frame_id == 'left_camera_frame'  # beside left_camera_optical_frame
+        assert msg.header.stamp == outputs['/disparity'][index][1].header.stamp
+        geometry = StereoGeometry.from_projections(left_info.p, right_info.p)
+        disparity = disparity_from_message(outputs['/disparity'][index][1])
+        disparity -= geometry.disparity_offset  # the message holds d + Δ
+        kept = np.isfinite(disparity_from_message(outputs['/disparity_filtered'][index][1]))
+        confidence = float_image_to_array(outputs['/confidence'][index][1])
+        expected = disparity_to_scan(disparity, geometry, kept, confidence, config)
+        np.testing.assert_allclose(msg.ranges, expected.ranges, rtol=1e-5)
+        np.testing.assert_allclose(msg.intensities, expected.intensities, rtol=1e-6)
+        assert np.isfinite(msg.ranges).mean() > 0.5
+        assert (msg.range_min, msg.range_max) == pytest.approx((0.05, 50.0))
+
+
 def test_depth_encoding_and_no_depth(tmp_path: Path) -> None:
     bag = dataset_bag(tmp_path, 'mcap', 1)
     code, _ = _replay(bag, tmp_path, '--depth-encoding', '16UC1', '--downsample', '2')

@@ -52,11 +52,13 @@ def _replay(bag: Path, tmp_path: Path, mode: str, *extra: str) -> tuple[int, dic
 def test_live_gives_the_offline_results(tmp_path: Path) -> None:
     # Three tiny frames at 2 Hz: slow enough that the node drops nothing.
     bag = dataset_bag(tmp_path, 'mcap', 3, '--rate', '2')
-    code, offline = _replay(bag, tmp_path, 'offline', '--overlay')
+    extra = ('--overlay', '--scan', '--scan-height', '-5', '5', '--scan-range', '0.05', '50',
+             '--scan-frame-id', 'rig')
+    code, offline = _replay(bag, tmp_path, 'offline', *extra)
     assert code == 0
     # --rate-scale 0.5: one frame every second, margin for a loaded CI machine.
     code, live = _replay(
-        bag, tmp_path, 'live', '--overlay', '--startup-timeout', '90', '--rate-scale', '0.5'
+        bag, tmp_path, 'live', *extra, '--startup-timeout', '90', '--rate-scale', '0.5'
     )
     assert code == 0, (tmp_path / 'live' / 'node.log').read_text()
     assert live['summary']['dropped'] == 0 and live['summary']['processed'] == 3
@@ -70,7 +72,7 @@ def test_live_gives_the_offline_results(tmp_path: Path) -> None:
     first, second = read_bag(tmp_path / 'offline_bag'), read_bag(tmp_path / 'live_bag')
     assert first.keys() == second.keys() == {
         '/disparity', '/confidence', '/disparity_filtered', '/points2', '/depth', '/camera_info',
-        '/confidence_overlay',
+        '/confidence_overlay', '/scan',
     }
     for topic, read in (
         ('/disparity', disparity_from_message),
@@ -79,6 +81,7 @@ def test_live_gives_the_offline_results(tmp_path: Path) -> None:
         ('/points2', cloud_to_array),
         ('/depth', depth_image_to_array),
         ('/confidence_overlay', image_to_array),
+        ('/scan', lambda scan: np.concatenate([scan.ranges, scan.intensities])),
         ('/camera_info', lambda info: np.concatenate([info.k, info.p, [info.width, info.height]])),
     ):
         assert [t for t, _ in first[topic]] == [t for t, _ in second[topic]]
@@ -90,6 +93,8 @@ def test_live_gives_the_offline_results(tmp_path: Path) -> None:
                 left = np.stack([left[n] for n in left.dtype.names])
                 right = np.stack([right[n] for n in right.dtype.names])
             np.testing.assert_array_equal(left, right)
+    assert {msg.header.frame_id for _, msg in second['/scan']} == {'rig'}
+    assert sum(np.isfinite(msg.ranges).sum() for _, msg in second['/scan']) > 20
 
 
 def test_no_node_to_connect_to(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

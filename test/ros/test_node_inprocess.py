@@ -39,7 +39,7 @@ from cva_confidence_ros.ros.convert import (
     disparity_from_message,
     float_image_to_array,
 )
-from cva_confidence_ros.ros.params import PARAMETERS
+from cva_confidence_ros.ros.params import PARAMETERS, NodeConfig
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -549,6 +549,58 @@ def test_confidence_overlay_for_a_person_to_look_at(running: _Running) -> None:
     assert grey[~kept].all() and not grey[kept].any()
     sure = kept & (confidence > 0.9)
     assert sure.any() and np.all(overlay[sure, 1] > overlay[sure, 0])
+
+
+def test_scan_of_the_confident_pixels_for_obstacle_layers(running: _Running) -> None:
+    # A LaserScan in the body frame beside left_optical ('left'), stamped like the images,
+    # equal to disparity_to_scan of the published outputs; the textured wall 2 m ahead
+    # (d = 5) gives ranges of 2 / cos(bearing) where the disparity is right.
+    from sensor_msgs.msg import LaserScan
+
+    from cva_confidence_ros.pointcloud import StereoGeometry
+    from cva_confidence_ros.scan import ScanConfig, disparity_to_scan
+
+    running.client.subscribe('scan', LaserScan)
+    left, right = textured_pair(seed=11)
+    topics = ('disparity', 'confidence', 'disparity_filtered', 'scan')
+    geometry = StereoGeometry(fx=FX, fy=FX, cx=48.0, cy=32.0, cx_right=48.0, baseline=BASELINE)
+
+    def scan_and_reference(config: ScanConfig) -> tuple[LaserScan, object, dict]:
+        out = running.client.send_until_output(left, right, running.next_stamp(), topics=topics)
+        disparity = disparity_from_message(out['disparity'])
+        kept = np.isfinite(disparity_from_message(out['disparity_filtered']))
+        confidence = float_image_to_array(out['confidence'])
+        reference = disparity_to_scan(disparity, geometry, kept, confidence, config)
+        return out['scan'], reference, out
+
+    msg, reference, out = scan_and_reference(ScanConfig())
+    assert msg.header.frame_id == 'left' and msg.header.stamp == out['disparity'].header.stamp
+    np.testing.assert_array_equal(np.asarray(msg.ranges), reference.ranges)
+    np.testing.assert_array_equal(np.asarray(msg.intensities), reference.intensities)
+    assert (msg.angle_min, msg.angle_max) == pytest.approx((reference.angle_min,
+                                                            reference.angle_max))
+    assert msg.angle_increment == pytest.approx(reference.angle_increment)
+    assert (msg.range_min, msg.range_max, msg.time_increment) == pytest.approx((0.1, 20.0, 0.0))
+    ranges = np.asarray(msg.ranges)
+    bearings = msg.angle_min + msg.angle_increment * np.arange(ranges.size)
+    near_two = np.abs(ranges * np.cos(bearings) - 2.0) < 0.2
+    assert near_two.mean() > 0.8
+
+    # Run-time changes: another frame, a band above the camera; a band that is empty refused.
+    assert running.set(scan_frame_id='stereo_link', scan_min_height=0.3,
+                       scan_max_height=0.6).successful
+    try:
+        config = ScanConfig(min_height=0.3, max_height=0.6)
+        msg, reference, _ = scan_and_reference(config)
+        assert msg.header.frame_id == 'stereo_link'
+        np.testing.assert_array_equal(np.asarray(msg.ranges), reference.ranges)
+        assert np.isfinite(reference.ranges).any()
+        refused = running.set(scan_min_height=0.7)
+        assert not refused.successful and 'scan_min_height' in refused.reason
+    finally:
+        defaults = NodeConfig()
+        assert running.set(scan_frame_id='', scan_min_height=defaults.scan_min_height,
+                           scan_max_height=defaults.scan_max_height).successful
 
 
 def test_dense_cloud(running: _Running) -> None:

@@ -1,0 +1,214 @@
+"""A laser scan of the confident pixels: the ROS-free half of the node's ``scan`` output.
+
+Mobile robots feed obstacle layers (Nav2's costmap, slam) with ``sensor_msgs/LaserScan``;
+``depthimage_to_laserscan`` and ``pointcloud_to_laserscan`` turn a depth camera into one. A
+wrong disparity there is a phantom obstacle that stops the robot or a wall it does not see,
+so this scan is built only from the pixels the node keeps (finite disparity, confidence ≥
+threshold, not in a speckle), and each beam carries the confidence of its point.
+
+Geometry (left camera frame x right, y down, z forward; :mod:`.pointcloud`): every kept pixel
+is triangulated, turned by ``pitch`` (the camera looking down by that angle) into a level
+frame, and kept if its height above the camera, ``−y_level``, lies in ``[min_height,
+max_height]``. Its beam is the bearing ``atan2(−x, z_level)`` (counter-clockwise from forward,
+REP 103 for a frame with x forward, y left, z up), its range the horizontal distance
+``√(x² + z_level²)``. Beams are spaced evenly between the bearings of the last and first
+column's centres, ``1 / fx`` radians or a little more apart: one per column at the image centre,
+where columns are farthest apart in bearing, so no beam there falls between two columns (an
+increment of the mean column spacing, ``depthimage_to_laserscan``'s, leaves every fifth or so
+empty on a wide lens); each beam takes its nearest point.
+
+Beams follow REP 117: a range where the nearest point lies in ``[range_min, range_max]``;
+``+inf`` where the kept points in the band all lie beyond ``range_max`` (nothing within range);
+``−inf`` where they all lie closer than ``range_min`` (too close); NaN where no kept pixel
+falls in the beam at all (no measurement: the camera saw nothing it trusts there, which is not
+free space — consumers should not clear along it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+import math
+
+import numpy as np
+
+from cva_confidence_ros.checks import is_real
+from cva_confidence_ros.errors import ConfigError, InputError
+from cva_confidence_ros.pointcloud import StereoGeometry, _check_disparity
+
+__all__ = ['Scan', 'ScanConfig', 'disparity_to_scan', 'scan_frame_id']
+
+
+@dataclass(frozen=True)
+class ScanConfig:
+    """Which points make the scan (metres and radians, like ``pointcloud_to_laserscan``).
+
+    The node's parameters are these names with ``scan_`` in front (``scan_min_height``, …).
+
+    Attributes:
+        min_height: Lowest point taken, metres above the camera's centre (negative = below).
+        max_height: Highest point taken (> ``min_height``).
+        range_min: Nearest range reported (≥ 0); nearer points make a beam ``−inf`` only when
+            nothing in range is behind them.
+        range_max: Farthest range reported (> ``range_min``, finite).
+        pitch: How far the camera looks down from level, radians (negative = up), in
+            (−π/2, π/2): heights and ranges are measured in the level frame.
+    """
+
+    min_height: float = -0.25
+    max_height: float = 0.25
+    range_min: float = 0.1
+    range_max: float = 20.0
+    pitch: float = 0.0
+
+    def __post_init__(self) -> None:
+        for field in fields(self):
+            value = getattr(self, field.name)
+            if not is_real(value) or not math.isfinite(value):
+                raise ConfigError(
+                    f'scan_{field.name} must be a finite number; '
+                    f'got {type(value).__name__} {value!r}'
+                )
+        if not self.min_height < self.max_height:
+            raise ConfigError(
+                f'scan_min_height must be < scan_max_height; got {self.min_height} and '
+                f'{self.max_height}'
+            )
+        if not 0.0 <= self.range_min < self.range_max:
+            raise ConfigError(
+                f'scan ranges must satisfy 0 <= scan_range_min < scan_range_max; got '
+                f'{self.range_min} and {self.range_max}'
+            )
+        if not abs(self.pitch) < math.pi / 2:
+            raise ConfigError(f'scan_pitch must be in (-pi/2, pi/2) radians; got {self.pitch}')
+
+
+@dataclass(frozen=True)
+class Scan:
+    """One scan, the fields of ``sensor_msgs/LaserScan`` that depend on the image.
+
+    Attributes:
+        ranges: (N,) float32, metres; NaN / ±inf as the module says (REP 117).
+        intensities: (N,) float32, the confidence of each beam's point in [0, 1]; 0 where the
+            range is not finite.
+        angle_min: Bearing of beam 0 (the centre of the last image column), radians.
+        angle_max: Bearing of beam N − 1 (the centre of the first column).
+        angle_increment: ``(angle_max − angle_min) / (N − 1)`` (> 0).
+        range_min: From the config.
+        range_max: From the config.
+    """
+
+    ranges: np.ndarray
+    intensities: np.ndarray
+    angle_min: float
+    angle_max: float
+    angle_increment: float
+    range_min: float
+    range_max: float
+
+
+def disparity_to_scan(
+    disparity: np.ndarray,
+    geometry: StereoGeometry,
+    mask: np.ndarray | None = None,
+    confidence: np.ndarray | None = None,
+    config: ScanConfig | None = None,
+) -> Scan:
+    """The laser scan of a left-reference disparity map's kept pixels.
+
+    Args:
+        disparity: (H, W) real array, raw disparity ``x_left − x_right`` in pixels; NaN =
+            invalid.
+        geometry: Intrinsics at the disparity map's resolution.
+        mask: Optional (H, W) bool, True = keep (the node passes ``PipelineResult.valid``).
+        confidence: Optional (H, W) real array in [0, 1], the beams' intensities; None = 0.
+        config: Height band, ranges and pitch; None = :class:`ScanConfig` defaults.
+
+    Returns:
+        A :class:`Scan`, ``floor(fx · (angle_max − angle_min)) + 1`` beams (≤ W).
+
+    Raises:
+        InputError: ``disparity``, ``geometry`` or ``mask`` as
+            :func:`~cva_confidence_ros.pointcloud.disparity_to_points` says, a ``confidence``
+            of another shape, or an image narrower than 2 columns.
+        ConfigError: ``config`` is not a :class:`ScanConfig`.
+    """
+    disparity, mask = _check_disparity(disparity, geometry, mask)
+    config = ScanConfig() if config is None else config
+    if not isinstance(config, ScanConfig):
+        raise ConfigError(f'config must be a ScanConfig; got {type(config).__name__}')
+    height, width = disparity.shape
+    if width < 2:
+        raise InputError(f'a scan needs an image at least 2 columns wide; got {width}')
+    if confidence is None:
+        confidence = np.zeros(disparity.shape, np.float32)
+    else:
+        confidence = np.asarray(confidence)
+        if confidence.shape != disparity.shape or confidence.dtype.kind not in 'fiu':
+            raise InputError(
+                f'confidence must be a real array of the disparity shape {disparity.shape}; '
+                f'got {confidence.dtype} {confidence.shape}'
+            )
+    keep = np.ones(disparity.shape, np.bool_) if mask is None else mask
+    # Beam 0 looks along the last column: bearings grow to the left (counter-clockwise).
+    angle_min = math.atan2(geometry.cx - (width - 1), geometry.fx)
+    angle_max = math.atan2(geometry.cx, geometry.fx)
+    beams = max(2, int(math.floor((angle_max - angle_min) * geometry.fx)) + 1)
+    increment = (angle_max - angle_min) / (beams - 1)
+    params = np.array(
+        [
+            geometry.fx, geometry.fy, geometry.cx, geometry.cy, geometry.disparity_offset,
+            geometry.fx * geometry.baseline, math.sin(config.pitch), math.cos(config.pitch),
+            config.min_height, config.max_height, config.range_min, config.range_max,
+            angle_min, 1.0 / increment,
+        ],
+        dtype=np.float64,
+    )
+    from cva_confidence_ros._scan_kernel import scan_kernel  # numba: not for --help's imports
+
+    best = np.full(beams, np.inf)
+    intensity = np.zeros(beams, np.float32)
+    state = np.zeros(beams, np.uint8)
+    scan_kernel(
+        np.ascontiguousarray(disparity, dtype=np.float32),
+        np.ascontiguousarray(keep),
+        np.ascontiguousarray(confidence, dtype=np.float32),
+        params, best, intensity, state,
+    )
+    ranges = np.full(beams, np.nan, np.float32)
+    ranges[state == 1] = np.inf
+    ranges[state == 2] = -np.inf
+    ranges[state == 3] = best[state == 3]
+    intensity[state != 3] = 0.0
+    return Scan(
+        ranges=ranges,
+        intensities=np.clip(intensity, 0.0, 1.0),
+        angle_min=angle_min,
+        angle_max=angle_max,
+        angle_increment=increment,
+        range_min=float(config.range_min),
+        range_max=float(config.range_max),
+    )
+
+
+_OPTICAL_SUFFIXES = (('_optical_frame', '_frame'), ('_optical', ''))
+
+
+def scan_frame_id(camera_frame: str, configured: str = '') -> str:
+    """The frame of the scan: ``configured``, or the body frame beside the camera's optical one.
+
+    A ``LaserScan`` turns about its frame's z axis with x forward (REP 103), an optical frame
+    has z forward: the scan belongs in the camera's body frame. Drivers name the pair
+    ``<name>_optical_frame`` / ``<name>_frame`` (ZED, RealSense's ``camera_color_*``) or
+    ``<name>_optical`` / ``<name>``, so those suffixes are swapped; any other frame is returned
+    as it is (the caller warns: set ``scan_frame_id``).
+
+    Args:
+        camera_frame: ``header.frame_id`` of the left image.
+        configured: The node's ``scan_frame_id``; non-empty wins.
+    """
+    if configured:
+        return configured
+    for suffix, replacement in _OPTICAL_SUFFIXES:
+        if camera_frame.endswith(suffix) and len(camera_frame) > len(suffix):
+            return camera_frame[: -len(suffix)] + replacement
+    return camera_frame
