@@ -14,8 +14,8 @@ REP 103 for a frame with x forward, y left, z up), its range the horizontal dist
 ``√(x² + z_level²)``. Beams are spaced evenly between the bearings of the last and first
 column's centres, ``1 / fx`` radians or a little more apart: one per column at the image centre,
 where columns are farthest apart in bearing, so no beam there falls between two columns (an
-increment of the mean column spacing, ``depthimage_to_laserscan``'s, leaves every fifth or so
-empty on a wide lens); each beam takes its nearest point.
+increment of the mean column spacing would leave some centre beams empty on a wide lens: every
+fifth or so at 90° of view); each beam takes its nearest point.
 
 Beams follow REP 117: a range where the nearest point lies in ``[range_min, range_max]``;
 ``+inf`` where the kept points in the band all lie beyond ``range_max`` (nothing within range);
