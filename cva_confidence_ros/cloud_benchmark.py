@@ -9,7 +9,9 @@ PKRN (the cloud stages do not depend on which), it times per frame:
 * ``cloud_filter organised`` / ``cloud_filter dense``: what the ``cloud_filter`` node does with
   that message: decode, cut at the threshold, encode;
 * ``depth 32FC1`` / ``depth 16UC1``: the node's ``depth`` image of the kept pixels (REP 118),
-  computed and encoded.
+  computed and encoded;
+* ``scan``: the node's ``LaserScan`` of the kept pixels (:func:`~cva_confidence_ros.scan.
+  disparity_to_scan`, band ±0.5 m) as a message; its points are the beams with a range.
 """
 
 from __future__ import annotations
@@ -47,8 +49,8 @@ def run_cloud(settings: BenchSettings, threshold: float) -> list[dict[str, Any]]
     Returns:
         Records with ``config``, ``device``, ``width``, ``height``, ``max_disparity``,
         ``ms_per_frame`` (median of ``settings.repeat`` runs after a warm-up), ``points_in``
-        and ``points_out`` (finite points before and after the stage), ``bytes`` (message
-        data size).
+        and ``points_out`` (finite points before and after the stage; a scan's: beams with a
+        range), ``bytes`` (message data size; a scan's: its ranges and intensities).
     """
     from std_msgs.msg import Header
 
@@ -65,7 +67,9 @@ def run_cloud(settings: BenchSettings, threshold: float) -> list[dict[str, Any]]
         depth_to_image,
         point_cloud_to_records,
         records_to_point_cloud,
+        scan_to_message,
     )
+    from cva_confidence_ros.scan import ScanConfig, disparity_to_scan
 
     left, right = make_pairs(settings)['real']
     pipeline = StereoPipeline(
@@ -105,11 +109,25 @@ def run_cloud(settings: BenchSettings, threshold: float) -> list[dict[str, Any]]
             disparity_to_depth(result.disparity, geometry, result.valid), header, encoding
         )
 
+    def scan() -> Any:
+        laser = disparity_to_scan(
+            result.disparity, geometry, result.valid, result.confidence,
+            ScanConfig(min_height=-0.5, max_height=0.5),
+        )  # fmt: skip
+        return scan_to_message(laser, header)
+
     def finite(msg: Any) -> int:
+        if hasattr(msg, 'ranges'):  # a laser scan
+            return int(np.isfinite(np.asarray(msg.ranges)).sum())
         if hasattr(msg, 'encoding'):  # a depth image
             return int(np.isfinite(depth_image_to_array(msg)).sum())
         records = point_cloud_to_records(msg)
         return int(np.isfinite(records['z']).sum())
+
+    def size(msg: Any) -> int:
+        if hasattr(msg, 'ranges'):
+            return 4 * (len(msg.ranges) + len(msg.intensities))
+        return len(msg.data)
 
     stages = [
         ('points2', lambda: node_cloud(False), None),
@@ -118,6 +136,7 @@ def run_cloud(settings: BenchSettings, threshold: float) -> list[dict[str, Any]]
         ('cloud_filter dense', lambda: filtered(False), annotated),
         ('depth 32FC1', lambda: depth('32FC1'), None),
         ('depth 16UC1', lambda: depth('16UC1'), None),
+        ('scan', scan, None),
     ]
     records = []
     for name, step, source in stages:
@@ -132,7 +151,7 @@ def run_cloud(settings: BenchSettings, threshold: float) -> list[dict[str, Any]]
             'ms_per_frame': ms,
             'points_in': finite(source) if source is not None else None,
             'points_out': finite(msg),
-            'bytes': len(msg.data),
+            'bytes': size(msg),
         })  # fmt: skip
     return records
 
@@ -156,8 +175,8 @@ def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='cva-benchmark --suite cloud',
         description="Milliseconds per frame of the point-cloud stages: the node's points2 "
-        "with and without the confidence field, the cloud_filter node's cut, and the node's "
-        "depth image in both encodings.",
+        "with and without the confidence field, the cloud_filter node's cut, the node's "
+        'depth image in both encodings and its laser scan.',
     )
     parser.add_argument('--width', type=int, default=640)
     parser.add_argument('--height', type=int, default=480)

@@ -24,7 +24,7 @@ def test_cloud_suite_prints_and_writes_every_stage(
     records = {r['config']: r for r in json.loads(out.read_text())}
     assert list(records) == [
         'points2', 'points2+confidence', 'cloud_filter organised', 'cloud_filter dense',
-        'depth 32FC1', 'depth 16UC1',
+        'depth 32FC1', 'depth 16UC1', 'scan',
     ]
     assert all(r['ms_per_frame'] > 0 for r in records.values())
     annotated = records['points2+confidence']
@@ -39,6 +39,9 @@ def test_cloud_suite_prints_and_writes_every_stage(
     for name, size in (('depth 32FC1', 4), ('depth 16UC1', 2)):
         assert records[name]['points_out'] == records['points2']['points_out']
         assert records[name]['bytes'] == 96 * 64 * size
+    # The scan: at most one beam a column, each with a float32 range and intensity.
+    scan = records['scan']
+    assert 0 < scan['points_out'] <= 96 and scan['bytes'] <= 96 * 8
 
 
 def test_cloud_suite_refuses_a_bad_threshold(capsys: pytest.CaptureFixture[str]) -> None:
