@@ -603,6 +603,33 @@ def test_scan_of_the_confident_pixels_for_obstacle_layers(running: _Running) -> 
                            scan_max_height=defaults.scan_max_height).successful
 
 
+def test_a_scan_in_a_frame_not_named_optical_is_warned_about(running: _Running) -> None:
+    # A camera frame without the optical suffix: the scan goes out in it, with one warning
+    # that says to set scan_frame_id (a LaserScan in an optical frame would be turned).
+    from sensor_msgs.msg import LaserScan
+
+    client = running.client
+    client.subscribe('scan', LaserScan)
+    left, right = textured_pair(seed=12)
+    deadline = time.monotonic() + 30.0
+    scan = None
+    while scan is None and time.monotonic() < deadline:
+        stamp = running.next_stamp()
+        messages = {
+            'left_info': info_msgs(stamp)[0], 'right_info': info_msgs(stamp)[1],
+            'left': image_msg(left, stamp), 'right': image_msg(right, stamp),
+        }
+        for key, msg in messages.items():
+            msg.header.frame_id = 'stereo_cam'
+            client.pubs[key].publish(msg)
+        client.wait_for(lambda s=stamp: client.by_stamp('scan', s) is not None, timeout=2.0)
+        scan = client.by_stamp('scan', stamp)
+    assert scan is not None and scan.header.frame_id == 'stereo_cam'
+    assert client.wait_for(lambda: bool(running.logged('set scan_frame_id')))
+    (line,) = running.logged('set scan_frame_id')
+    assert "camera frame 'stereo_cam'" in line
+
+
 def test_dense_cloud(running: _Running) -> None:
     result = running.set(points_organized=False)
     assert result.successful
