@@ -569,11 +569,9 @@ def node_outputs(
         overlay = confidence_overlay(result.left, confidence, kept)
         messages.append(('overlay', IMAGE, rgb_to_image(overlay, ros_header)))
     if scan is not None:
-        scan_header = Header(
-            stamp=ros_header.stamp, frame_id=body_frame(ros_header.frame_id, scan_frame_id)
-        )
         laser = disparity_to_scan(disparity, geometry, kept, confidence, scan)
-        messages.append(('scan', LASER_SCAN, scan_to_message(laser, scan_header)))
+        frame = body_frame(ros_header.frame_id, scan_frame_id)
+        messages.append(('scan', LASER_SCAN, scan_to_message(laser, ros_header, frame)))
     if left_info is not None:
         messages.append(
             ('camera_info', CAMERA_INFO,

@@ -24,7 +24,6 @@ from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 from rclpy.timer import Timer
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, LaserScan, PointCloud2
-from std_msgs.msg import Header
 from stereo_msgs.msg import DisparityImage
 
 from cva_confidence_ros.errors import CVAError
@@ -671,8 +670,7 @@ class ConfidenceCore(Node):
                     'an optical frame (<name>_optical_frame); a LaserScan needs x forward and z '
                     'up: set scan_frame_id to the camera body frame'
                 )
-            scan_header = Header(stamp=header.stamp, frame_id=frame)
-            self._pub_scan.publish(scan_to_message(scan, scan_header))
+            self._pub_scan.publish(scan_to_message(scan, header, frame))
 
     # Diagnostics --------------------------------------------------------------------------
 

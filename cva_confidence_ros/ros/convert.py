@@ -311,16 +311,20 @@ def depth_to_image(depth: np.ndarray, header: Header, encoding: str = '32FC1') -
     return _packed_image(data, header, encoding)
 
 
-def scan_to_message(scan: Scan, header: Header) -> LaserScan:
-    """A ``sensor_msgs/LaserScan`` of ``scan``; ``header.frame_id`` is the scan's frame.
+def scan_to_message(scan: Scan, header: Header, frame_id: str | None = None) -> LaserScan:
+    """A ``sensor_msgs/LaserScan`` of ``scan``, stamped like ``header``.
 
     Every beam comes from one exposure at the header's stamp: ``time_increment`` is 0, and so
     is ``scan_time`` (the time between scans, which one frame does not know).
 
     Args:
         scan: From :func:`cva_confidence_ros.scan.disparity_to_scan`.
-        header: Stamp of the images and the frame of the scan (x forward, z up).
+        header: Header of the images (its stamp is the scan's).
+        frame_id: Frame of the scan (x forward, z up; :func:`cva_confidence_ros.scan.
+            scan_frame_id`); None = ``header.frame_id``.
     """
+    if frame_id is not None:
+        header = Header(stamp=header.stamp, frame_id=frame_id)
     return LaserScan(
         header=header,
         angle_min=float(scan.angle_min),
