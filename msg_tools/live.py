@@ -107,18 +107,13 @@ def node_arguments(
     ``image_transport='compressed'`` the node's ``left/image_rect/compressed`` (and right) go
     onto the bag's image topics.
     """
-    from cva_confidence_ros.ros.params import NodeConfig
+    from cva_confidence_ros.ros.params import NodeConfig, scan_parameters
     from cva_confidence_ros.scan import ScanConfig
 
-    scan = options.scan or ScanConfig()
     node_config = NodeConfig(
         publish_scan=options.scan is not None,
         scan_frame_id=options.scan_frame_id,
-        scan_min_height=scan.min_height,
-        scan_max_height=scan.max_height,
-        scan_range_min=scan.range_min,
-        scan_range_max=scan.range_max,
-        scan_pitch=scan.pitch,
+        **scan_parameters(options.scan or ScanConfig()),
         publish_points=options.publish_points,
         points_organized=options.points_organized,
         points_confidence=options.points_confidence,

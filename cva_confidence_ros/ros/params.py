@@ -35,6 +35,7 @@ __all__ = [
     'NodeConfig',
     'ParamSpec',
     'build_configs',
+    'scan_parameters',
     'declare_parameters',
     'double_value',
     'parameter_values',
@@ -156,13 +157,7 @@ class NodeConfig:
         Raises:
             ConfigError: A band, range or pitch that the scan cannot take.
         """
-        return ScanConfig(
-            min_height=self.scan_min_height,
-            max_height=self.scan_max_height,
-            range_min=self.scan_range_min,
-            range_max=self.scan_range_max,
-            pitch=self.scan_pitch,
-        )
+        return ScanConfig(**{f.name: getattr(self, f'scan_{f.name}') for f in fields(ScanConfig)})
 
     @property
     def min_period_ns(self) -> int:
@@ -516,6 +511,12 @@ def double_value(
         bounds = f'[{low:g}, {high:g}]' if low is not None and high is not None else 'range'
         raise ConfigError(f'{name} must be a number in {bounds}; got {value!r}')
     return number
+
+
+def scan_parameters(config: ScanConfig) -> dict[str, float]:
+    """The ``scan_*`` fields of :class:`NodeConfig` for ``config`` (the inverse of
+    :meth:`NodeConfig.scan_config`)."""
+    return {f'scan_{f.name}': getattr(config, f.name) for f in fields(config)}
 
 
 def declare_parameters(node: Node) -> None:
