@@ -30,6 +30,7 @@ __all__ = [
     'correctness_classes',
     'optimal_roc_curve',
     'save_confidence_map',
+    'save_confidence_overlay',
     'save_correctness_overlay',
     'save_disparity_map',
     'save_reliability_diagram',
@@ -250,6 +251,18 @@ def _gray_background(image: np.ndarray | None, shape: tuple[int, int]) -> np.nda
     # Dimmed so that the green/red classes stand out against the scene.
     dim = np.clip(gray * 0.5, 0, 255).astype(np.uint8)
     return np.repeat(dim[..., None], 3, axis=2)
+
+
+def save_confidence_overlay(
+    image: np.ndarray, confidence: np.ndarray, kept: np.ndarray, path: PathLike
+) -> Path:
+    """Write :func:`confidence_overlay` (the node's ``confidence_overlay``) as an RGB PNG,
+    one pixel per image pixel; parent folders are created.
+
+    Raises:
+        InputError: As :func:`confidence_overlay`.
+    """
+    return _write_rgb(confidence_overlay(image, confidence, kept), path)
 
 
 def save_correctness_overlay(

@@ -42,6 +42,7 @@ from msg_tools.replay import (
     TopicPlan,
     log_stderr,
     make_synchronizer,
+    output_left_image,
     plan_topics,
     preload,
 )
@@ -256,6 +257,7 @@ class _PendingFrame:
     published: float
     geometry: Any = None
     size: tuple[int, int] = (0, 0)
+    items: dict[str, Any] | None = None
 
 
 class _Player:
@@ -528,6 +530,7 @@ class _Recorder:
         pending = _PendingFrame(
             frame=frame, timestamp_ns=timestamp_ns,
             published=self.publish_times.pop(matched.stamp_ns, time.monotonic()),
+            items=dict(matched.items),
         )
         try:
             geometry, width, height = camera_geometry(
@@ -629,6 +632,7 @@ class _Recorder:
         except InputError as err:
             self.session.skip(f'outputs of frame {pending.frame}', err)
             return
+        items = pending.items or {}
         self.session.add_result(
             FrameResult(
                 frame=pending.frame,
@@ -638,5 +642,8 @@ class _Recorder:
                 kept=np.isfinite(filtered),
                 offset=pending.geometry.disparity_offset,
                 latency_ms=(received - pending.published) * 1e3,
+                image=lambda: output_left_image(
+                    items, confidence.shape, self.options.pipeline.downsample
+                ),
             )
         )

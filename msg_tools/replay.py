@@ -67,6 +67,7 @@ __all__ = [
     'log_stderr',
     'make_synchronizer',
     'node_outputs',
+    'output_left_image',
     'plan_topics',
     'preload',
     'run_offline',
@@ -446,6 +447,21 @@ def stereo_inputs(
     )
 
 
+def output_left_image(
+    items: dict[str, Any], shape: tuple[int, ...], downsample: int
+) -> np.ndarray | None:
+    """The left image of a matched set as the node processes it (decoded as
+    :func:`stereo_inputs`, shrunk by ``downsample`` as the pipeline does), or None when it
+    does not decode or does not come out at ``shape``, the (h, w) of the node's outputs."""
+    from cva_confidence_ros.datasets.resize import resize_image
+
+    try:
+        left = resize_image(stereo_inputs(items)[0], downsample)
+    except CVAError:
+        return None
+    return left if left.shape[:2] == tuple(shape[:2]) else None
+
+
 @dataclass
 class NodeOutputs:
     """What the node publishes for one frame: serialised messages and the arrays behind them.
@@ -604,6 +620,8 @@ class FrameResult:
         offset: Δ = cx_right − cx_left at the input resolution, to read a ground-truth
             ``DisparityImage`` (which holds d + Δ).
         processing_ms: Pipeline time (offline). latency_ms: Live round-trip time.
+        image: Returns the left image at the output resolution (uint8) for the report's
+            overlays, or None where it cannot be had; called only for frames drawn.
     """
 
     frame: int
@@ -614,6 +632,7 @@ class FrameResult:
     offset: float = 0.0
     processing_ms: float | None = None
     latency_ms: float | None = None
+    image: Callable[[], np.ndarray | None] | None = None
 
 
 @dataclass
@@ -686,7 +705,9 @@ class ReplaySession:
         # output bag. A live run cleared it before it started the node (whose log is there).
         if self.options.overwrite and self.options.mode != 'live':
             clear_report(self.options.report)
-        self.writer = ReportWriter(self.options.report, self.options.max_plots)
+        self.writer = ReportWriter(
+            self.options.report, self.options.max_plots, self.plan.pairs_expected
+        )
         self.interrupts.__enter__()
         try:
             # With --overwrite the old bag is replaced only once the new one holds a frame.
@@ -868,9 +889,10 @@ class ReplaySession:
         score.processing_ms = result.processing_ms
         score.latency_ms = result.latency_ms
         self.report.frames.append(score)
-        if self.writer is not None and score.auc is not None:
+        if self.writer is not None:
             self.writer.frame_plots(
-                score, result.confidence, self.options.pipeline.confidence_method
+                score, result.confidence, self.options.pipeline.confidence_method,
+                kept=result.kept, image=result.image,
             )
 
     def _log_unscored(self, score: FrameScore) -> None:
@@ -970,6 +992,16 @@ class ReplaySession:
             f'{counts["dropped"]} dropped, {counts["unpaired"]} unpaired messages'
             f'{self._unpaired_text()}'
         )
+        if summary['kept_fraction'] is not None:
+            text += (
+                f"; kept {100 * summary['kept_fraction']:.1f} % of the pixels (least "
+                f"{100 * summary['min_kept_fraction']:.1f} % in frame "
+                f"{summary['min_kept_fraction_frame']})"
+            )
+            if summary['predicted_kept_error'] is not None:
+                text += (
+                    f", predicted error of the kept {100 * summary['predicted_kept_error']:.1f} %"
+                )
         if summary['auc'] is not None:
             text += (
                 f"; mean AUC {100 * summary['auc']:.2f} (opt {100 * summary['auc_opt']:.2f}), "
@@ -1150,5 +1182,6 @@ def _process_pair(session: ReplaySession, pipeline: Any, matched: Any, frame: in
                 kept=outputs.kept,
                 offset=geometry.disparity_offset,
                 processing_ms=float(result.timings_ms.get('total', 0.0)),
+                image=lambda: result.left,
             )
         )

@@ -19,12 +19,26 @@ Per frame, on the pixels with ground truth (or a fixed random subset of ``max_pi
   in ``/diagnostics`` without ground truth — to compare with ``kept_error_rate``;
 * ``kept_epe``: mean absolute disparity error |d − d_gt| of the kept pixels (end-point error,
   pixels at the processed resolution; what sub-pixel refinement lowers).
+
+Per frame on all pixels, with or without ground truth (what a robot's own bag can tell; the
+node's ``/diagnostics`` reports the same two numbers):
+
+* ``kept_fraction``: share of all pixels the node keeps;
+* ``predicted_kept_error``: for the networks, mean(1 − confidence) over those kept pixels, the
+  error rate their confidence predicts (README, *What a confidence of 0.8 means*);
+* ``mean_confidence``: mean confidence of the pixels with a disparity.
+
+The report's PNGs: a confidence map and the node's ``confidence_overlay`` of frames spread
+evenly over the bag (``overlay_<frame>.png``, :class:`ReportWriter`), the ROC curve of those
+with ground truth, ``confidence_over_time.png`` (kept share and predicted error of every frame:
+where the scene got hard), ``least_kept_<frame>.png`` (the overlay of the frame in which the
+node kept the least) and, with ground truth, ``auc_over_time.png``.
 """
 
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Collection
+from collections.abc import Callable, Collection
 import csv
 from dataclasses import asdict, dataclass, field
 import json
@@ -38,6 +52,7 @@ import numpy as np
 from cva_confidence_ros.errors import ConfigError, InputError, reason
 
 __all__ = [
+    'FRAME_KEYS',
     'FrameScore',
     'METRIC_KEYS',
     'REPORT_KEYS',
@@ -51,14 +66,16 @@ __all__ = [
 
 METRIC_KEYS = ('error_rate', 'auc', 'auc_opt', 'kept_density', 'kept_error_rate')
 REPORT_KEYS = ('frame', 'stamp_ns', *METRIC_KEYS)
+#: Statistics of every frame, with or without ground truth (all pixels).
+FRAME_KEYS = ('kept_fraction', 'predicted_kept_error', 'mean_confidence')
 _EXTRA_KEYS = (
-    'expected_kept_error', 'kept_epe', 'n_pixels', 'width', 'height', 'processing_ms',
-    'latency_ms', 'note',
+    'expected_kept_error', 'kept_epe', *FRAME_KEYS, 'n_pixels', 'width', 'height',
+    'processing_ms', 'latency_ms', 'note',
 )
 #: Names of the files a replay writes into its report folder (``node.log``: live mode).
 _REPORT_FILE = re.compile(
     r'report\.json|report\.json\.tmp|report\.csv|summary\.md|auc_over_time\.png|node\.log'
-    r'|(confidence|roc)_\d+\.png'
+    r'|confidence_over_time\.png|(confidence|roc|overlay|least_kept)_\d+\.png'
 )
 #: Unpaired messages listed one by one in ``report.json`` (all are counted).
 MAX_LISTED_UNPAIRED = 100
@@ -157,6 +174,11 @@ class FrameScore:
         expected_kept_error: The error rate a probabilistic confidence predicts for the same
             pixels, mean(1 − confidence); None for other methods or if none is kept.
         kept_epe: Mean |d − d_gt| of the kept pixels, in pixels; None if none is kept.
+        kept_fraction: Share of all pixels kept (with or without ground truth).
+        predicted_kept_error: mean(1 − confidence) over all kept pixels for a probabilistic
+            method (the networks), the error rate it predicts without ground truth; None for
+            other methods or if none is kept.
+        mean_confidence: Mean confidence of the pixels with a finite disparity (None if none).
         n_pixels: Number of scored pixels (0 without ground truth).
         width: Processed width. height: Processed height.
         processing_ms: Pipeline time (offline) for this frame.
@@ -174,6 +196,9 @@ class FrameScore:
     kept_error_rate: float | None = None
     expected_kept_error: float | None = None
     kept_epe: float | None = None
+    kept_fraction: float | None = None
+    predicted_kept_error: float | None = None
+    mean_confidence: float | None = None
     n_pixels: int = 0
     width: int = 0
     height: int = 0
@@ -224,7 +249,8 @@ def score_frame(
             networks): also report ``expected_kept_error``.
 
     Returns:
-        The :class:`FrameScore`; metrics None when ``gt`` is None or has no known pixel.
+        The :class:`FrameScore`: :data:`FRAME_KEYS` always, the ground-truth metrics None
+        when ``gt`` is None or has no known pixel.
 
     Raises:
         InputError: Shapes that differ.
@@ -234,14 +260,18 @@ def score_frame(
 
     height, width = disparity.shape
     score = FrameScore(frame=frame, stamp_ns=stamp_ns, width=width, height=height)
-    if gt is None:
-        score.note = 'no ground truth'
-        return score
-    for name, array in (('confidence', confidence), ('kept', kept), ('ground truth', gt)):
+    arrays = (('confidence', confidence), ('kept', kept)) + (
+        (('ground truth', gt),) if gt is not None else ()
+    )
+    for name, array in arrays:
         if np.shape(array) != disparity.shape:
             raise InputError(
                 f'{name} must have the disparity shape {disparity.shape}; got {np.shape(array)}'
             )
+    _frame_statistics(score, disparity, confidence, kept, probabilistic)
+    if gt is None:
+        score.note = 'no ground truth'
+        return score
     ys, xs = select_pixels(np.isfinite(gt), max_pixels, seed)
     if ys.size == 0:
         score.note = 'ground truth has no known pixel'
@@ -266,6 +296,26 @@ def score_frame(
     score.density = scored.density
     score.roc_error = scored.roc_error
     return score
+
+
+def _frame_statistics(
+    score: FrameScore,
+    disparity: np.ndarray,
+    confidence: np.ndarray,
+    kept: np.ndarray,
+    probabilistic: bool,
+) -> None:
+    """Fill the :data:`FRAME_KEYS` of ``score`` (all pixels, no ground truth needed)."""
+    kept = np.asarray(kept, dtype=bool)
+    values = np.asarray(confidence, dtype=np.float32)
+    score.kept_fraction = float(kept.mean()) if kept.size else None
+    matched = np.isfinite(disparity) & np.isfinite(values)
+    if matched.any():
+        score.mean_confidence = float(values[matched].mean(dtype=np.float64))
+    if probabilistic:
+        from cva_confidence_ros.calibration import expected_error
+
+        score.predicted_kept_error = expected_error(np.clip(values, 0.0, 1.0), kept)
 
 
 @dataclass
@@ -306,12 +356,28 @@ class ReplayReport:
         notes = Counter(f.note or 'no metrics' for f in self.frames if f.auc is None)
         return dict(notes.most_common())
 
+    def least_kept(self) -> FrameScore | None:
+        """The frame in which the node kept the smallest share of pixels (the earliest of
+        equal ones), or None if no frame has statistics."""
+        frames = [f for f in self.frames if f.kept_fraction is not None]
+        return min(frames, key=lambda f: (cast(float, f.kept_fraction), f.frame), default=None)
+
     def summary(self) -> dict[str, Any]:
         """Means of the metrics over the frames that have them, plus the counters."""
         out: dict[str, Any] = {}
-        for key in (*METRIC_KEYS, 'expected_kept_error', 'kept_epe'):
+        for key in (*METRIC_KEYS, 'expected_kept_error', 'kept_epe', *FRAME_KEYS):
             values = [getattr(f, key) for f in self.frames if getattr(f, key) is not None]
             out[key] = float(np.mean(values)) if values else None
+        # The frames a person looks at first: where the node kept least, predicted worst
+        # (the earliest of equal ones).
+        least = self.least_kept()
+        out['min_kept_fraction'] = least.kept_fraction if least is not None else None
+        out['min_kept_fraction_frame'] = least.frame if least is not None else None
+        predicted = [f for f in self.frames if f.predicted_kept_error is not None]
+        worst = min(predicted, key=lambda f: (-cast(float, f.predicted_kept_error), f.frame),
+                    default=None)
+        out['max_predicted_kept_error'] = worst.predicted_kept_error if worst else None
+        out['max_predicted_kept_error_frame'] = worst.frame if worst else None
         latencies = [f.latency_ms for f in self.frames if f.latency_ms is not None]
         timings = [f.processing_ms for f in self.frames if f.processing_ms is not None]
         out['mean_processing_ms'] = float(np.mean(timings)) if timings else None
@@ -348,21 +414,35 @@ def _fmt(value: Any, percent: bool = False, digits: int = 1) -> str:
 class ReportWriter:
     """Writes the report folder: ``report.json``, ``report.csv``, ``summary.md`` and PNGs.
 
-    PNGs: ``confidence_<frame>.png`` and ``roc_<frame>.png`` for the first ``max_plots`` scored
-    frames (written as frames come, while their arrays exist), and ``auc_over_time.png``.
+    Per-frame PNGs (written as frames come, while their arrays exist) for at most
+    ``max_plots`` frames spread evenly over the bag (every ⌈``expected_frames`` /
+    ``max_plots``⌉-th frame: a long robot bag is seen from start to end, not only in its first
+    seconds): ``confidence_<frame>.png`` (the map), ``overlay_<frame>.png`` (the node's
+    ``confidence_overlay``: the kept pixels red → green over the scene) and, for a frame with
+    ground truth, ``roc_<frame>.png``. At the end: ``least_kept_<frame>.png``, the overlay of
+    the frame in which the node kept the smallest share of pixels (where it trusted the scene
+    least), ``confidence_over_time.png`` and, with ground truth, ``auc_over_time.png``.
 
     Args:
         folder: Report folder (created, with its parents, if it does not exist).
-        max_plots: Number of frames that get per-frame PNGs (0 = none).
+        max_plots: Number of frames that get per-frame PNGs (0 = none; the end-of-run PNGs
+            are written all the same).
+        expected_frames: Stereo pairs the bag is expected to hold (0 = unknown: the first
+            ``max_plots`` frames are plotted).
 
     Raises:
         ConfigError: ``folder`` is an existing file, or cannot be created.
     """
 
-    def __init__(self, folder: str | Path, max_plots: int = 10) -> None:
+    def __init__(
+        self, folder: str | Path, max_plots: int = 10, expected_frames: int = 0
+    ) -> None:
         self.folder = Path(folder)
         self.max_plots = max_plots
+        self.stride = max(1, math.ceil(expected_frames / max_plots)) if max_plots > 0 else 1
         self._plotted = 0
+        # (kept fraction, frame) → the overlay's inputs, of the frame kept least so far.
+        self._least: tuple[tuple[float, int], tuple[np.ndarray, ...]] | None = None
         if self.folder.exists() and not self.folder.is_dir():
             raise ConfigError(f'the report folder {self.folder} is a file; expected a folder')
         try:
@@ -372,13 +452,46 @@ class ReportWriter:
                 f'cannot create the report folder {self.folder}: {reason(err)}'
             ) from None
 
-    def frame_plots(
-        self, score: FrameScore, confidence: np.ndarray, label: str
-    ) -> list[Path]:
-        """Write the confidence map and the ROC curve of one frame (while under the budget)."""
-        from cva_confidence_ros.plots import save_confidence_map, save_roc_curves
+    def wants(self, frame: int) -> bool:
+        """Whether frame ``frame`` gets per-frame PNGs (on the stride, budget left)."""
+        return self._plotted < self.max_plots and frame % self.stride == 0
 
-        if self._plotted >= self.max_plots:
+    def frame_plots(
+        self,
+        score: FrameScore,
+        confidence: np.ndarray,
+        label: str,
+        kept: np.ndarray | None = None,
+        image: Callable[[], np.ndarray | None] | None = None,
+    ) -> list[Path]:
+        """Write the PNGs of one frame that :meth:`wants` them, and remember the frame if the
+        node kept less in it than in any before.
+
+        Args:
+            score: The frame's score (its ROC curve is drawn when it has one).
+            confidence: (h, w) published confidence.
+            label: Method name for the ROC legend.
+            kept: (h, w) bool, the pixels the node keeps (for the overlays).
+            image: Returns the left image at the output resolution (uint8), or None where it
+                cannot be had; called only for a frame whose overlay is drawn or kept.
+
+        Returns:
+            The PNGs written now.
+        """
+        from cva_confidence_ros.plots import (
+            save_confidence_map,
+            save_confidence_overlay,
+            save_roc_curves,
+        )
+
+        left: np.ndarray | None = None
+        if kept is not None and image is not None and score.kept_fraction is not None:
+            key = (score.kept_fraction, score.frame)
+            if self._least is None or key < self._least[0]:
+                left = image()
+                if left is not None:
+                    self._least = (key, (left, confidence.copy(), kept.copy()))
+        if not self.wants(score.frame):
             return []
         self._plotted += 1
         finite = confidence[np.isfinite(confidence)]
@@ -393,6 +506,13 @@ class ReportWriter:
                 confidence, self.folder / f'confidence_{score.frame:05d}.png', vmin, vmax
             )
         ]
+        if kept is not None and image is not None:
+            if left is None:
+                left = image()
+            if left is not None:
+                paths.append(save_confidence_overlay(
+                    left, confidence, kept, self.folder / f'overlay_{score.frame:05d}.png'
+                ))
         if score.density is not None and score.roc_error is not None:
             paths.append(
                 save_roc_curves(
@@ -426,7 +546,75 @@ class ReportWriter:
         plot = self._auc_plot(report)
         if plot is not None:
             paths['auc_over_time'] = plot
+        plot = self._confidence_plot(report)
+        if plot is not None:
+            paths['confidence_over_time'] = plot
+        if self._least is not None:
+            from cva_confidence_ros.plots import save_confidence_overlay
+
+            (_, frame), (left, confidence, kept) = self._least
+            paths['least_kept'] = save_confidence_overlay(
+                left, confidence, kept, self.folder / f'least_kept_{frame:05d}.png'
+            )
         return paths
+
+    def _confidence_plot(self, report: ReplayReport) -> Path | None:
+        """``confidence_over_time.png``: per frame the kept share, the predicted error of the
+        kept pixels (networks) and, where there is ground truth, their measured error."""
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+
+        frames = sorted(
+            (f for f in report.frames if f.kept_fraction is not None), key=lambda f: f.frame
+        )
+        if not frames:
+            return None
+        from matplotlib.ticker import MaxNLocator
+
+        figure = Figure(figsize=(7.0, 4.5), dpi=100)
+        FigureCanvasAgg(figure)
+        kept_axes, error_axes = figure.subplots(2, 1, sharex=True)
+        index = [f.frame for f in frames]
+        kept_axes.plot(index, [100 * cast(float, f.kept_fraction) for f in frames], 'o-',
+                       markersize=3, label='kept pixels')
+        kept_axes.set_ylim(0.0, 100.0)
+        kept_axes.set_ylabel('kept %')
+        least = report.least_kept()
+        if least is not None:
+            for axes in (kept_axes, error_axes):
+                axes.axvline(least.frame, color='0.6', linewidth=0.8)
+            kept_axes.annotate(f' least kept: frame {least.frame}', (least.frame, 4.0),
+                               fontsize=7, color='0.35')
+        drawn = False
+        for key, label, style in (
+            ('predicted_kept_error', 'predicted by the confidence', 's--'),
+            ('kept_error_rate', 'measured (pixels with ground truth)', 'x:'),
+        ):
+            points = [(f.frame, 100 * getattr(f, key)) for f in frames
+                      if getattr(f, key) is not None]
+            if points:
+                xs, ys = zip(*points, strict=True)
+                error_axes.plot(xs, ys, style, markersize=3, linewidth=1, label=label)
+                drawn = True
+        if drawn:
+            error_axes.legend(fontsize=7)
+        else:
+            error_axes.text(0.5, 0.5, 'no prediction (not a probability) and no ground truth',
+                            transform=error_axes.transAxes, ha='center', fontsize=8,
+                            color='0.4')
+        error_axes.set_ylim(bottom=0.0)
+        error_axes.set_ylabel('error of the kept %')
+        error_axes.set_xlabel('frame')
+        error_axes.xaxis.set_major_locator(MaxNLocator(integer=True))
+        for axes in (kept_axes, error_axes):
+            axes.grid(True, alpha=0.3)
+        kept_axes.set_title(f"{report.config.get('matcher', '')} + "
+                            f"{report.config.get('confidence_method', '')}, threshold "
+                            f"{report.config.get('confidence_threshold', '')}", fontsize=9)
+        figure.tight_layout()
+        path = self.folder / 'confidence_over_time.png'
+        figure.savefig(path, format='png')
+        return path
 
     def _auc_plot(self, report: ReplayReport) -> Path | None:
         from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -480,6 +668,24 @@ def format_summary(document: dict[str, Any], max_rows: int = 200) -> str:
         f"| {_fmt(summary.get('kept_epe'), digits=3)} |",
         '',
     ]
+    if summary.get('kept_fraction') is not None:
+        # What every frame tells without ground truth (a robot's own bag), on all pixels.
+        least = (f"{_fmt(summary['min_kept_fraction'], True)} (frame "
+                 f"{summary['min_kept_fraction_frame']})")
+        worst = (f"{_fmt(summary['max_predicted_kept_error'], True)} (frame "
+                 f"{summary['max_predicted_kept_error_frame']})"
+                 if summary.get('max_predicted_kept_error') is not None else '–')
+        lines += [
+            'Every frame, all pixels, no ground truth needed (as `/diagnostics`):',
+            '',
+            '| kept % | least kept % | predicted error of the kept % | highest of a frame % | '
+            'mean confidence |',
+            '|---|---|---|---|---|',
+            f"| {_fmt(summary['kept_fraction'], True)} | {least} "
+            f"| {_fmt(summary.get('predicted_kept_error'), True)} | {worst} "
+            f"| {_fmt(summary.get('mean_confidence'), digits=3)} |",
+            '',
+        ]
     if summary.get('interrupted'):
         lines += ['**Interrupted**: the report holds the frames done before the stop.', '']
     if summary.get('error'):
@@ -507,8 +713,9 @@ def format_summary(document: dict[str, Any], max_rows: int = 200) -> str:
     if frames:
         lines += [
             '| frame | stamp (ns) | error rate % | AUC ×100 | AUC opt ×100 | kept density % '
-            '| kept error % | expected kept error % | kept EPE px | note |',
-            '|---|---|---|---|---|---|---|---|---|---|',
+            '| kept error % | expected kept error % | kept EPE px | kept % (all) '
+            '| predicted kept error % (all) | note |',
+            '|---|---|---|---|---|---|---|---|---|---|---|---|',
         ]
         for record in frames[:max_rows]:
             lines.append(
@@ -517,7 +724,9 @@ def format_summary(document: dict[str, Any], max_rows: int = 200) -> str:
                 f"| {_fmt(record['auc_opt'], True)} | {_fmt(record['kept_density'], True)} "
                 f"| {_fmt(record['kept_error_rate'], True)} "
                 f"| {_fmt(record.get('expected_kept_error'), True)} "
-                f"| {_fmt(record.get('kept_epe'), digits=3)} | {record['note']} |"
+                f"| {_fmt(record.get('kept_epe'), digits=3)} "
+                f"| {_fmt(record.get('kept_fraction'), True)} "
+                f"| {_fmt(record.get('predicted_kept_error'), True)} | {record['note']} |"
             )
         if len(frames) > max_rows:
             lines.append(f'\n({len(frames) - max_rows} more frames in report.csv)')

@@ -72,7 +72,8 @@ def test_overwrite_replaces_the_whole_earlier_report(
     names = {p.name for p in report.iterdir()}
     # Nothing of the three-frame run is left next to the one-frame report; the user's file is.
     assert names == {'report.json', 'report.csv', 'summary.md', 'auc_over_time.png',
-                     'confidence_00000.png', 'roc_00000.png', 'notes.txt'}
+                     'confidence_over_time.png', 'confidence_00000.png', 'roc_00000.png',
+                     'overlay_00000.png', 'least_kept_00000.png', 'notes.txt'}
     assert (report / 'notes.txt').read_text() == 'mine\n'
     document = json.loads((report / 'report.json').read_text())
     assert document['config']['bag'] == str(small) and len(document['frames']) == 1

@@ -6,6 +6,7 @@ import csv
 import json
 from pathlib import Path
 
+import cv2
 from msg_test_utils import (
     DOFFS,
     MAX_DISPARITY,
@@ -339,6 +340,7 @@ def test_a_network_reports_the_error_it_predicts_for_the_kept_pixels(tmp_path: P
     code, report = _replay(bag, tmp_path, name='mlm')
     assert code == 0
     assert [f['expected_kept_error'] for f in report['frames']] == [None, None]
+    assert [f['predicted_kept_error'] for f in report['frames']] == [None, None]
     assert report['summary']['expected_kept_error'] is None
     with (tmp_path / 'mlm' / 'report.csv').open() as stream:
         assert {row['expected_kept_error'] for row in csv.DictReader(stream)} == {''}
@@ -363,6 +365,8 @@ def test_a_network_reports_the_error_it_predicts_for_the_kept_pixels(tmp_path: P
         assert scored.any()
         # mean(1 − confidence) over the scored kept pixels: the pixels of kept_error_rate.
         assert frame['expected_kept_error'] == pytest.approx(1.0 - confidence[scored].mean())
+        # ... and over every kept pixel, ground truth or not (what /diagnostics says).
+        assert frame['predicted_kept_error'] == pytest.approx(1.0 - confidence[kept].mean())
     assert report['summary']['expected_kept_error'] == pytest.approx(
         np.mean([f['expected_kept_error'] for f in report['frames']])
     )
@@ -395,3 +399,60 @@ def test_kept_epe_is_the_mean_disparity_error_of_the_kept_pixels(tmp_path: Path)
         )
         assert '| kept EPE px |' in (tmp_path / subpixel / 'summary.md').read_text()
     assert epe['equiangular'] < epe['none']
+
+
+def test_a_robot_bag_without_ground_truth_gets_statistics_and_pictures(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # A robot's own bag has no ground truth: every frame still gets the node's /diagnostics
+    # numbers (kept share, mean confidence), and the report PNGs a person looks at: overlays
+    # of frames spread over the bag, the kept share over time, and the frame kept least.
+    from cva_confidence_ros.datasets.resize import resize_image
+    from cva_confidence_ros.plots import confidence_overlay
+    from cva_confidence_ros.ros.convert import image_to_array
+
+    flat = np.full((30, 40), 128, np.uint8)  # no texture: nothing to trust
+    frames: list[dict] = [{}, {'shift': 3}, {}, {'left': flat, 'right': flat}, {}]
+    bag = write_stereo_bag(tmp_path / 'in', frames, ground_truth=False)
+    capsys.readouterr()
+    code, report = _replay(bag, tmp_path, '--max-plots', '2', '--downsample', '2')
+    assert code == 0
+    inputs, outputs = read_bag(bag), read_bag(tmp_path / 'run_bag')
+    kept_shares = []
+    for index, record in enumerate(report['frames']):
+        assert record['auc'] is None and record['note'] == 'no ground truth'
+        confidence = float_image_to_array(outputs['/confidence'][index][1])
+        disparity = disparity_from_message(outputs['/disparity'][index][1])
+        kept = np.isfinite(disparity_from_message(outputs['/disparity_filtered'][index][1]))
+        assert record['kept_fraction'] == pytest.approx(kept.mean())
+        has = np.isfinite(disparity)
+        assert record['mean_confidence'] == pytest.approx(confidence[has].mean(), rel=1e-5)
+        assert record['predicted_kept_error'] is None  # MLM is no probability
+        kept_shares.append(kept.mean())
+    assert kept_shares[3] < min(kept_shares[:3] + kept_shares[4:])
+    summary = report['summary']
+    assert summary['kept_fraction'] == pytest.approx(np.mean(kept_shares))
+    assert (summary['min_kept_fraction'], summary['min_kept_fraction_frame']) == (
+        pytest.approx(kept_shares[3]), 3
+    )
+
+    folder = tmp_path / 'run'
+    # Five frames, two plots: frames 0 and 3 (every third), no ROC without ground truth.
+    pngs = sorted(p.name for p in folder.glob('*.png'))
+    assert pngs == [
+        'confidence_00000.png', 'confidence_00003.png', 'confidence_over_time.png',
+        'least_kept_00003.png', 'overlay_00000.png', 'overlay_00003.png',
+    ]
+    for index, name in ((0, 'overlay_00000.png'), (3, 'overlay_00003.png'),
+                        (3, 'least_kept_00003.png')):
+        left = resize_image(image_to_array(inputs['/left/image_rect'][index][1]), 2)
+        confidence = float_image_to_array(outputs['/confidence'][index][1])
+        kept = np.isfinite(disparity_from_message(outputs['/disparity_filtered'][index][1]))
+        written = cv2.cvtColor(cv2.imread(str(folder / name)), cv2.COLOR_BGR2RGB)
+        np.testing.assert_array_equal(written, confidence_overlay(left, confidence, kept))
+    summary_md = (folder / 'summary.md').read_text()
+    assert 'no ground truth needed' in summary_md
+    assert f'| {100 * kept_shares[3]:.2f} (frame 3) |' in summary_md
+    out = capsys.readouterr().out
+    assert f'kept {100 * np.mean(kept_shares):.1f} % of the pixels (least ' \
+        f'{100 * kept_shares[3]:.1f} % in frame 3)' in out

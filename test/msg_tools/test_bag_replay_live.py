@@ -27,7 +27,8 @@ from msg_tools.convert import stamp_to_ns
 
 ROOT = Path(msg_tools.__file__).resolve().parents[1]
 
-METRICS = ('error_rate', 'auc', 'auc_opt', 'kept_density', 'kept_error_rate', 'n_pixels')
+METRICS = ('error_rate', 'auc', 'auc_opt', 'kept_density', 'kept_error_rate', 'n_pixels',
+           'kept_fraction', 'mean_confidence')
 
 
 @pytest.fixture(autouse=True)
@@ -95,6 +96,16 @@ def test_live_gives_the_offline_results(tmp_path: Path) -> None:
             np.testing.assert_array_equal(left, right)
     assert {msg.header.frame_id for _, msg in second['/scan']} == {'rig'}
     assert sum(np.isfinite(msg.ranges).sum() for _, msg in second['/scan']) > 20
+    # The report's overlays (of frames spread over the bag, and of the frame kept least) are
+    # drawn from the images the replay published: the same pictures as offline.
+    pictures = sorted(p.name for p in (tmp_path / 'live').glob('*overlay_*.png')) + sorted(
+        p.name for p in (tmp_path / 'live').glob('least_kept_*.png'))
+    assert pictures == sorted(p.name for p in (tmp_path / 'offline').glob('*overlay_*.png')) \
+        + sorted(p.name for p in (tmp_path / 'offline').glob('least_kept_*.png'))
+    assert len(pictures) == 4  # three frames, one least kept
+    for name in pictures:
+        live_png, offline_png = (tmp_path / mode / name for mode in ('live', 'offline'))
+        assert live_png.read_bytes() == offline_png.read_bytes(), name
 
 
 def test_no_node_to_connect_to(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
