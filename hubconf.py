@@ -1,0 +1,157 @@
+"""``torch.hub`` entry points: the confidence networks with their shipped weights, and the
+whole stereo pipeline, without installing the package.
+
+    import torch
+    net = torch.hub.load('<owner>/cva_confidence_ros', 'cvanet', matcher='census_sgm')
+    confidence = net.predict(cost_volume)  # (D, H, W) in [0, 1] → (H, W) in (0, 1)
+    pipeline = torch.hub.load('<owner>/cva_confidence_ros', 'pipeline', matcher='census_bm')
+    result = pipeline.process(left, right)  # disparity, confidence, valid, ...
+
+A checkout works the same with ``torch.hub.load(PATH, 'cvanet', source='local')``;
+``torch.hub.list('<owner>/cva_confidence_ros')`` names the entries and ``torch.hub.help``
+shows their options. The weights
+are the files in ``models/`` next to this file, the ones ``cva-evaluate`` and the node load
+(their model cards say how they were trained and what they score).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+# torch.hub checks these import names before it loads an entry.
+dependencies = ['torch', 'numpy', 'numba', 'scipy', 'cv2']
+
+_DEFAULT_MATCHER = 'census_bm'
+_BASELINES = ('ccnn', 'lfn', 'lgcnet')
+
+
+def _network(
+    arch: str, matcher: str, max_disparity: int, pretrained: bool, device: str
+) -> Any:
+    from cva_confidence_ros.model import load_weights
+    from cva_confidence_ros.model.inference import resolve_device
+    from cva_confidence_ros.model.weights import ARCHITECTURES, default_weights_path
+
+    if pretrained:
+        path = default_weights_path(matcher, max_disparity, arch)
+        net, meta = load_weights(path, matcher=matcher, max_disparity=max_disparity,
+                                 device=device, arch=arch)
+    else:
+        meta = {'arch': arch, 'matcher': matcher, 'max_disparity': int(max_disparity)}
+        net = ARCHITECTURES.get(arch)(meta)
+        net.to(resolve_device(device)).eval()
+    net.meta = meta
+    net.predict = _Predict(net, arch in _BASELINES)
+    return net
+
+
+class _Predict:
+    """``net.predict(...)`` of a network loaded through the hub, on the network's device
+    (``torch.hub.load`` takes the package off ``sys.path`` again; this keeps its inference at
+    hand): for the CVA-Net family ``predict(cost_volume, **options)``
+    (:func:`cva_confidence_ros.model.predict_confidence`: a whole (D, H, W) volume in
+    memory-bounded tiles); for CCNN, LFN and LGC-Net ``predict(disparity, image)``
+    (:func:`cva_confidence_ros.model.baselines.predict_disparity_confidence`)."""
+
+    def __init__(self, net: Any, baseline: bool) -> None:
+        self._net = [net]  # a list: not registered as a submodule of the network
+        self._baseline = baseline
+
+    def __call__(self, *args: Any, **options: Any) -> Any:
+        from cva_confidence_ros.model import predict_confidence
+        from cva_confidence_ros.model.baselines import predict_disparity_confidence
+
+        net = self._net[0]
+        options.setdefault('device', next(net.parameters()).device)
+        if self._baseline:
+            return predict_disparity_confidence(net, *args, **options)
+        return predict_confidence(net, *args, **options)
+
+
+def cvanet(
+    matcher: str = _DEFAULT_MATCHER, max_disparity: int = 64, pretrained: bool = True,
+    device: str = 'cpu',
+) -> Any:
+    """CVA-Net, the paper's network (Mehltretter & Heipke 2019, Table 2), in eval mode.
+
+    Args:
+        matcher: The matcher whose cost volumes it judges: census_bm, census_sgm, mccnn_fast.
+        max_disparity: Cost-volume depth D: 64 or 256 shipped (any D untrained).
+        pretrained: Load the shipped weights (``models/cvanet_<matcher>_d<D>.pt``); False
+            gives the paper's initialisation.
+        device: cpu, cuda or auto.
+
+    Returns:
+        The ``nn.Module``: input (B, 1, D, H + 12, W + 12), output (B, H, W) probabilities
+        that the winner-takes-all disparity is correct; ``.meta`` what the weights are for,
+        ``.predict(cost_volume)`` a whole (D, H, W) volume in memory-bounded tiles.
+    """
+    return _network('cvanet', matcher, max_disparity, pretrained, device)
+
+
+def cvanet_fast(
+    matcher: str = _DEFAULT_MATCHER, max_disparity: int = 64, pretrained: bool = True,
+    device: str = 'cpu',
+) -> Any:
+    """CVA-Net-Fast, the network the node runs by default on a CPU (D = 64, 128, 256 shipped);
+    otherwise as :func:`cvanet`."""
+    return _network('cvanet_fast', matcher, max_disparity, pretrained, device)
+
+
+def cvanet_lite(
+    matcher: str = _DEFAULT_MATCHER, max_disparity: int = 64, pretrained: bool = True,
+    device: str = 'cpu',
+) -> Any:
+    """CVA-Net-Lite, the light network (D = 64 shipped); otherwise as :func:`cvanet`."""
+    return _network('cvanet_lite', matcher, max_disparity, pretrained, device)
+
+
+def ccnn(
+    matcher: str = _DEFAULT_MATCHER, max_disparity: int = 64, pretrained: bool = True,
+    device: str = 'cpu',
+) -> Any:
+    """CCNN (Poggi & Mattoccia 2016), a baseline of the paper's Table 1, trained by this
+    project (D = 64 shipped): it judges the disparity map, ``.predict(disparity, image)``;
+    otherwise as :func:`cvanet`."""
+    return _network('ccnn', matcher, max_disparity, pretrained, device)
+
+
+def lfn(
+    matcher: str = _DEFAULT_MATCHER, max_disparity: int = 64, pretrained: bool = True,
+    device: str = 'cpu',
+) -> Any:
+    """LFN (Fu et al. 2017), a baseline of the paper's Table 1 (D = 64 shipped): disparity and
+    image, ``.predict(disparity, image)``; otherwise as :func:`cvanet`."""
+    return _network('lfn', matcher, max_disparity, pretrained, device)
+
+
+def lgcnet(
+    matcher: str = _DEFAULT_MATCHER, max_disparity: int = 64, pretrained: bool = True,
+    device: str = 'cpu',
+) -> Any:
+    """LGC-Net (Tosi et al. 2018), a baseline of the paper's Table 1 (D = 64 shipped):
+    disparity and image, ``.predict(disparity, image)``; otherwise as :func:`cvanet`."""
+    return _network('lgcnet', matcher, max_disparity, pretrained, device)
+
+
+def pipeline(
+    matcher: str = _DEFAULT_MATCHER, confidence_method: str = 'cva_net_fast', **options: Any
+) -> Any:
+    """The node's pipeline without ROS: rectified pair in; disparity, confidence and the kept
+    pixels out (:class:`cva_confidence_ros.pipeline.StereoPipeline`).
+
+    Args:
+        matcher: census_bm, census_sgm or mccnn_fast.
+        confidence_method: cva_net_fast (default), cva_net, cva_net_lite, ccnn, lfn, lgc_net,
+            or a hand-crafted measure (pkrn, mlm, lrd, lrc, score).
+        **options: Any other :class:`~cva_confidence_ros.pipeline.PipelineConfig` field
+            (max_disparity, confidence_threshold, downsample, device, subpixel, ...).
+
+    Returns:
+        A ``StereoPipeline``; ``.process(left, right)`` gives a ``PipelineResult``.
+    """
+    from cva_confidence_ros.pipeline import PipelineConfig, StereoPipeline
+
+    return StereoPipeline(
+        PipelineConfig(matcher=matcher, confidence_method=confidence_method, **options)
+    )
