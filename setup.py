@@ -56,7 +56,8 @@ setup(
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
         (f'share/{PACKAGE}', ['package.xml']),
         (f'share/{PACKAGE}/launch', glob('launch/*.launch.py')),
-        (f'share/{PACKAGE}/config', glob('config/*.yaml') + glob('config/*.xml')),
+        (f'share/{PACKAGE}/config', glob('config/*.yaml') + glob('config/*.xml')
+                                             + glob('config/*.rviz')),
         (f'share/{PACKAGE}/models', sorted(glob('models/*.pt') + glob('models/*.md')
                                              + glob('models/*.json') + glob('models/*.yaml'))),
     ],

@@ -17,6 +17,11 @@ off, ``scan_frame_id:=camera_link`` names the frame of ``scan``).
 confidence node then publishes every point with its confidence (``points_confidence: true``) and
 the filter republishes those with confidence >= 0.8 on ``points2_filtered``.
 
+``rviz:=true`` also starts ``rviz2`` in that namespace with the shipped layout
+(``config/cva_confidence.rviz``: the kept points, the scan coloured by confidence, the overlay
+and the confidence map); ``rviz_fixed_frame:=base_link`` views it in the robot's frame (TF
+needed), the default is the left camera's optical frame of the bag tools.
+
 ``lifecycle:=true`` starts the managed node (``lifecycle_node``) instead, as a
 ``launch_ros`` ``LifecycleNode`` for a lifecycle manager to configure and activate;
 ``autostart:=true`` with it makes the node configure and activate itself.
@@ -82,6 +87,21 @@ def _node(context: LaunchContext) -> list[Node | LifecycleNode]:
                 parameters=[{'threshold': float(cloud_threshold), 'use_sim_time': use_sim_time}],
             )
         )
+    if LaunchConfiguration('rviz').perform(context).lower() == 'true':
+        layout = os.path.join(
+            get_package_share_directory(PACKAGE), 'config', 'cva_confidence.rviz'
+        )
+        frame = LaunchConfiguration('rviz_fixed_frame').perform(context)
+        nodes.append(
+            Node(
+                package='rviz2',
+                executable='rviz2',
+                name='cva_rviz',
+                namespace=namespace,
+                arguments=['-d', layout, *(['-f', frame] if frame else [])],
+                parameters=[{'use_sim_time': use_sim_time}],
+            )
+        )
     return [
         node_class(
             package=PACKAGE,
@@ -130,6 +150,17 @@ def generate_launch_description() -> LaunchDescription:
             default_value='',
             description='Also start cloud_filter at this threshold (points_confidence on); '
             'empty = no filter.',
+        ),
+        DeclareLaunchArgument(
+            'rviz',
+            default_value='false',
+            description='Also start rviz2 with the shipped layout (config/cva_confidence.rviz).',
+        ),
+        DeclareLaunchArgument(
+            'rviz_fixed_frame',
+            default_value='',
+            description="rviz2's fixed frame (e.g. base_link, with TF); empty keeps the "
+            "layout's left_camera_optical_frame.",
         ),
     ]
     arguments += [

@@ -115,6 +115,7 @@ def test_colcon_install_layout(workspace: Path) -> None:
     assert (share / 'package.xml').read_text() == (ROOT / 'package.xml').read_text()
     assert (share / 'launch' / 'cva_confidence.launch.py').is_file()
     assert (share / 'config' / 'cva_confidence.yaml').is_file()
+    assert (share / 'config' / 'cva_confidence.rviz').is_file()
     assert (_site_packages(prefix) / PACKAGE / 'node.py').is_file()
     assert (_site_packages(prefix) / PACKAGE / 'py.typed').is_file()
 
@@ -128,6 +129,7 @@ def test_launch_file_is_valid_python_that_runs_node(workspace: Path) -> None:
     assert 'generate_launch_description' in functions
     strings = {n.value for n in ast.walk(tree) if isinstance(n, ast.Constant)}
     assert {PACKAGE, 'node', 'lifecycle_node', 'cva_confidence.yaml', 'config'} <= strings
+    assert {'rviz', 'rviz_fixed_frame', 'rviz2', 'cva_confidence.rviz'} <= strings
 
 
 def _ros2_run_env(prefix: Path) -> dict[str, str]:
@@ -221,6 +223,7 @@ def test_pip_wheel_has_only_cva_prefixed_scripts(wheel: Path) -> None:
     data = f'{PACKAGE}-0.1.0.data/data/share'
     assert f'{data}/ament_index/resource_index/packages/{PACKAGE}' in names
     assert f'{data}/{PACKAGE}/config/cva_confidence.yaml' in names
+    assert f'{data}/{PACKAGE}/config/cva_confidence.rviz' in names
 
 
 def test_installed_environment_has_cva_node_and_no_plain_node() -> None:
