@@ -200,7 +200,7 @@ def test_launch_file_starts_the_cloud_filter_on_request(monkeypatch: pytest.Monk
     ros_names = {ros_name for ros_name, _, _ in entry_points}  # what colcon installs
     base = {name: '' for name in launch.OVERRIDES}
     base.update(stereo_namespace='/stereo', use_sim_time='true', params_file='p.yaml',
-                lifecycle='false', autostart='false')
+                lifecycle='false', autostart='false', rviz='false', rviz_fixed_frame='')
 
     monkeypatch.setattr(_Config, 'values', {**base, 'cloud_filter_threshold': ''})
     (alone,) = launch._node(None)
@@ -226,7 +226,7 @@ def test_launch_file_starts_the_managed_node_on_request(monkeypatch: pytest.Monk
     assert {'lifecycle', 'autostart'} <= set(declared)
     base = {name: '' for name in launch.OVERRIDES}
     base.update(stereo_namespace='/stereo', use_sim_time='false', params_file='p.yaml',
-                cloud_filter_threshold='')
+                cloud_filter_threshold='', rviz='false', rviz_fixed_frame='')
     monkeypatch.setattr(_Config, 'values', {**base, 'lifecycle': 'true', 'autostart': 'true'})
     (node,) = launch._node(None)
     assert isinstance(node, _LifecycleAction)
@@ -236,3 +236,30 @@ def test_launch_file_starts_the_managed_node_on_request(monkeypatch: pytest.Monk
     monkeypatch.setattr(_Config, 'values', {**base, 'lifecycle': 'true', 'autostart': 'false'})
     (node,) = launch._node(None)
     assert node.kwargs['parameters'][2] == {'autostart': False}
+
+
+def test_launch_file_starts_rviz_with_the_shipped_layout_on_request(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    launch = _launch_module(monkeypatch)
+    description = launch.generate_launch_description()
+    declared = [a.args[0] if a.args else a.kwargs['name'] for a in description.args[0][:-1]]
+    assert {'rviz', 'rviz_fixed_frame'} <= set(declared)
+    base = {name: '' for name in launch.OVERRIDES}
+    base.update(stereo_namespace='/stereo', use_sim_time='true', params_file='p.yaml',
+                cloud_filter_threshold='', lifecycle='false', autostart='false')
+    monkeypatch.setattr(_Config, 'values', {**base, 'rviz': 'false', 'rviz_fixed_frame': ''})
+    assert len(launch._node(None)) == 1
+    monkeypatch.setattr(_Config, 'values', {**base, 'rviz': 'true', 'rviz_fixed_frame': ''})
+    node, rviz = launch._node(None)
+    layout = '/share/config/cva_confidence.rviz'  # the installed copy of config/
+    assert (ROOT / 'config' / Path(layout).name).is_file()
+    assert (rviz.kwargs['package'], rviz.kwargs['executable']) == ('rviz2', 'rviz2')
+    assert rviz.kwargs['arguments'] == ['-d', layout]
+    # In the node's namespace: the layout's relative topics are the node's topics.
+    assert rviz.kwargs['namespace'] is node.kwargs['namespace']
+    assert rviz.kwargs['parameters'] == [{'use_sim_time': True}]
+    monkeypatch.setattr(_Config, 'values', {**base, 'rviz': 'True',
+                                            'rviz_fixed_frame': 'base_link'})
+    _, rviz = launch._node(None)
+    assert rviz.kwargs['arguments'] == ['-d', layout, '-f', 'base_link']
