@@ -16,10 +16,15 @@ import numpy as np
 from cva_confidence_ros.checks import is_int, is_real
 from cva_confidence_ros.errors import ConfigError, InputError
 
-__all__ = ['PipelineConfig', 'PipelineResult', 'StereoPipeline']
+__all__ = ['ROI_MARGIN', 'PipelineConfig', 'PipelineResult', 'StereoPipeline']
 
 _DEVICES = ('cpu', 'cuda', 'auto')
 _MAX_SPECKLE_SIZE = 1_000_000
+#: Rows processed above and below the region of interest and then dropped, so that the
+#: windows of the matchers (census 5×5 and its 5×5 aggregation, MC-CNN's 9×9 patches) and of the
+#: networks (13×13 extracts) inside the region see what they see on the whole image. SGM's
+#: vertical and diagonal paths are the exception: they start at the edge of this margin.
+ROI_MARGIN = 16
 
 
 @dataclass(frozen=True)
@@ -57,6 +62,13 @@ class PipelineConfig:
         cva_backend: ``torch``, or ``onnxruntime``: the learned cost-volume networks
             (``cva_net``, ``cva_net_lite``, ``cva_net_fast``) exported to ONNX once and run by
             ONNX Runtime on the CPU (float32, ``device`` must resolve to the CPU).
+        roi_top: Share of the image height, from the top, that is not processed (sky, a
+            ceiling beyond the range that matters); 0 = from the first row.
+        roi_bottom: Share of the image height at which processing stops (the robot's own
+            hood or bumper below it); 1 = to the last row. Only the rows between (plus
+            :data:`ROI_MARGIN` rows of context) are matched and judged, so the time scales with
+            ``roi_bottom − roi_top``; outside, the disparity is invalid and the confidence 0,
+            and nothing there is kept.
     """
 
     matcher: str = 'census_bm'
@@ -76,6 +88,8 @@ class PipelineConfig:
     cva_cascade_fraction: float = 0.25
     cva_precision: str = 'fp32'
     cva_backend: str = 'torch'
+    roi_top: float = 0.0
+    roi_bottom: float = 1.0
 
     def __post_init__(self) -> None:
         from cva_confidence_ros.confidence import CONFIDENCE_METHODS
@@ -137,6 +151,25 @@ class PipelineConfig:
 
         if self.cva_backend not in BACKENDS:
             raise ConfigError(f'cva_backend must be one of {BACKENDS}; got {self.cva_backend!r}')
+        for name in ('roi_top', 'roi_bottom'):
+            value = getattr(self, name)
+            if not is_real(value) or not 0 <= value <= 1:
+                raise ConfigError(f'{name} must be a number in [0, 1]; got {value!r}')
+        if self.roi_top >= self.roi_bottom:
+            raise ConfigError(
+                f'roi_top must be smaller than roi_bottom (the region of interest runs from '
+                f'roi_top to roi_bottom of the image height); got roi_top = {self.roi_top!r}, '
+                f'roi_bottom = {self.roi_bottom!r}'
+            )
+
+    def roi_rows(self, height: int) -> tuple[int, int]:
+        """Rows ``[y0, y1)`` of the region of interest in an image of ``height`` rows (the
+        processed resolution); at least one row, the whole image by default."""
+        if height <= 0:
+            return 0, 0
+        y0 = min(height - 1, math.floor(self.roi_top * height))
+        y1 = max(y0 + 1, min(height, math.ceil(self.roi_bottom * height)))
+        return y0, y1
 
     @property
     def disparity_step(self) -> float:
@@ -177,8 +210,12 @@ class PipelineResult:
             ``subpixel`` when refined, ``speckle`` when filtered, ``total``).
         probabilistic: Whether ``confidence`` is meant as the probability that the disparity
             is correct (the networks; ``ConfidenceMethod.probabilistic``).
-        speckle_fraction: Share of all pixels that pass the threshold but lie in a speckle
-            (dropped from :attr:`valid` by ``speckle_size``); 0 with the filter off.
+        speckle_fraction: Share of the pixels (of the region of interest) that pass the
+            threshold but lie in a speckle (dropped from :attr:`valid` by ``speckle_size``); 0
+            with the filter off.
+        rows: Rows ``[y0, y1)`` of the region of interest (``roi_top``, ``roi_bottom``); the
+            whole image by default. Outside them the disparity is NaN, the confidence 0, the
+            raw confidence NaN and nothing is valid.
     """
 
     disparity: np.ndarray
@@ -190,6 +227,7 @@ class PipelineResult:
     timings_ms: dict[str, float] = field(default_factory=dict)
     probabilistic: bool = False
     speckle_fraction: float = 0.0
+    rows: tuple[int, int] | None = None
 
     @property
     def filtered_disparity(self) -> np.ndarray:
@@ -198,8 +236,10 @@ class PipelineResult:
 
     @property
     def kept_fraction(self) -> float:
-        """Share of the pixels in :attr:`valid` (0 for an empty map)."""
-        return float(np.mean(self.valid)) if self.valid.size else 0.0
+        """Share of the pixels of the region of interest in :attr:`valid` (0 for an empty
+        map)."""
+        valid = self.valid if self.rows is None else self.valid[self.rows[0] : self.rows[1]]
+        return float(np.mean(valid)) if valid.size else 0.0
 
     @property
     def expected_kept_error(self) -> float | None:
@@ -335,16 +375,21 @@ class StereoPipeline:
         left_s = resize_image(left, cfg.downsample)
         right_s = resize_image(right, cfg.downsample)
         timings['resize'] = (time.perf_counter() - start) * 1e3
+        height = left_s.shape[0]
+        rows = cfg.roi_rows(height)
+        # The region of interest with its margin of context: what is matched and judged.
+        c0, c1 = max(0, rows[0] - ROI_MARGIN), min(height, rows[1] + ROI_MARGIN)
+        left_c, right_c = left_s[c0:c1], right_s[c0:c1]
 
         tic = time.perf_counter()
         params = self._matcher_params()
-        volume = compute_cost_volume(left_s, right_s, cfg.matcher, cfg.max_disparity, **params)
+        volume = compute_cost_volume(left_c, right_c, cfg.matcher, cfg.max_disparity, **params)
         disparity = wta_disparity(volume)
         volume_right = None
         disparity_right = None
         if cfg.lr_check or getattr(self._method, 'needs_right', False):
             volume_right = compute_cost_volume(
-                left_s, right_s, cfg.matcher, cfg.max_disparity, view='right', **params
+                left_c, right_c, cfg.matcher, cfg.max_disparity, view='right', **params
             )
             disparity_right = wta_disparity(volume_right)
         timings['matching'] = (time.perf_counter() - tic) * 1e3
@@ -353,7 +398,7 @@ class StereoPipeline:
         inputs = ConfidenceInputs(
             cost_volume=volume,
             disparity=disparity,
-            image=left_s,
+            image=left_c,
             cost_volume_right=volume_right,
             disparity_right=disparity_right,
             matcher=cfg.matcher,
@@ -370,13 +415,22 @@ class StereoPipeline:
             tic = time.perf_counter()
             disparity = refine_subpixel(volume, disparity, cfg.subpixel)
             timings['subpixel'] = (time.perf_counter() - tic) * 1e3
+        if (c0, c1) != (0, height) or rows != (0, height):
+            # Back to the whole image: the region's rows in place, nothing outside.
+            inside = slice(rows[0] - c0, rows[1] - c0)
+            disparity, confidence, raw_confidence = (
+                _place(values[inside], height, rows, fill)
+                for values, fill in ((disparity, np.nan), (confidence, 0.0),
+                                     (raw_confidence, np.nan))
+            )
         valid = np.isfinite(disparity) & (confidence >= cfg.confidence_threshold)
         speckle_fraction = 0.0
         if cfg.speckle_size > 0:
             tic = time.perf_counter()
             confident = int(np.count_nonzero(valid))
             valid = remove_speckles(disparity, valid, cfg.speckle_size, cfg.speckle_range)
-            speckle_fraction = (confident - int(np.count_nonzero(valid))) / valid.size
+            region = (rows[1] - rows[0]) * valid.shape[1]
+            speckle_fraction = (confident - int(np.count_nonzero(valid))) / region
             timings['speckle'] = (time.perf_counter() - tic) * 1e3
         timings['total'] = (time.perf_counter() - start) * 1e3
         return PipelineResult(
@@ -389,4 +443,14 @@ class StereoPipeline:
             timings_ms=timings,
             probabilistic=self.probabilistic,
             speckle_fraction=speckle_fraction,
+            rows=rows,
         )
+
+
+def _place(
+    values: np.ndarray, height: int, rows: tuple[int, int], fill: float
+) -> np.ndarray:
+    """A (height, W) float32 map holding ``values`` in ``rows`` and ``fill`` elsewhere."""
+    out = np.full((height, values.shape[1]), fill, dtype=np.float32)
+    out[rows[0] : rows[1]] = values
+    return out

@@ -54,6 +54,8 @@ OVERRIDES: dict[str, type] = {
     'speckle_size': int,
     'max_rate_hz': float,
     'scan_frame_id': str,
+    'roi_top': float,
+    'roi_bottom': float,
 }
 
 

@@ -96,6 +96,10 @@ def build_parser() -> argparse.ArgumentParser:
                            '%(default)s)')
     node.add_argument('--tile-budget-mb', type=float, default=_default('tile_budget_mb'),
                       help='memory budget of one network tile')
+    node.add_argument('--roi', type=float, nargs=2, metavar=('TOP', 'BOTTOM'),
+                      default=(_default('roi_top'), _default('roi_bottom')),
+                      help='process only the rows from TOP to BOTTOM, as shares of the image '
+                           'height (roi_top, roi_bottom; default %(default)s = all)')
     node.add_argument('--approximate-sync', action='store_true',
                       help='pair messages whose stamps differ by at most --sync-tolerance')
     node.add_argument('--sync-tolerance', type=float, default=0.0,
@@ -183,6 +187,8 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
         speckle_size=args.speckle_size,
         speckle_range=args.speckle_range,
         tile_budget_mb=args.tile_budget_mb,
+        roi_top=args.roi[0],
+        roi_bottom=args.roi[1],
     )
     scan = ScanConfig(  # checked with or without --scan: a bad value is a mistake either way
         min_height=args.scan_height[0],

@@ -645,5 +645,6 @@ class _Recorder:
                 image=lambda: output_left_image(
                     items, confidence.shape, self.options.pipeline.downsample
                 ),
+                rows=self.options.pipeline.roi_rows(confidence.shape[0]),
             )
         )

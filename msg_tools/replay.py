@@ -622,6 +622,7 @@ class FrameResult:
         processing_ms: Pipeline time (offline). latency_ms: Live round-trip time.
         image: Returns the left image at the output resolution (uint8) for the report's
             overlays, or None where it cannot be had; called only for frames drawn.
+        rows: Rows of the region of interest (``PipelineConfig.roi_rows``); None = all.
     """
 
     frame: int
@@ -633,6 +634,7 @@ class FrameResult:
     processing_ms: float | None = None
     latency_ms: float | None = None
     image: Callable[[], np.ndarray | None] | None = None
+    rows: tuple[int, int] | None = None
 
 
 @dataclass
@@ -878,6 +880,7 @@ class ReplaySession:
                 result.frame, result.stamp_ns, result.disparity, result.confidence,
                 result.kept, gt, max_pixels=self.options.max_pixels, seed=self.options.seed,
                 probabilistic=is_probabilistic(self.options.pipeline.confidence_method),
+                rows=result.rows,
             )
         except InputError as err:
             score = FrameScore(frame=result.frame, stamp_ns=result.stamp_ns)
@@ -1183,5 +1186,6 @@ def _process_pair(session: ReplaySession, pipeline: Any, matched: Any, frame: in
                 offset=geometry.disparity_offset,
                 processing_ms=float(result.timings_ms.get('total', 0.0)),
                 image=lambda: result.left,
+                rows=result.rows,
             )
         )

@@ -234,6 +234,7 @@ def score_frame(
     max_pixels: int | None = None,
     seed: int = 0,
     probabilistic: bool = False,
+    rows: tuple[int, int] | None = None,
 ) -> FrameScore:
     """Score one processed frame against its ground truth.
 
@@ -247,6 +248,10 @@ def score_frame(
         seed: Seed of the subset (same pixels as ``cva-evaluate --max-pixels N --seed S``).
         probabilistic: ``confidence`` is a probability of a correct disparity in [0, 1] (the
             networks): also report ``expected_kept_error``.
+        rows: The rows ``[y0, y1)`` of the node's region of interest (``roi_top``,
+            ``roi_bottom``): ``kept_fraction`` is the share of its pixels, as in
+            ``/diagnostics``; None = the whole image. The ground-truth metrics take every pixel
+            with ground truth (outside the region the node keeps nothing).
 
     Returns:
         The :class:`FrameScore`: :data:`FRAME_KEYS` always, the ground-truth metrics None
@@ -268,7 +273,7 @@ def score_frame(
             raise InputError(
                 f'{name} must have the disparity shape {disparity.shape}; got {np.shape(array)}'
             )
-    _frame_statistics(score, disparity, confidence, kept, probabilistic)
+    _frame_statistics(score, disparity, confidence, kept, probabilistic, rows)
     if gt is None:
         score.note = 'no ground truth'
         return score
@@ -304,11 +309,14 @@ def _frame_statistics(
     confidence: np.ndarray,
     kept: np.ndarray,
     probabilistic: bool,
+    rows: tuple[int, int] | None,
 ) -> None:
-    """Fill the :data:`FRAME_KEYS` of ``score`` (all pixels, no ground truth needed)."""
+    """Fill the :data:`FRAME_KEYS` of ``score`` (all pixels of the region of interest, no
+    ground truth needed)."""
     kept = np.asarray(kept, dtype=bool)
     values = np.asarray(confidence, dtype=np.float32)
-    score.kept_fraction = float(kept.mean()) if kept.size else None
+    region = kept if rows is None else kept[rows[0] : rows[1]]
+    score.kept_fraction = float(region.mean()) if region.size else None
     matched = np.isfinite(disparity) & np.isfinite(values)
     if matched.any():
         score.mean_confidence = float(values[matched].mean(dtype=np.float64))
@@ -651,7 +659,8 @@ def format_summary(document: dict[str, Any], max_rows: int = 200) -> str:
     config = document['config']
     lines = ['# Bag replay report', '']
     for key in ('bag', 'mode', 'matcher', 'confidence_method', 'max_disparity', 'downsample',
-                'confidence_threshold', 'subpixel', 'speckle_size', 'speckle_range', 'gt_topic',
+                'confidence_threshold', 'subpixel', 'speckle_size', 'speckle_range', 'roi_top',
+                'roi_bottom', 'gt_topic',
                 'max_pixels'):
         if key in config:
             lines.append(f'- {key}: {config[key]}')

@@ -101,6 +101,11 @@ def test_speckle_filter_drops_small_regions_of_the_kept_pixels():
         ({'speckle_size': 10.0}, 'speckle_size must be an integer'),
         ({'speckle_range': float('nan')}, 'speckle_range must be a number in \\[0, 1024\\]'),
         ({'speckle_range': -1.0}, 'speckle_range must be a number'),
+        ({'roi_top': float('nan')}, 'roi_top must be a number in \\[0, 1\\]'),
+        ({'roi_bottom': 1.5}, 'roi_bottom must be a number in \\[0, 1\\]'),
+        ({'roi_top': '0.2'}, 'roi_top must be a number'),
+        ({'roi_top': 0.6, 'roi_bottom': 0.6},
+         'roi_top must be smaller than roi_bottom .*got roi_top = 0.6, roi_bottom = 0.6'),
     ],
 )
 def test_config_refuses_wrong_types_and_non_finite_values(changes, message):
@@ -148,3 +153,65 @@ def test_expected_kept_error_only_for_a_probabilistic_method():
         confidence_method='cva_net_fast', max_disparity=64, confidence_threshold=1.0
     ).process(np.zeros_like(left), np.zeros_like(right))
     assert none_kept.kept_fraction == 0.0 and none_kept.expected_kept_error is None
+
+
+def _textured_scene(height: int = 96, width: int = 120) -> tuple[np.ndarray, np.ndarray]:
+    """A pair with a disparity that changes with the row (a slanted plane: 3 to 11 px)."""
+    rng = np.random.default_rng(5)
+    texture = rng.integers(0, 256, (height, width + 16), dtype=np.uint8)
+    left = texture[:, :width].copy()
+    right = np.empty_like(left)
+    for y in range(height):
+        shift = 3 + (8 * y) // height
+        right[y] = texture[y, shift : shift + width]
+    return left, right
+
+
+@pytest.mark.parametrize('method', ['pkrn', 'cva_net_fast'])
+def test_the_region_of_interest_is_the_whole_image_result_there(method: str) -> None:
+    # Census-BM's windows and the networks' extracts reach no further than ROI_MARGIN rows, so
+    # inside the region everything equals the whole-image result; outside nothing is computed.
+    left, right = _textured_scene()
+    base = {'confidence_method': method, 'speckle_size': 0, 'device': 'cpu', 'max_disparity': 64}
+    whole = _pipeline(**base).process(left, right)
+    part = _pipeline(**base, roi_top=0.3, roi_bottom=0.75).process(left, right)
+    y0, y1 = part.rows
+    assert (y0, y1) == (28, 72) and whole.rows == (0, 96)
+    for name in ('disparity', 'confidence', 'raw_confidence', 'valid'):
+        np.testing.assert_array_equal(getattr(part, name)[y0:y1], getattr(whole, name)[y0:y1],
+                                      err_msg=name)
+    outside = np.r_[0:y0, y1:96]
+    assert np.isnan(part.disparity[outside]).all() and np.isnan(part.raw_confidence[outside]).all()
+    assert (part.confidence[outside] == 0.0).all() and not part.valid[outside].any()
+    assert part.disparity.shape == part.confidence.shape == whole.disparity.shape
+    # The kept share is that of the region (what /diagnostics reports).
+    assert part.kept_fraction == pytest.approx(whole.valid[y0:y1].mean())
+
+
+def test_the_region_near_the_image_edges_and_downsampled() -> None:
+    left, right = _textured_scene()
+    # Rows at the processed resolution (48 at downsample 2), one row at least.
+    config = PipelineConfig(confidence_method='pkrn', roi_top=0.5, roi_bottom=0.51)
+    assert config.roi_rows(48) == (24, 25) and config.roi_rows(1) == (0, 1)
+    assert PipelineConfig(confidence_method='pkrn', roi_top=0.0, roi_bottom=0.1).roi_rows(96) \
+        == (0, 10)
+    part = _pipeline(roi_bottom=0.25, downsample=2, speckle_size=0).process(left, right)
+    whole = _pipeline(downsample=2, speckle_size=0).process(left, right)
+    assert part.rows == (0, 12)
+    np.testing.assert_array_equal(part.disparity[:12], whole.disparity[:12])
+    assert np.isnan(part.disparity[12:]).all()
+    # With the speckle filter the region's kept pixels are a subset of the whole image's
+    # candidates (a region cut by the edge of the region of interest may be dropped).
+    part = _pipeline(roi_top=0.5).process(left, right)
+    assert not part.valid[:48].any() and part.valid[48:].any()
+
+
+def test_census_sgm_in_a_region_of_interest_differs_only_near_its_edges() -> None:
+    # SGM's vertical and diagonal paths start at the edge of the margin, not of the image.
+    left, right = _textured_scene()
+    base = {'matcher': 'census_sgm', 'speckle_size': 0}
+    whole = _pipeline(**base).process(left, right)
+    part = _pipeline(**base, roi_top=0.3, roi_bottom=0.75).process(left, right)
+    y0, y1 = part.rows
+    same = part.disparity[y0:y1] == whole.disparity[y0:y1]
+    assert same.mean() > 0.97

@@ -350,6 +350,21 @@ PIPELINE_PARAMETERS: tuple[ParamSpec, ...] = (
         'onnxruntime (exported to ONNX at start, run by ONNX Runtime on the CPU, float32).',
         constraints='one of torch, onnxruntime',
     ),
+    _pipeline(
+        'roi_top',
+        'Share of the image height, from the top, that is not processed (sky, a ceiling out of '
+        'range); smaller than roi_bottom. Time scales with roi_bottom - roi_top; outside, '
+        'nothing is kept (disparity invalid, confidence 0).',
+        low=0.0,
+        high=1.0,
+    ),
+    _pipeline(
+        'roi_bottom',
+        "Share of the image height at which processing stops (the robot's own hood or bumper "
+        'below it); 1 = to the last row.',
+        low=0.0,
+        high=1.0,
+    ),
 )
 
 NODE_PARAMETERS: tuple[ParamSpec, ...] = (

@@ -456,3 +456,24 @@ def test_a_robot_bag_without_ground_truth_gets_statistics_and_pictures(
     out = capsys.readouterr().out
     assert f'kept {100 * np.mean(kept_shares):.1f} % of the pixels (least ' \
         f'{100 * kept_shares[3]:.1f} % in frame 3)' in out
+
+
+def test_region_of_interest_as_the_node(tmp_path: Path) -> None:
+    # --roi TOP BOTTOM: the node's roi_top / roi_bottom; the report's kept share is that of the
+    # region, as /diagnostics gives it.
+    bag = write_stereo_bag(tmp_path / 'in', [{}, {}], ground_truth=False)
+    code, report = _replay(bag, tmp_path, '--roi', '0.2', '0.7')
+    assert code == 0
+    assert (report['config']['roi_top'], report['config']['roi_bottom']) == (0.2, 0.7)
+    outputs = read_bag(tmp_path / 'run_bag')
+    for index, record in enumerate(report['frames']):
+        disparity = disparity_from_message(outputs['/disparity'][index][1])
+        kept = np.isfinite(disparity_from_message(outputs['/disparity_filtered'][index][1]))
+        assert disparity.shape == (30, 40)
+        # Rows 6 to 21 of 30: floor(0.2 · 30), ceil(0.7 · 30).
+        assert np.isnan(disparity[:6]).all() and np.isnan(disparity[21:]).all()
+        assert np.isfinite(disparity[6:21]).any()
+        assert record['kept_fraction'] == pytest.approx(kept[6:21].mean())
+    assert '- roi_top: 0.2' in (tmp_path / 'run' / 'summary.md').read_text()
+    code, _ = _replay(bag, tmp_path, '--roi', '0.7', '0.2', name='bad')
+    assert code == 2

@@ -527,6 +527,48 @@ def test_speckle_filter_changes_at_run_time(running: _Running) -> None:
         ).successful
 
 
+def test_region_of_interest_changes_at_run_time(running: _Running) -> None:
+    # roi_top / roi_bottom: only those rows are processed; the rest is published as nothing
+    # kept (invalid disparity, confidence 0), and /diagnostics gives the region's kept share.
+    left, right = textured_pair(seed=11)
+    topics = ('disparity', 'confidence', 'disparity_filtered', 'depth')
+
+    def outputs() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        out = running.client.send_until_output(left, right, running.next_stamp(), topics=topics)
+        return (disparity_from_message(out['disparity']),
+                float_image_to_array(out['confidence']),
+                np.isfinite(disparity_from_message(out['disparity_filtered'])),
+                depth_image_to_array(out['depth']))
+
+    whole = outputs()
+    assert running.set(roi_top=0.25, roi_bottom=0.75).successful
+    try:
+        disparity, confidence, kept, depth = outputs()
+        y0, y1 = PipelineConfig(roi_top=0.25, roi_bottom=0.75).roi_rows(64)
+        assert (y0, y1) == (16, 48)
+        outside = np.r_[0:y0, y1:64]
+        assert np.isnan(disparity[outside]).all() and (confidence[outside] == 0).all()
+        assert not kept[outside].any() and np.isnan(depth[outside]).all()
+        # Census-BM and MLM reach a few rows: inside, the whole image's values.
+        np.testing.assert_array_equal(disparity[y0:y1], whole[0][y0:y1])
+        np.testing.assert_array_equal(confidence[y0:y1], whole[1][y0:y1])
+        assert kept[y0:y1].any()
+        share = f'{kept[y0:y1].mean():.4f}'
+
+        def reports_share() -> bool:
+            return any(
+                {kv.key: kv.value for kv in entry.values}.get('last_kept_fraction') == share
+                for array in running.client.received['/diagnostics'] for entry in array.status
+            )
+
+        assert running.client.wait_for(reports_share, timeout=10.0)
+        refused = running.set(roi_top=0.8)
+        assert not refused.successful and 'roi_top must be smaller than roi_bottom' \
+            in refused.reason
+    finally:
+        assert running.set(roi_top=0.0, roi_bottom=1.0).successful
+
+
 def test_confidence_overlay_for_a_person_to_look_at(running: _Running) -> None:
     # rgb8 at the output size with the left image's header: the kept pixels tinted (green above
     # red where the confidence is high), the others a dimmed grey (r = g = b).
