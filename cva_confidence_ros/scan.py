@@ -35,7 +35,7 @@ from cva_confidence_ros.checks import is_real
 from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.pointcloud import StereoGeometry, _check_disparity
 
-__all__ = ['Scan', 'ScanConfig', 'disparity_to_scan', 'scan_frame_id']
+__all__ = ['Scan', 'ScanConfig', 'ScanScore', 'disparity_to_scan', 'scan_frame_id', 'score_scan']
 
 
 @dataclass(frozen=True)
@@ -187,6 +187,84 @@ def disparity_to_scan(
         angle_increment=increment,
         range_min=float(config.range_min),
         range_max=float(config.range_max),
+    )
+
+
+@dataclass(frozen=True)
+class ScanScore:
+    """How a scan's beams compare with a reference scan (the ground truth's).
+
+    Attributes:
+        beams: Beams where the reference has a return in range (the ones scored).
+        phantom: Of those, beams whose range is wrong and nearer than the reference (an
+            obstacle that is not there), ``−inf`` (too close) included.
+        far: Beams whose range is wrong and farther (the nearest thing missed), ``+inf``
+            (nothing within range) included.
+        none: Beams with no return at all (NaN: nothing kept there).
+    """
+
+    beams: int
+    phantom: int
+    far: int
+    none: int
+
+    def rate(self, outcome: str) -> float | None:
+        """``phantom``, ``far`` or ``none`` as a share of :attr:`beams` (None without beams)."""
+        return getattr(self, outcome) / self.beams if self.beams else None
+
+
+def score_scan(
+    estimate: Scan, truth: Scan, geometry: StereoGeometry, config: ScanConfig | None = None
+) -> ScanScore:
+    """Score the beams of ``estimate`` against ``truth`` by the KITTI criterion in disparity.
+
+    A beam is scored where ``truth`` has a finite range. Both ranges are turned back into
+    disparities along the beam's bearing θ: the point's depth in the camera is
+    ``r·cos θ·cos(pitch) − h·sin(pitch)`` with its height h taken at the band's centre (exact
+    for ``pitch`` 0, and off by ``(h − centre)·sin(pitch)`` otherwise); a beam is wrong when the
+    two disparities differ by ≥ 3 px and ≥ 5 % of the true one.
+
+    Args:
+        estimate: The scan to judge (e.g. of the node's kept pixels that have ground truth).
+        truth: The scan of the ground-truth disparity over the same pixels, same config.
+        geometry: Intrinsics at the disparity maps' resolution.
+        config: The config both scans were made with (pitch and band); None = defaults.
+
+    Raises:
+        InputError: Scans with different beams.
+    """
+    config = ScanConfig() if config is None else config
+    if (estimate.ranges.shape != truth.ranges.shape
+            or not math.isclose(estimate.angle_min, truth.angle_min, abs_tol=1e-9)
+            or not math.isclose(estimate.angle_increment, truth.angle_increment, abs_tol=1e-9)):
+        raise InputError(
+            f'scans with different beams cannot be compared: {estimate.ranges.size} beams from '
+            f'{estimate.angle_min:.6f} rad against {truth.ranges.size} from '
+            f'{truth.angle_min:.6f} rad'
+        )
+    bearing = truth.angle_min + truth.angle_increment * np.arange(truth.ranges.size)
+    centre = 0.5 * (config.min_height + config.max_height)
+
+    def disparity(ranges: np.ndarray) -> np.ndarray:
+        with np.errstate(divide='ignore', invalid='ignore', over='ignore'):
+            depth = (ranges.astype(np.float64) * np.cos(bearing) * math.cos(config.pitch)
+                     - centre * math.sin(config.pitch))
+            return geometry.fx * geometry.baseline / depth - geometry.disparity_offset
+
+    scored = np.isfinite(truth.ranges)
+    got = estimate.ranges
+    d_true, d_est = disparity(truth.ranges), disparity(got)
+    off = np.abs(d_est - d_true)
+    with np.errstate(invalid='ignore'):
+        wrong_near = np.isfinite(got) & (off >= 3.0) & (off >= 0.05 * d_true) & (d_est > d_true)
+        wrong_far = np.isfinite(got) & (off >= 3.0) & (off >= 0.05 * d_true) & (d_est < d_true)
+    phantom = scored & (wrong_near | (got == -np.inf))
+    far = scored & (wrong_far | (got == np.inf))
+    return ScanScore(
+        beams=int(scored.sum()),
+        phantom=int(phantom.sum()),
+        far=int(far.sum()),
+        none=int((scored & np.isnan(got)).sum()),
     )
 
 

@@ -646,5 +646,6 @@ class _Recorder:
                     items, confidence.shape, self.options.pipeline.downsample
                 ),
                 rows=self.options.pipeline.roi_rows(confidence.shape[0]),
+                geometry=geometry,
             )
         )

@@ -623,6 +623,7 @@ class FrameResult:
         image: Returns the left image at the output resolution (uint8) for the report's
             overlays, or None where it cannot be had; called only for frames drawn.
         rows: Rows of the region of interest (``PipelineConfig.roi_rows``); None = all.
+        geometry: Stereo geometry at the output resolution (to score ``--scan``).
     """
 
     frame: int
@@ -635,6 +636,7 @@ class FrameResult:
     latency_ms: float | None = None
     image: Callable[[], np.ndarray | None] | None = None
     rows: tuple[int, int] | None = None
+    geometry: StereoGeometry | None = None
 
 
 @dataclass
@@ -885,6 +887,9 @@ class ReplaySession:
         except InputError as err:
             score = FrameScore(frame=result.frame, stamp_ns=result.stamp_ns)
             note = f'not scored: {err}'
+        else:
+            if gt is not None and self.options.scan is not None and result.geometry is not None:
+                self._score_scan(score, result, gt)
         if note:
             score.note = note
         if score.auc is None and self.plan.ground_truth is not None:
@@ -897,6 +902,27 @@ class ReplaySession:
                 score, result.confidence, self.options.pipeline.confidence_method,
                 kept=result.kept, image=result.image,
             )
+
+    def _score_scan(self, score: FrameScore, result: FrameResult, gt: np.ndarray) -> None:
+        """Score the frame's laser scan: that of its kept pixels with ground truth against the
+        ground truth's scan of the same pixels (``scan.score_scan``)."""
+        from cva_confidence_ros.scan import disparity_to_scan, score_scan
+
+        config, geometry = self.options.scan, result.geometry
+        assert config is not None and geometry is not None  # the caller checked
+        known = np.isfinite(gt)
+        try:
+            truth = disparity_to_scan(gt, geometry, known, None, config)
+            scan = disparity_to_scan(
+                result.disparity, geometry, result.kept & known, result.confidence, config
+            )
+            scored = score_scan(scan, truth, geometry, config)
+        except InputError:
+            return  # the scan itself was written; the frame just has no scan score
+        score.scan_beams = scored.beams
+        score.scan_phantom_rate = scored.rate('phantom')
+        score.scan_far_rate = scored.rate('far')
+        score.scan_none_rate = scored.rate('none')
 
     def _log_unscored(self, score: FrameScore) -> None:
         """Say why a frame of a bag with ground truth has no metrics (throttled per reason)."""
@@ -1009,6 +1035,11 @@ class ReplaySession:
             text += (
                 f"; mean AUC {100 * summary['auc']:.2f} (opt {100 * summary['auc_opt']:.2f}), "
                 f"error rate {100 * summary['error_rate']:.2f} %"
+            )
+        if summary['scan_beams']:
+            text += (
+                f"; scan: {100 * summary['scan_phantom_rate']:.1f} % phantom beams of "
+                f"{summary['scan_beams']} against the ground truth's"
             )
         scored = summary['frames_scored']
         if self.plan.ground_truth is not None and scored < len(self.report.frames):
@@ -1187,5 +1218,6 @@ def _process_pair(session: ReplaySession, pipeline: Any, matched: Any, frame: in
                 processing_ms=float(result.timings_ms.get('total', 0.0)),
                 image=lambda: result.left,
                 rows=result.rows,
+                geometry=outputs.geometry,
             )
         )

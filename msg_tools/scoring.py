@@ -53,6 +53,7 @@ from cva_confidence_ros.errors import ConfigError, InputError, reason
 
 __all__ = [
     'FRAME_KEYS',
+    'SCAN_KEYS',
     'FrameScore',
     'METRIC_KEYS',
     'REPORT_KEYS',
@@ -68,8 +69,10 @@ METRIC_KEYS = ('error_rate', 'auc', 'auc_opt', 'kept_density', 'kept_error_rate'
 REPORT_KEYS = ('frame', 'stamp_ns', *METRIC_KEYS)
 #: Statistics of every frame, with or without ground truth (all pixels).
 FRAME_KEYS = ('kept_fraction', 'predicted_kept_error', 'mean_confidence')
+#: The laser scan against the ground truth's (``--scan`` and ground truth).
+SCAN_KEYS = ('scan_beams', 'scan_phantom_rate', 'scan_far_rate', 'scan_none_rate')
 _EXTRA_KEYS = (
-    'expected_kept_error', 'kept_epe', *FRAME_KEYS, 'n_pixels', 'width', 'height',
+    'expected_kept_error', 'kept_epe', *FRAME_KEYS, *SCAN_KEYS, 'n_pixels', 'width', 'height',
     'processing_ms', 'latency_ms', 'note',
 )
 #: Names of the files a replay writes into its report folder (``node.log``: live mode).
@@ -179,6 +182,11 @@ class FrameScore:
             method (the networks), the error rate it predicts without ground truth; None for
             other methods or if none is kept.
         mean_confidence: Mean confidence of the pixels with a finite disparity (None if none).
+        scan_beams: With ``--scan`` and ground truth: beams of the ground truth's scan (of its
+            known pixels) with a return in range, the beams scored (``scan.score_scan``).
+        scan_phantom_rate: Share of them where the scan of the kept pixels with ground truth
+            is wrong and nearer (a phantom obstacle). scan_far_rate: wrong and farther.
+            scan_none_rate: no return (nothing kept in the beam).
         n_pixels: Number of scored pixels (0 without ground truth).
         width: Processed width. height: Processed height.
         processing_ms: Pipeline time (offline) for this frame.
@@ -199,6 +207,10 @@ class FrameScore:
     kept_fraction: float | None = None
     predicted_kept_error: float | None = None
     mean_confidence: float | None = None
+    scan_beams: int | None = None
+    scan_phantom_rate: float | None = None
+    scan_far_rate: float | None = None
+    scan_none_rate: float | None = None
     n_pixels: int = 0
     width: int = 0
     height: int = 0
@@ -378,6 +390,13 @@ class ReplayReport:
             out[key] = float(np.mean(values)) if values else None
         # The frames a person looks at first: where the node kept least, predicted worst
         # (the earliest of equal ones).
+        # The scan's rates pooled over the beams of every scored frame.
+        scanned = [f for f in self.frames if f.scan_beams]
+        beams = sum(cast(int, f.scan_beams) for f in scanned)
+        out['scan_beams'] = beams if scanned else None
+        for key in SCAN_KEYS[1:]:
+            out[key] = (sum(cast(float, getattr(f, key)) * cast(int, f.scan_beams)
+                            for f in scanned) / beams) if beams else None
         least = self.least_kept()
         out['min_kept_fraction'] = least.kept_fraction if least is not None else None
         out['min_kept_fraction_frame'] = least.frame if least is not None else None
@@ -677,6 +696,15 @@ def format_summary(document: dict[str, Any], max_rows: int = 200) -> str:
         f"| {_fmt(summary.get('kept_epe'), digits=3)} |",
         '',
     ]
+    if summary.get('scan_beams'):
+        lines += [
+            f"Laser scan (`--scan`) of the kept pixels with ground truth against the ground "
+            f"truth's, {summary['scan_beams']} beams with a return: phantom (wrong, nearer) "
+            f"{_fmt(summary['scan_phantom_rate'], True)} %, far (wrong, farther) "
+            f"{_fmt(summary['scan_far_rate'], True)} %, none "
+            f"{_fmt(summary['scan_none_rate'], True)} %.",
+            '',
+        ]
     if summary.get('kept_fraction') is not None:
         # What every frame tells without ground truth (a robot's own bag), on all pixels.
         least = (f"{_fmt(summary['min_kept_fraction'], True)} (frame "

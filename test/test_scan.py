@@ -9,7 +9,14 @@ import pytest
 
 from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.pointcloud import StereoGeometry, disparity_to_points
-from cva_confidence_ros.scan import ScanConfig, disparity_to_scan, scan_frame_id
+from cva_confidence_ros.scan import (
+    Scan,
+    ScanConfig,
+    ScanScore,
+    disparity_to_scan,
+    scan_frame_id,
+    score_scan,
+)
 
 GEOMETRY = StereoGeometry(fx=100.0, fy=100.0, cx=47.5, cy=31.5, cx_right=47.5, baseline=0.1)
 
@@ -200,3 +207,55 @@ def test_the_scan_frame_is_the_body_frame_beside_the_optical_one(
     camera: str, configured: str, expected: str
 ) -> None:
     assert scan_frame_id(camera, configured) == expected
+
+
+def _scan(ranges: list[float]) -> Scan:
+    values = np.array(ranges, np.float32)
+    return Scan(ranges=values, intensities=np.zeros_like(values), angle_min=-0.03,
+                angle_max=-0.03 + 0.01 * (values.size - 1), angle_increment=0.01,
+                range_min=0.1, range_max=20.0)
+
+
+def test_beams_are_judged_by_the_kitti_criterion_in_disparity() -> None:
+    # fx · B = 50 px·m: 5 m is 10 px. 2 m (25 px) is a phantom, 9 m (5.6 px) is too far, 5.1 m
+    # (9.8 px) is right; −inf (too close) counts as a phantom, +inf (nothing in range) as far,
+    # NaN as none; a beam without a true return is not scored.
+    geometry = StereoGeometry(fx=100.0, fy=100.0, cx=50.0, cy=30.0, cx_right=50.0,
+                              baseline=0.5)
+    truth = _scan([5.0, 5.0, 5.0, 5.0, 5.0, 5.0, 5.0, float('nan')])
+    estimate = _scan([5.0, 2.0, 9.0, 5.1, float('nan'), -np.inf, np.inf, 3.0])
+    score = score_scan(estimate, truth, geometry)
+    assert (score.beams, score.phantom, score.far, score.none) == (7, 2, 2, 1)
+    assert score.rate('phantom') == pytest.approx(2 / 7)
+    assert score_scan(truth, truth, geometry).rate('phantom') == 0.0
+    # 6.5 m is 7.7 px, 2.3 px off: within 3 px, right; at fx · B = 150 the same ranges are
+    # 6.9 px apart, and wrong.
+    near = _scan([6.5])
+    assert score_scan(near, _scan([5.0]), geometry).far == 0
+    wide = StereoGeometry(fx=300.0, fy=300.0, cx=50.0, cy=30.0, cx_right=50.0, baseline=0.5)
+    assert score_scan(near, _scan([5.0]), wide).far == 1
+    with pytest.raises(InputError, match='scans with different beams'):
+        score_scan(_scan([5.0, 5.0]), truth, geometry)
+    assert ScanScore(beams=0, phantom=0, far=0, none=0).rate('none') is None
+
+
+@pytest.mark.parametrize('pitch', [0.0, 0.2])
+def test_a_scan_against_the_scan_of_its_ground_truth(pitch: float) -> None:
+    # A plane 0.4 m ahead, a level or pitched camera: the estimate's columns 10-19 nearer by
+    # 6 px make phantoms there, columns 60-69 farther by 6 px make far beams, a masked band
+    # makes beams without a return, the rest is right.
+    height, width = 64, 96
+    truth = np.full((height, width), 25.0, np.float32)  # 0.4 m: fx · B = 10 px·m
+    estimate = truth.copy()
+    estimate[:, 10:20] += 6.0
+    estimate[:, 60:70] -= 6.0
+    mask = np.ones((height, width), bool)
+    mask[:, 40:45] = False
+    config = ScanConfig(min_height=-0.05, max_height=0.05, range_min=0.0, range_max=50.0,
+                        pitch=pitch)
+    reference = disparity_to_scan(truth, GEOMETRY, None, None, config)
+    scan = disparity_to_scan(estimate, GEOMETRY, mask, None, config)
+    score = score_scan(scan, reference, GEOMETRY, config)
+    assert score.beams > 80
+    assert 8 <= score.phantom <= 11 and 8 <= score.far <= 11 and 4 <= score.none <= 6
+    assert score_scan(reference, reference, GEOMETRY, config).phantom == 0

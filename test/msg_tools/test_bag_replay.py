@@ -188,7 +188,7 @@ def test_scan_is_the_laser_scan_of_the_kept_pixels(tmp_path: Path) -> None:
     # --scan: a LaserScan per frame in the body frame beside the camera's optical frame, equal
     # to disparity_to_scan of the written disparity and kept pixels with the given band.
     from cva_confidence_ros.pointcloud import StereoGeometry
-    from cva_confidence_ros.scan import ScanConfig, disparity_to_scan
+    from cva_confidence_ros.scan import ScanConfig, disparity_to_scan, score_scan
 
     bag = dataset_bag(tmp_path, 'mcap', 2)
     code, report = _replay(bag, tmp_path, '--scan', '--scan-height', '-5', '5',
@@ -213,6 +213,29 @@ def test_scan_is_the_laser_scan_of_the_kept_pixels(tmp_path: Path) -> None:
         np.testing.assert_allclose(msg.intensities, expected.intensities, rtol=1e-6)
         assert np.isfinite(msg.ranges).mean() > 0.5
         assert (msg.range_min, msg.range_max) == pytest.approx((0.05, 50.0))
+        # Scored against the ground truth's scan: the kept pixels with ground truth, the same
+        # pixels of the ground truth (the data set's, at its stamp).
+        gt = disparity_from_message(inputs['/ground_truth/disparity'][index][1])
+        gt -= geometry.disparity_offset
+        known = np.isfinite(gt)
+        scored = score_scan(
+            disparity_to_scan(disparity, geometry, kept & known, confidence, config),
+            disparity_to_scan(gt, geometry, known, None, config), geometry, config,
+        )
+        record = report['frames'][index]
+        assert record['scan_beams'] == scored.beams > 10
+        for outcome in ('phantom', 'far', 'none'):
+            assert record[f'scan_{outcome}_rate'] == pytest.approx(scored.rate(outcome))
+    beams = [f['scan_beams'] for f in report['frames']]
+    assert report['summary']['scan_beams'] == sum(beams)
+    assert report['summary']['scan_phantom_rate'] == pytest.approx(
+        sum(f['scan_phantom_rate'] * f['scan_beams'] for f in report['frames']) / sum(beams))
+    assert 'Laser scan (`--scan`) of the kept pixels with ground truth' in (
+        tmp_path / 'run' / 'summary.md').read_text()
+    # Without --scan, no scan score.
+    code, plain = _replay(bag, tmp_path, name='plain')
+    assert code == 0 and plain['summary']['scan_beams'] is None
+    assert {f['scan_beams'] for f in plain['frames']} == {None}
 
 
 def test_depth_encoding_and_no_depth(tmp_path: Path) -> None:

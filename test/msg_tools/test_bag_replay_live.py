@@ -28,7 +28,8 @@ from msg_tools.convert import stamp_to_ns
 ROOT = Path(msg_tools.__file__).resolve().parents[1]
 
 METRICS = ('error_rate', 'auc', 'auc_opt', 'kept_density', 'kept_error_rate', 'n_pixels',
-           'kept_fraction', 'mean_confidence')
+           'kept_fraction', 'mean_confidence', 'scan_beams', 'scan_phantom_rate', 'scan_far_rate',
+           'scan_none_rate')
 
 
 @pytest.fixture(autouse=True)
