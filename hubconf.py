@@ -16,6 +16,7 @@ are the files in ``models/`` next to this file, the ones ``cva-evaluate`` and th
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 # torch.hub checks these import names before it loads an entry.
@@ -89,49 +90,34 @@ def cvanet(
     return _network('cvanet', matcher, max_disparity, pretrained, device)
 
 
-def cvanet_fast(
-    matcher: str = _DEFAULT_MATCHER, max_disparity: int = 64, pretrained: bool = True,
-    device: str = 'cpu',
-) -> Any:
-    """CVA-Net-Fast, the network the node runs by default on a CPU (D = 64, 128, 256 shipped);
-    otherwise as :func:`cvanet`."""
-    return _network('cvanet_fast', matcher, max_disparity, pretrained, device)
+def _entry(arch: str, doc: str) -> Callable[..., Any]:
+    """A hub entry for ``arch`` with :func:`cvanet`'s options (torch.hub takes any callable
+    not starting with ``_``; ``torch.hub.help`` shows ``doc``)."""
+
+    def entry(
+        matcher: str = _DEFAULT_MATCHER, max_disparity: int = 64, pretrained: bool = True,
+        device: str = 'cpu',
+    ) -> Any:
+        return _network(arch, matcher, max_disparity, pretrained, device)
+
+    entry.__name__ = entry.__qualname__ = arch
+    entry.__doc__ = doc
+    return entry
 
 
-def cvanet_lite(
-    matcher: str = _DEFAULT_MATCHER, max_disparity: int = 64, pretrained: bool = True,
-    device: str = 'cpu',
-) -> Any:
-    """CVA-Net-Lite, the light network (D = 64 shipped); otherwise as :func:`cvanet`."""
-    return _network('cvanet_lite', matcher, max_disparity, pretrained, device)
-
-
-def ccnn(
-    matcher: str = _DEFAULT_MATCHER, max_disparity: int = 64, pretrained: bool = True,
-    device: str = 'cpu',
-) -> Any:
-    """CCNN (Poggi & Mattoccia 2016), a baseline of the paper's Table 1, trained by this
-    project (D = 64 shipped): it judges the disparity map, ``.predict(disparity, image)``;
-    otherwise as :func:`cvanet`."""
-    return _network('ccnn', matcher, max_disparity, pretrained, device)
-
-
-def lfn(
-    matcher: str = _DEFAULT_MATCHER, max_disparity: int = 64, pretrained: bool = True,
-    device: str = 'cpu',
-) -> Any:
-    """LFN (Fu et al. 2017), a baseline of the paper's Table 1 (D = 64 shipped): disparity and
-    image, ``.predict(disparity, image)``; otherwise as :func:`cvanet`."""
-    return _network('lfn', matcher, max_disparity, pretrained, device)
-
-
-def lgcnet(
-    matcher: str = _DEFAULT_MATCHER, max_disparity: int = 64, pretrained: bool = True,
-    device: str = 'cpu',
-) -> Any:
-    """LGC-Net (Tosi et al. 2018), a baseline of the paper's Table 1 (D = 64 shipped):
-    disparity and image, ``.predict(disparity, image)``; otherwise as :func:`cvanet`."""
-    return _network('lgcnet', matcher, max_disparity, pretrained, device)
+cvanet_fast = _entry('cvanet_fast', """CVA-Net-Fast, the network the node runs by default on a
+    CPU (D = 64, 128, 256 shipped); otherwise as :func:`cvanet`.""")
+cvanet_lite = _entry('cvanet_lite', """CVA-Net-Lite, the light network (D = 64 shipped);
+    otherwise as :func:`cvanet`.""")
+ccnn = _entry('ccnn', """CCNN (Poggi & Mattoccia 2016), a baseline of the paper's Table 1,
+    trained by this project (D = 64 shipped): it judges the disparity map,
+    ``.predict(disparity, image)``; otherwise as :func:`cvanet`.""")
+lfn = _entry('lfn', """LFN (Fu et al. 2017), a baseline of the paper's Table 1 (D = 64
+    shipped): disparity and image, ``.predict(disparity, image)``; otherwise as
+    :func:`cvanet`.""")
+lgcnet = _entry('lgcnet', """LGC-Net (Tosi et al. 2018), a baseline of the paper's Table 1
+    (D = 64 shipped): disparity and image, ``.predict(disparity, image)``; otherwise as
+    :func:`cvanet`.""")
 
 
 def pipeline(

@@ -50,6 +50,7 @@ def test_untrained_networks_of_any_depth() -> None:
 def test_a_baseline_judges_a_disparity_map(arch: str) -> None:
     net = _hub(arch)
     shipped, _ = load_weights(default_weights_path('census_bm', 64, arch), arch=arch)
+    assert net.meta['arch'] == arch
     rng = np.random.default_rng(2)
     disparity = rng.uniform(0.0, 60.0, (24, 31)).astype(np.float32)
     image = rng.integers(0, 256, (24, 31), dtype=np.uint8)

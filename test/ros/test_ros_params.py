@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+from collections.abc import Callable
 from dataclasses import fields
 from pathlib import Path
 
@@ -187,31 +188,43 @@ def _launch_module(monkeypatch: pytest.MonkeyPatch) -> object:
     return module
 
 
-def test_launch_file_starts_the_cloud_filter_on_request(monkeypatch: pytest.MonkeyPatch) -> None:
+def _launched(
+    monkeypatch: pytest.MonkeyPatch, declares: set[str]
+) -> tuple[object, Callable[..., list[_Action]]]:
+    """The launch module (checked to declare ``declares``) and ``start(**arguments)``: its
+    actions for those launch arguments, every other one at its default."""
     launch = _launch_module(monkeypatch)
     description = launch.generate_launch_description()
-    declared = [a.args[0] if a.args else a.kwargs['name'] for a in description.args[0][:-1]]
-    assert 'cloud_filter_threshold' in declared
+    arguments = {
+        (a.args[0] if a.args else a.kwargs['name']): a.kwargs.get('default_value', '')
+        for a in description.args[0][:-1]
+    }
+    assert declares <= set(arguments)
+    defaults = {**arguments, 'stereo_namespace': '/stereo', 'params_file': 'p.yaml'}
+
+    def start(**values: str) -> list[_Action]:
+        monkeypatch.setattr(_Config, 'values', {**defaults, **values})
+        return launch._node(None)
+
+    return launch, start
+
+
+def test_launch_file_starts_the_cloud_filter_on_request(monkeypatch: pytest.MonkeyPatch) -> None:
+    _, start = _launched(monkeypatch, {'cloud_filter_threshold'})
     (entry_points,) = [
         ast.literal_eval(node.value)
         for node in ast.walk(ast.parse((ROOT / 'setup.py').read_text()))
         if isinstance(node, ast.Assign) and getattr(node.targets[0], 'id', '') == 'ENTRY_POINTS'
     ]
     ros_names = {ros_name for ros_name, _, _ in entry_points}  # what colcon installs
-    base = {name: '' for name in launch.OVERRIDES}
-    base.update(stereo_namespace='/stereo', use_sim_time='true', params_file='p.yaml',
-                lifecycle='false', autostart='false', rviz='false', rviz_fixed_frame='')
 
-    monkeypatch.setattr(_Config, 'values', {**base, 'cloud_filter_threshold': ''})
-    (alone,) = launch._node(None)
+    (alone,) = start(use_sim_time='true')
     assert alone.kwargs['executable'] == 'node'
     assert not isinstance(alone, _LifecycleAction)
     assert 'points_confidence' not in alone.kwargs['parameters'][2]
 
-    monkeypatch.setattr(
-        _Config, 'values', {**base, 'cloud_filter_threshold': '0.8', 'matcher': 'census_sgm'}
-    )
-    node, cloud_filter = launch._node(None)
+    node, cloud_filter = start(use_sim_time='true', cloud_filter_threshold='0.8',
+                               matcher='census_sgm')
     assert node.kwargs['parameters'][2] == {'matcher': 'census_sgm', 'points_confidence': True}
     assert cloud_filter.kwargs['executable'] == 'cloud_filter'
     assert {'node', 'cloud_filter'} <= ros_names
@@ -220,38 +233,21 @@ def test_launch_file_starts_the_cloud_filter_on_request(monkeypatch: pytest.Monk
 
 
 def test_launch_file_starts_the_managed_node_on_request(monkeypatch: pytest.MonkeyPatch) -> None:
-    launch = _launch_module(monkeypatch)
-    description = launch.generate_launch_description()
-    declared = [a.args[0] if a.args else a.kwargs['name'] for a in description.args[0][:-1]]
-    assert {'lifecycle', 'autostart'} <= set(declared)
-    base = {name: '' for name in launch.OVERRIDES}
-    base.update(stereo_namespace='/stereo', use_sim_time='false', params_file='p.yaml',
-                cloud_filter_threshold='', rviz='false', rviz_fixed_frame='')
-    monkeypatch.setattr(_Config, 'values', {**base, 'lifecycle': 'true', 'autostart': 'true'})
-    (node,) = launch._node(None)
+    _, start = _launched(monkeypatch, {'lifecycle', 'autostart'})
+    (node,) = start(lifecycle='true', autostart='true')
     assert isinstance(node, _LifecycleAction)
     assert node.kwargs['executable'] == 'lifecycle_node'
     assert node.kwargs['name'] == 'cva_confidence'
     assert node.kwargs['parameters'][2] == {'autostart': True}
-    monkeypatch.setattr(_Config, 'values', {**base, 'lifecycle': 'true', 'autostart': 'false'})
-    (node,) = launch._node(None)
+    (node,) = start(lifecycle='true', autostart='false')
     assert node.kwargs['parameters'][2] == {'autostart': False}
-
 
 def test_launch_file_starts_rviz_with_the_shipped_layout_on_request(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    launch = _launch_module(monkeypatch)
-    description = launch.generate_launch_description()
-    declared = [a.args[0] if a.args else a.kwargs['name'] for a in description.args[0][:-1]]
-    assert {'rviz', 'rviz_fixed_frame'} <= set(declared)
-    base = {name: '' for name in launch.OVERRIDES}
-    base.update(stereo_namespace='/stereo', use_sim_time='true', params_file='p.yaml',
-                cloud_filter_threshold='', lifecycle='false', autostart='false')
-    monkeypatch.setattr(_Config, 'values', {**base, 'rviz': 'false', 'rviz_fixed_frame': ''})
-    assert len(launch._node(None)) == 1
-    monkeypatch.setattr(_Config, 'values', {**base, 'rviz': 'true', 'rviz_fixed_frame': ''})
-    node, rviz = launch._node(None)
+    _, start = _launched(monkeypatch, {'rviz', 'rviz_fixed_frame'})
+    assert len(start()) == 1  # rviz:=false by default
+    node, rviz = start(rviz='true', use_sim_time='true')
     layout = '/share/config/cva_confidence.rviz'  # the installed copy of config/
     assert (ROOT / 'config' / Path(layout).name).is_file()
     assert (rviz.kwargs['package'], rviz.kwargs['executable']) == ('rviz2', 'rviz2')
@@ -259,7 +255,5 @@ def test_launch_file_starts_rviz_with_the_shipped_layout_on_request(
     # In the node's namespace: the layout's relative topics are the node's topics.
     assert rviz.kwargs['namespace'] is node.kwargs['namespace']
     assert rviz.kwargs['parameters'] == [{'use_sim_time': True}]
-    monkeypatch.setattr(_Config, 'values', {**base, 'rviz': 'True',
-                                            'rviz_fixed_frame': 'base_link'})
-    _, rviz = launch._node(None)
+    _, rviz = start(rviz='True', rviz_fixed_frame='base_link')
     assert rviz.kwargs['arguments'] == ['-d', layout, '-f', 'base_link']
