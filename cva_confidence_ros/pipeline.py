@@ -415,7 +415,7 @@ class StereoPipeline:
             tic = time.perf_counter()
             disparity = refine_subpixel(volume, disparity, cfg.subpixel)
             timings['subpixel'] = (time.perf_counter() - tic) * 1e3
-        if (c0, c1) != (0, height) or rows != (0, height):
+        if rows != (0, height):
             # Back to the whole image: the region's rows in place, nothing outside.
             inside = slice(rows[0] - c0, rows[1] - c0)
             disparity, confidence, raw_confidence = (

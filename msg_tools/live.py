@@ -632,7 +632,7 @@ class _Recorder:
         except InputError as err:
             self.session.skip(f'outputs of frame {pending.frame}', err)
             return
-        items = pending.items or {}
+        items = pending.items
         self.session.add_result(
             FrameResult(
                 frame=pending.frame,
@@ -642,7 +642,7 @@ class _Recorder:
                 kept=np.isfinite(filtered),
                 offset=pending.geometry.disparity_offset,
                 latency_ms=(received - pending.published) * 1e3,
-                image=lambda: output_left_image(
+                image=None if items is None else lambda: output_left_image(
                     items, confidence.shape, self.options.pipeline.downsample
                 ),
                 rows=self.options.pipeline.roi_rows(confidence.shape[0]),

@@ -23,7 +23,8 @@ Per frame, on the pixels with ground truth (or a fixed random subset of ``max_pi
 Per frame on all pixels, with or without ground truth (what a robot's own bag can tell; the
 node's ``/diagnostics`` reports the same two numbers):
 
-* ``kept_fraction``: share of all pixels the node keeps;
+* ``kept_fraction``: share of the pixels the node keeps (of its region of interest, ``roi_top``
+  to ``roi_bottom``, when it has one);
 * ``predicted_kept_error``: for the networks, mean(1 − confidence) over those kept pixels, the
   error rate their confidence predicts (README, *What a confidence of 0.8 means*);
 * ``mean_confidence``: mean confidence of the pixels with a disparity.
@@ -177,7 +178,8 @@ class FrameScore:
         expected_kept_error: The error rate a probabilistic confidence predicts for the same
             pixels, mean(1 − confidence); None for other methods or if none is kept.
         kept_epe: Mean |d − d_gt| of the kept pixels, in pixels; None if none is kept.
-        kept_fraction: Share of all pixels kept (with or without ground truth).
+        kept_fraction: Share of the pixels of the region of interest kept (all pixels without
+            one; with or without ground truth).
         predicted_kept_error: mean(1 − confidence) over all kept pixels for a probabilistic
             method (the networks), the error rate it predicts without ground truth; None for
             other methods or if none is kept.
@@ -388,8 +390,6 @@ class ReplayReport:
         for key in (*METRIC_KEYS, 'expected_kept_error', 'kept_epe', *FRAME_KEYS):
             values = [getattr(f, key) for f in self.frames if getattr(f, key) is not None]
             out[key] = float(np.mean(values)) if values else None
-        # The frames a person looks at first: where the node kept least, predicted worst
-        # (the earliest of equal ones).
         # The scan's rates pooled over the beams of every scored frame.
         scanned = [f for f in self.frames if f.scan_beams]
         beams = sum(cast(int, f.scan_beams) for f in scanned)
@@ -397,6 +397,8 @@ class ReplayReport:
         for key in SCAN_KEYS[1:]:
             out[key] = (sum(cast(float, getattr(f, key)) * cast(int, f.scan_beams)
                             for f in scanned) / beams) if beams else None
+        # The frames a person looks at first: where the node kept least, predicted worst
+        # (the earliest of equal ones).
         least = self.least_kept()
         out['min_kept_fraction'] = least.kept_fraction if least is not None else None
         out['min_kept_fraction_frame'] = least.frame if least is not None else None
