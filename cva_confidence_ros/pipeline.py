@@ -22,8 +22,9 @@ _DEVICES = ('cpu', 'cuda', 'auto')
 _MAX_SPECKLE_SIZE = 1_000_000
 #: Rows processed above and below the region of interest and then dropped, so that the
 #: windows of the matchers (census 5×5 and its 5×5 aggregation, MC-CNN's 9×9 patches) and of the
-#: networks (13×13 extracts) inside the region see what they see on the whole image. SGM's
-#: vertical and diagonal paths are the exception: they start at the edge of this margin.
+#: networks (13×13 extracts) inside the region see what they see on the whole image. Two
+#: exceptions: SGM's vertical and diagonal paths start at the edge of this margin, and MC-CNN
+#: standardises the image it gets (the rows processed) by its own mean and deviation.
 ROI_MARGIN = 16
 
 

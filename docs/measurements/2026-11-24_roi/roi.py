@@ -11,6 +11,11 @@ them alike), its ratio to the whole image, the share of rows processed (region p
 the region equal the whole-image ones (and the mean absolute change of the confidence).
 
     python docs/measurements/2026-11-24_roi/roi.py [--repeat 7]
+    python docs/measurements/2026-11-24_roi/roi.py --exactness
+
+``--exactness`` instead compares integer disparities (``subpixel`` none) and confidences
+inside the region with the whole image's for MC-CNN and Census-SGM (no timing): MC-CNN
+standardises each image by its own mean and deviation, so a region's features shift a little.
 """
 
 from __future__ import annotations
@@ -33,11 +38,15 @@ MATCHERS = ('census_bm', 'census_sgm')
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--repeat', type=int, default=7)
+    parser.add_argument('--exactness', action='store_true')
     args = parser.parse_args()
     torch.set_num_threads(2)
     left, right, _ = data.stereo_motorcycle()
     left = cv2.resize(left, (640, 480), interpolation=cv2.INTER_AREA)
     right = cv2.resize(right, (640, 480), interpolation=cv2.INTER_AREA)
+    if args.exactness:
+        _exactness(left, right)
+        return
     pipelines = {
         (matcher, region): StereoPipeline(PipelineConfig(
             matcher=matcher, max_disparity=128, device='cpu', roi_top=region[0],
@@ -69,6 +78,24 @@ def main() -> None:
             print(f'| {matcher} | {region[0]:g}–{region[1]:g} | {100 * processed / 480:.0f} '
                   f'| {median:.0f} | {median / whole:.2f} | {100 * same.mean():.2f} '
                   f'| {100 * (change == 0).mean():.2f} | {change.mean():.4f} |')
+
+
+def _exactness(left: np.ndarray, right: np.ndarray) -> None:
+    print('| matcher | region | equal integer disparities % | mean abs. confidence change |')
+    print('|---|---|---:|---:|')
+    for matcher in ('mccnn_fast', 'census_sgm'):
+        base = {'matcher': matcher, 'max_disparity': 128, 'device': 'cpu', 'speckle_size': 0,
+                'subpixel': 'none'}
+        whole = StereoPipeline(PipelineConfig(**base)).process(left, right)
+        for top, bottom in REGIONS[1:]:
+            part = StereoPipeline(PipelineConfig(**base, roi_top=top, roi_bottom=bottom)).process(
+                left, right)
+            y0, y1 = part.rows
+            a, b = part.disparity[y0:y1], whole.disparity[y0:y1]
+            same = (a == b) | (np.isnan(a) & np.isnan(b))
+            change = np.abs(part.confidence[y0:y1] - whole.confidence[y0:y1]).mean()
+            print(f'| {matcher} | {top:g}–{bottom:g} | {100 * same.mean():.2f} | {change:.4f} |',
+                  flush=True)
 
 
 if __name__ == '__main__':
