@@ -33,6 +33,7 @@ ENTRY_POINTS = [
     ('export', 'cva-export', 'cva_confidence_ros.model.export:main'),
     ('bag_from_dataset', 'cva-bag-from-dataset', 'msg_tools.bag_from_dataset:main'),
     ('bag_replay', 'cva-bag-replay', 'msg_tools.bag_replay:main'),
+    ('mask', 'cva-mask', 'msg_tools.mask_tool:main'),
 ]
 
 

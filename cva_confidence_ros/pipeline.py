@@ -16,7 +16,8 @@ import numpy as np
 from cva_confidence_ros.checks import is_int, is_real
 from cva_confidence_ros.errors import ConfigError, InputError
 
-__all__ = ['ROI_MARGIN', 'PipelineConfig', 'PipelineResult', 'StereoPipeline']
+__all__ = ['ROI_MARGIN', 'PipelineConfig', 'PipelineResult', 'StereoPipeline', 'judged_region',
+           'output_region']
 
 _DEVICES = ('cpu', 'cuda', 'auto')
 _MAX_SPECKLE_SIZE = 1_000_000
@@ -70,6 +71,10 @@ class PipelineConfig:
             :data:`ROI_MARGIN` rows of context) are matched and judged, so the time scales with
             ``roi_bottom − roi_top``; outside, the disparity is invalid and the confidence 0,
             and nothing there is kept.
+        mask_path: An ignore mask (:mod:`cva_confidence_ros.mask`): an image of the input
+            size, black where the camera sees the robot's own body (or anything else never to
+            be judged); there, as outside the region of interest, nothing is published, and
+            rows black from edge to edge at the top and bottom are not processed. ``''`` = none.
     """
 
     matcher: str = 'census_bm'
@@ -91,6 +96,7 @@ class PipelineConfig:
     cva_backend: str = 'torch'
     roi_top: float = 0.0
     roi_bottom: float = 1.0
+    mask_path: str = ''
 
     def __post_init__(self) -> None:
         from cva_confidence_ros.confidence import CONFIDENCE_METHODS
@@ -162,6 +168,8 @@ class PipelineConfig:
                 f'roi_top to roi_bottom of the image height); got roi_top = {self.roi_top!r}, '
                 f'roi_bottom = {self.roi_bottom!r}'
             )
+        if not isinstance(self.mask_path, str):
+            raise ConfigError(f'mask_path must be a string (a file); got {self.mask_path!r}')
 
     def roi_rows(self, height: int) -> tuple[int, int]:
         """Rows ``[y0, y1)`` of the region of interest in an image of ``height`` rows (the
@@ -214,9 +222,12 @@ class PipelineResult:
         speckle_fraction: Share of the pixels (of the region of interest) that pass the
             threshold but lie in a speckle (dropped from :attr:`valid` by ``speckle_size``); 0
             with the filter off.
-        rows: Rows ``[y0, y1)`` of the region of interest (``roi_top``, ``roi_bottom``); the
-            whole image by default. Outside them the disparity is NaN, the confidence 0, the
-            raw confidence NaN and nothing is valid.
+        rows: Rows ``[y0, y1)`` processed: those of the region of interest (``roi_top``,
+            ``roi_bottom``), less the rows the mask ignores from edge to edge; the whole image
+            by default. Outside them the disparity is NaN, the confidence 0, the raw
+            confidence NaN and nothing is valid.
+        mask: (H, W) bool, the ignore mask at the processed resolution (True = judged; the
+            same holds where it is False), or None without one.
     """
 
     disparity: np.ndarray
@@ -229,6 +240,13 @@ class PipelineResult:
     probabilistic: bool = False
     speckle_fraction: float = 0.0
     rows: tuple[int, int] | None = None
+    mask: np.ndarray | None = None
+
+    @property
+    def region(self) -> np.ndarray | None:
+        """(H, W) bool, the pixels judged: the rows processed and the mask's pixels; None =
+        every pixel."""
+        return judged_region(self.valid.shape, self.rows, self.mask)
 
     @property
     def filtered_disparity(self) -> np.ndarray:
@@ -237,9 +255,10 @@ class PipelineResult:
 
     @property
     def kept_fraction(self) -> float:
-        """Share of the pixels of the region of interest in :attr:`valid` (0 for an empty
+        """Share of the pixels judged (:attr:`region`) in :attr:`valid` (0 for an empty
         map)."""
-        valid = self.valid if self.rows is None else self.valid[self.rows[0] : self.rows[1]]
+        region = self.region
+        valid = self.valid if region is None else self.valid[region]
         return float(np.mean(valid)) if valid.size else 0.0
 
     @property
@@ -290,6 +309,10 @@ class StereoPipeline:
             cva_precision=config.cva_precision,
             cva_backend=config.cva_backend,
         )
+        from cva_confidence_ros.mask import load_mask
+
+        self._mask = load_mask(config.mask_path) if config.mask_path else None
+        self._reduced: tuple[tuple[int, int], np.ndarray] | None = None
 
     @property
     def probabilistic(self) -> bool:
@@ -306,14 +329,18 @@ class StereoPipeline:
         """Whether images of ``width`` × ``height`` px can be processed with this configuration.
 
         Raises:
-            InputError: Too small for ``downsample``, or narrower than ``max_disparity`` + 1
-                after downsampling.
+            InputError: Too small for ``downsample``, narrower than ``max_disparity`` + 1
+                after downsampling, or not the size of the mask.
         """
         cfg = self.config
         if min(width, height) < cfg.downsample:
             raise InputError(
                 f'images of {width}×{height} px cannot be shrunk by downsample = {cfg.downsample}'
             )
+        if self._mask is not None:
+            from cva_confidence_ros.mask import check_mask_size
+
+            check_mask_size(self._mask, width, height)
         shrunk = width // cfg.downsample
         if cfg.max_disparity >= shrunk:
             raise InputError(
@@ -378,6 +405,9 @@ class StereoPipeline:
         timings['resize'] = (time.perf_counter() - start) * 1e3
         height = left_s.shape[0]
         rows = cfg.roi_rows(height)
+        mask = self._processed_mask(left.shape[:2])
+        if mask is not None:
+            rows = _judged_rows(rows, mask)
         # The region of interest with its margin of context: what is matched and judged.
         c0, c1 = max(0, rows[0] - ROI_MARGIN), min(height, rows[1] + ROI_MARGIN)
         left_c, right_c = left_s[c0:c1], right_s[c0:c1]
@@ -424,14 +454,22 @@ class StereoPipeline:
                 for values, fill in ((disparity, np.nan), (confidence, 0.0),
                                      (raw_confidence, np.nan))
             )
+        if mask is not None:
+            # New arrays: the confidence may be the raw confidence itself (cva_net).
+            disparity, confidence, raw_confidence = (
+                np.where(mask, values, np.float32(fill)).astype(np.float32, copy=False)
+                for values, fill in ((disparity, np.nan), (confidence, 0.0),
+                                     (raw_confidence, np.nan))
+            )
         valid = np.isfinite(disparity) & (confidence >= cfg.confidence_threshold)
         speckle_fraction = 0.0
         if cfg.speckle_size > 0:
             tic = time.perf_counter()
             confident = int(np.count_nonzero(valid))
             valid = remove_speckles(disparity, valid, cfg.speckle_size, cfg.speckle_range)
-            region = (rows[1] - rows[0]) * valid.shape[1]
-            speckle_fraction = (confident - int(np.count_nonzero(valid))) / region
+            region = judged_region(valid.shape, rows, mask)
+            judged = valid.size if region is None else int(np.count_nonzero(region))
+            speckle_fraction = (confident - int(np.count_nonzero(valid))) / max(judged, 1)
             timings['speckle'] = (time.perf_counter() - tic) * 1e3
         timings['total'] = (time.perf_counter() - start) * 1e3
         return PipelineResult(
@@ -445,7 +483,73 @@ class StereoPipeline:
             probabilistic=self.probabilistic,
             speckle_fraction=speckle_fraction,
             rows=rows,
+            mask=mask,
         )
+
+    def _processed_mask(self, shape: tuple[int, int]) -> np.ndarray | None:
+        """The ignore mask at the processed resolution for input images of ``shape`` (checked
+        against the mask's size; reduced once per input size)."""
+        if self._mask is None:
+            return None
+        if self._reduced is None or self._reduced[0] != shape:
+            from cva_confidence_ros.mask import check_mask_size, reduce_mask
+
+            check_mask_size(self._mask, shape[1], shape[0])
+            self._reduced = (shape, reduce_mask(self._mask, self.config.downsample))
+        return self._reduced[1]
+
+
+def output_region(
+    config: PipelineConfig, shape: tuple[int, int], mask: np.ndarray | None = None
+) -> np.ndarray | None:
+    """The pixels a pipeline of ``config`` judges in its outputs of ``shape`` (the processed
+    resolution), from the outside: what :attr:`PipelineResult.region` is for a frame.
+
+    Args:
+        config: The pipeline's configuration (``roi_top``, ``roi_bottom``, ``downsample``).
+        shape: (h, w) of the outputs.
+        mask: The ignore mask at the input resolution (``mask.load_mask`` of
+            ``config.mask_path``), or None.
+
+    Raises:
+        InputError: The region of interest and the mask have no pixel in common.
+    """
+    from cva_confidence_ros.mask import reduce_mask
+
+    rows = config.roi_rows(shape[0])
+    reduced = None
+    if mask is not None:
+        reduced = reduce_mask(mask, config.downsample)[: shape[0], : shape[1]]
+        rows = _judged_rows(rows, reduced)
+    return judged_region(shape, rows, reduced)
+
+
+def judged_region(
+    shape: tuple[int, ...], rows: tuple[int, int] | None, mask: np.ndarray | None
+) -> np.ndarray | None:
+    """(H, W) bool of the pixels judged: ``rows`` ``[y0, y1)`` (None = all) and the mask's
+    True pixels (None = all); None when that is every pixel."""
+    height = shape[0]
+    if mask is None and (rows is None or rows == (0, height)):
+        return None
+    region = np.zeros(shape[:2], dtype=bool)
+    y0, y1 = (0, height) if rows is None else rows
+    region[y0:y1] = True if mask is None else mask[y0:y1]
+    return region
+
+
+def _judged_rows(rows: tuple[int, int], mask: np.ndarray) -> tuple[int, int]:
+    """The region of interest's rows less those the mask ignores from edge to edge."""
+    from cva_confidence_ros.mask import mask_rows
+
+    m0, m1 = mask_rows(mask)
+    y0, y1 = max(rows[0], m0), min(rows[1], m1)
+    if y0 >= y1:
+        raise InputError(
+            f'the region of interest (rows {rows[0]} to {rows[1]}) and the mask (judged pixels '
+            f'in rows {m0} to {m1} at the processed resolution) have no pixel in common'
+        )
+    return y0, y1
 
 
 def _place(

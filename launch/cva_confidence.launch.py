@@ -56,6 +56,7 @@ OVERRIDES: dict[str, type] = {
     'scan_frame_id': str,
     'roi_top': float,
     'roi_bottom': float,
+    'mask_path': str,
 }
 
 

@@ -37,6 +37,7 @@ from pathlib import Path
 import sys
 
 from cva_confidence_ros.errors import CVAError, from_interrupt
+from cva_confidence_ros.mask import load_mask
 from cva_confidence_ros.matching.subpixel import SUBPIXEL_METHODS
 from cva_confidence_ros.pipeline import PipelineConfig
 from cva_confidence_ros.scan import ScanConfig
@@ -100,6 +101,10 @@ def build_parser() -> argparse.ArgumentParser:
                       default=(_default('roi_top'), _default('roi_bottom')),
                       help='process only the rows from TOP to BOTTOM, as shares of the image '
                            'height (roi_top, roi_bottom; default %(default)s = all)')
+    node.add_argument('--mask', type=Path, default=None, metavar='PNG',
+                      help="ignore mask of the input size, black where the camera sees the "
+                           "robot's own body (mask_path): nothing kept there, and the kept "
+                           'share is of the other pixels')
     node.add_argument('--approximate-sync', action='store_true',
                       help='pair messages whose stamps differ by at most --sync-tolerance')
     node.add_argument('--sync-tolerance', type=float, default=0.0,
@@ -174,6 +179,8 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
     Raises:
         ConfigError: An invalid value (unknown matcher or method, range errors, ...).
     """
+    if args.mask is not None:
+        load_mask(args.mask)  # a missing or unreadable mask is named before any bag is opened
     pipeline = PipelineConfig(
         matcher=args.matcher,
         max_disparity=args.max_disparity,
@@ -189,6 +196,7 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
         tile_budget_mb=args.tile_budget_mb,
         roi_top=args.roi[0],
         roi_bottom=args.roi[1],
+        mask_path='' if args.mask is None else str(args.mask),
     )
     scan = ScanConfig(  # checked with or without --scan: a bad value is a mistake either way
         min_height=args.scan_height[0],

@@ -29,6 +29,8 @@ import time
 from typing import Any, cast
 
 from cva_confidence_ros.errors import BagError, ConfigError, InputError, reason
+from cva_confidence_ros.mask import load_mask
+from cva_confidence_ros.pipeline import output_region
 from msg_tools.bagio import InputBag
 from msg_tools.convert import camera_geometry, disparity_from_msg, jazzy_typestore, stamp_to_ns
 from msg_tools.progress import GracefulInterrupt, Progress
@@ -520,6 +522,8 @@ class _Recorder:
         self.publish_times: dict[int, float] = {}
         self.last_output = time.monotonic()
         self.answered = 0
+        # The node's ignore mask, for the share of the judged pixels it keeps.
+        self.mask = load_mask(options.pipeline.mask_path) if options.pipeline.mask_path else None
 
     def published(self, stamp_ns: int) -> None:
         """Note when the latest input message of a stamp went out."""
@@ -645,7 +649,7 @@ class _Recorder:
                 image=None if items is None else lambda: output_left_image(
                     items, confidence.shape, self.options.pipeline.downsample
                 ),
-                rows=self.options.pipeline.roi_rows(confidence.shape[0]),
+                region=output_region(self.options.pipeline, confidence.shape, self.mask),
                 geometry=geometry,
             )
         )

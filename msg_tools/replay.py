@@ -622,7 +622,8 @@ class FrameResult:
         processing_ms: Pipeline time (offline). latency_ms: Live round-trip time.
         image: Returns the left image at the output resolution (uint8) for the report's
             overlays, or None where it cannot be had; called only for frames drawn.
-        rows: Rows of the region of interest (``PipelineConfig.roi_rows``); None = all.
+        region: (h, w) bool, the pixels the node judges (``PipelineResult.region``: the
+            region of interest and the ignore mask); None = all.
         geometry: Stereo geometry at the output resolution (to score ``--scan``).
     """
 
@@ -635,7 +636,7 @@ class FrameResult:
     processing_ms: float | None = None
     latency_ms: float | None = None
     image: Callable[[], np.ndarray | None] | None = None
-    rows: tuple[int, int] | None = None
+    region: np.ndarray | None = None
     geometry: StereoGeometry | None = None
 
 
@@ -882,7 +883,7 @@ class ReplaySession:
                 result.frame, result.stamp_ns, result.disparity, result.confidence,
                 result.kept, gt, max_pixels=self.options.max_pixels, seed=self.options.seed,
                 probabilistic=is_probabilistic(self.options.pipeline.confidence_method),
-                rows=result.rows,
+                region=result.region,
             )
         except InputError as err:
             score = FrameScore(frame=result.frame, stamp_ns=result.stamp_ns)
@@ -1217,7 +1218,7 @@ def _process_pair(session: ReplaySession, pipeline: Any, matched: Any, frame: in
                 offset=geometry.disparity_offset,
                 processing_ms=float(result.timings_ms.get('total', 0.0)),
                 image=lambda: result.left,
-                rows=result.rows,
+                region=result.region,
                 geometry=outputs.geometry,
             )
         )

@@ -23,8 +23,9 @@ Per frame, on the pixels with ground truth (or a fixed random subset of ``max_pi
 Per frame on all pixels, with or without ground truth (what a robot's own bag can tell; the
 node's ``/diagnostics`` reports the same two numbers):
 
-* ``kept_fraction``: share of the pixels the node keeps (of its region of interest, ``roi_top``
-  to ``roi_bottom``, when it has one);
+* ``kept_fraction``: share of the pixels the node keeps (of those it judges: its region of
+  interest ``roi_top`` to ``roi_bottom`` and the pixels its ignore mask leaves, when it has
+  them);
 * ``predicted_kept_error``: for the networks, mean(1 − confidence) over those kept pixels, the
   error rate their confidence predicts (README, *What a confidence of 0.8 means*);
 * ``mean_confidence``: mean confidence of the pixels with a disparity.
@@ -248,7 +249,7 @@ def score_frame(
     max_pixels: int | None = None,
     seed: int = 0,
     probabilistic: bool = False,
-    rows: tuple[int, int] | None = None,
+    region: np.ndarray | None = None,
 ) -> FrameScore:
     """Score one processed frame against its ground truth.
 
@@ -262,10 +263,11 @@ def score_frame(
         seed: Seed of the subset (same pixels as ``cva-evaluate --max-pixels N --seed S``).
         probabilistic: ``confidence`` is a probability of a correct disparity in [0, 1] (the
             networks): also report ``expected_kept_error``.
-        rows: The rows ``[y0, y1)`` of the node's region of interest (``roi_top``,
-            ``roi_bottom``): ``kept_fraction`` is the share of its pixels, as in
-            ``/diagnostics``; None = the whole image. The ground-truth metrics take every pixel
-            with ground truth (outside the region the node keeps nothing).
+        region: (h, w) bool, the pixels the node judges (its region of interest ``roi_top``
+            to ``roi_bottom`` and its ignore mask, ``PipelineResult.region``):
+            ``kept_fraction`` is the share of them, as in ``/diagnostics``; None = the whole
+            image. The ground-truth metrics take every pixel with ground truth (outside the
+            region the node keeps nothing).
 
     Returns:
         The :class:`FrameScore`: :data:`FRAME_KEYS` always, the ground-truth metrics None
@@ -282,12 +284,14 @@ def score_frame(
     arrays = (('confidence', confidence), ('kept', kept)) + (
         (('ground truth', gt),) if gt is not None else ()
     )
+    if region is not None:
+        arrays += (('region', region),)
     for name, array in arrays:
         if np.shape(array) != disparity.shape:
             raise InputError(
                 f'{name} must have the disparity shape {disparity.shape}; got {np.shape(array)}'
             )
-    _frame_statistics(score, disparity, confidence, kept, probabilistic, rows)
+    _frame_statistics(score, disparity, confidence, kept, probabilistic, region)
     if gt is None:
         score.note = 'no ground truth'
         return score
@@ -323,14 +327,14 @@ def _frame_statistics(
     confidence: np.ndarray,
     kept: np.ndarray,
     probabilistic: bool,
-    rows: tuple[int, int] | None,
+    region: np.ndarray | None,
 ) -> None:
-    """Fill the :data:`FRAME_KEYS` of ``score`` (all pixels of the region of interest, no
-    ground truth needed)."""
+    """Fill the :data:`FRAME_KEYS` of ``score`` (all pixels the node judges, no ground truth
+    needed)."""
     kept = np.asarray(kept, dtype=bool)
     values = np.asarray(confidence, dtype=np.float32)
-    region = kept if rows is None else kept[rows[0] : rows[1]]
-    score.kept_fraction = float(region.mean()) if region.size else None
+    judged = kept if region is None else kept[np.asarray(region, dtype=bool)]
+    score.kept_fraction = float(judged.mean()) if judged.size else None
     matched = np.isfinite(disparity) & np.isfinite(values)
     if matched.any():
         score.mean_confidence = float(values[matched].mean(dtype=np.float64))
@@ -681,7 +685,7 @@ def format_summary(document: dict[str, Any], max_rows: int = 200) -> str:
     lines = ['# Bag replay report', '']
     for key in ('bag', 'mode', 'matcher', 'confidence_method', 'max_disparity', 'downsample',
                 'confidence_threshold', 'subpixel', 'speckle_size', 'speckle_range', 'roi_top',
-                'roi_bottom', 'gt_topic',
+                'roi_bottom', 'mask_path', 'gt_topic',
                 'max_pixels'):
         if key in config:
             lines.append(f'- {key}: {config[key]}')

@@ -106,7 +106,7 @@ def test_colcon_install_layout(workspace: Path) -> None:
     assert os.access(executable, os.X_OK)
     scripts = {path.name for path in (prefix / 'lib' / PACKAGE).iterdir()}
     assert {'node', 'lifecycle_node', 'lifecycle', 'cloud_filter', 'train', 'evaluate', 'table1',
-            'benchmark', 'demo', 'bag_replay'} <= scripts
+            'benchmark', 'demo', 'bag_replay', 'mask'} <= scripts
     assert not any(name.startswith('cva-') for name in scripts)
     assert not (prefix / 'bin').exists()
     marker = prefix / 'share' / 'ament_index' / 'resource_index' / 'packages' / PACKAGE

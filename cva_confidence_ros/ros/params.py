@@ -365,6 +365,12 @@ PIPELINE_PARAMETERS: tuple[ParamSpec, ...] = (
         low=0.0,
         high=1.0,
     ),
+    _pipeline(
+        'mask_path',
+        "Ignore mask: an image of the input size, black where the camera sees the robot's own "
+        'body (nothing published there; rows black from edge to edge at the top and bottom '
+        "are not processed); '' = none.",
+    ),
 )
 
 NODE_PARAMETERS: tuple[ParamSpec, ...] = (

@@ -500,3 +500,32 @@ def test_region_of_interest_as_the_node(tmp_path: Path) -> None:
     assert '- roi_top: 0.2' in (tmp_path / 'run' / 'summary.md').read_text()
     code, _ = _replay(bag, tmp_path, '--roi', '0.7', '0.2', name='bad')
     assert code == 2
+
+
+def test_ignore_mask_as_the_node(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # --mask PNG: the node's mask_path; nothing is kept at its black pixels, and the report's
+    # kept share is that of the others, as /diagnostics gives it.
+    bag = write_stereo_bag(tmp_path / 'in', [{}, {}], ground_truth=False)
+    mask = np.full((30, 40), 255, np.uint8)
+    mask[20:, 25:] = 0
+    path = tmp_path / 'mask.png'
+    assert cv2.imwrite(str(path), mask)
+    code, report = _replay(bag, tmp_path, '--mask', str(path))
+    assert code == 0
+    assert report['config']['mask_path'] == str(path)
+    outputs = read_bag(tmp_path / 'run_bag')
+    judged = mask > 0
+    for index, record in enumerate(report['frames']):
+        disparity = disparity_from_message(outputs['/disparity'][index][1])
+        kept = np.isfinite(disparity_from_message(outputs['/disparity_filtered'][index][1]))
+        assert np.isnan(disparity[~judged]).all() and np.isfinite(disparity[judged]).any()
+        assert record['kept_fraction'] == pytest.approx(kept[judged].mean())
+    # A mask that cannot be read, or of another size than the images, is named.
+    capsys.readouterr()
+    code, _ = _replay(bag, tmp_path, '--mask', str(tmp_path / 'none.png'), name='missing')
+    assert code == 2 and 'none.png' in capsys.readouterr().err
+    assert not (tmp_path / 'missing_bag').exists()
+    assert cv2.imwrite(str(path), mask[:, :32])
+    code, report = _replay(bag, tmp_path, '--mask', str(path), name='other')
+    assert report['summary']['processed'] == 0
+    assert 'is 32×30 px but the images are 40×30 px' in capsys.readouterr().err

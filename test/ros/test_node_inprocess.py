@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
+from pathlib import Path
 import time
 
+import cv2
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from node_test_utils import (
     BASELINE,
@@ -567,6 +569,46 @@ def test_region_of_interest_changes_at_run_time(running: _Running) -> None:
             in refused.reason
     finally:
         assert running.set(roi_top=0.0, roi_bottom=1.0).successful
+
+
+def test_ignore_mask_changes_at_run_time(running: _Running, tmp_path: Path) -> None:
+    # mask_path: black pixels (the robot's own bumper) are published as nothing kept, in every
+    # output; a mask of another size than the images is refused with both sizes named.
+    left, right = textured_pair(seed=12)
+    topics = ('disparity', 'confidence', 'disparity_filtered', 'depth')
+
+    def outputs() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        out = running.client.send_until_output(left, right, running.next_stamp(), topics=topics)
+        return (disparity_from_message(out['disparity']),
+                float_image_to_array(out['confidence']),
+                np.isfinite(disparity_from_message(out['disparity_filtered'])),
+                depth_image_to_array(out['depth']))
+
+    whole = outputs()
+    mask = np.full((64, 96), 255, np.uint8)
+    mask[52:, :30] = 0
+    mask[:, 90:] = 0
+    path = tmp_path / 'bumper.png'
+    assert cv2.imwrite(str(path), mask)
+    assert running.set(mask_path=str(path)).successful
+    try:
+        disparity, confidence, kept, depth = outputs()
+        ignored = mask == 0
+        assert np.isnan(disparity[ignored]).all() and (confidence[ignored] == 0).all()
+        assert not kept[ignored].any() and np.isnan(depth[ignored]).all()
+        np.testing.assert_array_equal(disparity[~ignored], whole[0][~ignored])
+        np.testing.assert_array_equal(confidence[~ignored], whole[1][~ignored])
+        assert kept[~ignored].any()
+        wrong = tmp_path / 'half.png'
+        assert cv2.imwrite(str(wrong), mask[::2, ::2])
+        refused = running.set(mask_path=str(wrong))
+        assert not refused.successful
+        assert 'is 48×32 px but the images are 96×64 px' in refused.reason
+        missing = running.set(mask_path=str(tmp_path / 'nowhere.png'))
+        assert not missing.successful and 'nowhere.png' in missing.reason
+        assert 'is not a file' in missing.reason
+    finally:
+        assert running.set(mask_path='').successful
 
 
 def test_confidence_overlay_for_a_person_to_look_at(running: _Running) -> None:

@@ -1,0 +1,92 @@
+"""Ignore masks: pixels of the camera image that are never judged (the robot's own body).
+
+A camera on a robot often sees part of the robot: a bumper in the lower corners, an arm, a
+mast, a wiper, a smudge on the lens. Their disparity is right, but they are not obstacles and
+must not reach a point cloud, a depth image or a laser scan. A mask is an image of the camera's
+size (PNG, 8 or 16 bit, grey or colour): black (0 in every channel) = ignore, anything else =
+judge. The pipeline (``PipelineConfig.mask_path``) publishes nothing at the black pixels, as it
+does outside the region of interest, and skips the rows that are black from edge to edge at
+the top and bottom of the image altogether.
+
+Any image editor draws one on a frame of the camera; ``cva-mask`` draws rectangles and
+polygons from the command line and shows the result over a frame.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from cva_confidence_ros.errors import ConfigError, InputError
+
+__all__ = ['check_mask_size', 'load_mask', 'mask_rows', 'reduce_mask']
+
+
+def load_mask(path: str | Path) -> np.ndarray:
+    """Read an ignore mask.
+
+    Args:
+        path: An image file that OpenCV reads (PNG, BMP, TIFF, …); black = ignore.
+
+    Returns:
+        (H, W) bool, True where pixels are judged.
+
+    Raises:
+        ConfigError: The file is missing, empty or not an image, or it ignores every pixel.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f'mask_path {str(path)!r} is not a file')
+    if path.stat().st_size == 0:
+        raise ConfigError(f'mask_path {str(path)!r} is an empty file')
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None or image.size == 0:
+        raise ConfigError(f'mask_path {str(path)!r} cannot be read as an image')
+    if image.ndim == 3:
+        # Colour: a pixel is ignored where every colour channel is 0 (alpha is not looked at).
+        keep = np.any(image[..., :3] != 0, axis=2)
+    else:
+        keep = image != 0
+    if not keep.any():
+        raise ConfigError(
+            f'mask_path {str(path)!r} ignores every pixel (black everywhere); black = ignore, '
+            f'any other value = judge'
+        )
+    return keep
+
+
+def reduce_mask(mask: np.ndarray, factor: int) -> np.ndarray:
+    """The mask at 1/``factor`` of its resolution, as the pipeline shrinks the images.
+
+    The last rows and columns that do not fill a block are cropped (as
+    :func:`~cva_confidence_ros.datasets.resize.resize_image` crops the images); an output pixel
+    is judged only when all its ``factor × factor`` input pixels are, so that no pixel that
+    mixes in the robot's body is published.
+    """
+    mask = np.asarray(mask, dtype=bool)
+    if factor == 1:
+        return mask
+    height, width = mask.shape[0] // factor, mask.shape[1] // factor
+    blocks = mask[: height * factor, : width * factor].reshape(height, factor, width, factor)
+    return np.asarray(blocks.all(axis=(1, 3)), dtype=bool)
+
+
+def mask_rows(mask: np.ndarray) -> tuple[int, int]:
+    """Rows ``[y0, y1)`` from the first to the last row with a judged pixel (``(0, 0)`` when
+    there is none)."""
+    rows = np.flatnonzero(np.asarray(mask, dtype=bool).any(axis=1))
+    if rows.size == 0:
+        return 0, 0
+    return int(rows[0]), int(rows[-1]) + 1
+
+
+def check_mask_size(mask: np.ndarray, width: int, height: int) -> None:
+    """Raise :class:`InputError` unless the mask has the input images' size."""
+    if mask.shape != (height, width):
+        raise InputError(
+            f'the mask (mask_path) is {mask.shape[1]}×{mask.shape[0]} px but the images are '
+            f'{width}×{height} px; draw the mask on a frame of this camera at the resolution '
+            f'it publishes'
+        )

@@ -1,0 +1,294 @@
+"""``cva-mask``: draw the node's ignore mask (``mask_path``) from the command line.
+
+The camera of a robot often sees the robot: a bumper in the lower corners, an arm, a mast. The
+node publishes nothing at the black pixels of its mask (:mod:`cva_confidence_ros.mask`), so
+that they never become points or obstacles. Any image editor draws one on a frame of the
+camera; this command does it on a robot without one, from rectangles, polygons and whole rows,
+and takes the size and a frame to check it on from the robot's own bag::
+
+    cva-mask mask.png --bag robot_bag --below 400 --polygon 0,300 120,479 0,479
+    cva-mask mask.png --size 640x480 --rect 560 380 640 480
+    cva-mask mask.png --start mask.png --overwrite --rect 0 0 40 40   # add to a mask
+
+With a frame (``--bag`` or ``--image``) it also writes ``<mask>_preview.png``: the frame with
+the ignored pixels shaded red, to look at before the robot drives with it. It prints what the
+mask leaves: the share ignored and the rows processed (rows black from edge to edge at the top
+or bottom are skipped, as with ``roi_top`` / ``roi_bottom``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+import sys
+import tempfile
+from typing import Any
+
+import cv2
+import numpy as np
+
+from cva_confidence_ros.errors import BagError, ConfigError, CVAError, InputError
+from cva_confidence_ros.mask import load_mask, mask_rows
+
+__all__ = ['build_parser', 'draw_mask', 'frame_from_bag', 'main']
+
+_IMAGE_TYPES = ('sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage')
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``cva-mask``."""
+    parser = argparse.ArgumentParser(
+        prog='cva-mask',
+        description="Draw an ignore mask for the node's mask_path: black where the camera "
+                    "sees the robot's own body.",
+    )
+    parser.add_argument('out', type=Path, help='mask PNG to write (0 = ignore, 255 = judge)')
+    size = parser.add_mutually_exclusive_group()
+    size.add_argument('--size', metavar='WxH', help='image size in pixels, e.g. 640x480')
+    size.add_argument('--image', type=Path, help='a frame of the camera (size and preview)')
+    size.add_argument('--bag', type=Path, help='a rosbag2 of the camera (size and preview '
+                                               'from one of its left images)')
+    parser.add_argument('--start', type=Path,
+                        help='an existing mask to add to (gives the size without the others)')
+    parser.add_argument('--topic', help='image topic of --bag (default: its one image topic '
+                                        "with 'left' in the name, raw or compressed)")
+    parser.add_argument('--frame', type=int, default=0,
+                        help='which message of the topic to show (default %(default)s = first)')
+    parser.add_argument('--rect', type=int, nargs=4, action='append', default=[],
+                        metavar=('X0', 'Y0', 'X1', 'Y1'),
+                        help='ignore the pixels with X0 <= x < X1 and Y0 <= y < Y1 (repeatable)')
+    parser.add_argument('--polygon', nargs='+', action='append', default=[], metavar='X,Y',
+                        help='ignore the inside of a polygon of 3 or more corners (repeatable)')
+    parser.add_argument('--below', type=int, metavar='Y',
+                        help='ignore row Y and every row below it (a hood or bumper)')
+    parser.add_argument('--above', type=int, metavar='Y',
+                        help='ignore every row above row Y')
+    parser.add_argument('--preview', type=Path,
+                        help='where to write the preview (default: <out>_preview.png, with a '
+                             'frame only)')
+    parser.add_argument('--overwrite', action='store_true', help='replace existing files')
+    return parser
+
+
+def _parse_size(text: str) -> tuple[int, int]:
+    parts = text.lower().split('x')
+    if len(parts) != 2 or not all(part.strip().isdigit() for part in parts):
+        raise ConfigError(f'--size must be WIDTHxHEIGHT in pixels, e.g. 640x480; got {text!r}')
+    width, height = (int(part) for part in parts)
+    if width <= 0 or height <= 0:
+        raise ConfigError(f'--size must be positive; got {text!r}')
+    return width, height
+
+
+def _parse_polygon(corners: list[str]) -> np.ndarray:
+    points = []
+    for corner in corners:
+        parts = corner.split(',')
+        try:
+            x, y = (int(part) for part in parts)
+        except ValueError:
+            raise ConfigError(
+                f'--polygon corners must be X,Y in whole pixels; got {corner!r}'
+            ) from None
+        points.append((x, y))
+    if len(points) < 3:
+        raise ConfigError(f'--polygon needs 3 corners or more; got {len(points)}: {corners}')
+    return np.asarray(points, dtype=np.int32)
+
+
+def draw_mask(
+    width: int,
+    height: int,
+    *,
+    start: np.ndarray | None = None,
+    rects: list[list[int]] | tuple[()] = (),
+    polygons: list[np.ndarray] | tuple[()] = (),
+    below: int | None = None,
+    above: int | None = None,
+) -> np.ndarray:
+    """An ignore mask of ``width`` × ``height``: (H, W) bool, False = ignore.
+
+    Args:
+        start: A mask to add to (True = judged), or None for all judged.
+        rects: ``[x0, y0, x1, y1]``, each ignoring ``x0 ≤ x < x1``, ``y0 ≤ y < y1`` (clipped
+            to the image; one that leaves no pixel of the image is refused).
+        polygons: (N, 2) int corners (x, y), N ≥ 3, each ignoring its inside and edges.
+        below: Ignore rows ``y ≥ below``. above: Ignore rows ``y < above``.
+
+    Raises:
+        ConfigError: A rectangle or row outside the image, or the wrong size of ``start``.
+    """
+    keep = np.ones((height, width), dtype=bool) if start is None else start.copy()
+    if keep.shape != (height, width):
+        raise ConfigError(f'the start mask is {keep.shape[1]}×{keep.shape[0]} px, not '
+                          f'{width}×{height}')
+    for rect in rects:
+        x0, y0, x1, y1 = rect
+        cx0, cy0 = max(x0, 0), max(y0, 0)
+        cx1, cy1 = min(x1, width), min(y1, height)
+        if cx0 >= cx1 or cy0 >= cy1:
+            raise ConfigError(
+                f'--rect {x0} {y0} {x1} {y1} covers no pixel of the {width}×{height} image '
+                f'(X0 < X1 and Y0 < Y1, inside it)'
+            )
+        keep[cy0:cy1, cx0:cx1] = False
+    if polygons:
+        canvas = np.zeros((height, width), dtype=np.uint8)
+        cv2.fillPoly(canvas, list(polygons), 255)
+        keep &= canvas == 0
+    for name, row in (('--below', below), ('--above', above)):
+        if row is not None and not 0 <= row <= height:
+            raise ConfigError(f'{name} must be a row in [0, {height}]; got {row}')
+    if below is not None:
+        keep[below:] = False
+    if above is not None:
+        keep[:above] = False
+    return keep
+
+
+def frame_from_bag(bag_path: Path, topic: str | None, index: int) -> np.ndarray:
+    """The ``index``-th image on ``topic`` of a rosbag2, decoded as the node decodes it.
+
+    Raises:
+        BagError: No such topic (the image topics are named), or fewer messages.
+        InputError: An image the node could not decode either.
+    """
+    from cva_confidence_ros.ros.convert import image_to_array
+    from msg_tools.bagio import InputBag
+    from msg_tools.convert import jazzy_typestore
+
+    if index < 0:
+        raise ConfigError(f'--frame must be >= 0; got {index}')
+    store = jazzy_typestore()
+    with InputBag(bag_path) as bag:
+        images = {name: kind for name, kind in bag.topics.items() if kind in _IMAGE_TYPES}
+        if topic is None:
+            left = sorted(name for name in images if 'left' in name)
+            if len(left) != 1:
+                raise BagError(
+                    f'bag {bag_path} has {len(left)} image topics with "left" in the name; '
+                    f'name one with --topic (image topics: {sorted(images) or "none"})'
+                )
+            topic = left[0]
+        elif topic not in images:
+            raise BagError(
+                f'bag {bag_path} has no image topic {topic!r}; image topics: '
+                f'{sorted(images) or "none"}'
+            )
+        for count, (_, kind, _, data) in enumerate(bag.messages([topic])):
+            if count == index:
+                msg: Any = store.deserialize_cdr(data, kind)
+                return image_to_array(msg, f'{topic} message {index}')
+        raise BagError(f'bag {bag_path} has no message {index} on {topic} (numbered from 0)')
+
+
+def _to_rgb8(image: np.ndarray) -> np.ndarray:
+    if image.dtype == np.uint16:
+        top = max(int(image.max()), 1)
+        image = (image.astype(np.float32) * (255.0 / top)).astype(np.uint8)
+    if image.ndim == 2:
+        image = np.repeat(image[..., None], 3, axis=2)
+    return np.asarray(image, dtype=np.uint8)
+
+
+def preview(image: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """The frame (RGB) with the ignored pixels shaded red and the first and last processed
+    rows marked by a yellow line where rows are skipped."""
+    rgb = _to_rgb8(image).astype(np.float32)
+    red = np.array([255.0, 0.0, 0.0], dtype=np.float32)
+    rgb[~keep] = 0.45 * rgb[~keep] + 0.55 * red
+    y0, y1 = mask_rows(keep)
+    out = rgb.astype(np.uint8)
+    for row in (y0 - 1, y1):
+        if 0 <= row < out.shape[0]:
+            out[row] = (255, 220, 0)
+    return out
+
+
+def _write_atomically(path: Path, rgb_or_gray: np.ndarray) -> None:
+    """PNG write through a temporary file in the same folder, so that a failed write leaves
+    an existing file as it was."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    pixels = rgb_or_gray if rgb_or_gray.ndim == 2 else cv2.cvtColor(rgb_or_gray,
+                                                                    cv2.COLOR_RGB2BGR)
+    ok, data = cv2.imencode('.png', pixels)
+    if not ok:
+        raise InputError(f'could not encode {path} as PNG')
+    handle, temporary = tempfile.mkstemp(prefix=f'.{path.name}.', dir=path.parent)
+    try:
+        with os.fdopen(handle, 'wb') as stream:
+            stream.write(data.tobytes())
+        os.replace(temporary, path)
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise
+
+
+def summary(keep: np.ndarray) -> str:
+    """One line on what a mask leaves: share ignored and rows processed."""
+    height, width = keep.shape
+    ignored = int(np.count_nonzero(~keep))
+    y0, y1 = mask_rows(keep)
+    rows = (f'rows {y0} to {y1 - 1} processed, {height - (y1 - y0)} of {height} skipped (black '
+            f'from edge to edge)' if (y0, y1) != (0, height) else f'all {height} rows processed')
+    return f'{width}×{height} px, {ignored / keep.size:.1%} ignored ({ignored} px); {rows}'
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``cva-mask``; returns the exit code (2 on bad input)."""
+    args = build_parser().parse_args(argv)
+    try:
+        frame = None
+        start = None if args.start is None else load_mask(args.start)
+        if args.size is not None:
+            width, height = _parse_size(args.size)
+        elif args.image is None and args.bag is None:
+            if start is None:
+                raise ConfigError('give the size: --size, --image, --bag or --start')
+            height, width = start.shape
+        else:
+            if args.image is not None:
+                frame = cv2.imread(str(args.image), cv2.IMREAD_UNCHANGED)
+                if frame is None or frame.size == 0:
+                    raise InputError(f'--image {args.image} cannot be read as an image')
+                if frame.ndim == 3:
+                    frame = cv2.cvtColor(frame[..., :3], cv2.COLOR_BGR2RGB)
+            else:
+                frame = frame_from_bag(args.bag, args.topic, args.frame)
+            height, width = frame.shape[:2]
+        keep = draw_mask(
+            width, height,
+            start=start,
+            rects=args.rect,
+            polygons=[_parse_polygon(corners) for corners in args.polygon],
+            below=args.below,
+            above=args.above,
+        )
+        if not keep.any():
+            raise ConfigError('the mask would ignore every pixel; the node would judge nothing')
+        preview_path = args.preview
+        if preview_path is None and frame is not None:
+            preview_path = args.out.with_name(f'{args.out.stem}_preview.png')
+        # The start mask may be the output itself: --overwrite says so.
+        for path in (args.out, preview_path):
+            if path is not None and path.exists() and not args.overwrite:
+                raise ConfigError(f'{path} exists already; use --overwrite to replace it')
+        if preview_path is not None and frame is None:
+            raise ConfigError('--preview needs a frame to draw on: --image or --bag')
+        _write_atomically(args.out, np.where(keep, 255, 0).astype(np.uint8))
+        if preview_path is not None and frame is not None:
+            _write_atomically(preview_path, preview(frame, keep))
+    except CVAError as err:
+        print(f'cva-mask: error: {err}', file=sys.stderr)
+        return 2
+    print(f'{args.out}: {summary(keep)}')
+    if preview_path is not None:
+        print(f'preview: {preview_path}')
+    print(f'use it with: --ros-args -p mask_path:={args.out.resolve()}  '
+          f'(cva-bag-replay --mask {args.out})')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
