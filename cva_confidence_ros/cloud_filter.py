@@ -77,6 +77,7 @@ def usage(prog: str = 'cva-cloud-filter') -> str:
         _TOPICS,
         parameters,
         example=_EXAMPLE,
+        qos_topic='points2',
     )
 
 

@@ -121,6 +121,7 @@ def usage(prog: str = 'cva-node') -> str:
         _TOPICS,
         _parameter_lines(),
         example=_EXAMPLE,
+        qos_topic='left/image_rect',
     )
 
 
@@ -144,6 +145,7 @@ def lifecycle_usage(prog: str = 'cva-lifecycle-node') -> str:
         _TOPICS,
         parameters,
         example=_EXAMPLE,
+        qos_topic='left/image_rect',
     )
 
 

@@ -28,9 +28,11 @@ from cva_confidence_ros.checks import is_real
 from cva_confidence_ros.errors import ConfigError, CVAError
 from cva_confidence_ros.pointcloud import filter_cloud
 from cva_confidence_ros.ros.common import (
+    QOS_OVERRIDES,
     ReasonThrottle,
     diagnostic_status,
     publish_status,
+    qos_override_errors,
     qos_profile,
     run_node,
 )
@@ -175,12 +177,18 @@ class CloudFilterNode(Node):
         self._window_invalid = 0  # since the last /diagnostics message
         self._throttle = ReasonThrottle()
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self._publisher = self.create_publisher(
-            PointCloud2, 'points2_filtered', qos_profile(self._config.output_qos)
-        )
-        self.create_subscription(
-            PointCloud2, 'points2', self._on_cloud, qos_profile(self._config.input_qos)
-        )
+        # ROS 2's per-topic QoS overrides refine the presets (``qos_overrides./points2.
+        # subscription.depth``, …); a bad value stops the start with the topic named.
+        with qos_override_errors('points2_filtered'):
+            self._publisher = self.create_publisher(
+                PointCloud2, 'points2_filtered', qos_profile(self._config.output_qos),
+                qos_overriding_options=QOS_OVERRIDES,
+            )
+        with qos_override_errors('points2'):
+            self.create_subscription(
+                PointCloud2, 'points2', self._on_cloud, qos_profile(self._config.input_qos),
+                qos_overriding_options=QOS_OVERRIDES,
+            )
         self._diagnostics = self.create_publisher(
             DiagnosticArray, '/diagnostics', QoSProfile(depth=10)
         )

@@ -11,7 +11,8 @@ before the node is up). :func:`check_arguments` answers the rest of a node's com
 from __future__ import annotations
 
 from collections import OrderedDict
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 import os
 import re
 import signal
@@ -22,6 +23,7 @@ import time
 from typing import NoReturn
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import SetParametersResult
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import (
@@ -35,21 +37,30 @@ import rclpy.logging
 from rclpy.logging import LoggingSeverity
 from rclpy.node import Node
 from rclpy.publisher import Publisher
-from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_sensor_data,
+)
+from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
 from rclpy.utilities import remove_ros_args
 
-from cva_confidence_ros.errors import CVAError, reason
+from cva_confidence_ros.errors import ConfigError, CVAError, reason
 from cva_confidence_ros.ros import interrupt
 
 __all__ = [
     'EXIT_BAD_START',
     'EXIT_INTERRUPTED',
     'LOG_THROTTLE_S',
+    'QOS_OVERRIDES',
     'READY',
     'ReasonThrottle',
     'check_arguments',
     'diagnostic_status',
     'publish_status',
+    'qos_override_errors',
     'qos_profile',
     'run_node',
     'spin_until_shutdown',
@@ -86,10 +97,47 @@ def publish_status(node: Node, publisher: Publisher, status: DiagnosticStatus) -
 
 def qos_profile(name: str) -> QoSProfile:
     """The QoS of a preset name: ``sensor_data`` (best effort, keep last 5) or ``reliable``
-    (keep last 10)."""
+    (keep last 10). A new profile on every call: rclpy writes a topic's QoS overrides into
+    the profile it is given, which must not reach the next topic."""
     if name == 'sensor_data':
-        return qos_profile_sensor_data
+        return QoSProfile(
+            history=HistoryPolicy.KEEP_LAST,
+            depth=qos_profile_sensor_data.depth,
+            reliability=ReliabilityPolicy.BEST_EFFORT,
+            durability=DurabilityPolicy.VOLATILE,
+        )
     return QoSProfile(depth=10)
+
+
+def _check_overridden_qos(qos: QoSProfile) -> SetParametersResult:
+    if qos.history == HistoryPolicy.KEEP_LAST and qos.depth < 1:
+        return SetParametersResult(
+            successful=False, reason=f'depth must be >= 1 with history keep_last; got {qos.depth}'
+        )
+    return SetParametersResult(successful=True)
+
+
+#: ROS 2's standard per-topic QoS overrides (as rclcpp's ``with_default_policies``): read-only
+#: parameters ``qos_overrides.<topic>.<publisher|subscription>.<history|depth|reliability>``,
+#: declared with the preset's values, that a parameter file or ``-p`` sets at start-up.
+QOS_OVERRIDES = QoSOverridingOptions.with_default_policies(callback=_check_overridden_qos)
+
+
+@contextmanager
+def qos_override_errors(topic: str) -> Iterator[None]:
+    """Turn rclpy's errors for a bad ``qos_overrides.<topic>.*`` value into :class:`ConfigError`
+    (rclpy raises a bare ``RuntimeError`` for an unknown policy name)."""
+    try:
+        yield
+    except InvalidQosOverridesError as error:
+        raise ConfigError(f'QoS override of {topic}: {error}') from None
+    except RuntimeError as error:
+        if 'QoS override' not in str(error):
+            raise
+        raise ConfigError(
+            f'QoS override of {topic}: {error}; expected reliability reliable | best_effort, '
+            'history keep_last | keep_all, depth >= 1'
+        ) from None
 
 
 class ReasonThrottle:
@@ -196,6 +244,7 @@ def usage_text(
     topics: Sequence[tuple[str, str, str, str]] = (),
     parameters: Sequence[tuple[str, object, str, str]] = (),
     example: str = 'name:=value',
+    qos_topic: str = '',
 ) -> str:
     """A node's ``--help``: how to call it, its topics and its parameters with their defaults.
 
@@ -206,6 +255,8 @@ def usage_text(
         parameters: ``(name, default, limits, description)`` a parameter; ``limits`` is a short
             note for the parameter's line (a range, ``(start-up only)``), may be empty.
         example: A ``name:=value`` for the examples.
+        qos_topic: An input topic for the example of the per-topic QoS overrides
+            (:data:`QOS_OVERRIDES`); ``''`` = no such section.
     """
     lines = [
         f'usage: {prog} [-h] [--ros-args [-p NAME:=VALUE] [--params-file FILE] '
@@ -231,6 +282,18 @@ def usage_text(
             lines += textwrap.wrap(
                 description, _WIDTH, initial_indent=' ' * 6, subsequent_indent=' ' * 6
             )
+    if qos_topic:
+        lines += [
+            '',
+            *textwrap.wrap(
+                'per-topic QoS (ROS 2 QoS overrides, start-up only; they refine input_qos / '
+                'output_qos): qos_overrides.<topic>.<publisher|subscription>.<policy>:=<value>, '
+                'policy reliability (reliable, best_effort), history (keep_last, keep_all) or '
+                'depth, topic as resolved (namespace and remaps applied), e.g.',
+                _WIDTH,
+            ),
+            f'  -p qos_overrides./{qos_topic}.subscription.reliability:=reliable',
+        ]
     lines += [
         '',
         'examples:',

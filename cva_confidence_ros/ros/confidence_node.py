@@ -26,15 +26,17 @@ from rclpy.timer import Timer
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, LaserScan, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
-from cva_confidence_ros.errors import CVAError
+from cva_confidence_ros.errors import ConfigError, CVAError
 from cva_confidence_ros.pipeline import PipelineConfig, PipelineResult, StereoPipeline
 from cva_confidence_ros.plots import confidence_overlay
 from cva_confidence_ros.pointcloud import StereoGeometry, disparity_to_depth, stereo_cloud
 from cva_confidence_ros.ros.common import (
     LOG_THROTTLE_S,
+    QOS_OVERRIDES,
     ReasonThrottle,
     diagnostic_status,
     publish_status,
+    qos_override_errors,
     qos_profile,
     run_node,
 )
@@ -72,6 +74,17 @@ _TOPICS = {
     'left_info': 'left/camera_info',
     'right_info': 'right/camera_info',
 }
+#: The outputs (message type, topic), in the order of the node's publisher attributes.
+_OUTPUTS: tuple[tuple[type, str], ...] = (
+    (DisparityImage, 'disparity'),
+    (DisparityImage, 'disparity_filtered'),
+    (Image, 'confidence'),
+    (PointCloud2, 'points2'),
+    (Image, 'depth'),
+    (Image, 'confidence_overlay'),
+    (LaserScan, 'scan'),
+    (CameraInfo, 'camera_info'),
+)
 
 
 class _Mailbox:
@@ -222,12 +235,30 @@ class ConfidenceCore(Node):
 
     def _create_output_publisher(self, msg_type: type, topic: str, qos: Any) -> Any:
         """A publisher of the node's outputs (the managed node's are lifecycle publishers)."""
-        return self.create_publisher(msg_type, topic, qos)
+        return self.create_publisher(msg_type, topic, qos, qos_overriding_options=QOS_OVERRIDES)
+
+    def _output_publishers(self, output_qos: str) -> list[Any]:
+        """The outputs' publishers, in :data:`_OUTPUTS` order, each with its own profile of
+        the preset and its ``qos_overrides``; none is left behind when an override is bad."""
+        made: list[Any] = []
+        try:
+            for msg_type, topic in _OUTPUTS:
+                with qos_override_errors(topic):
+                    made.append(
+                        self._create_output_publisher(msg_type, topic, qos_profile(output_qos))
+                    )
+        except ConfigError:
+            for publisher in made:
+                self.destroy_publisher(publisher)
+            raise
+        return made
 
     def _configure(self) -> None:
         pipeline_config, node_config = build_configs(parameter_values(self))
         pipeline = StereoPipeline(pipeline_config)
         pipeline.warm_up()
+        # Before anything is kept: a bad qos_overrides value leaves the node as it was.
+        publishers = self._output_publishers(node_config.output_qos)
         with self._lock:
             self._pipeline = pipeline
             self._pipeline_config = pipeline_config
@@ -239,17 +270,11 @@ class ConfidenceCore(Node):
             self._stats = _Stats()
         self._log_throttle = ReasonThrottle()
         self._mailbox = _Mailbox()
-        out_qos = qos_profile(node_config.output_qos)
-        publish = self._create_output_publisher
-        self._pub_disparity = publish(DisparityImage, 'disparity', out_qos)
-        self._pub_filtered = publish(DisparityImage, 'disparity_filtered', out_qos)
-        self._pub_confidence = publish(Image, 'confidence', out_qos)
-        self._pub_points = publish(PointCloud2, 'points2', out_qos)
-        self._pub_depth = publish(Image, 'depth', out_qos)
-        self._pub_overlay = publish(Image, 'confidence_overlay', out_qos)
-        self._pub_scan = publish(LaserScan, 'scan', out_qos)
+        (
+            self._pub_disparity, self._pub_filtered, self._pub_confidence, self._pub_points,
+            self._pub_depth, self._pub_overlay, self._pub_scan, self._pub_info,
+        ) = publishers
         self._scan_frame_warned = False
-        self._pub_info = publish(CameraInfo, 'camera_info', out_qos)
         self._pub_diagnostics = self.create_publisher(
             DiagnosticArray, '/diagnostics', QoSProfile(depth=10)
         )
@@ -283,11 +308,19 @@ class ConfidenceCore(Node):
         return topics
 
     def _activate(self) -> None:
-        in_qos = qos_profile(self.node_config.input_qos)
-        for key, (topic, msg_type) in self._input_topics().items():
-            self._subscriptions_in.append(
-                self.create_subscription(msg_type, topic, partial(self._on_message, key), in_qos)
-            )
+        preset = self.node_config.input_qos
+        try:
+            for key, (topic, msg_type) in self._input_topics().items():
+                with qos_override_errors(topic):
+                    self._subscriptions_in.append(self.create_subscription(
+                        msg_type, topic, partial(self._on_message, key), qos_profile(preset),
+                        qos_overriding_options=QOS_OVERRIDES,
+                    ))
+        except ConfigError:
+            for subscription in self._subscriptions_in:
+                self.destroy_subscription(subscription)
+            self._subscriptions_in = []
+            raise
 
     def _deactivate(self) -> None:
         """Unsubscribe; a frame waiting in the mailbox is dropped, pairing starts afresh."""

@@ -32,7 +32,7 @@ from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackRet
 from rclpy.parameter import Parameter
 
 from cva_confidence_ros.errors import CVAError
-from cva_confidence_ros.ros.common import run_node
+from cva_confidence_ros.ros.common import QOS_OVERRIDES, run_node
 from cva_confidence_ros.ros.confidence_node import NODE_NAME, ConfidenceCore
 
 __all__ = ['AUTOSTART', 'ManagedConfidenceNode', 'run']
@@ -86,7 +86,8 @@ class ManagedConfidenceNode(ConfidenceCore, LifecycleNode):
         try:
             self._configure()
         except CVAError as error:
-            # Raised while building the pipeline, before anything else is made.
+            # Raised while building the pipeline or the publishers (a bad qos_overrides
+            # value), before anything is kept.
             self.get_logger().error(
                 f'configure failed: {error}; still unconfigured (set other parameters and '
                 'configure again)'
@@ -99,7 +100,12 @@ class ManagedConfidenceNode(ConfidenceCore, LifecycleNode):
         return super().on_configure(state)
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._activate()
+        try:
+            self._activate()
+        except CVAError as error:
+            # A bad qos_overrides value of an input (read-only: fix the parameter file).
+            self.get_logger().error(f'activate failed: {error}; still inactive')
+            return TransitionCallbackReturn.FAILURE
         result = super().on_activate(state)  # enables the lifecycle publishers
         self.get_logger().info('active: subscribed to the stereo inputs')
         return result
@@ -137,7 +143,9 @@ class ManagedConfidenceNode(ConfidenceCore, LifecycleNode):
         self._state_machine.destroy_when_not_in_use()
 
     def _create_output_publisher(self, msg_type: type, topic: str, qos: Any) -> Any:
-        return self.create_lifecycle_publisher(msg_type, topic, qos)
+        return self.create_lifecycle_publisher(
+            msg_type, topic, qos, qos_overriding_options=QOS_OVERRIDES
+        )
 
     def destroy_publisher(self, publisher: Any) -> bool:
         # Lifecycle publishers also leave the node's managed entities.

@@ -83,6 +83,7 @@ def test_help_prints_the_usage_and_starts_nothing(script: str, args: tuple[str, 
     for name in names:
         assert f'\n  {name}:=' in done.stdout, name
     assert 'points2' in done.stdout and '/diagnostics' in done.stdout
+    assert '.subscription.reliability:=reliable' in done.stdout  # the per-topic QoS overrides
     assert 'ready' not in done.stdout
     # Nothing heavy behind it: no node, no pipeline (generous for a loaded test machine).
     assert elapsed < 30.0
@@ -201,3 +202,13 @@ def test_launch_style_ros_arguments_start_the_node(
     # The logger is named <namespace>.<node name>.
     assert f'.{name}]: ready:' in line and ready in line, output
     assert 'Traceback' not in output and 'unrecognised' not in output, output
+
+
+def test_a_bad_qos_override_stops_the_start_with_one_line() -> None:
+    # ROS 2's per-topic QoS overrides (test_qos_overrides): a value rclpy cannot use is named
+    # with its topic, exit status 2, no traceback.
+    done = _call('cva-cloud-filter', '--ros-args',
+                 '-p', 'qos_overrides./points2.subscription.reliability:=sometimes')
+    assert done.returncode == EXIT_BAD_START, done.stdout + done.stderr
+    assert 'cannot start: QoS override of points2' in done.stderr
+    assert 'sometimes' in done.stderr and 'Traceback' not in done.stderr
