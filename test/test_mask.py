@@ -13,18 +13,8 @@ from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.mask import check_mask_size, load_mask, mask_rows, reduce_mask
 from cva_confidence_ros.pipeline import PipelineConfig, StereoPipeline, output_region
 
-
-def _scene(height: int = 96, width: int = 120) -> tuple[np.ndarray, np.ndarray]:
-    """A slanted plane (3 to 11 px of disparity down the rows) of random texture."""
-    rng = np.random.default_rng(5)
-    texture = rng.integers(0, 256, (height, width + 16), dtype=np.uint8)
-    left = texture[:, :width].copy()
-    right = np.empty_like(left)
-    for y in range(height):
-        shift = 3 + (8 * y) // height
-        right[y] = texture[y, shift : shift + width]
-    return left, right
-
+#: A stereo pair (left, right) of uint8 images: the ``slanted_pair`` fixture (conftest).
+Pair = tuple[np.ndarray, np.ndarray]
 
 def _write(path: Path, image: np.ndarray) -> Path:
     assert cv2.imwrite(str(path), image)
@@ -90,9 +80,9 @@ def test_reduced_masks_ignore_every_block_with_an_ignored_pixel() -> None:
 
 @pytest.mark.parametrize('method', ['pkrn', 'cva_net_fast'])
 def test_masked_pixels_publish_nothing_and_the_rest_is_the_whole_image_result(
-    tmp_path: Path, method: str
+    tmp_path: Path, method: str, slanted_pair: Pair
 ) -> None:
-    left, right = _scene()
+    left, right = slanted_pair
     mask = _bumper_mask()
     path = _write(tmp_path / 'mask.png', mask)
     base = {'confidence_method': method, 'speckle_size': 0, 'device': 'cpu', 'max_disparity': 64,
@@ -118,9 +108,9 @@ def test_masked_pixels_publish_nothing_and_the_rest_is_the_whole_image_result(
 
 
 def test_mask_with_a_region_of_interest_downsampling_and_the_speckle_filter(
-    tmp_path: Path,
+    tmp_path: Path, slanted_pair: Pair
 ) -> None:
-    left, right = _scene()
+    left, right = slanted_pair
     path = _write(tmp_path / 'mask.png', _bumper_mask())
     config = PipelineConfig(confidence_method='pkrn', max_disparity=32, mask_path=str(path),
                             roi_top=0.25, downsample=2)
@@ -140,9 +130,9 @@ def test_mask_with_a_region_of_interest_downsampling_and_the_speckle_filter(
 
 
 def test_a_mask_of_another_size_or_apart_from_the_region_is_a_clear_error(
-    tmp_path: Path,
+    tmp_path: Path, slanted_pair: Pair
 ) -> None:
-    left, right = _scene()
+    left, right = slanted_pair
     path = _write(tmp_path / 'mask.png', _bumper_mask(48, 60))
     pipeline = StereoPipeline(
         PipelineConfig(confidence_method='pkrn', max_disparity=32, mask_path=str(path))

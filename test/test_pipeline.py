@@ -8,6 +8,8 @@ import pytest
 from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.pipeline import PipelineConfig, StereoPipeline
 
+#: A stereo pair (left, right) of uint8 images: the ``slanted_pair`` fixture (conftest).
+Pair = tuple[np.ndarray, np.ndarray]
 
 def _pair(height: int = 32, width: int = 64, shift: int = 4) -> tuple[np.ndarray, np.ndarray]:
     rng = np.random.default_rng(0)
@@ -155,23 +157,14 @@ def test_expected_kept_error_only_for_a_probabilistic_method():
     assert none_kept.kept_fraction == 0.0 and none_kept.expected_kept_error is None
 
 
-def _textured_scene(height: int = 96, width: int = 120) -> tuple[np.ndarray, np.ndarray]:
-    """A pair with a disparity that changes with the row (a slanted plane: 3 to 11 px)."""
-    rng = np.random.default_rng(5)
-    texture = rng.integers(0, 256, (height, width + 16), dtype=np.uint8)
-    left = texture[:, :width].copy()
-    right = np.empty_like(left)
-    for y in range(height):
-        shift = 3 + (8 * y) // height
-        right[y] = texture[y, shift : shift + width]
-    return left, right
-
 
 @pytest.mark.parametrize('method', ['pkrn', 'cva_net_fast'])
-def test_the_region_of_interest_is_the_whole_image_result_there(method: str) -> None:
+def test_the_region_of_interest_is_the_whole_image_result_there(
+    method: str, slanted_pair: Pair
+) -> None:
     # Census-BM's windows and the networks' extracts reach no further than ROI_MARGIN rows, so
     # inside the region everything equals the whole-image result; outside nothing is computed.
-    left, right = _textured_scene()
+    left, right = slanted_pair
     base = {'confidence_method': method, 'speckle_size': 0, 'device': 'cpu', 'max_disparity': 64}
     whole = _pipeline(**base).process(left, right)
     part = _pipeline(**base, roi_top=0.3, roi_bottom=0.75).process(left, right)
@@ -188,8 +181,8 @@ def test_the_region_of_interest_is_the_whole_image_result_there(method: str) -> 
     assert part.kept_fraction == pytest.approx(whole.valid[y0:y1].mean())
 
 
-def test_the_region_near_the_image_edges_and_downsampled() -> None:
-    left, right = _textured_scene()
+def test_the_region_near_the_image_edges_and_downsampled(slanted_pair: Pair) -> None:
+    left, right = slanted_pair
     # Rows at the processed resolution (48 at downsample 2), one row at least.
     config = PipelineConfig(confidence_method='pkrn', roi_top=0.5, roi_bottom=0.51)
     assert config.roi_rows(48) == (24, 25) and config.roi_rows(1) == (0, 1)
@@ -206,9 +199,11 @@ def test_the_region_near_the_image_edges_and_downsampled() -> None:
     assert not part.valid[:48].any() and part.valid[48:].any()
 
 
-def test_census_sgm_in_a_region_of_interest_differs_only_near_its_edges() -> None:
+def test_census_sgm_in_a_region_of_interest_differs_only_near_its_edges(
+    slanted_pair: Pair,
+) -> None:
     # SGM's vertical and diagonal paths start at the edge of the margin, not of the image.
-    left, right = _textured_scene()
+    left, right = slanted_pair
     base = {'matcher': 'census_sgm', 'speckle_size': 0}
     whole = _pipeline(**base).process(left, right)
     part = _pipeline(**base, roi_top=0.3, roi_bottom=0.75).process(left, right)

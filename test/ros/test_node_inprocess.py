@@ -529,23 +529,29 @@ def test_speckle_filter_changes_at_run_time(running: _Running) -> None:
         ).successful
 
 
+def _published(
+    running: _Running, left: np.ndarray, right: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One frame as the node publishes it: disparity, confidence, the kept pixels (finite in
+    ``disparity_filtered``) and depth."""
+    out = running.client.send_until_output(
+        left, right, running.next_stamp(),
+        topics=('disparity', 'confidence', 'disparity_filtered', 'depth'),
+    )
+    return (disparity_from_message(out['disparity']),
+            float_image_to_array(out['confidence']),
+            np.isfinite(disparity_from_message(out['disparity_filtered'])),
+            depth_image_to_array(out['depth']))
+
+
 def test_region_of_interest_changes_at_run_time(running: _Running) -> None:
     # roi_top / roi_bottom: only those rows are processed; the rest is published as nothing
     # kept (invalid disparity, confidence 0), and /diagnostics gives the region's kept share.
     left, right = textured_pair(seed=11)
-    topics = ('disparity', 'confidence', 'disparity_filtered', 'depth')
-
-    def outputs() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        out = running.client.send_until_output(left, right, running.next_stamp(), topics=topics)
-        return (disparity_from_message(out['disparity']),
-                float_image_to_array(out['confidence']),
-                np.isfinite(disparity_from_message(out['disparity_filtered'])),
-                depth_image_to_array(out['depth']))
-
-    whole = outputs()
+    whole = _published(running, left, right)
     assert running.set(roi_top=0.25, roi_bottom=0.75).successful
     try:
-        disparity, confidence, kept, depth = outputs()
+        disparity, confidence, kept, depth = _published(running, left, right)
         y0, y1 = PipelineConfig(roi_top=0.25, roi_bottom=0.75).roi_rows(64)
         assert (y0, y1) == (16, 48)
         outside = np.r_[0:y0, y1:64]
@@ -575,16 +581,7 @@ def test_ignore_mask_changes_at_run_time(running: _Running, tmp_path: Path) -> N
     # mask_path: black pixels (the robot's own bumper) are published as nothing kept, in every
     # output; a mask of another size than the images is refused with both sizes named.
     left, right = textured_pair(seed=12)
-    topics = ('disparity', 'confidence', 'disparity_filtered', 'depth')
-
-    def outputs() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        out = running.client.send_until_output(left, right, running.next_stamp(), topics=topics)
-        return (disparity_from_message(out['disparity']),
-                float_image_to_array(out['confidence']),
-                np.isfinite(disparity_from_message(out['disparity_filtered'])),
-                depth_image_to_array(out['depth']))
-
-    whole = outputs()
+    whole = _published(running, left, right)
     mask = np.full((64, 96), 255, np.uint8)
     mask[52:, :30] = 0
     mask[:, 90:] = 0
@@ -592,7 +589,7 @@ def test_ignore_mask_changes_at_run_time(running: _Running, tmp_path: Path) -> N
     assert cv2.imwrite(str(path), mask)
     assert running.set(mask_path=str(path)).successful
     try:
-        disparity, confidence, kept, depth = outputs()
+        disparity, confidence, kept, depth = _published(running, left, right)
         ignored = mask == 0
         assert np.isnan(disparity[ignored]).all() and (confidence[ignored] == 0).all()
         assert not kept[ignored].any() and np.isnan(depth[ignored]).all()
