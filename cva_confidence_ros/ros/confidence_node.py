@@ -10,6 +10,7 @@ from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import partial
+from pathlib import Path
 import threading
 import time
 from typing import Any
@@ -169,6 +170,9 @@ class _Stats:
     last_mean_confidence: float | None = None
     # the share of the last frame's pixels that passed the threshold but were speckles
     last_speckle_fraction: float | None = None
+    # the share of the last frame's pixels judged at all (region of interest and ignore mask;
+    # the kept share and the mean confidence are of those)
+    last_judged_fraction: float | None = None
     # the error rate a probabilistic confidence predicts for the kept pixels (mean of
     # 1 − confidence there): the last frame's; over the window's frames that have one, the
     # sums of it × kept share and of the kept share
@@ -378,6 +382,9 @@ class ConfidenceCore(Node):
             f'matcher={config.matcher} max_disparity={config.max_disparity} '
             f'confidence_method={config.confidence_method} downsample={config.downsample} '
             f'sync={"approximate" if node_config.approximate_sync else "exact"}'
+            + (f' roi={config.roi_top:g}-{config.roi_bottom:g}'
+               if (config.roi_top, config.roi_bottom) != (0.0, 1.0) else '')
+            + (f' mask={Path(config.mask_path).name}' if config.mask_path else '')
         )
 
     # Configuration -------------------------------------------------------------------------
@@ -626,7 +633,10 @@ class ConfidenceCore(Node):
         timings['publish'] = (time.perf_counter() - tic) * 1e3
         timings['frame'] = (time.perf_counter() - start) * 1e3
         kept_fraction = result.kept_fraction
-        mean_confidence = float(np.mean(np.nan_to_num(result.confidence, nan=0.0)))
+        region = result.region
+        judged = result.confidence if region is None else result.confidence[region]
+        mean_confidence = float(np.mean(np.nan_to_num(judged, nan=0.0))) if judged.size else 0.0
+        judged_fraction = 1.0 if region is None else float(region.mean())
         expected_error = result.expected_kept_error
         with self._lock:
             self._stats.processed += 1
@@ -635,6 +645,7 @@ class ConfidenceCore(Node):
             self._stats.last_kept_fraction = kept_fraction
             self._stats.window_kept_sum += kept_fraction
             self._stats.last_mean_confidence = mean_confidence
+            self._stats.last_judged_fraction = judged_fraction
             self._stats.last_speckle_fraction = result.speckle_fraction
             self._stats.last_expected_kept_error = expected_error
             if expected_error is not None:
@@ -766,6 +777,7 @@ class ConfidenceCore(Node):
                 'last_kept_fraction': _fraction(stats.last_kept_fraction),
                 'last_mean_confidence': _fraction(stats.last_mean_confidence),
                 'last_speckle_fraction': _fraction(stats.last_speckle_fraction),
+                'last_judged_fraction': _fraction(stats.last_judged_fraction),
                 'expected_kept_error': _fraction(expected),
                 'last_expected_kept_error': _fraction(stats.last_expected_kept_error),
             }

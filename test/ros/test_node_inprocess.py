@@ -604,6 +604,19 @@ def test_ignore_mask_changes_at_run_time(running: _Running, tmp_path: Path) -> N
         missing = running.set(mask_path=str(tmp_path / 'nowhere.png'))
         assert not missing.successful and 'nowhere.png' in missing.reason
         assert 'is not a file' in missing.reason
+        # /diagnostics: the share judged, and the kept share of those pixels.
+        judged, share = f'{(~ignored).mean():.4f}', f'{kept[~ignored].mean():.4f}'
+
+        def reports_shares() -> bool:
+            return any(
+                (values.get('last_judged_fraction'), values.get('last_kept_fraction'))
+                == (judged, share)
+                for array in running.client.received['/diagnostics'] for entry in array.status
+                for values in [{kv.key: kv.value for kv in entry.values}]
+            )
+
+        assert running.client.wait_for(reports_shares, timeout=10.0)
+        assert 'mask=bumper.png' in running.node.summary()
     finally:
         assert running.set(mask_path='').successful
 
