@@ -219,7 +219,7 @@ class PipelineResult:
             ``subpixel`` when refined, ``speckle`` when filtered, ``total``).
         probabilistic: Whether ``confidence`` is meant as the probability that the disparity
             is correct (the networks; ``ConfidenceMethod.probabilistic``).
-        speckle_fraction: Share of the pixels (of the region of interest) that pass the
+        speckle_fraction: Share of the pixels judged (:attr:`region`) that pass the
             threshold but lie in a speckle (dropped from :attr:`valid` by ``speckle_size``); 0
             with the filter off.
         rows: Rows ``[y0, y1)`` processed: those of the region of interest (``roi_top``,
