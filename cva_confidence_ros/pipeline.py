@@ -7,6 +7,7 @@ messages and parameters into :class:`PipelineConfig` and arrays.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
+from functools import cached_property
 import math
 import time
 from typing import Any
@@ -242,10 +243,10 @@ class PipelineResult:
     rows: tuple[int, int] | None = None
     mask: np.ndarray | None = None
 
-    @property
+    @cached_property
     def region(self) -> np.ndarray | None:
         """(H, W) bool, the pixels judged: the rows processed and the mask's pixels; None =
-        every pixel."""
+        every pixel. Made once per result (the node reads it for several statistics)."""
         return judged_region(self.valid.shape, self.rows, self.mask)
 
     @property
