@@ -30,6 +30,7 @@ import numpy as np
 
 from cva_confidence_ros.errors import BagError, ConfigError, CVAError, InputError
 from cva_confidence_ros.mask import load_mask, mask_rows
+from cva_confidence_ros.outputs import check_output_file
 
 __all__ = ['build_parser', 'draw_mask', 'frame_from_bag', 'main']
 
@@ -183,19 +184,15 @@ def frame_from_bag(bag_path: Path, topic: str | None, index: int) -> np.ndarray:
         raise BagError(f'bag {bag_path} has no message {index} on {topic} (numbered from 0)')
 
 
-def _to_rgb8(image: np.ndarray) -> np.ndarray:
-    if image.dtype == np.uint16:
-        top = max(int(image.max()), 1)
-        image = (image.astype(np.float32) * (255.0 / top)).astype(np.uint8)
-    if image.ndim == 2:
-        image = np.repeat(image[..., None], 3, axis=2)
-    return np.asarray(image, dtype=np.uint8)
-
-
 def preview(image: np.ndarray, keep: np.ndarray) -> np.ndarray:
     """The frame (RGB) with the ignored pixels shaded red and the first and last processed
     rows marked by a yellow line where rows are skipped."""
-    rgb = _to_rgb8(image).astype(np.float32)
+    from cva_confidence_ros.ros.convert import pair_to_uint8
+
+    gray_or_rgb = pair_to_uint8(image, image)[0]  # 16-bit frames scaled as the node scales them
+    if gray_or_rgb.ndim == 2:
+        gray_or_rgb = np.repeat(gray_or_rgb[..., None], 3, axis=2)
+    rgb = gray_or_rgb.astype(np.float32)
     red = np.array([255.0, 0.0, 0.0], dtype=np.float32)
     rgb[~keep] = 0.45 * rgb[~keep] + 0.55 * red
     y0, y1 = mask_rows(keep)
@@ -208,8 +205,7 @@ def preview(image: np.ndarray, keep: np.ndarray) -> np.ndarray:
 
 def _write_atomically(path: Path, rgb_or_gray: np.ndarray) -> None:
     """PNG write through a temporary file in the same folder, so that a failed write leaves
-    an existing file as it was."""
-    path.parent.mkdir(parents=True, exist_ok=True)
+    an existing file as it was (the folder is made by ``check_output_file`` before)."""
     pixels = rgb_or_gray if rgb_or_gray.ndim == 2 else cv2.cvtColor(rgb_or_gray,
                                                                     cv2.COLOR_RGB2BGR)
     ok, data = cv2.imencode('.png', pixels)
@@ -276,6 +272,9 @@ def main(argv: list[str] | None = None) -> int:
                 raise ConfigError(f'{path} exists already; use --overwrite to replace it')
         if preview_path is not None and frame is None:
             raise ConfigError('--preview needs a frame to draw on: --image or --bag')
+        check_output_file(args.out, 'out')
+        if preview_path is not None:
+            check_output_file(preview_path, '--preview')
         _write_atomically(args.out, np.where(keep, 255, 0).astype(np.uint8))
         if preview_path is not None and frame is not None:
             _write_atomically(preview_path, preview(frame, keep))
