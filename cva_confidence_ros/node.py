@@ -16,9 +16,11 @@ millimetres with 0 where there is none), ``confidence_overlay`` (``sensor_msgs/I
 for a person to look at: the kept pixels tinted red → yellow → green by confidence over the
 dimmed scene), ``scan`` (``sensor_msgs/LaserScan`` of the kept pixels in a height band, for
 obstacle layers; in the camera's body frame, :mod:`cva_confidence_ros.scan`), ``camera_info``
-(the left camera info at the output resolution, for consumers of ``confidence`` and ``depth``)
-and ``/diagnostics``. Everything is stamped with the left image's header and published at the
-processed resolution (1/``downsample``).
+(the left camera info at the output resolution, for consumers of ``confidence`` and ``depth``),
+``confidence_overlay/compressed`` and ``depth/compressedDepth`` (``image_transport``'s
+``compressed`` and ``compressedDepth`` of those two, encoded only while subscribed:
+:mod:`cva_confidence_ros.ros.transport`) and ``/diagnostics``. Everything is stamped with the
+left image's header and published at the processed resolution (1/``downsample``).
 
 Threads: subscription callbacks only synchronise and drop the newest complete set into a
 one-slot mailbox; a worker thread processes whatever is in the slot. When frames come faster
@@ -77,6 +79,10 @@ _TOPICS = (
     ('out', 'scan', 'sensor_msgs/LaserScan',
      'nearest kept point per bearing in scan_min/max_height; intensity = confidence'),
     ('out', 'camera_info', 'sensor_msgs/CameraInfo', 'left, at the output resolution'),
+    ('out', 'confidence_overlay/compressed', 'sensor_msgs/CompressedImage',
+     'image_transport compressed (JPEG), encoded only while subscribed'),
+    ('out', 'depth/compressedDepth', 'sensor_msgs/CompressedImage',
+     'image_transport compressedDepth (PNG), encoded only while subscribed'),
     ('out', '/diagnostics', 'diagnostic_msgs/DiagnosticArray', ''),
 )
 _EXAMPLE = 'confidence_threshold:=0.8'

@@ -59,6 +59,7 @@ from cva_confidence_ros.ros.params import (
     declare_parameters,
     parameter_values,
 )
+from cva_confidence_ros.ros.transport import depth_image_to_compressed_depth, rgb_to_compressed
 from cva_confidence_ros.scan import disparity_to_scan, scan_frame_id
 from cva_confidence_ros.sync import MatchedSet, StampSynchronizer
 
@@ -85,6 +86,9 @@ _OUTPUTS: tuple[tuple[type, str], ...] = (
     (Image, 'confidence_overlay'),
     (LaserScan, 'scan'),
     (CameraInfo, 'camera_info'),
+    # image_transport's other transports of two image outputs (ros/transport.py)
+    (CompressedImage, 'confidence_overlay/compressed'),
+    (CompressedImage, 'depth/compressedDepth'),
 )
 
 
@@ -277,6 +281,7 @@ class ConfidenceCore(Node):
         (
             self._pub_disparity, self._pub_filtered, self._pub_confidence, self._pub_points,
             self._pub_depth, self._pub_overlay, self._pub_scan, self._pub_info,
+            self._pub_overlay_compressed, self._pub_depth_compressed,
         ) = publishers
         self._scan_frame_warned = False
         self._pub_diagnostics = self.create_publisher(
@@ -288,6 +293,7 @@ class ConfidenceCore(Node):
         self._owned = [
             self._pub_disparity, self._pub_filtered, self._pub_confidence, self._pub_points,
             self._pub_depth, self._pub_overlay, self._pub_scan, self._pub_info,
+            self._pub_overlay_compressed, self._pub_depth_compressed,
             self._pub_diagnostics, self._diag_timer,
         ]
         self._worker = threading.Thread(
@@ -694,12 +700,34 @@ class ConfidenceCore(Node):
                 with_confidence=node_config.points_confidence,
             )
             self._pub_points.publish(cloud_to_message(cloud, header))
-        if node_config.publish_depth and self._pub_depth.get_subscription_count():
+        depth_raw = self._pub_depth.get_subscription_count()
+        depth_compressed = self._pub_depth_compressed.get_subscription_count()
+        if node_config.publish_depth and (depth_raw or depth_compressed):
             depth = disparity_to_depth(disparity, geometry, keep)
-            self._pub_depth.publish(depth_to_image(depth, header, node_config.depth_encoding))
-        if self._pub_overlay.get_subscription_count():
+            depth_msg = depth_to_image(depth, header, node_config.depth_encoding)
+            if depth_raw:
+                self._pub_depth.publish(depth_msg)
+            if depth_compressed:
+                self._pub_depth_compressed.publish(
+                    depth_image_to_compressed_depth(
+                        depth_msg,
+                        node_config.compressed_depth_max,
+                        node_config.compressed_depth_quantization,
+                        node_config.compressed_depth_png_level,
+                    )
+                )
+        overlay_raw = self._pub_overlay.get_subscription_count()
+        overlay_compressed = self._pub_overlay_compressed.get_subscription_count()
+        if overlay_raw or overlay_compressed:
             overlay = confidence_overlay(result.left, confidence, keep)
-            self._pub_overlay.publish(rgb_to_image(overlay, header))
+            if overlay_raw:
+                self._pub_overlay.publish(rgb_to_image(overlay, header))
+            if overlay_compressed:
+                self._pub_overlay_compressed.publish(
+                    rgb_to_compressed(
+                        overlay, header, jpeg_quality=node_config.overlay_jpeg_quality
+                    )
+                )
         if node_config.publish_scan and self._pub_scan.get_subscription_count():
             scan = disparity_to_scan(
                 disparity, geometry, keep, confidence, node_config.scan_config()

@@ -89,6 +89,12 @@ class NodeConfig:
         scan_range_min: Nearest range of the scan, metres.
         scan_range_max: Farthest range of the scan, metres.
         scan_pitch: How far the camera looks down from level, radians.
+        overlay_jpeg_quality: JPEG quality (1–100) of ``confidence_overlay/compressed``.
+        compressed_depth_max: Largest depth sent on ``depth/compressedDepth``, metres (> 0);
+            deeper pixels travel as no depth (:mod:`cva_confidence_ros.ros.transport`).
+        compressed_depth_quantization: Inverse-depth quantisation of a 32FC1
+            ``depth/compressedDepth`` (> 0): larger = finer near depths.
+        compressed_depth_png_level: zlib level (0–9) of the ``depth/compressedDepth`` PNG.
     """
 
     publish_points: bool = True
@@ -113,6 +119,10 @@ class NodeConfig:
     scan_range_min: float = 0.1
     scan_range_max: float = 20.0
     scan_pitch: float = 0.0
+    overlay_jpeg_quality: int = 95
+    compressed_depth_max: float = 10.0
+    compressed_depth_quantization: float = 100.0
+    compressed_depth_png_level: int = 9
 
     def __post_init__(self) -> None:
         if self.depth_encoding not in DEPTH_ENCODINGS:
@@ -150,6 +160,19 @@ class NodeConfig:
                 f'diagnostics_period_seconds must be > 0; got {self.diagnostics_period_seconds}'
             )
         self.scan_config()  # building it checks the scan_* values
+        if not 1 <= self.overlay_jpeg_quality <= 100:
+            raise ConfigError(
+                f'overlay_jpeg_quality must be in [1, 100]; got {self.overlay_jpeg_quality}'
+            )
+        for name in ('compressed_depth_max', 'compressed_depth_quantization'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ConfigError(f'{name} must be a finite number > 0; got {value}')
+        if not 0 <= self.compressed_depth_png_level <= 9:
+            raise ConfigError(
+                'compressed_depth_png_level must be in [0, 9]; '
+                f'got {self.compressed_depth_png_level}'
+            )
 
     def scan_config(self) -> ScanConfig:
         """The ``scan_*`` parameters as a :class:`~cva_confidence_ros.scan.ScanConfig`.
@@ -504,6 +527,34 @@ NODE_PARAMETERS: tuple[ParamSpec, ...] = (
         low=-1.57,
         high=1.57,
     ),
+    _node(
+        'overlay_jpeg_quality',
+        'JPEG quality of confidence_overlay/compressed (image_transport compressed, encoded '
+        'only while subscribed), 1-100.',
+        low=1,
+        high=100,
+    ),
+    _node(
+        'compressed_depth_max',
+        'Largest depth on depth/compressedDepth (image_transport compressedDepth, encoded only '
+        'while subscribed), metres: deeper pixels travel as no depth (its depth_max).',
+        low=0.001,
+        high=1e6,
+    ),
+    _node(
+        'compressed_depth_quantization',
+        'Inverse-depth quantisation of a 32FC1 depth/compressedDepth (its depth_quantization): '
+        'depth error about depth^2 / (q * (q + 1)) metres.',
+        low=0.001,
+        high=1e6,
+    ),
+    _node(
+        'compressed_depth_png_level',
+        'zlib level of the depth/compressedDepth PNG, 0-9 (its png_level): higher = smaller, '
+        'slower.',
+        low=0,
+        high=9,
+    ),
 )
 
 #: Every declared parameter, pipeline ones first.
@@ -534,7 +585,7 @@ def double_value(
     return number
 
 
-def scan_parameters(config: ScanConfig) -> dict[str, float]:
+def scan_parameters(config: ScanConfig) -> dict[str, Any]:
     """The ``scan_*`` fields of :class:`NodeConfig` for ``config`` (the inverse of
     :meth:`NodeConfig.scan_config`)."""
     return {f'scan_{f.name}': getattr(config, f.name) for f in fields(config)}

@@ -29,7 +29,7 @@ import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 import torch
 
 from cva_confidence_ros.matching import remove_speckles
@@ -37,11 +37,14 @@ from cva_confidence_ros.node import ConfidenceNode
 from cva_confidence_ros.pipeline import PipelineConfig
 from cva_confidence_ros.ros.convert import (
     cloud_to_array,
+    compressed_image_to_array,
     depth_image_to_array,
     disparity_from_message,
     float_image_to_array,
+    image_to_array,
 )
 from cva_confidence_ros.ros.params import PARAMETERS, NodeConfig
+from cva_confidence_ros.ros.transport import compressed_depth_to_array
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -470,6 +473,52 @@ def test_depth_of_the_confident_pixels_in_both_encodings(running: _Running) -> N
         assert not refused.successful and 'depth_encoding' in refused.reason
     finally:
         assert running.set(depth_encoding='32FC1').successful
+
+
+def test_compressed_transports_of_the_overlay_and_the_depth(running: _Running) -> None:
+    # image_transport's confidence_overlay/compressed (JPEG) and depth/compressedDepth (PNG of
+    # inverse-depth codes), encoded while subscribed: decoded, they are the raw outputs within
+    # the JPEG loss and the quantisation step depth² / (q·(q + 1)).
+    running.client.subscribe('confidence_overlay', Image)
+    running.client.subscribe('confidence_overlay/compressed', CompressedImage)
+    running.client.subscribe('depth/compressedDepth', CompressedImage)
+    topics = ('depth', 'confidence_overlay', 'confidence_overlay/compressed',
+              'depth/compressedDepth')
+    left, right = textured_pair(seed=11)
+    out = running.client.send_until_output(left, right, running.next_stamp(), topics=topics)
+    jpeg, packed = out['confidence_overlay/compressed'], out['depth/compressedDepth']
+    assert jpeg.header == packed.header == out['depth'].header
+    assert jpeg.format == 'rgb8; jpeg compressed bgr8'
+    overlay = image_to_array(out['confidence_overlay']).astype(float)
+    decoded = compressed_image_to_array(jpeg)
+    assert decoded.shape == overlay.shape
+    assert np.abs(decoded - overlay).mean() < 4.0
+    assert packed.format == '32FC1; compressedDepth png'
+    depth = depth_image_to_array(out['depth'])
+    back = compressed_depth_to_array(packed)
+    with np.errstate(invalid='ignore'):
+        kept = np.isfinite(depth) & (depth < 10.0)  # compressed_depth_max (image_transport's)
+    assert kept.any()
+    np.testing.assert_array_equal(np.isfinite(back), kept)
+    step = depth[kept] ** 2 / (100.0 * 101.0)
+    assert np.all(np.abs(back[kept] - depth[kept]) <= step * 1.01)
+
+    # At run time: a nearer depth_max sends only the nearer pixels, a lower quality is smaller.
+    assert running.set(compressed_depth_max=1.9, overlay_jpeg_quality=30).successful
+    try:
+        out = running.client.send_until_output(left, right, running.next_stamp(), topics=topics)
+        depth = depth_image_to_array(out['depth'])
+        back = compressed_depth_to_array(out['depth/compressedDepth'])
+        with np.errstate(invalid='ignore'):
+            np.testing.assert_array_equal(np.isfinite(back), np.isfinite(depth) & (depth < 1.9))
+        assert np.isfinite(depth).sum() > np.isfinite(back).sum()
+        assert len(out['confidence_overlay/compressed'].data) < len(jpeg.data)
+        for bad in ({'overlay_jpeg_quality': 0}, {'compressed_depth_max': 0.0},
+                    {'compressed_depth_png_level': 10}):
+            refused = running.set(**bad)
+            assert not refused.successful and next(iter(bad)) in refused.reason
+    finally:
+        assert running.set(compressed_depth_max=10.0, overlay_jpeg_quality=95).successful
 
 
 def test_subpixel_changes_at_run_time(running: _Running) -> None:

@@ -1,0 +1,203 @@
+"""``image_transport``'s ``compressed`` and ``compressedDepth`` formats, written without it.
+
+The C++ ``image_transport`` advertises every transport of an image topic beside the raw one
+(``<topic>/compressed``, ``<topic>/compressedDepth``) and encodes only while someone listens;
+rclpy has no such publisher, so the node does the same by hand for the two outputs that are
+worth sending over a thin link:
+
+* ``confidence_overlay/compressed``: the rgb8 overlay as JPEG (or PNG), ``format``
+  ``"rgb8; jpeg compressed bgr8"`` as ``compressed_image_transport`` writes it, so that rviz,
+  Foxglove, ``image_transport republish`` and :func:`~cva_confidence_ros.ros.convert.
+  compressed_image_to_array` decode it.
+* ``depth/compressedDepth``: the depth image as ``compressed_depth_image_transport`` lays it out:
+  a 12-byte little-endian header (int32 ``INV_DEPTH`` = 0, float32 ``depthParam[2]``) followed
+  by a 16-bit PNG; ``format`` ``"32FC1; compressedDepth png"`` or ``"16UC1; compressedDepth
+  png"``. A 32FC1 depth ``z`` (metres) travels as the inverse-depth code ``q = A / z + B``
+  truncated to uint16, with ``A = Q·(Q + 1)`` and ``B = 1 − A / depth_max`` for the
+  quantisation ``Q`` (default 100) and the largest depth ``depth_max`` (default 10 m): the
+  receiver gets ``z = A / (q − B)``, exact to ≈ ``z² / A`` (1 cm at 10 m, 0.1 mm at 1 m with the
+  defaults); ``q = 0`` is no depth (NaN, and every depth ≥ ``depth_max``). 16UC1 millimetres
+  travel as they are, those above ``depth_max`` set to 0 (no depth), as the C++ plugin does.
+  Depths below ``A / (65535 − B)`` (0.15 m with the defaults), which the code cannot hold, are
+  sent as that nearest depth rather than wrapped around.
+
+:func:`compressed_depth_to_array` decodes the format back (for tests, tools and subscribers
+without ``image_transport``).
+"""
+
+from __future__ import annotations
+
+import struct
+from typing import Any
+
+import numpy as np
+from sensor_msgs.msg import CompressedImage, Image
+
+from cva_confidence_ros.errors import InputError
+
+__all__ = [
+    'COMPRESSED_DEPTH_HEADER',
+    'compressed_depth_to_array',
+    'compressed_depth_values',
+    'depth_image_to_compressed_depth',
+    'rgb_to_compressed',
+]
+
+#: The ``ConfigHeader`` of ``compressed_depth_image_transport``: int32 format (0 =
+#: ``INV_DEPTH``), float32 ``depthParam[0]`` (A), float32 ``depthParam[1]`` (B).
+COMPRESSED_DEPTH_HEADER = struct.Struct('<iff')
+_INV_DEPTH = 0
+_CODE_MAX = np.iinfo(np.uint16).max
+
+
+def rgb_to_compressed(
+    rgb: np.ndarray, header: Any, image_format: str = 'jpeg', jpeg_quality: int = 95,
+    png_level: int = 9,
+) -> CompressedImage:
+    """An (H, W, 3) uint8 RGB array as ``compressed_image_transport`` sends an rgb8 image.
+
+    Args:
+        rgb: (H, W, 3) uint8, RGB order.
+        header: The message header.
+        image_format: ``jpeg`` or ``png``.
+        jpeg_quality: 1–100 (JPEG only).
+        png_level: zlib level 0–9 (PNG only).
+
+    Raises:
+        InputError: Not an (H, W, 3) uint8 array, another format, or a level out of range.
+    """
+    import cv2
+
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        raise InputError(f'an rgb8 image must be (H, W, 3) uint8; got {rgb.dtype} {rgb.shape}')
+    if image_format == 'jpeg':
+        if not 1 <= jpeg_quality <= 100:
+            raise InputError(f'jpeg_quality must be in [1, 100]; got {jpeg_quality}')
+        params = [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)]
+    elif image_format == 'png':
+        if not 0 <= png_level <= 9:
+            raise InputError(f'png_level must be in [0, 9]; got {png_level}')
+        params = [cv2.IMWRITE_PNG_COMPRESSION, int(png_level)]
+    else:
+        raise InputError(f"image_format must be 'jpeg' or 'png'; got {image_format!r}")
+    ok, data = cv2.imencode(f'.{image_format}', cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), params)
+    if not ok:
+        raise InputError(f'OpenCV could not encode a {rgb.shape[1]}×{rgb.shape[0]} {image_format}')
+    return CompressedImage(
+        header=header, format=f'rgb8; {image_format} compressed bgr8', data=data.tobytes()
+    )
+
+
+def compressed_depth_values(
+    depth: np.ndarray, depth_max: float = 10.0, depth_quantization: float = 100.0
+) -> tuple[np.ndarray, float, float]:
+    """The uint16 inverse-depth codes of a float depth map and the header's ``A`` and ``B``.
+
+    Args:
+        depth: (H, W) metres; NaN, non-positive and ≥ ``depth_max`` = no depth (code 0).
+        depth_max: Largest depth sent, metres (> 0).
+        depth_quantization: ``Q`` (> 0); larger = finer near depths, fewer of them.
+
+    Returns:
+        ``(codes, A, B)``, with ``A`` and ``B`` rounded to float32 as the header holds them.
+
+    Raises:
+        InputError: ``depth_max`` or ``depth_quantization`` not a positive finite number.
+    """
+    for name, value in (('depth_max', depth_max), ('depth_quantization', depth_quantization)):
+        if not (np.isfinite(value) and value > 0):
+            raise InputError(f'{name} must be a positive number; got {value}')
+    a = np.float32(depth_quantization) * (np.float32(depth_quantization) + np.float32(1.0))
+    b = np.float32(1.0) - a / np.float32(depth_max)
+    depth = np.asarray(depth, dtype=np.float32)
+    with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
+        sent = (depth > 0) & (depth < np.float32(depth_max))
+        codes = np.zeros(depth.shape, dtype=np.uint16)
+        # float32 throughout and truncation towards zero, as the C++ plugin computes it.
+        values = a / depth[sent] + b
+        codes[sent] = np.minimum(values, np.float32(_CODE_MAX)).astype(np.uint16)
+    return codes, float(a), float(b)
+
+
+def depth_image_to_compressed_depth(
+    msg: Image, depth_max: float = 10.0, depth_quantization: float = 100.0, png_level: int = 9
+) -> CompressedImage:
+    """A REP 118 depth ``Image`` (32FC1 metres or 16UC1 millimetres) as ``compressedDepth``.
+
+    Raises:
+        InputError: Another encoding, a buffer that does not fit the size, a bad parameter.
+    """
+    import cv2
+
+    from cva_confidence_ros.ros.convert import depth_image_to_array
+
+    if msg.encoding not in ('32FC1', '16UC1'):
+        raise InputError(
+            f'compressedDepth takes 32FC1 or 16UC1 depth images; got {msg.encoding!r}'
+        )
+    if not 0 <= png_level <= 9:
+        raise InputError(f'png_level must be in [0, 9]; got {png_level}')
+    metres = depth_image_to_array(msg)
+    if msg.encoding == '32FC1':
+        codes, a, b = compressed_depth_values(metres, depth_max, depth_quantization)
+    else:
+        if not (np.isfinite(depth_max) and depth_max > 0):
+            raise InputError(f'depth_max must be a positive number; got {depth_max}')
+        with np.errstate(invalid='ignore'):
+            millimetres = np.where(np.isfinite(metres), np.rint(metres * 1000.0), 0.0)
+        # The plugin's cut: above depth_max in whole millimetres, as an unsigned short.
+        millimetres[millimetres > int(depth_max * 1000.0)] = 0.0
+        codes, a, b = millimetres.astype(np.uint16), 0.0, 0.0
+    ok, png = cv2.imencode('.png', codes, [cv2.IMWRITE_PNG_COMPRESSION, int(png_level)])
+    if not ok:
+        raise InputError(f'OpenCV could not encode a {msg.width}×{msg.height} 16-bit PNG')
+    return CompressedImage(
+        header=msg.header,
+        format=f'{msg.encoding}; compressedDepth png',
+        data=COMPRESSED_DEPTH_HEADER.pack(_INV_DEPTH, a, b) + png.tobytes(),
+    )
+
+
+def compressed_depth_to_array(msg: Any, name: str = 'depth') -> np.ndarray:
+    """Decode a ``compressedDepth`` message into metres: (H, W) float32, NaN = no depth.
+
+    Both encodings are read (32FC1 inverse-depth codes, 16UC1 millimetres, 0 = none); so are
+    the older messages whose format names no compression (PNG).
+
+    Raises:
+        InputError: Not a compressedDepth format, an RVL payload, or data that is too short or
+            does not decode as a 16-bit PNG.
+    """
+    import cv2
+
+    text = str(msg.format)
+    encoding, _, rest = text.partition(';')
+    encoding = encoding.strip()
+    if rest and 'compresseddepth' not in rest.lower().replace(' ', ''):
+        raise InputError(f'{name} is not a compressedDepth image (format {text!r})')
+    if 'rvl' in rest.lower():
+        raise InputError(f'{name}: RVL compressedDepth is not supported (format {text!r})')
+    if encoding not in ('32FC1', '16UC1'):
+        raise InputError(
+            f'{name}: compressedDepth of {encoding!r}; expected 32FC1 or 16UC1 (format {text!r})'
+        )
+    data = bytes(msg.data)
+    if len(data) <= COMPRESSED_DEPTH_HEADER.size:
+        raise InputError(
+            f'{name}: {len(data)} bytes of compressedDepth data, fewer than its '
+            f'{COMPRESSED_DEPTH_HEADER.size}-byte header and an image'
+        )
+    _, a, b = COMPRESSED_DEPTH_HEADER.unpack_from(data)
+    codes = cv2.imdecode(
+        np.frombuffer(data, dtype=np.uint8, offset=COMPRESSED_DEPTH_HEADER.size),
+        cv2.IMREAD_UNCHANGED,
+    )
+    if codes is None or codes.dtype != np.uint16 or codes.ndim != 2:
+        raise InputError(f'{name}: the compressedDepth payload is not a one-channel 16-bit PNG')
+    depth = np.full(codes.shape, np.nan, dtype=np.float32)
+    sent = codes > 0
+    if encoding == '32FC1':
+        depth[sent] = np.float32(a) / (codes[sent].astype(np.float32) - np.float32(b))
+    else:
+        depth[sent] = codes[sent].astype(np.float32) / np.float32(1000.0)
+    return depth
