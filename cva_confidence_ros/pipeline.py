@@ -331,17 +331,17 @@ class StereoPipeline:
 
         Raises:
             InputError: Too small for ``downsample``, narrower than ``max_disparity`` + 1
-                after downsampling, or not the size of the mask.
+                after downsampling, not the size of the mask, or with no pixel that both the
+                region of interest and the mask leave.
         """
         cfg = self.config
         if min(width, height) < cfg.downsample:
             raise InputError(
                 f'images of {width}×{height} px cannot be shrunk by downsample = {cfg.downsample}'
             )
-        if self._mask is not None:
-            from cva_confidence_ros.mask import check_mask_size
-
-            check_mask_size(self._mask, width, height)
+        mask = self._processed_mask((height, width))
+        if mask is not None:
+            _judged_rows(cfg.roi_rows(mask.shape[0]), mask)
         shrunk = width // cfg.downsample
         if cfg.max_disparity >= shrunk:
             raise InputError(

@@ -166,6 +166,7 @@ class _Stats:
     window_pairs: int = 0
     window_processed: int = 0
     window_invalid: int = 0
+    window_failed: int = 0
     # share of the pixels kept (finite disparity, confidence ≥ threshold, no speckle): the
     # last frame's and the sum over the window's processed frames; the last frame's mean
     # confidence
@@ -527,8 +528,10 @@ class ConfidenceCore(Node):
         closer to the last set taken than the smallest period, and no jump back lies between."""
         period = self._node_config.min_period_ns
         last = self._stats.last_taken_ns
+        # A stamp before the last one taken is a reset the synchroniser may not have seen (it
+        # is made anew on activate and on sync changes): taken, not skipped until time is back.
         if period and last is not None and item.jumped_from_ns is None and (
-            item.stamp_ns - last < period
+            0 <= item.stamp_ns - last < period
         ):
             return True
         self._stats.last_taken_ns = item.stamp_ns
@@ -585,7 +588,7 @@ class ConfidenceCore(Node):
             if item is None or self._stopping(mailbox):
                 return
             try:
-                self._process(item)
+                self._process(item, mailbox)
             except CVAError as error:
                 with self._lock:
                     self._stats.invalid += 1
@@ -602,6 +605,7 @@ class ConfidenceCore(Node):
                 what = f'{type(error).__name__}: {error}'
                 with self._lock:
                     self._stats.failed += 1
+                    self._stats.window_failed += 1
                     self._stats.last_error = what
                 self._log_throttle.log(
                     self.get_logger(),
@@ -610,7 +614,7 @@ class ConfidenceCore(Node):
                     error=True,
                 )
 
-    def _process(self, item: MatchedSet) -> None:
+    def _process(self, item: MatchedSet, mailbox: _Mailbox) -> None:
         start = time.perf_counter()
         left_msg = item.items['left']
         left, right, geometry = stereo_pair_from_messages(
@@ -628,6 +632,10 @@ class ConfidenceCore(Node):
         convert_ms = (time.perf_counter() - start) * 1e3
 
         result = pipeline.process(left, right)
+        if self._stopping(mailbox):
+            # Stopped or cleaned up while it ran: after a new configure, its outputs (of the
+            # old parameters) must not go out on the new publishers nor count in new stats.
+            return
 
         tic = time.perf_counter()
         self._publish(result, left_msg.header, geometry, config, node_config)
@@ -784,7 +792,7 @@ class ConfidenceCore(Node):
             if stats.window_messages and not stats.window_pairs:
                 level = DiagnosticStatus.WARN
                 message = self._unpaired_reason(stats, elapsed)
-            if stats.failed and stats.window_pairs and not stats.window_processed:
+            if stats.window_failed and not stats.window_processed:
                 level, message = DiagnosticStatus.ERROR, f'processing fails: {stats.last_error}'
             values = {
                 'messages_received': stats.messages,
@@ -814,7 +822,7 @@ class ConfidenceCore(Node):
             for key, value in stats.mean_timings_ms.items():
                 values[f'mean_{key}_ms'] = f'{value:.2f}'
             stats.window_messages = stats.window_pairs = 0
-            stats.window_processed = stats.window_invalid = 0
+            stats.window_processed = stats.window_invalid = stats.window_failed = 0
             stats.window_kept_sum = 0.0
             stats.window_expected_wrong = stats.window_expected_kept = 0.0
             stats.window_keys = {}

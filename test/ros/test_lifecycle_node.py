@@ -10,6 +10,7 @@ from pathlib import Path
 import signal
 import subprocess
 import sys
+import threading
 import time
 from typing import Any
 
@@ -20,6 +21,8 @@ from node_test_utils import (
     Spinner,
     StereoClient,
     first_stamp,
+    image_msg,
+    info_msgs,
     localhost_context,
     spare_domain_id,
     textured_pair,
@@ -321,3 +324,57 @@ def test_a_destroyed_managed_node_leaves_rosout_to_the_next_node_of_its_name() -
             assert managed.client.wait_for(marked, timeout=15, poll=0.2)
         finally:
             managed.close()
+
+
+def test_a_frame_that_outlasts_the_cleanup_is_not_published_after_a_new_configure(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The old configuration's worker, left running with a long frame (CVA-Net on a CPU) when
+    # cleanup's wait ran out, drops its result: nothing on the new configuration's publishers
+    # (old parameters, old stamp), nothing in its statistics.
+    from cva_confidence_ros.ros import confidence_node
+
+    monkeypatch.setattr(confidence_node.ConfidenceCore.stop, '__defaults__', (0.3,))
+    overrides = [
+        Parameter('matcher', value='census_bm'),
+        Parameter('max_disparity', value=MAX_DISPARITY),
+        Parameter('confidence_method', value='mlm'),
+        Parameter('autostart', value=True),
+    ]
+    with localhost_context(spare_domain_id()) as context:
+        node = ManagedConfidenceNode(context=context, parameter_overrides=overrides)
+        started, release = threading.Event(), threading.Event()
+        try:
+            process = node._pipeline.process
+
+            def slow(left: np.ndarray, right: np.ndarray) -> Any:
+                started.set()
+                release.wait(20.0)
+                return process(left, right)
+
+            node._pipeline.process = slow
+            published: list[Any] = []
+            monkeypatch.setattr(node, '_publish', lambda *args: published.append(args))
+            left, right = textured_pair()
+            stamp = first_stamp()
+            left_info, right_info = info_msgs(stamp)
+            for key, msg in (('left_info', left_info), ('right_info', right_info),
+                             ('left', image_msg(left, stamp)), ('right', image_msg(right, stamp))):
+                node._on_message(key, msg)
+            assert started.wait(10.0), 'the frame did not start'
+            old_worker = node._worker
+            node.trigger_deactivate()
+            node.trigger_cleanup()
+            assert old_worker is not None and old_worker.is_alive()
+            node.set_parameters([Parameter('downsample', value=2)])
+            node.trigger_configure()
+            node.trigger_activate()
+            release.set()
+            old_worker.join(20.0)
+            assert not old_worker.is_alive()
+            assert published == []
+            assert node.stats()['frames_processed'] == 0
+        finally:
+            release.set()
+            node.destroy_node()
+

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
+import threading
 import time
 
+from diagnostic_msgs.msg import DiagnosticStatus
 from node_test_utils import (
     Spinner,
     StereoClient,
@@ -284,3 +286,44 @@ def test_a_frame_that_fails_after_bad_ones_is_logged_as_an_error_and_work_goes_o
         assert out['disparity'] is not None
     finally:
         del pipeline.process
+
+
+def test_diagnostics_report_a_failure_in_its_own_period_only(running: _Running) -> None:
+    # ERROR 'processing fails' for the period in which a frame failed and none came out; a
+    # later period in which a slow frame is still running is not an error (the count of
+    # failures since the start once kept a slow node at ERROR for good).
+    node, client = running.node, running.client
+    node._diag_timer.cancel()  # the test closes the periods itself
+    pipeline = node._pipeline
+    process = pipeline.process
+    started, release = threading.Event(), threading.Event()
+    fail = [True]
+
+    def patched(left: np.ndarray, right: np.ndarray) -> object:
+        if fail[0]:
+            raise RuntimeError('simulated failure for the diagnostics')
+        started.set()
+        release.wait(20.0)
+        return process(left, right)
+
+    pipeline.process = patched
+    try:
+        time.sleep(1.0)  # a frame of the test before, still in the pipeline, comes out first
+        node.diagnostics()  # a fresh period
+        failed = node.stats()['frames_failed']
+        left, right = textured_pair(64, 96, seed=12)
+        client.publish_frame(left, right, running.next_stamp())
+        assert client.wait_for(lambda: node.stats()['frames_failed'] > failed, 10)
+        status = node.diagnostics()
+        assert status.level == DiagnosticStatus.ERROR
+        assert 'simulated failure for the diagnostics' in status.message
+        fail[0] = False
+        client.publish_frame(left, right, running.next_stamp())
+        assert started.wait(10.0), 'the slow frame did not start'
+        status = node.diagnostics()
+        assert status.level == DiagnosticStatus.OK, status.message
+    finally:
+        release.set()
+        del pipeline.process
+        node._diag_timer.reset()
+

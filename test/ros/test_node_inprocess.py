@@ -653,6 +653,16 @@ def test_ignore_mask_changes_at_run_time(running: _Running, tmp_path: Path) -> N
         missing = running.set(mask_path=str(tmp_path / 'nowhere.png'))
         assert not missing.successful and 'nowhere.png' in missing.reason
         assert 'is not a file' in missing.reason
+        # A region of interest that leaves none of the mask's pixels is refused (rather than
+        # taken, and every frame dropped after it).
+        top = tmp_path / 'top.png'
+        only_top = np.full((64, 96), 255, np.uint8)
+        only_top[24:] = 0
+        assert cv2.imwrite(str(top), only_top)
+        assert running.set(mask_path=str(top)).successful
+        refused = running.set(roi_top=0.5)
+        assert not refused.successful and 'no pixel in common' in refused.reason
+        assert running.set(mask_path=str(path)).successful
         # /diagnostics: the share judged, and the kept share of those pixels.
         judged, share = f'{(~ignored).mean():.4f}', f'{kept[~ignored].mean():.4f}'
 
@@ -860,6 +870,12 @@ def test_max_rate_skips_the_frames_in_between(running: _Running) -> None:
                 ), f'the frame at {k / 10:.1f} s was not throttled'
         answered = [k for k in range(8) if client.by_stamp('disparity', base + k * 100_000_000)]
         assert answered == [0, 3, 6, 7]
+        # Stamps reset where the synchroniser cannot see it (made anew by a sync parameter, as
+        # on activate): the first frame is taken, not skipped until time is back.
+        assert running.set(max_rate_hz=4.0, queue_size=11).successful
+        earlier = base - 5_000_000_000
+        client.publish_frame(left, right, earlier)
+        assert client.wait_for(lambda: client.by_stamp('disparity', earlier) is not None, 30.0)
         refused = running.set(max_rate_hz=-1.0)
         assert not refused.successful
         # ros2 param set ... max_rate_hz 2 sends an integer: a number like 2.0; text is not.
@@ -868,7 +884,7 @@ def test_max_rate_skips_the_frames_in_between(running: _Running) -> None:
         refused = running.set(max_rate_hz='fast')
         assert not refused.successful and 'max_rate_hz must be a number' in refused.reason
     finally:
-        assert running.set(max_rate_hz=0.0).successful
+        assert running.set(max_rate_hz=0.0, queue_size=10).successful
 
 
 def test_approximate_sync(running: _Running) -> None:
