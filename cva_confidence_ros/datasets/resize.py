@@ -140,8 +140,9 @@ def resize_sample(sample: StereoSample, factor: int) -> StereoSample:
 def fit_disparity_range(sample: StereoSample, max_disparity: int) -> tuple[StereoSample, int]:
     """Halve the resolution until the ground truth fits into a cost volume of depth D.
 
-    The factor is the smallest of 1, 2, 4, … with ``max finite GT disparity / factor < D``
-    (the paper halves Middlebury images until every disparity fits the network's depth).
+    The factor is the smallest of 1, 2, 4, … with ``max finite GT disparity / factor ≤ D − 1``:
+    the cost volume holds d = 0 … D − 1, and the paper halves Middlebury images as long as the
+    maximum disparity exceeds 255 (D = 256).
 
     Args:
         sample: Input pair.
@@ -161,7 +162,7 @@ def fit_disparity_range(sample: StereoSample, max_disparity: int) -> tuple[Stere
     largest = sample.max_disparity
     factor = 1
     height, width = sample.left.shape[:2]
-    while largest / factor >= max_disparity:
+    while largest / factor > max_disparity - 1:
         factor *= 2
         if min(height, width) / factor < _MIN_FITTED_SIDE:
             raise DataError(

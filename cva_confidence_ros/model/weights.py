@@ -20,6 +20,7 @@ from pathlib import Path
 import sys
 from typing import Any
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -90,6 +91,11 @@ def _weights_path(path: object) -> Path:
     return Path(path)
 
 
+def _plain(value: object) -> object:
+    """JSON stand-in of ``value``: a numpy scalar's Python number, else its string."""
+    return value.item() if isinstance(value, np.generic) else str(value)
+
+
 def save_weights(net: nn.Module, path: str | os.PathLike[str], meta: Mapping[str, Any]) -> Path:
     """Write ``net``'s weights and ``meta`` to ``path`` (parent folders are created).
 
@@ -97,7 +103,8 @@ def save_weights(net: nn.Module, path: str | os.PathLike[str], meta: Mapping[str
         net: A network of a registered architecture (or a DistributedDataParallel wrapper).
         path: Target ``.pt`` file; written to a temporary name first, then renamed.
         meta: At least ``matcher``; ``max_disparity`` and ``arch`` are filled in from ``net``.
-            Stored as JSON-like plain values (tuples become lists, other objects strings).
+            Stored as JSON-like plain values (tuples become lists, numpy scalars numbers,
+            other objects strings); ``max_disparity`` always as an int.
 
     Returns:
         The written path.
@@ -125,10 +132,13 @@ def save_weights(net: nn.Module, path: str | os.PathLike[str], meta: Mapping[str
             f"meta['max_disparity'] = {meta['max_disparity']} contradicts the network's "
             f'D = {model.max_disparity}'
         )
+    # load_weights wants an int: 16.0 or np.int64(16) pass the check above but would not load.
+    meta['max_disparity'] = int(model.max_disparity)
     meta['arch'] = arch
     # Only plain values load back with torch.load(weights_only=True); a JSON round trip turns
-    # tuples into lists and anything exotic (versions, paths) into strings.
-    meta = json.loads(json.dumps(meta, default=str))
+    # tuples into lists, numpy scalars into numbers and anything exotic (versions, paths) into
+    # strings.
+    meta = json.loads(json.dumps(meta, default=_plain))
     state = {k: v.detach().cpu() for k, v in model.state_dict().items()}
     if path.is_dir():
         raise ModelError(f'weights file {path} is a directory; expected a .pt file path')

@@ -10,6 +10,7 @@ from typing import Any
 from cva_confidence_ros.errors import ConfigError
 
 __all__ = [
+    'DISJOINT_SPLITS',
     'FUSION_SPLITS',
     'MODES',
     'TRAIN_PRECISIONS',
@@ -29,6 +30,16 @@ TRAIN_PRECISIONS = ('fp32', 'bf16')
 #: stages on every scene, which lets the fusion learn the parts' over-confidence on their own
 #: training scenes).
 FUSION_SPLITS = ('alternate', 'none')
+#: Data sets whose splits hold different scenes (FlyingThings3D: TRAIN and TEST), name →
+#: its splits. Every other data set's splits (KITTI ``training``, ETH3D
+#: ``two_view_training``, the Middlebury sizes ``trainingQ|H|F``, ``quarter|half|full``,
+#: ``ThirdSize|HalfSize|FullSize``) are sizes or subsets of the same scenes, so training and
+#: validation on one data set overlap whatever the splits.
+DISJOINT_SPLITS: dict[str, tuple[str, ...]] = {'flyingthings3d': ('TRAIN', 'TEST')}
+#: Data sets that are scenes of a develop data set under another name: never train on them.
+_DEVELOP_SCENES: dict[str, str] = {
+    'motorcycle': 'the Middlebury 2014 Motorcycle scene of middlebury2014 (MiddEval3)',
+}
 
 
 def default_synthetic_size(max_disparity: int) -> tuple[int, int]:
@@ -49,10 +60,10 @@ def check_training_datasets(
     specs: Sequence[str], validation: bool = False
 ) -> list[tuple[str, str | None]]:
     """Parse ``name[:split]`` data set specs and refuse unknown names and, for training, the
-    develop data sets.
+    develop data sets and the data sets that are develop scenes (``motorcycle``).
 
     Raises:
-        ConfigError: An unknown data set, or a develop one to train on.
+        ConfigError: An unknown data set, or a develop one (or a develop scene) to train on.
     """
     from cva_confidence_ros.datasets import DATASETS, DEVELOP_DATASETS
 
@@ -65,7 +76,46 @@ def check_training_datasets(
                 f'{name} is a develop data set ({", ".join(DEVELOP_DATASETS)}): never train '
                 'on it, or the reported numbers mean nothing'
             )
+        if not validation and name in _DEVELOP_SCENES:
+            raise ConfigError(
+                f'{name} is {_DEVELOP_SCENES[name]}, develop data '
+                f'({", ".join(DEVELOP_DATASETS)}): never train on it, or the reported numbers '
+                'mean nothing'
+            )
     return parsed
+
+
+def _same_scenes(name: str, split_a: str | None, split_b: str | None) -> bool:
+    """Whether ``name:split_a`` and ``name:split_b`` share scenes (None = no split given)."""
+    if name not in DISJOINT_SPLITS or split_a is None or split_b is None:
+        return True  # a size or subset of the same scenes, or every split
+    return split_a == split_b
+
+
+def _overlap(
+    train: Sequence[tuple[str, str | None]], val: Sequence[tuple[str, str | None]]
+) -> list[str]:
+    """The data sets of ``val`` that share scenes with ``train``, each with the reason."""
+    found = []
+    for name, split in val:
+        for other, other_split in train:
+            if other != name or not _same_scenes(name, other_split, split):
+                continue
+            specs = [f'{name}:{s}' if s else name for s in (other_split, split)]
+            if other_split == split:
+                found.append(specs[0])
+            elif name in DISJOINT_SPLITS:
+                found.append(
+                    f'{name} ({" and ".join(specs)}; {name} without a split is all of its '
+                    f'splits, {", ".join(DISJOINT_SPLITS[name])})'
+                )
+            else:
+                found.append(
+                    f'{name} ({" and ".join(specs)}; the splits of {name} are sizes or '
+                    'subsets of the same scenes)'
+                )
+            break
+    return found
 
 
 @dataclass(frozen=True)
@@ -211,11 +261,11 @@ class TrainConfig:
             raise ConfigError('--datasets / --val-datasets need --data-root')
         train = check_training_datasets(self.datasets)
         val = check_training_datasets(self.val_datasets, validation=True)
-        overlap = set(train) & set(val)
+        overlap = _overlap(train, val)
         if overlap:
             raise ConfigError(
-                f'validation data must be held apart from the training data; both use '
-                f'{sorted(overlap)}'
+                'validation data must be held apart from the training data; both use '
+                + ', '.join(overlap)
             )
         height, width = self.synthetic_hw
         if self.synthetic or self.val_synthetic:

@@ -107,7 +107,22 @@ def test_fit_disparity_range(max_disparity: int, factor: int) -> None:
     assert got == factor
     assert fitted.shape == (16 // factor, 32 // factor)
     finite = fitted.disparity[np.isfinite(fitted.disparity)]
-    assert finite.size == 0 or finite.max() < max_disparity
+    assert finite.size == 0 or finite.max() <= max_disparity - 1
+
+
+@pytest.mark.parametrize(
+    ('largest', 'factor'), [(62.9, 1), (63.0, 1), (63.5, 2), (63.99, 2), (64.0, 2), (126.0, 2),
+                            (127.0, 4)]
+)
+def test_fit_disparity_range_halves_while_the_maximum_exceeds_d_minus_1(
+    largest: float, factor: int
+) -> None:
+    # D = 64 holds d = 0 … 63; the paper halves while the maximum exceeds 255 for D = 256.
+    sample = shifted_sample(16, 32, 4)
+    disparity = np.full((16, 32), 10.0, np.float32)
+    disparity[0, 0] = largest
+    sample = StereoSample('t', 's', sample.left, sample.right, disparity)
+    assert fit_disparity_range(sample, 64)[1] == factor
 
 
 def test_fit_disparity_range_refuses_to_shrink_to_nothing() -> None:

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 
+from cva_confidence_ros.datasets import list_scenes
 from cva_confidence_ros.datasets.io import write_pfm
 from cva_confidence_ros.datasets.synthetic import synthetic_pair
 from cva_confidence_ros.evaluation.table1 import (
@@ -18,6 +19,7 @@ from cva_confidence_ros.evaluation.table1 import (
     format_paper_table1,
     format_table1,
     main,
+    resolve_protocol,
     table_rows,
 )
 
@@ -64,7 +66,9 @@ def _write_middlebury(root: Path, scene: str, seed: int) -> None:
 @pytest.fixture(scope='module')
 def data_root(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp('data')
-    _write_kitti(root, 'kitti2012', [101, 102], ('colored_0', 'colored_1', 'disp_occ'))
+    # Five pairs: with --kitti2012-train 1 the paper protocol leaves out 1 + 3 and scores one.
+    _write_kitti(root, 'kitti2012', [101, 102, 103, 104, 105],
+                 ('colored_0', 'colored_1', 'disp_occ'))
     _write_kitti(root, 'kitti2015', [201, 202], ('image_2', 'image_3', 'disp_occ_0'))
     _write_middlebury(root, 'Synth', 301)
     return root
@@ -79,7 +83,7 @@ def test_rows_per_protocol(data_root):
     assert 'no middlebury2003 pairs' in develop[3].missing
     paper = table_rows('paper', data_root, kitti2012_train=1)
     assert [(r.label, r.first, r.missing) for r in paper] == [
-        ('KITTI 2012', 1, ''), ('KITTI 2015', 0, ''), ('Middlebury v3', 0, '')]
+        ('KITTI 2012', 4, ''), ('KITTI 2015', 0, ''), ('Middlebury v3', 0, '')]
     assert 'no kitti2012' in table_rows('paper', data_root, kitti2012_train=2)[0].missing
 
 
@@ -167,8 +171,24 @@ def test_paper_protocol_on_a_tiny_root(data_root, tmp_path):
     summary = json.loads((out / 'table1.json').read_text())
     assert summary['protocol'] == 'paper'
     scored = {(r['row'], r['scene']) for r in summary['records']}
-    assert scored == {('KITTI 2012', '000001'), ('KITTI 2015', '000000'),
+    assert scored == {('KITTI 2012', '000004'), ('KITTI 2015', '000000'),
                       ('KITTI 2015', '000001'), ('Middlebury v3', 'Synth')}
+
+
+def test_paper_protocol_scores_the_papers_171_kitti2012_pairs(tmp_path):
+    """Paper Sec. 4.2: the 23 pairs used for training and validating are not scored."""
+    base = tmp_path / 'kitti2012' / 'training'
+    for folder in ('colored_0', 'colored_1', 'disp_occ'):
+        (base / folder).mkdir(parents=True)
+    for number in range(194):  # the full download; the loader only lists the files
+        for folder in ('colored_0', 'colored_1', 'disp_occ'):
+            (base / folder / f'{number:06d}_10.png').touch()
+    row = table_rows('paper', tmp_path)[0]
+    assert (row.label, row.first, row.missing) == ('KITTI 2012', 23, '')
+    assert len(list_scenes('kitti2012', tmp_path)[row.first:]) == 171
+    assert resolve_protocol('auto', tmp_path, 20) == 'paper'
+    assert resolve_protocol('auto', tmp_path, 191) == 'develop'  # 191 + 3 pairs: none left
+    assert 'no kitti2012' in table_rows('paper', tmp_path, kitti2012_train=191)[0].missing
 
 
 def test_bad_options_and_reuse_files_exit_2_before_any_work(data_root, tmp_path, capsys):

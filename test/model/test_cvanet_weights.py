@@ -188,6 +188,19 @@ def test_load_takes_a_numpy_depth(tmp_path):
     assert load_weights(path, max_disparity=np.int64(16))[0].max_disparity == 16
 
 
+@pytest.mark.parametrize('depth', [16, 16.0, np.int64(16), np.float32(16)], ids=repr)
+def test_a_saved_depth_of_any_number_type_loads_back(tmp_path, depth):
+    meta = {'matcher': 'census_bm', 'max_disparity': depth, 'scale': np.float64(0.5),
+            'count': np.int64(7), 'flag': np.bool_(True), 'version': (1, 2)}
+    path = save_weights(_trained_like(), tmp_path / 'w.pt', meta)
+    _, loaded = load_weights(path, matcher='census_bm', max_disparity=16)
+    assert loaded['max_disparity'] == 16 and type(loaded['max_disparity']) is int
+    # numpy scalars are stored as numbers, not as their strings.
+    assert (loaded['scale'], loaded['count'], loaded['flag']) == (0.5, 7, True)
+    assert type(loaded['count']) is int and type(loaded['flag']) is bool
+    assert loaded['version'] == [1, 2]
+
+
 def test_default_weights_path(tmp_path, monkeypatch):
     assert weights_file_name('census_bm', 64) == 'cvanet_census_bm_d64.pt'
     assert weights_search_dirs()[0].name == 'models'

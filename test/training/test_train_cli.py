@@ -205,6 +205,46 @@ def test_config_validation():
     assert config.synthetic_hw == (128, 256)
 
 
+@pytest.mark.parametrize(
+    ('train', 'val', 'named'),
+    [
+        ('kitti2012', 'kitti2012', 'both use kitti2012'),
+        ('kitti2012', 'kitti2012:training', 'kitti2012 (kitti2012 and kitti2012:training; the '
+         'splits of kitti2012 are sizes or subsets of the same scenes)'),
+        ('eth3d', 'eth3d:two_view_training', 'eth3d (eth3d and eth3d:two_view_training;'),
+        ('middlebury2005:HalfSize', 'middlebury2005:ThirdSize', 'middlebury2005 ('),
+        ('middlebury2001,middlebury2006:FullSize', 'middlebury2006', 'both use middlebury2006'),
+        ('flyingthings3d', 'flyingthings3d:TEST', 'flyingthings3d without a split is all of '
+         'its splits, TRAIN, TEST'),
+        ('flyingthings3d:TEST', 'flyingthings3d:TEST', 'both use flyingthings3d:TEST'),
+    ],
+)
+def test_validation_data_of_the_same_scenes_is_refused_whatever_the_split(train, val, named):
+    with pytest.raises(ConfigError, match='held apart') as caught:
+        TrainConfig(data_root='/nonexistent', datasets=train.split(','), val_datasets=(val,))
+    assert named in str(caught.value)
+
+
+def test_disjoint_splits_may_train_and_validate():
+    # FlyingThings3D's TRAIN and TEST are different scenes; other data sets are held apart.
+    config = TrainConfig(data_root='/nonexistent', datasets=('flyingthings3d:TRAIN', 'eth3d'),
+                         val_datasets=('flyingthings3d:TEST', 'middlebury2005'))
+    assert config.val_datasets == ('flyingthings3d:TEST', 'middlebury2005')
+
+
+@pytest.mark.parametrize(
+    ('dataset', 'split'), [('middlebury2014', ''), ('motorcycle', ''), ('motorcycle', ':x')]
+)
+def test_develop_data_is_never_trained_on(dataset, split):
+    with pytest.raises(ConfigError, match=f'{dataset} is .*develop') as caught:
+        TrainConfig(data_root='/nonexistent', datasets=('kitti2012', dataset + split))
+    assert 'never train on it' in str(caught.value)
+    if dataset == 'motorcycle':
+        assert 'Middlebury 2014 Motorcycle scene of middlebury2014' in str(caught.value)
+    # Validating on it is allowed, as for the develop data sets.
+    TrainConfig(data_root='/nonexistent', datasets=('kitti2012',), val_datasets=(dataset,))
+
+
 def test_train_on_real_data_sets(tmp_path):
     """The loader path: one KITTI 2012 scene, halved until it fits D, validated on ETH3D."""
     root = _data_root()
