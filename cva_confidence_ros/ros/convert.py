@@ -600,8 +600,9 @@ def point_cloud_to_records(msg: PointCloud2) -> np.ndarray:
     producers survive a round trip through :func:`records_to_point_cloud`; padding at the end
     of a row (``row_step`` > ``point_step`` × ``width``) is dropped.
 
-    A field of ``count`` 0 declares no data and is left out. An empty cloud (height or width 0)
-    gives an empty array with the fields it declares.
+    A field of ``count`` 0 declares no data and is left out, as are PCL's padding fields named
+    ``_`` (older clouds declare one per gap, several of them): their bytes stay as padding. An
+    empty cloud (height or width 0) gives an empty array with the fields it declares.
 
     Raises:
         InputError: Big-endian data, a ``point_step`` of 0, an unknown datatype, duplicate or
@@ -619,6 +620,8 @@ def point_cloud_to_records(msg: PointCloud2) -> np.ndarray:
         code = _POINT_FIELD_TYPES.get(field.datatype)
         if code is None:
             raise InputError(f'point field {field.name!r} has unknown datatype {field.datatype}')
+        if field.name == '_':
+            continue  # PCL's padding field (ROS 1 clouds may hold several): padding bytes
         if field.name in names:
             raise InputError(f'point field {field.name!r} appears twice')
         count = int(field.count)

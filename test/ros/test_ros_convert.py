@@ -371,6 +371,31 @@ def test_point_cloud_to_records_refuses_bad_fields() -> None:
         records_to_point_cloud(np.zeros(3), Header())
 
 
+def test_pcl_padding_fields_are_padding() -> None:
+    # ROS 1 PCL clouds declare each gap as a field named '_', several per point: read as
+    # padding (the bytes kept in the item size), not refused as a field that appears twice.
+    fields = [
+        PointField(name='x', offset=0, datatype=PointField.FLOAT32, count=1),
+        PointField(name='y', offset=4, datatype=PointField.FLOAT32, count=1),
+        PointField(name='z', offset=8, datatype=PointField.FLOAT32, count=1),
+        PointField(name='_', offset=12, datatype=PointField.UINT8, count=4),
+        PointField(name='confidence', offset=16, datatype=PointField.FLOAT32, count=1),
+        PointField(name='_', offset=20, datatype=PointField.UINT8, count=12),
+    ]
+    points = np.zeros(3, np.dtype({'names': ['x', 'y', 'z', 'confidence'],
+                                   'formats': ['<f4'] * 4, 'offsets': [0, 4, 8, 16],
+                                   'itemsize': 32}))
+    points['z'] = [1.0, 2.0, 3.0]
+    points['confidence'] = [0.1, 0.5, 0.9]
+    msg = PointCloud2(header=Header(), height=1, width=3, fields=fields, is_bigendian=False,
+                      point_step=32, row_step=96, data=points.tobytes(), is_dense=True)
+    records = point_cloud_to_records(msg)
+    assert records.dtype.names == ('x', 'y', 'z', 'confidence')
+    assert records.dtype.itemsize == 32
+    np.testing.assert_array_equal(records['confidence'][0], points['confidence'])
+    np.testing.assert_array_equal(records['z'][0], points['z'])
+
+
 def test_scale_camera_info() -> None:
     left_info, right_info = info_msgs(7, height=65, width=97, fx=100.0, baseline=0.1)
     left_info.roi.x_offset, left_info.roi.width = 10, 80
