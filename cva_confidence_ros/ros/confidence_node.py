@@ -46,6 +46,7 @@ from cva_confidence_ros.ros.convert import (
     cloud_to_message,
     depth_to_image,
     disparity_to_message,
+    image_camera_info,
     rgb_to_image,
     scale_camera_info,
     scan_to_message,
@@ -641,7 +642,13 @@ class ConfidenceCore(Node):
         self._publish(result, left_msg.header, geometry, config, node_config)
         if self._pub_info.get_subscription_count():
             info = item.items['left_info']
-            self._pub_info.publish(scale_camera_info(info, config.downsample, left_msg.header))
+            self._pub_info.publish(
+                scale_camera_info(
+                    image_camera_info(info, left.shape[1], left.shape[0]),
+                    config.downsample,
+                    left_msg.header,
+                )
+            )
         timings = dict(result.timings_ms)
         timings['convert'] = convert_ms
         timings['publish'] = (time.perf_counter() - tic) * 1e3

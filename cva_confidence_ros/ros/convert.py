@@ -50,6 +50,7 @@ __all__ = [
     'disparity_from_message',
     'disparity_to_message',
     'float_image_to_array',
+    'image_camera_info',
     'image_to_array',
     'ns_to_stamp',
     'pair_to_uint8',
@@ -392,13 +393,79 @@ def camera_info_to_geometry(
         InputError: A camera info whose size is not the image's, a degenerate projection
             matrix, or a baseline ≤ 0.
     """
+    projections = []
     for side, info in (('left', left_info), ('right', right_info)):
-        if (int(info.width), int(info.height)) != (width, height):
+        size, projection = _image_projection(info, width, height)
+        if size != (width, height):
+            folded = ''
+            if size != (int(info.width), int(info.height)):
+                folded = (
+                    f' (binning {info.binning_x}×{info.binning_y} and region of interest '
+                    f'{info.roi.width}×{info.roi.height} at ({info.roi.x_offset}, '
+                    f'{info.roi.y_offset}) of its {info.width}×{info.height})'
+                )
             raise InputError(
                 f'{side} camera info must be for {width}×{height} images; '
-                f'got {info.width}×{info.height}'
+                f'got {size[0]}×{size[1]}{folded}'
             )
-    return StereoGeometry.from_projections(left_info.p, right_info.p)
+        projections.append(projection)
+    return StereoGeometry.from_projections(*projections)
+
+
+def _image_projection(
+    info: Any, width: int, height: int
+) -> tuple[tuple[int, int], list[float]]:
+    """The size and projection matrix of the images a camera info describes.
+
+    A driver may keep the full-sensor calibration and size in the info and send binned or
+    cropped images (``sensor_msgs/CameraInfo``'s own convention): when the images of
+    ``width`` × ``height`` are not the info's size, its binning and region of interest are
+    folded in as ``image_geometry`` (and so ``stereo_image_proc``) does: the ROI offset moved
+    out of the principal point, then rows 0 and 1 of P divided by the binning. Images of the
+    info's own size take it as it is (drivers that fill the ROI with the valid rectified area).
+    """
+    full_w, full_h = int(info.width), int(info.height)
+    if (full_w, full_h) == (width, height):
+        return (full_w, full_h), list(info.p)
+    binning_x, binning_y = max(int(info.binning_x), 1), max(int(info.binning_y), 1)
+    roi = info.roi
+    x0, y0 = int(roi.x_offset), int(roi.y_offset)
+    crop_w = int(roi.width) if int(roi.width) > 0 else full_w - x0
+    crop_h = int(roi.height) if int(roi.height) > 0 else full_h - y0
+    if (binning_x, binning_y, x0, y0, crop_w, crop_h) == (1, 1, 0, 0, full_w, full_h):
+        return (full_w, full_h), list(info.p)
+    p = np.array(info.p, dtype=np.float64).reshape(3, 4)
+    p[0, 2] -= x0 * p[2, 2]
+    p[1, 2] -= y0 * p[2, 2]
+    p[0] /= binning_x
+    p[1] /= binning_y
+    return (crop_w // binning_x, crop_h // binning_y), p.ravel().tolist()
+
+
+def image_camera_info(info: Any, width: int, height: int) -> CameraInfo:
+    """A camera info for the ``width`` × ``height`` images as they arrive: binning and region
+    of interest folded into the size, K and P (:func:`camera_info_to_geometry`'s rule), binning
+    1 and no ROI; the message itself when the images have its size. For consumers of the
+    outputs, which have the images' size."""
+    size, projection = _image_projection(info, width, height)
+    if size == (int(info.width), int(info.height)):
+        return info
+    binning_x, binning_y = max(int(info.binning_x), 1), max(int(info.binning_y), 1)
+    k = np.array(info.k, dtype=np.float64).reshape(3, 3)
+    k[0, 2] -= int(info.roi.x_offset) * k[2, 2]
+    k[1, 2] -= int(info.roi.y_offset) * k[2, 2]
+    k[0] /= binning_x
+    k[1] /= binning_y
+    return CameraInfo(
+        header=info.header,
+        width=size[0],
+        height=size[1],
+        distortion_model=info.distortion_model,
+        d=list(info.d),
+        k=k.ravel().tolist(),
+        r=list(info.r),
+        p=list(projection),
+    )
 
 
 def stereo_pair_from_messages(

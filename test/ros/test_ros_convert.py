@@ -27,6 +27,7 @@ from cva_confidence_ros.ros.convert import (
     disparity_from_message,
     disparity_to_message,
     float_image_to_array,
+    image_camera_info,
     image_to_array,
     ns_to_stamp,
     pair_to_uint8,
@@ -202,6 +203,37 @@ def test_camera_info_geometry_and_size_check() -> None:
     right_info.p[3] = np.nan
     with pytest.raises(InputError, match='finite'):
         camera_info_to_geometry(left_info, right_info, 96, 64)
+
+
+def test_binning_and_region_of_interest_are_folded_in_as_image_geometry_does() -> None:
+    # The full-sensor calibration (192×128, fx 200, cx 96, cy 64) with binning 2: 96×64 images
+    # of fx 100 and cx 48, the geometry of an info made for them directly.
+    left_info, right_info = info_msgs(0, height=128, width=192, fx=200.0, baseline=0.1)
+    for info in (left_info, right_info):
+        info.binning_x = info.binning_y = 2
+    binned = camera_info_to_geometry(left_info, right_info, 96, 64)
+    direct = camera_info_to_geometry(*info_msgs(0, height=64, width=96, fx=100.0,
+                                                 baseline=0.1), 96, 64)
+    assert binned == direct
+    out = image_camera_info(left_info, 96, 64)
+    assert (out.width, out.height, out.binning_x, out.binning_y) == (96, 64, 0, 0)
+    assert list(out.k) == [100.0, 0.0, 48.0, 0.0, 100.0, 32.0, 0.0, 0.0, 1.0]
+    assert list(out.p)[:4] == [100.0, 0.0, 48.0, 0.0]
+    # A 96×64 region of interest at (50, 20) of the sensor, not binned: the principal point
+    # moves by the offset, fx and the baseline stay.
+    left_info, right_info = info_msgs(0, height=128, width=192, fx=200.0, baseline=0.1)
+    for info in (left_info, right_info):
+        info.roi.x_offset, info.roi.y_offset, info.roi.width, info.roi.height = 50, 20, 96, 64
+    cropped = camera_info_to_geometry(left_info, right_info, 96, 64)
+    assert (cropped.fx, cropped.cx, cropped.cy, cropped.cx_right) == (200.0, 46.0, 44.0, 46.0)
+    assert cropped.baseline == pytest.approx(0.1)
+    # Images of the info's own size take it as it is (an ROI of the valid rectified area).
+    whole = camera_info_to_geometry(left_info, right_info, 192, 128)
+    assert (whole.cx, whole.cy) == (96.0, 64.0)
+    assert image_camera_info(left_info, 192, 128) is left_info
+    with pytest.raises(InputError, match=r'got 96×64 \(binning 0×0 and region of interest '
+                                         r'96×64 at \(50, 20\) of its 192×128\)'):
+        camera_info_to_geometry(left_info, right_info, 48, 32)
 
 
 def test_stereo_pair_from_messages() -> None:
