@@ -331,16 +331,19 @@ def test_cloud_with_confidence_round_trip() -> None:
     np.testing.assert_array_equal(back['confidence'], confidence)
 
 
+def _point_fields(*extra: tuple[str, int, int, int]) -> list[PointField]:
+    """float32 x, y, z at 0, 4, 8, then ``(name, offset, datatype, count)`` fields."""
+    xyz = [(name, 4 * k, PointField.FLOAT32, 1) for k, name in enumerate('xyz')]
+    return [
+        PointField(name=name, offset=offset, datatype=datatype, count=count)
+        for name, offset, datatype, count in (*xyz, *extra)
+    ]
+
+
 def _foreign_cloud() -> PointCloud2:
     # x, y, z float32; a uint8[3] colour at 12; float64 score at 16; 24-byte points; 4 points
     # a row and 5 padding bytes at each row's end; 2 rows.
-    fields = [
-        PointField(name='x', offset=0, datatype=PointField.FLOAT32, count=1),
-        PointField(name='y', offset=4, datatype=PointField.FLOAT32, count=1),
-        PointField(name='z', offset=8, datatype=PointField.FLOAT32, count=1),
-        PointField(name='bgr', offset=12, datatype=PointField.UINT8, count=3),
-        PointField(name='score', offset=16, datatype=PointField.FLOAT64, count=1),
-    ]
+    fields = _point_fields(('bgr', 12, PointField.UINT8, 3), ('score', 16, PointField.FLOAT64, 1))
     dtype = np.dtype({'names': ['x', 'y', 'z', 'bgr', 'score'],
                       'formats': ['<f4', '<f4', '<f4', ('u1', (3,)), '<f8'],
                       'offsets': [0, 4, 8, 12, 16], 'itemsize': 24})
@@ -406,14 +409,11 @@ def test_point_cloud_to_records_refuses_bad_fields() -> None:
 def test_pcl_padding_fields_are_padding() -> None:
     # ROS 1 PCL clouds declare each gap as a field named '_', several per point: read as
     # padding (the bytes kept in the item size), not refused as a field that appears twice.
-    fields = [
-        PointField(name='x', offset=0, datatype=PointField.FLOAT32, count=1),
-        PointField(name='y', offset=4, datatype=PointField.FLOAT32, count=1),
-        PointField(name='z', offset=8, datatype=PointField.FLOAT32, count=1),
-        PointField(name='_', offset=12, datatype=PointField.UINT8, count=4),
-        PointField(name='confidence', offset=16, datatype=PointField.FLOAT32, count=1),
-        PointField(name='_', offset=20, datatype=PointField.UINT8, count=12),
-    ]
+    fields = _point_fields(
+        ('_', 12, PointField.UINT8, 4),
+        ('confidence', 16, PointField.FLOAT32, 1),
+        ('_', 20, PointField.UINT8, 12),
+    )
     points = np.zeros(3, np.dtype({'names': ['x', 'y', 'z', 'confidence'],
                                    'formats': ['<f4'] * 4, 'offsets': [0, 4, 8, 16],
                                    'itemsize': 32}))
