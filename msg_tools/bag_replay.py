@@ -150,7 +150,7 @@ def build_parser() -> argparse.ArgumentParser:
     report = parser.add_argument_group('report')
     report.add_argument('--max-pixels', type=int, default=None,
                         help='score a fixed random subset of N ground-truth pixels per frame')
-    report.add_argument('--seed', type=int, default=0, help='seed of that subset')
+    report.add_argument('--seed', type=int, default=0, help='seed of that subset (>= 0)')
     report.add_argument('--max-plots', type=int, default=10,
                         help='frames that get confidence and ROC PNGs (default %(default)s)')
 

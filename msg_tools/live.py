@@ -14,6 +14,7 @@ replay's names), or, with ``start_node=False``, an already running one is used.
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
@@ -35,6 +36,7 @@ from msg_tools.bagio import InputBag
 from msg_tools.convert import camera_geometry, disparity_from_msg, jazzy_typestore, stamp_to_ns
 from msg_tools.progress import GracefulInterrupt, Progress
 from msg_tools.replay import (
+    GT_WAIT_FRAMES,
     STOPPING,
     FrameResult,
     Logger,
@@ -42,6 +44,7 @@ from msg_tools.replay import (
     ReplayOutcome,
     ReplaySession,
     TopicPlan,
+    check_output_bag_folder,
     log_stderr,
     make_synchronizer,
     output_left_image,
@@ -89,6 +92,9 @@ _OPTIONAL = {
 # What a frame needs before it can be scored; points2, depth, the overlay, the scan and
 # camera_info are only recorded.
 _SCORED = ('disparity', 'confidence', 'disparity_filtered')
+# Bag times kept for the frames no longer pending, so that their outputs that come after the
+# scored ones (points2, depth, ...) are written at the input's bag time too.
+_DONE_TIMES = 100
 
 
 def _ros_value(value: object) -> str:
@@ -377,6 +383,7 @@ def run_live(
         plan = plan_topics(bag, options, log)
         interrupts.check()
         node = None
+        check_output_bag_folder(options.out)  # before the old report goes
         if options.overwrite:
             clear_report(options.report)  # the files of an earlier report, node.log too
         if options.start_node:
@@ -460,7 +467,8 @@ def _play(
     # Outputs lag the inputs, so ground truth waits until its frame is answered (or a newer
     # one is); the cap only guards against a node that answers nothing at all.
     session = ReplaySession(
-        options, plan, log, truth_window=max(50, 4 * options.queue_size), interrupts=interrupts
+        options, plan, log, truth_window=max(GT_WAIT_FRAMES, 4 * options.queue_size),
+        interrupts=interrupts,
     )
     recorder = _Recorder(session, store, options, player.received)
     with session:
@@ -518,6 +526,8 @@ class _Recorder:
         self.options = options
         self.topics = options.topics.outputs()
         self.frames: dict[int, _PendingFrame] = {}
+        # Stamp → input bag time of the frames answered or given up (the newest few).
+        self.done_times: OrderedDict[int, int] = OrderedDict()
         self.parts: dict[int, dict[str, Any]] = {}
         self.publish_times: dict[int, float] = {}
         self.last_output = time.monotonic()
@@ -594,7 +604,10 @@ class _Recorder:
             return
         stamp = stamp_to_ns(msg.header.stamp)
         pending = self.frames.get(stamp)
-        timestamp = pending.timestamp_ns if pending is not None else stamp
+        # At the input's bag time, as offline; the header stamp only for an unknown frame.
+        timestamp = (
+            pending.timestamp_ns if pending is not None else self.done_times.get(stamp, stamp)
+        )
         self.session.write([(self.topics[name], _OUTPUT_TYPES[name], raw)], timestamp)
         if pending is None or name not in _SCORED:
             return
@@ -602,15 +615,22 @@ class _Recorder:
         parts[name] = msg
         if any(key not in parts for key in _SCORED):
             return
-        del self.parts[stamp], self.frames[stamp]
+        del self.parts[stamp]
+        self._done(stamp)
         self.answered += 1
         progress.update()
         self._score(pending, stamp, parts, received)
         # Outputs come in stamp order per topic: older pairs still incomplete were dropped.
         for older in [s for s in self.frames if s < stamp]:
-            del self.frames[older]
+            self._done(older)
             self.parts.pop(older, None)
         self.session.drop_ground_truth_before(stamp)
+
+    def _done(self, stamp: int) -> None:
+        """Stop waiting for the frame of ``stamp``; keep its bag time for its later outputs."""
+        self.done_times[stamp] = self.frames.pop(stamp).timestamp_ns
+        while len(self.done_times) > _DONE_TIMES:
+            self.done_times.popitem(last=False)
 
     def _score(
         self, pending: _PendingFrame, stamp: int, parts: dict[str, Any], received: float
@@ -623,10 +643,11 @@ class _Recorder:
             return
         disparity_msg = parts['disparity']
         height, width = int(disparity_msg.image.height), int(disparity_msg.image.width)
-        full_h, full_w = pending.size
         geometry = pending.geometry
-        if (height, width) != (full_h, full_w):
-            geometry = geometry.scaled(width / full_w, height / full_h)
+        if (height, width) != pending.size:
+            # As the node: the pipeline crops the bottom/right rest and shrinks by exactly
+            # 1/downsample, whatever the rounding of an odd size.
+            geometry = geometry.scaled(1.0 / self.options.pipeline.downsample)
         try:
             disparity = disparity_from_msg(disparity_msg, geometry.disparity_offset)
             filtered = disparity_from_msg(

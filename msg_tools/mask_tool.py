@@ -235,6 +235,11 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of ``cva-mask``; returns the exit code (2 on bad input)."""
     args = build_parser().parse_args(argv)
     try:
+        if args.preview is not None and args.preview.resolve() == args.out.resolve():
+            raise ConfigError(
+                f'--preview {args.preview} is the mask {args.out} itself: the preview would '
+                'replace the mask; give the preview another name'
+            )
         frame = None
         start = None if args.start is None else load_mask(args.start)
         if args.size is not None:

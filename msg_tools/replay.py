@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from cva_confidence_ros.errors import BagError, ConfigError, CVAError, InputError, from_interrupt
+from cva_confidence_ros.outputs import check_output_dir
 from cva_confidence_ros.pipeline import PipelineConfig, PipelineResult
 from cva_confidence_ros.pointcloud import StereoGeometry
 from cva_confidence_ros.scan import ScanConfig
@@ -57,6 +58,7 @@ from msg_tools.scoring import (
 
 __all__ = [
     'FrameResult',
+    'GT_WAIT_FRAMES',
     'Logger',
     'NodeOutputs',
     'ReplayOptions',
@@ -64,6 +66,7 @@ __all__ = [
     'ReplaySession',
     'TopicNames',
     'TopicPlan',
+    'check_output_bag_folder',
     'log_stderr',
     'make_synchronizer',
     'node_outputs',
@@ -99,6 +102,14 @@ _KEY_NAMES = {
 STOPPING = '[cva-bag-replay] Ctrl-C: stopping after this frame'
 # Longest span rosbag2 timestamps (int64 nanoseconds) can express, in seconds.
 _MAX_SPAN_S = (2**63 - 1) / 1e9
+#: Most processed frames that wait for their ground truth at once, and most ground-truth
+#: messages that wait for their frame. A frame stops waiting as soon as ground truth of a later
+#: stamp is read (the topic comes in stamp order, so its own cannot come any more); this bound
+#: is for ground truth that lags its images (a ground-truth node's latency) and keeps the
+#: memory bounded. It does not depend on --queue-size, the synchroniser's setting.
+GT_WAIT_FRAMES = 100
+# Stamps remembered to say why a frame went unscored (plain integers: cheap to keep).
+_MAX_REMEMBERED = 1000
 
 
 def log_stderr(message: str) -> None:
@@ -189,7 +200,7 @@ class ReplayOptions:
         sync_tolerance_s: Largest stamp spread of one pair in approximate mode, seconds.
         queue_size: Messages held per input while waiting for a match.
         max_pixels: Score a random subset of this many ground-truth pixels per frame.
-        seed: Seed of that subset.
+        seed: Seed of that subset (>= 0).
         max_plots: Frames that get a confidence-map and ROC PNG.
         publish_points: Write ``points2``.
         points_organized: Organised (H×W, NaN for dropped points) or dense cloud.
@@ -262,6 +273,9 @@ class ReplayOptions:
             raise ConfigError(f'max_pixels must be >= 1; got {self.max_pixels}')
         if self.max_plots < 0:
             raise ConfigError(f'max_plots must be >= 0; got {self.max_plots}')
+        if self.seed < 0:
+            # numpy's generators take no negative seed; the run would fail at its first frame.
+            raise ConfigError(f'seed must be an integer >= 0; got {self.seed}')
         if not (math.isfinite(self.rate_scale) and self.rate_scale > 0):
             raise ConfigError(f'rate_scale must be a finite number > 0; got {self.rate_scale}')
         if not all(math.isfinite(t) and t > 0
@@ -273,9 +287,9 @@ class ReplayOptions:
         self._check_paths()
 
     def _check_paths(self) -> None:
-        """Refuse outputs that would write over the input or over each other, a report
-        folder that cannot be made because a file is in the way, and, before any work,
-        earlier outputs without ``overwrite``.
+        """Refuse outputs that would write over the input or over each other, an output bag
+        or report folder that cannot be made because a file is in the way, and, before any
+        work, earlier outputs without ``overwrite``.
 
         ``--overwrite`` deletes the old output bag, so an output that is the input, holds
         it or lies in it would destroy the input; a report folder in the output bag would
@@ -310,6 +324,12 @@ class ReplayOptions:
         if not existing.is_dir():
             raise ConfigError(
                 f'cannot create the report folder {self.report}: {existing} is a file'
+            )
+        # Checked here, not when the bag is opened: by then --overwrite has cleared the report.
+        holder = next(p for p in out.parents if p.exists())
+        if not holder.is_dir():
+            raise ConfigError(
+                f'cannot create output bag {self.out}: {holder} is a file, not a folder'
             )
         if Path(self.out).exists() or Path(self.out).is_symlink():
             if not self.overwrite:
@@ -509,7 +529,9 @@ def node_outputs(
     Args:
         result: The pipeline's output at the processed resolution.
         geometry: Stereo geometry of the input camera infos (input resolution).
-        input_shape: Input ``(height, width)``.
+        input_shape: Input ``(height, width)``: what a camera info with binning or a region
+            of interest is folded to (the scale is ``result.scale``, exactly 1/downsample, as
+            the node uses).
         header: Header of the left image (``rosbags`` or rclpy; stamp and frame id are used).
         config: The pipeline settings.
         publish_points: Include ``points2``.
@@ -538,6 +560,7 @@ def node_outputs(
         cloud_to_message,
         depth_to_image,
         disparity_to_message,
+        image_camera_info,
         rgb_to_image,
         scale_camera_info,
         scan_to_message,
@@ -550,9 +573,10 @@ def node_outputs(
         frame_id=str(header.frame_id),
     )
     disparity = result.disparity
-    out_h, out_w = disparity.shape
-    if (out_h, out_w) != tuple(input_shape):
-        geometry = geometry.scaled(out_w / input_shape[1], out_h / input_shape[0])
+    if result.scale != 1.0:
+        # As the node: the pipeline crops the bottom/right rest and shrinks by exactly
+        # 1/downsample (out_w / in_w would be off for an odd size).
+        geometry = geometry.scaled(result.scale)
     confidence = np.clip(np.nan_to_num(result.confidence, nan=0.0), 0.0, 1.0)
     kept = result.valid
     filtered = result.filtered_disparity
@@ -591,7 +615,8 @@ def node_outputs(
     if left_info is not None:
         messages.append(
             ('camera_info', CAMERA_INFO,
-             scale_camera_info(left_info, config.downsample, ros_header))
+             scale_camera_info(image_camera_info(left_info, input_shape[1], input_shape[0]),
+                               config.downsample, ros_header))
         )
     store = jazzy_typestore()
     # rclpy leaves CDR alignment padding uninitialised; a pass through rosbags zeroes it, so
@@ -658,9 +683,12 @@ class ReplaySession:
     to stop early (``KeyboardInterrupt``, ``BagError``) are recorded in the report and not
     raised further, see :meth:`outcome`.
 
-    Ground truth and results meet by stamp: whichever comes first waits; a result whose
-    ground truth never comes is reported unscored. A frame that cannot be scored (no usable
-    ground truth) is logged with the reason (the first few times per reason).
+    Ground truth and results meet by stamp: whichever comes first waits. The ground-truth
+    topic comes in stamp order, so a result stops waiting once ground truth of a later stamp
+    has been read (its own can no longer come), or when :data:`GT_WAIT_FRAMES` results wait
+    (ground truth that lags its images by more is not waited for); it is then reported
+    unscored, with the reason. A frame that cannot be scored (no usable ground truth) is
+    logged with the reason (the first few times per reason).
 
     The synchroniser records the input messages it lets go without a pair
     (:meth:`report_drops`): each is logged (the first few) and recorded in the report with its
@@ -671,8 +699,8 @@ class ReplaySession:
         plan: The topic plan of the input bag.
         log: Receives one-line messages.
         truth_window: Most ground-truth messages held while waiting for their frame (the
-            oldest goes first); None = unbounded, the caller evicts with
-            :meth:`drop_ground_truth_before` (live mode, where outputs lag the inputs).
+            oldest goes first); 0 = :data:`GT_WAIT_FRAMES`; None = unbounded, the caller
+            evicts with :meth:`drop_ground_truth_before`.
         interrupts: The run's Ctrl-C handling, when it began before the session; the session
             enters it again and calls :meth:`GracefulInterrupt.closing` when it ends.
     """
@@ -696,18 +724,25 @@ class ReplaySession:
         self.out: OutputBag | None = None
         self.writer: ReportWriter | None = None
         self.paths: dict[str, Path] = {}
-        # Offline, ground truth and images of one stamp lie close together in the bag.
-        self.window = max(options.queue_size, 2)
-        self.truth_window = self.window if truth_window == 0 else truth_window
+        self.truth_window = GT_WAIT_FRAMES if truth_window == 0 else truth_window
         self._pending: OrderedDict[int, FrameResult] = OrderedDict()
         self._truth: OrderedDict[int, Any] = OrderedDict()
+        # Stamps of frames that stopped waiting after GT_WAIT_FRAMES, and of ground truth that
+        # waited longer than truth_window for its frame: to tell why a frame went unscored.
+        self._given_up: OrderedDict[int, None] = OrderedDict()
+        self._truth_dropped: OrderedDict[int, None] = OrderedDict()
+        self._late_truth_logged = False
         self._skip_logs = 0
         self._unpaired_logs = 0
         self._unscored_logs: Counter[str] = Counter()
 
     def __enter__(self) -> ReplaySession:
-        # The report folder first: a --report that cannot be created must not cost the old
-        # output bag. A live run cleared it before it started the node (whose log is there).
+        # The output bag's folder is tried before --overwrite clears the old report, so that a
+        # run that cannot write its bag leaves the old outputs alone; then the report folder,
+        # before the bag is opened: a --report that cannot be created must not cost the old
+        # output bag. A live run did both before it started the node (whose log is there).
+        if self.options.mode != 'live':
+            check_output_bag_folder(self.options.out)
         if self.options.overwrite and self.options.mode != 'live':
             clear_report(self.options.report)
         self.writer = ReportWriter(
@@ -816,14 +851,26 @@ class ReplaySession:
                 self.out.write(topic, msgtype, message, timestamp_ns)
 
     def add_ground_truth(self, stamp_ns: int, msg: Any) -> None:
-        """Offer a ground-truth message; scores the frame that waits for it, if any."""
+        """Offer a ground-truth message; scores the frame that waits for it, if any, and
+        gives up on the frames of older stamps that still wait (theirs can no longer come)."""
+        self._give_up_before(stamp_ns)
         result = self._pending.pop(stamp_ns, None)
         if result is not None:
             self._score(result, msg)
             return
+        if stamp_ns in self._given_up:
+            if not self._late_truth_logged:
+                self._late_truth_logged = True
+                self.log(
+                    f'the ground truth of stamp {stamp_ns} ns came more than {GT_WAIT_FRAMES} '
+                    f'frames after its images; a frame waits at most {GT_WAIT_FRAMES} frames '
+                    f'for it, so frames like it stay unscored'
+                )
+            return
         self._truth[stamp_ns] = msg
         while self.truth_window is not None and len(self._truth) > self.truth_window:
-            self._truth.popitem(last=False)
+            dropped, _ = self._truth.popitem(last=False)
+            _remember(self._truth_dropped, dropped)
 
     def drop_ground_truth_before(self, stamp_ns: int) -> None:
         """Forget ground truth older than ``stamp_ns`` (frames that will never come)."""
@@ -831,20 +878,44 @@ class ReplaySession:
             del self._truth[stamp]
 
     def add_result(self, result: FrameResult) -> None:
-        """Offer a processed frame; scored now if its ground truth is known or the bag has
-        none, else held until it comes."""
+        """Offer a processed frame; scored now if its ground truth is known, can no longer
+        come (ground truth of a later stamp was read) or the bag has none, else held until it
+        comes (see the class)."""
         self.counts['processed'] += 1
         if self.plan.ground_truth is None:
             self._score(result, None)
             return
-        msg = self._truth.pop(result.stamp_ns, None)
-        if msg is not None:
-            self._score(result, msg)
+        stamp = result.stamp_ns
+        msg = self._truth.pop(stamp, None)
+        if msg is None and not any(s > stamp for s in self._truth):
+            self._pending[stamp] = result
+            while len(self._pending) > GT_WAIT_FRAMES:
+                oldest, frame = self._pending.popitem(last=False)
+                _remember(self._given_up, oldest)
+                self._score(
+                    frame, None, note=f'no ground truth within {GT_WAIT_FRAMES} frames of it '
+                    '(ground truth later than that is not waited for)'
+                )
             return
-        self._pending[result.stamp_ns] = result
-        while len(self._pending) > self.window:
-            _, oldest = self._pending.popitem(last=False)
-            self._score(oldest, None, note='no ground truth with this stamp')
+        # Ground truth of this or a later stamp was read: older waiting frames get none.
+        self._give_up_before(stamp)
+        self._score(result, msg, note='' if msg is not None else self._no_truth(stamp))
+
+    def _give_up_before(self, stamp_ns: int) -> None:
+        """Score the waiting frames older than ``stamp_ns`` without ground truth."""
+        for stamp in [s for s in self._pending if s < stamp_ns]:
+            self._score(self._pending.pop(stamp), None, note=self._no_truth(stamp))
+
+    def _no_truth(self, stamp_ns: int, stopped: bool = False) -> str:
+        """Why the frame of ``stamp_ns`` has no ground truth, in words."""
+        if stamp_ns in self._truth_dropped:
+            return (
+                f'its ground truth came more than {self.truth_window} ground-truth messages '
+                'before it and was not kept'
+            )
+        if stopped:
+            return 'no ground truth with this stamp read before the run stopped'
+        return 'no ground truth with this stamp in the bag'
 
     def _ground_truth(self, result: FrameResult, msg: Any) -> tuple[np.ndarray | None, str]:
         """The frame's ground truth at the processed resolution, or None and why."""
@@ -964,14 +1035,20 @@ class ReplaySession:
             return
 
     def finish(self) -> None:
-        """Score what still waits, close the output bag, write the report."""
-        for result in list(self._pending.values()):
-            self._score(result, None, note='no ground truth with this stamp')
-        self._pending.clear()
-        if self.out is not None:
-            self.out.close()
-            if not self.out.kept_old:
-                self.paths['bag'] = Path(self.options.out)
+        """Score what still waits, close the output bag, write the report.
+
+        The bag is closed even if scoring fails, so that what was written stays readable.
+        """
+        stopped = self.report.interrupted or bool(self.report.error)
+        try:
+            while self._pending:
+                stamp, result = self._pending.popitem(last=False)
+                self._score(result, None, note=self._no_truth(stamp, stopped))
+        finally:
+            if self.out is not None:
+                self.out.close()
+                if not self.out.kept_old:
+                    self.paths['bag'] = Path(self.options.out)
         if self.writer is not None:
             self.paths.update(self.writer.write(self.report))
 
@@ -1061,6 +1138,26 @@ class ReplaySession:
         if not by_topic:
             return ''
         return ' (' + ', '.join(f'{t}: {n}' for t, n in sorted(by_topic.items())) + ')'
+
+
+def _remember(stamps: OrderedDict[int, None], stamp_ns: int) -> None:
+    """Add a stamp to a bounded record of stamps (the oldest goes)."""
+    stamps[stamp_ns] = None
+    while len(stamps) > _MAX_REMEMBERED:
+        stamps.popitem(last=False)
+
+
+def check_output_bag_folder(out: str | Path) -> None:
+    """Check that the output bag can be created at ``out``: make its parent folders and try
+    writing there (where the bag, or the staging folder that replaces an old one, goes).
+
+    Raises:
+        ConfigError: A file is in the way, or the folder cannot be written.
+    """
+    try:
+        check_output_dir(Path(out).absolute().parent, 'the folder')
+    except ConfigError as err:
+        raise ConfigError(f'cannot create output bag {out}: {err}') from None
 
 
 def _offset(delta_ns: int) -> str:
@@ -1203,6 +1300,7 @@ def _process_pair(session: ReplaySession, pipeline: Any, matched: Any, frame: in
         left_info=items['left_info'],
     )
     topics = options.topics.outputs()
+    shown = result.left
     # The frame's messages and its line in the report go together, whenever the signal comes.
     with session.interrupts.critical():
         session.write(
@@ -1217,7 +1315,8 @@ def _process_pair(session: ReplaySession, pipeline: Any, matched: Any, frame: in
                 kept=outputs.kept,
                 offset=geometry.disparity_offset,
                 processing_ms=float(result.timings_ms.get('total', 0.0)),
-                image=lambda: result.left,
+                # Not the whole result: a frame may wait a while for its ground truth.
+                image=lambda: shown,
                 region=result.region,
                 geometry=outputs.geometry,
             )

@@ -133,7 +133,7 @@ def save_weights(net: nn.Module, path: str | os.PathLike[str], meta: Mapping[str
             f'D = {model.max_disparity}'
         )
     # load_weights wants an int: 16.0 or np.int64(16) pass the check above but would not load.
-    meta['max_disparity'] = int(model.max_disparity)
+    meta['max_disparity'] = int(meta['max_disparity'])
     meta['arch'] = arch
     # Only plain values load back with torch.load(weights_only=True); a JSON round trip turns
     # tuples into lists, numpy scalars into numbers and anything exotic (versions, paths) into

@@ -445,8 +445,9 @@ def _image_projection(
 def image_camera_info(info: Any, width: int, height: int) -> CameraInfo:
     """A camera info for the ``width`` × ``height`` images as they arrive: binning and region
     of interest folded into the size, K and P (:func:`camera_info_to_geometry`'s rule), binning
-    1 and no ROI; the message itself when the images have its size. For consumers of the
-    outputs, which have the images' size."""
+    1 and no ROI, no header (:func:`scale_camera_info` gives the output's); the message
+    itself when the images have its size. For consumers of the outputs, which have the images'
+    size. Reads rclpy and ``rosbags`` messages alike."""
     size, projection = _image_projection(info, width, height)
     if size == (int(info.width), int(info.height)):
         return info
@@ -457,7 +458,6 @@ def image_camera_info(info: Any, width: int, height: int) -> CameraInfo:
     k[0] /= binning_x
     k[1] /= binning_y
     return CameraInfo(
-        header=info.header,
         width=size[0],
         height=size[1],
         distortion_model=info.distortion_model,

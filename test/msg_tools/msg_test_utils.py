@@ -120,7 +120,9 @@ def write_stereo_bag(
     ``stamp`` (ns, default ``START_NS`` + index × 0.1 s), ``stamp_right`` (ns, default the
     left stamp), ``encoding`` (forced on both images), ``info_size`` ((width, height) written
     into the camera infos), ``gt`` (a float32 ground-truth array instead of the true shift),
-    ``gt_bytes`` (the ground truth's image data cut to this many bytes), ``transport``
+    ``gt_bytes`` (the ground truth's image data cut to this many bytes), ``gt_lag`` (the
+    ground truth logged this many ns after its images, as a ground-truth node with latency
+    does), ``no_gt`` (True: no ground truth for this frame), ``transport``
     (``'png'`` or ``'jpeg'``: the images as ``sensor_msgs/CompressedImage`` on
     ``<image topic>/compressed``, as image_transport's compressed plugin writes them),
     ``compressed_data`` (bytes written as the left image's compressed data instead).
@@ -158,20 +160,21 @@ def write_stereo_bag(
             gt[:, :shift] = np.nan
             gt = frame.get('gt', gt)
             messages = [
-                ('left/camera_info', CAMERA_INFO, left_info),
-                ('right/camera_info', CAMERA_INFO, right_info),
-                (f'left/{image_topic}', image_type, left_msg),
-                (f'right/{image_topic}', image_type, right_msg),
+                ('left/camera_info', CAMERA_INFO, left_info, stamp),
+                ('right/camera_info', CAMERA_INFO, right_info, stamp),
+                (f'left/{image_topic}', image_type, left_msg, stamp),
+                (f'right/{image_topic}', image_type, right_msg, stamp),
             ]
-            if ground_truth:
+            if ground_truth and not frame.get('no_gt', False):
                 gt_msg = disparity_to_msg(gt, stamp, 'l', geometry, typestore=store)
                 if 'gt_bytes' in frame:
                     gt_msg.image.data = gt_msg.image.data[: frame['gt_bytes']]
-                messages.append(('ground_truth/disparity', DISPARITY_IMAGE, gt_msg))
-            for topic, msgtype, message in messages:
+                messages.append(('ground_truth/disparity', DISPARITY_IMAGE, gt_msg,
+                                 stamp + frame.get('gt_lag', 0)))
+            for topic, msgtype, message, timestamp in messages:
                 if topic in skip_topics:
                     continue
-                bag.write(f'{prefix}/{topic}', msgtype, message, stamp)
+                bag.write(f'{prefix}/{topic}', msgtype, message, timestamp)
     return path
 
 

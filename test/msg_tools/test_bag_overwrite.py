@@ -216,3 +216,51 @@ def test_from_dataset_ctrl_c_after_a_frame_replaces_the_old_bag(tmp_path: Path) 
     assert {len(rows) for rows in messages.values()} == {1}
     assert messages['/left/image_rect'][0][1].width == sample.left.shape[1]
     assert sorted(p.name for p in tmp_path.iterdir()) == ['data', bag.name]
+
+
+@pytest.mark.parametrize('mode', ['offline', 'live'])
+def test_an_output_bag_that_cannot_be_created_keeps_the_old_report(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], mode: str
+) -> None:
+    bag = write_stereo_bag(tmp_path / 'in', [{}])
+    report = tmp_path / 'report'
+    assert _replay(bag, tmp_path / 'out', report) == 0
+    before = _files(report)
+    blocker = tmp_path / 'plain.txt'
+    blocker.write_text('x')
+    capsys.readouterr()
+    assert _replay(bag, blocker / 'out', report, '--overwrite', '--mode', mode,
+                   '--no-start-node', '--startup-timeout', '1') == 2
+    assert capsys.readouterr().err.strip() == (
+        f'cva-bag-replay: error: cannot create output bag {blocker / "out"}: {blocker} is a '
+        f'file, not a folder'
+    )
+    assert _files(report) == before
+    assert blocker.read_text() == 'x'
+
+
+def test_an_output_folder_that_cannot_be_written_keeps_the_old_report(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import tempfile
+
+    bag = write_stereo_bag(tmp_path / 'in', [{}])
+    report = tmp_path / 'report'
+    assert _replay(bag, tmp_path / 'out', report) == 0
+    before = _files(report)
+    locked = tmp_path / 'locked'
+    real = tempfile.TemporaryFile
+
+    def refuse(*args: object, **kwargs: object) -> object:
+        # A read-only folder, also for root (who passes permission bits).
+        if Path(str(kwargs.get('dir', ''))) == locked:
+            raise PermissionError(13, 'Permission denied')
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(tempfile, 'TemporaryFile', refuse)
+    capsys.readouterr()
+    assert _replay(bag, locked / 'out', report, '--overwrite') == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f'cva-bag-replay: error: cannot create output bag {locked / "out"}: ')
+    assert err.endswith(f'cannot write in {locked} (Permission denied)')
+    assert _files(report) == before

@@ -12,6 +12,7 @@ from msg_test_utils import (
     MAX_DISPARITY,
     dataset_bag,
     read_bag,
+    textured_pair,
     write_stereo_bag,
 )
 import numpy as np
@@ -20,6 +21,7 @@ import pytest
 from cva_confidence_ros.confidence import CONFIDENCE_METHODS
 from cva_confidence_ros.datasets import load_dataset, resize_disparity
 from cva_confidence_ros.evaluation import evaluate_scene
+from cva_confidence_ros.pointcloud import StereoGeometry
 from cva_confidence_ros.ros.convert import (
     depth_image_to_array,
     disparity_from_message,
@@ -270,6 +272,30 @@ def test_downsample_scales_ground_truth(tmp_path: Path) -> None:
         # Every pixel the data sets' NaN-aware halving keeps is scored.
         assert record['n_pixels'] == int(np.isfinite(resize_disparity(sample.disparity, 2)).sum())
         assert record['auc'] is not None
+
+
+def test_downsample_of_an_odd_size_scales_geometry_as_the_node(tmp_path: Path) -> None:
+    # 41×31 px at downsample 2: cropped to 40×30, then halved exactly, as the node does (and
+    # as camera_info says), not scaled by 20/41 and 15/31.
+    frames = [dict(zip(('left', 'right'), textured_pair(31, 41, 4, i), strict=True))
+              for i in range(2)]
+    bag = write_stereo_bag(tmp_path / 'in', frames)
+    code, _ = _replay(bag, tmp_path, '--downsample', '2', '--max-disparity', '8')
+    assert code == 0
+    node = StereoGeometry(fx=50.0, fy=50.0, cx=20.0, cy=15.0, cx_right=20.0,
+                          baseline=0.1).scaled(0.5)
+    outputs = read_bag(tmp_path / 'run_bag')
+    for (_, disparity), (_, info), (_, depth) in zip(
+        outputs['/disparity'], outputs['/camera_info'], outputs['/depth'], strict=True
+    ):
+        assert (disparity.image.width, disparity.image.height) == (info.width, info.height)
+        assert disparity.f == pytest.approx(node.fx) == info.p[0] == 25.0
+        assert info.p[2] == pytest.approx(node.cx)
+        raw = disparity_from_message(disparity)
+        metres = depth_image_to_array(depth)
+        known = np.isfinite(metres)
+        assert known.any()
+        assert np.allclose(metres[known] * raw[known], node.fx * node.baseline)
 
 
 def test_topic_prefix_and_bag_without_ground_truth(tmp_path: Path) -> None:

@@ -226,6 +226,7 @@ def test_bad_options(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None
         (('--mode', 'live', '--drain-timeout', 'inf'), 'timeouts must be'),
         (('--topic-prefix', 'a b'), 'topic prefix must be a valid ROS 2 topic name'),
         (('--left-topic', '1cam/image'), 'topic left must be a valid ROS 2 topic name'),
+        (('--max-pixels', '100', '--seed', '-1'), 'seed must be an integer >= 0; got -1'),
     ):
         code, err, _ = _run(bag, tmp_path, capsys, *extra)
         assert code == 2 and message in err and len(err.strip().splitlines()) == 1
@@ -362,3 +363,27 @@ def test_ctrl_c_leaves_a_readable_bag(tmp_path: Path) -> None:
     assert 0 < done < 150 and len(report['frames']) == done
     outputs = read_bag(tmp_path / 'out')
     assert len(outputs['/disparity']) == len(outputs['/confidence']) == done
+
+
+def test_a_fault_while_scoring_at_the_end_still_closes_the_bag(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The last frame has no ground truth, so it is scored only when the run ends.
+    from msg_tools.replay import ReplaySession
+
+    bag = write_stereo_bag(tmp_path / 'in', [{}, {}, {'no_gt': True}])
+    score_now = ReplaySession._score_now
+
+    def fail_without_ground_truth(
+        session: ReplaySession, result: object, msg: object, note: str
+    ) -> None:
+        if msg is None:
+            raise RuntimeError('scoring failed')
+        score_now(session, result, msg, note)
+
+    monkeypatch.setattr(ReplaySession, '_score_now', fail_without_ground_truth)
+    with pytest.raises(RuntimeError, match='scoring failed'):
+        _replay_into(bag, tmp_path / 'out', tmp_path / 'report')
+    # Closed all the same: metadata and MCAP summary written, every frame readable.
+    outputs = read_bag(tmp_path / 'out')
+    assert len(outputs['/disparity']) == len(outputs['/confidence']) == 3

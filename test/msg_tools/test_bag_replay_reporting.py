@@ -150,3 +150,50 @@ def test_a_bag_without_ground_truth_says_nothing_per_frame(
     assert code == 0
     assert not _lines(err, 'frame') and 'frames scored' not in out
     assert len(_lines(err, 'no ground-truth topic')) == 1
+
+
+def test_ground_truth_logged_frames_after_its_images_is_waited_for(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # A ground-truth node with latency: each message logged 5 frames after its images, more
+    # than --queue-size (the synchroniser's setting) frames.
+    bag = write_stereo_bag(tmp_path / 'in', [{'gt_lag': 5 * FRAME_NS}] * 8)
+    code, out, err, report = _run(bag, tmp_path, capsys, '--queue-size', '2')
+    assert code == 0
+    assert not _lines(err, 'frame') and 'frames scored' not in out
+    assert report['summary']['frames_scored'] == 8
+
+
+def test_missing_ground_truth_is_named_as_missing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Frame 1 waits until the ground truth of frame 2 is read (its own cannot come after
+    # that); frame 5 until the end of the bag.
+    frames = [{'gt_lag': 2 * FRAME_NS, 'no_gt': index in (1, 5)} for index in range(6)]
+    bag = write_stereo_bag(tmp_path / 'in', frames)
+    code, out, err, report = _run(bag, tmp_path, capsys)
+    assert code == 0
+    note = 'no ground truth with this stamp in the bag'
+    assert [line.split(': ', 1)[1] for line in _lines(err, 'frame')] == [note, note]
+    assert [f['frame'] for f in report['frames'] if f['note'] == note] == [1, 5]
+    assert report['summary']['frames_scored'] == 4
+    assert report['summary']['not_scored'] == {note: 2}
+
+
+def test_ground_truth_later_than_a_frame_waits_is_said_so(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from msg_tools import replay
+
+    monkeypatch.setattr(replay, 'GT_WAIT_FRAMES', 2)
+    bag = write_stereo_bag(tmp_path / 'in', [{'gt_lag': 4 * FRAME_NS}] * 6)
+    code, out, err, report = _run(bag, tmp_path, capsys)
+    assert code == 0
+    note = ('no ground truth within 2 frames of it (ground truth later than that is not '
+            'waited for)')
+    # At most 2 frames wait: frames 0 to 3 stop waiting before their ground truth comes.
+    assert [f['frame'] for f in report['frames'] if f['note'] == note] == [0, 1, 2, 3]
+    assert report['summary']['frames_scored'] == 2
+    [line] = _lines(err, 'the ground truth of stamp')
+    assert f'stamp {START_NS} ns came more than 2 frames after its images' in line
+    assert f'{note} (4 frames)' in out

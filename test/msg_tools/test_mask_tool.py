@@ -98,6 +98,26 @@ def test_mistakes_are_named_and_write_nothing(
     assert not out.exists()
 
 
+def test_a_preview_onto_the_mask_itself_is_refused(tmp_path: Path, capsys) -> None:
+    image = tmp_path / 'frame.png'
+    cv2.imwrite(str(image), _left_frames(1)[0]['left'])
+    out = tmp_path / 'mask.png'
+    assert main([str(out), '--image', str(image), '--below', '20']) == 0
+    before = out.read_bytes()
+    capsys.readouterr()
+    # Spelt another way, it is still the same file.
+    same = tmp_path / 'sub' / '..' / 'mask.png'
+    code = main([str(out), '--image', str(image), '--below', '10', '--preview', str(same),
+                 '--overwrite'])
+    assert code == 2
+    assert capsys.readouterr().err.strip() == (
+        f'cva-mask: error: --preview {same} is the mask {out} itself: the preview would '
+        'replace the mask; give the preview another name'
+    )
+    assert out.read_bytes() == before
+    assert load_mask(out)[20:].sum() == 0
+
+
 def test_draw_mask_refuses_a_start_mask_of_another_size() -> None:
     with pytest.raises(ConfigError, match='start mask is 4×3 px, not 5×3'):
         draw_mask(5, 3, start=np.ones((3, 4), bool))

@@ -40,6 +40,22 @@ def test_numbers_must_be_finite(tmp_path: Path, overrides: dict, message: str) -
         _options(tmp_path, **overrides)
 
 
+@pytest.mark.parametrize('seed', [-1, -(2**40)])
+def test_seed_must_not_be_negative(tmp_path: Path, seed: int) -> None:
+    # numpy's generators refuse it: the run would fail at its first scored frame.
+    with pytest.raises(ConfigError, match=f'seed must be an integer >= 0; got {seed}'):
+        _options(tmp_path, seed=seed)
+    assert _options(tmp_path, seed=0).seed == 0
+
+
+def test_output_bag_blocked_by_a_file(tmp_path: Path) -> None:
+    plain = tmp_path / 'plain.txt'
+    plain.write_text('x')
+    with pytest.raises(ConfigError, match=f'cannot create output bag .*: {plain} is a file, not'):
+        _options(tmp_path, out=plain / 'a' / 'out')
+    assert not (tmp_path / 'report').exists()
+
+
 def test_finite_numbers_are_accepted(tmp_path: Path) -> None:
     options = _options(tmp_path, approximate_sync=True, sync_tolerance_s=3600.0,
                        rate_scale=0.01, startup_timeout_s=1e6, drain_timeout_s=0.5)
