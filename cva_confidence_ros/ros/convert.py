@@ -434,12 +434,18 @@ def _image_projection(
     crop_h = int(roi.height) if int(roi.height) > 0 else full_h - y0
     if (binning_x, binning_y, x0, y0, crop_w, crop_h) == (1, 1, 0, 0, full_w, full_h):
         return (full_w, full_h), list(info.p)
-    p = np.array(info.p, dtype=np.float64).reshape(3, 4)
-    p[0, 2] -= x0 * p[2, 2]
-    p[1, 2] -= y0 * p[2, 2]
-    p[0] /= binning_x
-    p[1] /= binning_y
+    p = _folded(np.array(info.p, dtype=np.float64).reshape(3, 4), info)
     return (crop_w // binning_x, crop_h // binning_y), p.ravel().tolist()
+
+
+def _folded(matrix: np.ndarray, info: Any) -> np.ndarray:
+    """K (3×3) or P (3×4) of ``info`` with its ROI offset moved out of the principal point and
+    rows 0 and 1 divided by its binning (``image_geometry``'s rule), in place."""
+    matrix[0, 2] -= int(info.roi.x_offset) * matrix[2, 2]
+    matrix[1, 2] -= int(info.roi.y_offset) * matrix[2, 2]
+    matrix[0] /= max(int(info.binning_x), 1)
+    matrix[1] /= max(int(info.binning_y), 1)
+    return matrix
 
 
 def image_camera_info(info: Any, width: int, height: int) -> CameraInfo:
@@ -451,12 +457,7 @@ def image_camera_info(info: Any, width: int, height: int) -> CameraInfo:
     size, projection = _image_projection(info, width, height)
     if size == (int(info.width), int(info.height)):
         return info
-    binning_x, binning_y = max(int(info.binning_x), 1), max(int(info.binning_y), 1)
-    k = np.array(info.k, dtype=np.float64).reshape(3, 3)
-    k[0, 2] -= int(info.roi.x_offset) * k[2, 2]
-    k[1, 2] -= int(info.roi.y_offset) * k[2, 2]
-    k[0] /= binning_x
-    k[1] /= binning_y
+    k = _folded(np.array(info.k, dtype=np.float64).reshape(3, 3), info)
     return CameraInfo(
         width=size[0],
         height=size[1],
