@@ -614,6 +614,10 @@ class ConfidenceCore(Node):
                     f'processing failed on frame {item.stamp_ns}: {what}',
                     error=True,
                 )
+            if self._stopping(mailbox):
+                # A frame dropped because the stop came while it ran; Ctrl-C (the context
+                # shut down in C) closes no mailbox, so take() would wait for good.
+                return
 
     def _process(self, item: MatchedSet, mailbox: _Mailbox) -> None:
         start = time.perf_counter()
