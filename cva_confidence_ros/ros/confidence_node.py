@@ -292,12 +292,7 @@ class ConfidenceCore(Node):
         self._diag_timer = self.create_timer(
             node_config.diagnostics_period_seconds, self._publish_diagnostics
         )
-        self._owned = [
-            self._pub_disparity, self._pub_filtered, self._pub_confidence, self._pub_points,
-            self._pub_depth, self._pub_overlay, self._pub_scan, self._pub_info,
-            self._pub_overlay_compressed, self._pub_depth_compressed,
-            self._pub_diagnostics, self._diag_timer,
-        ]
+        self._owned = [*publishers, self._pub_diagnostics, self._diag_timer]
         self._worker = threading.Thread(
             target=self._work, args=(self._mailbox,), name='cva_confidence_worker'
         )
