@@ -927,9 +927,18 @@ class ConfidenceNode(ConfidenceCore):
         super().__init__(
             NODE_NAME, context=context, parameter_overrides=parameter_overrides, **kwargs
         )
-        self._init_core()
-        self._configure()
-        self._activate()
+        try:
+            self._init_core()
+            self._configure()
+            self._activate()
+        except BaseException:
+            # Destroyed here, not left to the garbage collector: collecting it would unregister
+            # the /rosout publisher of its name, by then perhaps a later node's.
+            if hasattr(self, '_mailbox'):
+                self.destroy_node()
+            else:  # refused while declaring its parameters
+                Node.destroy_node(self)
+            raise
 
 
 def run(argv: Sequence[str] | None = None) -> int:
