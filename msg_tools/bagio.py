@@ -36,6 +36,7 @@ __all__ = [
     'OutputBag',
     'check_replaceable',
     'check_topic_name',
+    'deserialize',
     'remove_bag',
     'staging_folder',
 ]
@@ -246,6 +247,29 @@ class InputBag:
             conn, timestamp, data = item
             count += 1
             yield conn.topic, conn.msgtype, int(timestamp), bytes(data)
+
+
+def deserialize(store: Any, data: bytes, msgtype: str, where: str) -> Any:
+    """Deserialise one message's CDR bytes, with a :class:`BagError` for a corrupt one.
+
+    Args:
+        store: ``rosbags`` typestore (:func:`msg_tools.convert.jazzy_typestore`).
+        data: The message's CDR bytes, as :meth:`InputBag.messages` yields them.
+        msgtype: Its message type (``pkg/msg/Type``).
+        where: Which message it is, for the error (``'message 3 on /left/image_rect of
+            bag robot_bag'``).
+
+    Raises:
+        BagError: The bytes are no ``msgtype`` (truncated or corrupt data); names ``where``.
+    """
+    from rosbags.serde import SerdeError
+
+    try:
+        return store.deserialize_cdr(data, msgtype)
+    except SerdeError as err:
+        raise BagError(
+            f'{where} cannot be read as a {msgtype} (corrupt or truncated?): {reason(err)}'
+        ) from None
 
 
 def check_replaceable(path: str | Path, what: str = 'output bag') -> bool:

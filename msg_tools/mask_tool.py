@@ -152,11 +152,12 @@ def frame_from_bag(bag_path: Path, topic: str | None, index: int) -> np.ndarray:
     """The ``index``-th image on ``topic`` of a rosbag2, decoded as the node decodes it.
 
     Raises:
-        BagError: No such topic (the image topics are named), or fewer messages.
+        BagError: No such topic (the image topics are named), fewer messages, or a message
+            that is not a valid one of its type (corrupt or truncated data).
         InputError: An image the node could not decode either.
     """
     from cva_confidence_ros.ros.convert import image_to_array
-    from msg_tools.bagio import InputBag
+    from msg_tools.bagio import InputBag, deserialize
     from msg_tools.convert import jazzy_typestore
 
     if index < 0:
@@ -179,7 +180,9 @@ def frame_from_bag(bag_path: Path, topic: str | None, index: int) -> np.ndarray:
             )
         for count, (_, kind, _, data) in enumerate(bag.messages([topic])):
             if count == index:
-                msg: Any = store.deserialize_cdr(data, kind)
+                msg: Any = deserialize(
+                    store, data, kind, f'message {index} on {topic} of bag {bag_path}'
+                )
                 return image_to_array(msg, f'{topic} message {index}')
         raise BagError(f'bag {bag_path} has no message {index} on {topic} (numbered from 0)')
 

@@ -412,9 +412,14 @@ class TopicPlan:
 def plan_topics(bag: InputBag, options: ReplayOptions, log: Logger = log_stderr) -> TopicPlan:
     """Check that the bag has the input topics (and the ground truth if asked for).
 
+    The ground-truth topic is used when the bag has it with a ground-truth type; one asked
+    for explicitly (``options.gt_required``) must be there with such a type, while the
+    default one of another type is ignored with a log line.
+
     Raises:
         BagError: An empty bag (no topic at all), a missing input topic, one of the wrong
-            type, or a missing ground-truth topic that was asked for explicitly.
+            type, or a ground-truth topic that was asked for explicitly and is missing or of
+            another type.
     """
     if not bag.topics:
         raise BagError(f'bag {bag.path} is empty (0 messages)')
@@ -425,11 +430,23 @@ def plan_topics(bag: InputBag, options: ReplayOptions, log: Logger = log_stderr)
     gt_topic = options.topics.resolve('ground_truth')
     gt_type = ''
     ground_truth: str | None = gt_topic
-    if gt_topic in bag.topics or options.gt_required:
+    found = bag.topics.get(gt_topic)
+    if options.gt_required:
         gt_type = bag.require(gt_topic, GT_TYPES, 'ground-truth')
-    else:
+    elif found is None:
         log(f'no ground-truth topic {gt_topic} in the bag: frames are processed, not scored')
         ground_truth = None
+    elif found not in GT_TYPES:
+        # The default name, not asked for: a topic of that name that is no ground truth is
+        # left alone rather than refusing the whole run.
+        log(
+            f'topic {gt_topic} of the bag has type {found}, not a ground truth '
+            f'({" or ".join(GT_TYPES)}): it is not used, frames are processed, not scored '
+            f'(name the ground-truth topic with --gt-topic)'
+        )
+        ground_truth = None
+    else:
+        gt_type = found
     counts = bag.message_counts
     return TopicPlan(
         inputs=inputs,
@@ -643,7 +660,8 @@ class FrameResult:
         confidence: (h, w) float32 published confidence.
         kept: (h, w) bool, pixels the node keeps.
         offset: Δ = cx_right − cx_left at the input resolution, to read a ground-truth
-            ``DisparityImage`` (which holds d + Δ).
+            ``DisparityImage`` at that resolution (which holds d + Δ; one at the output
+            resolution holds the Δ of ``geometry``).
         processing_ms: Pipeline time (offline). latency_ms: Live round-trip time.
         image: Returns the left image at the output resolution (uint8) for the report's
             overlays, or None where it cannot be had; called only for frames drawn.
@@ -918,15 +936,26 @@ class ReplaySession:
         return 'no ground truth with this stamp in the bag'
 
     def _ground_truth(self, result: FrameResult, msg: Any) -> tuple[np.ndarray | None, str]:
-        """The frame's ground truth at the processed resolution, or None and why."""
+        """The frame's ground truth at the processed resolution, or None and why.
+
+        A ``DisparityImage`` holds d + Δ with the Δ of its own resolution: the input's for
+        one at the input size (shrunk here like the data sets), the processed one's for one
+        at the output size already, i.e. Δ of the geometry scaled as the node scales it
+        (``result.geometry``; Δ/downsample without one).
+        """
+        shape = result.disparity.shape
+        factor = self.options.pipeline.downsample
+        offset = result.offset
+        inner = getattr(msg, 'image', msg)
+        if factor > 1 and (int(inner.height), int(inner.width)) == shape:
+            offset = (result.offset / factor if result.geometry is None
+                      else result.geometry.disparity_offset)
         try:
-            gt = disparity_from_msg(msg, result.offset, self.plan.ground_truth or 'ground truth')
+            gt = disparity_from_msg(msg, offset, self.plan.ground_truth or 'ground truth')
         except InputError as err:
             return None, f'bad ground truth: {err}'
-        shape = result.disparity.shape
         if gt.shape == shape:
             return gt, ''
-        factor = self.options.pipeline.downsample
         if (gt.shape[0] // factor, gt.shape[1] // factor) == shape:
             # The data sets' NaN-aware block mean, values divided by the factor too.
             from cva_confidence_ros.datasets import resize_disparity

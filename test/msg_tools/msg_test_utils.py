@@ -113,6 +113,7 @@ def write_stereo_bag(
     ground_truth: bool = True,
     storage: str = 'mcap',
     skip_topics: Sequence[str] = (),
+    geometry: StereoGeometry | None = None,
 ) -> Path:
     """A hand-made stereo bag for fault cases.
 
@@ -125,10 +126,17 @@ def write_stereo_bag(
     does), ``no_gt`` (True: no ground truth for this frame), ``transport``
     (``'png'`` or ``'jpeg'``: the images as ``sensor_msgs/CompressedImage`` on
     ``<image topic>/compressed``, as image_transport's compressed plugin writes them),
-    ``compressed_data`` (bytes written as the left image's compressed data instead).
+    ``compressed_data`` (bytes written as the left image's compressed data instead),
+    ``gt_scale`` (the ground truth's ``DisparityImage`` written with the geometry scaled by
+    this factor, as for a ``gt`` array of that resolution: its values are d + Δ·factor).
+
+    ``geometry`` is the stereo geometry of the camera infos (default: f = 50 px, cx = 20,
+    cy = 15, no Δ: cx_right = cx).
     """
     store = jazzy_typestore()
-    geometry = StereoGeometry(fx=50.0, fy=50.0, cx=20.0, cy=15.0, cx_right=20.0, baseline=0.1)
+    geometry = geometry or StereoGeometry(
+        fx=50.0, fy=50.0, cx=20.0, cy=15.0, cx_right=20.0, baseline=0.1
+    )
     with OutputBag(path, storage, store) as bag:
         for index, frame in enumerate(frames):
             stamp = frame.get('stamp', START_NS + index * 100_000_000)
@@ -166,7 +174,9 @@ def write_stereo_bag(
                 (f'right/{image_topic}', image_type, right_msg, stamp),
             ]
             if ground_truth and not frame.get('no_gt', False):
-                gt_msg = disparity_to_msg(gt, stamp, 'l', geometry, typestore=store)
+                gt_geometry = geometry.scaled(frame['gt_scale']) if 'gt_scale' in frame \
+                    else geometry
+                gt_msg = disparity_to_msg(gt, stamp, 'l', gt_geometry, typestore=store)
                 if 'gt_bytes' in frame:
                     gt_msg.image.data = gt_msg.image.data[: frame['gt_bytes']]
                 messages.append(('ground_truth/disparity', DISPARITY_IMAGE, gt_msg,

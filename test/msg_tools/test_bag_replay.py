@@ -274,6 +274,30 @@ def test_downsample_scales_ground_truth(tmp_path: Path) -> None:
         assert record['auc'] is not None
 
 
+def test_ground_truth_at_the_output_size_is_read_with_its_own_offset(tmp_path: Path) -> None:
+    # Camera infos with Δ = cx_right − cx_left = 6 px. A DisparityImage holds d + Δ at its own
+    # resolution: one at the output size of --downsample 2 holds d/2 + 3, not d/2 + 6. It is
+    # the same ground truth as the input-size one (4 px, the 4 left columns unknown) halved.
+    geometry = StereoGeometry(fx=50.0, fy=50.0, cx=20.0, cy=15.0, cx_right=26.0, baseline=0.1)
+    half = np.full((15, 20), 2.0, np.float32)
+    half[:, :2] = np.nan
+    frames = [dict(zip(('left', 'right'), textured_pair(30, 40, 4, seed), strict=True))
+              for seed in range(2)]
+    scored = {}
+    for name, extra in (('input_size', {}), ('output_size', {'gt': half, 'gt_scale': 0.5})):
+        bag = write_stereo_bag(tmp_path / f'in_{name}', [{**frame, **extra} for frame in frames],
+                               geometry=geometry)
+        gt_msg = read_bag(bag)['/ground_truth/disparity'][0][1]
+        assert gt_msg.min_disparity == (3.0 if extra else 6.0)
+        code, report = _replay(bag, tmp_path, '--downsample', '2', name=name)
+        assert code == 0
+        scored[name] = [(f['n_pixels'], f['error_rate'], f['auc'], f['auc_opt'])
+                        for f in report['frames']]
+    assert scored['output_size'] == scored['input_size']
+    assert all(n_pixels == 15 * 18 and error < 0.05
+               for n_pixels, error, _, _ in scored['output_size'])
+
+
 def test_downsample_of_an_odd_size_scales_geometry_as_the_node(tmp_path: Path) -> None:
     # 41×31 px at downsample 2: cropped to 40×30, then halved exactly, as the node does (and
     # as camera_info says), not scaled by 20/41 and 15/31.

@@ -193,6 +193,31 @@ def _with_declared_topics(bag: Path, out: Path, extra: dict[str, str]) -> Path:
     return out
 
 
+def test_a_default_ground_truth_topic_of_another_type_is_not_used(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # The bag's /ground_truth/disparity is no ground truth (a CameraInfo): not asked for, the
+    # frames are processed, not scored, and the log says why; asked for, it is an error.
+    bag = write_stereo_bag(tmp_path / 'in', [{}, {}], ground_truth=False)
+    bag = _with_declared_topics(bag, tmp_path / 'in2', {'/ground_truth/disparity': CAMERA_INFO})
+    code, err, report = _run(bag, tmp_path, capsys)
+    assert code == 0
+    assert (f'[cva-bag-replay] topic /ground_truth/disparity of the bag has type {CAMERA_INFO}, '
+            'not a ground truth (stereo_msgs/msg/DisparityImage or sensor_msgs/msg/Image): it is '
+            'not used, frames are processed, not scored (name the ground-truth topic with '
+            '--gt-topic)') in err.splitlines()
+    assert report['summary']['processed'] == 2
+    assert [f['note'] for f in report['frames']] == ['no ground truth'] * 2
+    for name in ('ground_truth/disparity', '/ground_truth/disparity'):
+        code, err, _ = _run(bag, tmp_path, capsys, '--gt-topic', name, '--overwrite')
+        assert code == 2
+        assert _last_line(err) == (
+            "cva-bag-replay: error: ground-truth topic '/ground_truth/disparity' has type "
+            f"{CAMERA_INFO}; expected one of ['stereo_msgs/msg/DisparityImage', "
+            f"'{IMAGE}']"
+        )
+
+
 def test_unpaired_stamps(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     frames = [{'stamp_right': 1_700_000_000 * 10**9 + i * 100_000_000 + 2_000_000}
               for i in range(3)]

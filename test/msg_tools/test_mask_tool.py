@@ -6,12 +6,14 @@ from pathlib import Path
 import re
 
 import cv2
-from msg_test_utils import textured_pair, write_stereo_bag
+from msg_test_utils import START_NS, textured_pair, write_stereo_bag
 import numpy as np
 import pytest
 
 from cva_confidence_ros.errors import ConfigError
 from cva_confidence_ros.mask import load_mask
+from msg_tools.bagio import OutputBag
+from msg_tools.convert import IMAGE, image_to_msg, jazzy_typestore
 from msg_tools.mask_tool import draw_mask, main
 
 
@@ -96,6 +98,33 @@ def test_mistakes_are_named_and_write_nothing(
     assert main(argv) == 2
     assert re.search(message, capsys.readouterr().err)
     assert not out.exists()
+
+
+def test_a_corrupt_message_in_the_bag_is_named(tmp_path: Path, capsys) -> None:
+    # Messages 1 and 2 are cut short (a bad sequence length; no room for the header's stamp):
+    # a one-line error naming the message and the topic, no rosbags traceback.
+    store = jazzy_typestore()
+    bag_path = tmp_path / 'bag'
+    with OutputBag(bag_path, 'mcap', store) as bag:
+        for index, cut in enumerate((None, 60, 10)):
+            left = textured_pair(30, 40, 4, index)[0]
+            data = bytes(store.serialize_cdr(
+                image_to_msg(left, START_NS + index, 'l', store), IMAGE
+            ))
+            bag.write('/left/image_rect', IMAGE, data[:cut], START_NS + index)
+    out = tmp_path / 'mask.png'
+    for frame in (1, 2):
+        assert main([str(out), '--bag', str(bag_path), '--frame', str(frame)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(
+            f'cva-mask: error: message {frame} on /left/image_rect of bag {bag_path} cannot be '
+            f'read as a sensor_msgs/msg/Image (corrupt or truncated?): SerdeError: '
+        )
+        assert len(err.strip().splitlines()) == 1 and 'Traceback' not in err
+        assert not out.exists()
+    # The intact message before them still gives a mask.
+    assert main([str(out), '--bag', str(bag_path), '--frame', '0', '--below', '25']) == 0
+    assert load_mask(out).shape == (30, 40)
 
 
 def test_a_preview_onto_the_mask_itself_is_refused(tmp_path: Path, capsys) -> None:
