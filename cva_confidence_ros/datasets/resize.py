@@ -19,7 +19,7 @@ import numpy as np
 
 from cva_confidence_ros.datasets.io import Calibration
 from cva_confidence_ros.datasets.loaders import StereoSample
-from cva_confidence_ros.errors import ConfigError, DataError
+from cva_confidence_ros.errors import ConfigError, DataError, InputError
 
 __all__ = ['fit_disparity_range', 'resize_disparity', 'resize_image', 'resize_sample']
 
@@ -50,6 +50,9 @@ def resize_disparity(disparity: np.ndarray, factor: int) -> np.ndarray:
 
     Returns:
         (H // factor, W // factor) float32 disparity in output pixels, NaN = unknown.
+
+    Raises:
+        ConfigError: ``factor`` is not an integer ≥ 1.
     """
     factor = _check_factor(factor)
     disparity = np.asarray(disparity, dtype=np.float32)
@@ -72,15 +75,25 @@ def resize_image(image: np.ndarray, factor: int) -> np.ndarray:
 
     Args:
         image: (H, W) or (H, W, C) uint8 or float.
-        factor: ≥ 1.
+        factor: Integer ≥ 1; 1 returns ``image`` unchanged.
 
     Returns:
         (H // factor, W // factor[, C]) of the same dtype, aligned with
         :func:`resize_disparity` of the same factor.
+
+    Raises:
+        ConfigError: ``factor`` is not an integer ≥ 1.
+        InputError: The image is smaller than one ``factor × factor`` block.
     """
+    factor = _check_factor(factor)
     if factor == 1:
         return image
     height, width = image.shape[0] // factor, image.shape[1] // factor
+    if height == 0 or width == 0:
+        raise InputError(
+            f'cannot shrink a {image.shape[0]}×{image.shape[1]} image by {factor}: it is '
+            'smaller than one block'
+        )
     cropped = np.ascontiguousarray(image[: height * factor, : width * factor])
     # On an exact multiple INTER_AREA is the plain f × f block mean, like the disparity.
     return cv2.resize(cropped, (width, height), interpolation=cv2.INTER_AREA)

@@ -343,6 +343,17 @@ def _stage_of(config: TrainConfig, epoch: int) -> tuple[str, int]:
     return 'fusion', epoch - config.total_epochs
 
 
+def _schedule(config: TrainConfig) -> list[tuple[str, float]]:
+    """(stage, learning rate) of every run epoch: LGC-Net runs the schedule twice, CCNN + ConfNet
+    (``parts``) then the fusion; CCNN and LFN once (``single``)."""
+    total = config.total_epochs * (2 if config.arch == 'lgcnet' else 1)
+    plan = []
+    for epoch in range(total):
+        stage, stage_epoch = _stage_of(config, epoch)
+        plan.append((stage, config.lr_at(stage_epoch)))
+    return plan
+
+
 def _optimiser(net: nn.Module, stage: str, lr: float) -> torch.optim.Optimizer:
     if stage == 'parts':
         assert isinstance(net, LGCNet)
@@ -417,6 +428,18 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
     log = _Log(out / 'train.log', True)
     log(f'cva-train: {command or config.to_dict()}')
     started = time.perf_counter()
+    # The checkpoint is checked before the data are prepared: a refused resume costs nothing.
+    checkpoint = out / CHECKPOINT_NAME
+    state: dict[str, Any] | None = None
+    if config.resume and checkpoint.is_file():
+        state = _load_checkpoint(checkpoint, config, _schedule)
+        saved_split = state['config'].get('fusion_split', 'none')
+        if config.arch == 'lgcnet' and saved_split != config.fusion_split:
+            raise ConfigError(
+                f'cannot resume from {checkpoint}: the run was started with other settings '
+                f'(fusion_split: {saved_split!r} → {config.fusion_split!r}); use another --out '
+                'folder or the original settings'
+            )
 
     def prepare(validation: bool) -> list[DisparityScene]:
         scenes = []
@@ -462,15 +485,13 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
 
     torch.manual_seed(config.seed)
     net = ARCHITECTURES.get(config.arch)({'max_disparity': config.max_disparity}).to(device)
-    epochs_total = config.total_epochs * (2 if config.arch == 'lgcnet' else 1)
+    epochs_total = len(_schedule(config))
     history: list[dict[str, Any]] = []
     start_epoch = 0
     previous_wall = 0.0
-    checkpoint = out / CHECKPOINT_NAME
     saved_optimiser: tuple[str, Any] | None = None
     best: dict[str, Any] | None = None  # LGC-Net: the fusion epoch with the best val AUC
-    if config.resume and checkpoint.is_file():
-        state = _load_checkpoint(checkpoint, config)
+    if state is not None:
         try:
             net.load_state_dict(state['model'])
         except (KeyError, TypeError, ValueError, RuntimeError) as exc:
@@ -482,13 +503,6 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
         previous_wall = float(state.get('wall_time_s', 0.0))
         saved_optimiser = (str(state.get('stage', 'single')), state['optimizer'])
         best = state.get('best_fusion')
-        saved_split = state.get('config', {}).get('fusion_split', 'none')
-        if config.arch == 'lgcnet' and saved_split != config.fusion_split:
-            raise ConfigError(
-                f'cannot resume from {checkpoint}: the run was started with other settings '
-                f'(fusion_split: {saved_split!r} → {config.fusion_split!r}); use another --out '
-                'folder or the original settings'
-            )
         log(f'resumed from {checkpoint} after epoch {start_epoch}')
     elif config.resume:
         log(f'--resume: no checkpoint in {out}, starting from scratch')

@@ -10,6 +10,13 @@ Example (the paper's protocol at D = 64 on the KITTI 2012 pairs plus synthetic d
 Multi-GPU: ``torchrun --nproc_per_node=N -m cva_confidence_ros.training.cli --device cuda ...``
 (or the ``cva-train`` script under torchrun). Bad input ends with a one-line message and exit
 code 2; an interrupted run continues with ``--resume`` from its last finished epoch.
+
+A resume must keep what the finished epochs were trained with: data, matcher, D, arch, mode,
+sampling, batch size (and number of processes), seed, teacher and warm start, and the learning
+rate (and LGC-Net stage) of every finished epoch. It may train longer: ``--epochs`` and
+``--epochs-low-lr`` may grow as long as no finished epoch changes its learning rate (raise
+``--epochs-low-lr`` once low-rate epochs are finished). Validation data, device, precision,
+threads and outputs may change.
 """
 
 from __future__ import annotations
@@ -160,7 +167,14 @@ def build_parser() -> argparse.ArgumentParser:
     output.add_argument(
         '--weights-out', default=None, help='final weights PATH.pt (+ PATH.md, PATH.json)'
     )
-    output.add_argument('--resume', action='store_true', help='continue from OUT/checkpoint.pt')
+    output.add_argument(
+        '--resume',
+        action='store_true',
+        help='continue from OUT/checkpoint.pt after its last finished epoch; refused unless the '
+        'data, matcher, D, arch, mode, sampling, batch size, processes, seed, teacher and warm '
+        'start are those of the run and every finished epoch keeps its learning rate; '
+        '--epochs / --epochs-low-lr may grow to train longer',
+    )
     output.add_argument(
         '--overwrite',
         action='store_true',

@@ -61,7 +61,8 @@ __all__ = ['CHECKPOINT_NAME', 'VAL_SEED_OFFSET', 'train']
 CHECKPOINT_NAME = 'checkpoint.pt'
 #: Synthetic validation pairs use seeds from here on, disjoint from the training seeds.
 VAL_SEED_OFFSET = 1_000_000
-# Fields that must not change between a run and its resume: they decide the samples.
+# Fields that must not change between a run and its resume: they decide the samples, the
+# network or the steps of every epoch.
 _RESUME_KEYS = (
     'matcher',
     'max_disparity',
@@ -87,6 +88,12 @@ _RESUME_DEFAULTS = {
     for field in fields(TrainConfig)
     if field.name in ('arch', 'teacher', 'distill_weight', 'init_weights', 'vflip')
 }
+# Fields that decide the learning rate (and LGC-Net's stage) of each epoch. A resume may change
+# them as long as every finished epoch keeps its learning rate and stage: more epochs at the
+# end, never another rate for an epoch already trained.
+_SCHEDULE_KEYS = ('epochs', 'epochs_low_lr', 'lr', 'low_lr_factor')
+#: (stage, learning rate) of each epoch of a run.
+Schedule = list[tuple[str, float]]
 
 
 @dataclass(frozen=True)
@@ -226,7 +233,27 @@ def _save_checkpoint(path: Path, state: dict[str, Any]) -> None:
     os.replace(tmp, path)
 
 
-def _load_checkpoint(path: Path, config: TrainConfig) -> dict[str, Any]:
+def _schedule(config: TrainConfig) -> Schedule:
+    """(stage, learning rate) of every epoch of a cost-volume network's run: one stage."""
+    return [('single', config.lr_at(epoch)) for epoch in range(config.total_epochs)]
+
+
+def _load_checkpoint(
+    path: Path, config: TrainConfig, schedule: Callable[[TrainConfig], Schedule] = _schedule
+) -> dict[str, Any]:
+    """Read a training checkpoint and check that ``config`` may continue it.
+
+    Args:
+        path: The checkpoint (``out/checkpoint.pt``).
+        config: The configuration of the resumed run.
+        schedule: (stage, learning rate) of each epoch of a configuration's run.
+
+    Raises:
+        ModelError: ``path`` is not a readable cva-train checkpoint.
+        ConfigError: A setting of :data:`_RESUME_KEYS` differs from the run's, or the new
+            schedule gives a finished epoch another learning rate or stage, or has fewer
+            epochs than are finished.
+    """
     try:
         state = torch.load(path, map_location='cpu', weights_only=True)
     except Exception as exc:  # torch raises many unrelated types for a damaged file
@@ -257,7 +284,74 @@ def _load_checkpoint(path: Path, config: TrainConfig) -> dict[str, Any]:
             f'cannot resume from {path}: the run was started with other settings ({detail}); '
             'use another --out folder or the original settings'
         )
+    _check_schedule(path, saved, config, int(state['epoch']), schedule)
     return state
+
+
+def _check_schedule(
+    path: Path,
+    saved: dict[str, Any],
+    config: TrainConfig,
+    finished: int,
+    schedule: Callable[[TrainConfig], Schedule],
+) -> None:
+    """Refuse a resume whose schedule changes a finished epoch or ends before the finished
+    ones; more epochs at the end (a longer run) are fine.
+
+    Raises:
+        ConfigError: Naming the changed settings of :data:`_SCHEDULE_KEYS`, old → new.
+    """
+    kept = {key: saved[key] for key in _SCHEDULE_KEYS if key in saved}
+    changes = ', '.join(
+        f'{key}: {value!r} → {getattr(config, key)!r}'
+        for key, value in kept.items()
+        if value != getattr(config, key)
+    )
+    changes = f' ({changes})' if changes else ''
+    try:
+        before = schedule(config.replace(**kept))
+    except ConfigError as exc:
+        raise ModelError(f'{path} holds an invalid training schedule ({exc})') from exc
+    now = schedule(config)
+    if finished > len(now):
+        raise ConfigError(
+            f'cannot resume from {path}: it holds {finished} finished epochs, this command '
+            f'trains {len(now)} in all{changes}; to train on, keep or raise --epochs and '
+            '--epochs-low-lr'
+        )
+
+    def rate(plan: tuple[str, float]) -> str:
+        stage, lr = plan
+        return f'lr {lr:g}' + ('' if stage == 'single' else f' ({stage} stage)')
+
+    for epoch in range(min(finished, len(before))):
+        (stage, lr), (new_stage, new_lr) = before[epoch], now[epoch]
+        if stage != new_stage or not math.isclose(lr, new_lr, rel_tol=1e-9):
+            raise ConfigError(
+                f'cannot resume from {path}: finished epoch {epoch + 1} ran at '
+                f'{rate(before[epoch])}, this command would run it at {rate(now[epoch])}'
+                f'{changes}; a resume may only add epochs after the {finished} finished '
+                'ones: use the original --lr, --low-lr-factor, --epochs and --epochs-low-lr '
+                '(raised to train longer), or another --out folder'
+            )
+
+
+def _check_processes(path: Path, state: dict[str, Any], world: int) -> None:
+    """Refuse a resume under another number of processes: each step averages the gradients
+    of ``batch_size`` samples per process, so that number is part of the batch size.
+
+    Raises:
+        ConfigError: The checkpoint was written by a run of another number of processes
+            (checkpoints written before it was recorded are not checked).
+    """
+    saved = state.get('processes')
+    if saved is not None and int(saved) != world:
+        raise ConfigError(
+            f'cannot resume from {path}: the run trained in {saved} processes, this one in '
+            f'{world} (processes: {saved} → {world}); a step learns from --batch-size samples '
+            'per process, so run it with as many processes (torchrun --nproc_per_node '
+            f'{saved}, or without torchrun for 1) or use another --out folder'
+        )
 
 
 def _validate(
@@ -427,6 +521,12 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         load_init_weights(spare, config.init_weights, config.arch)
     if config.teacher:
         load_teacher(config.teacher, config.matcher, config.max_disparity, torch.device('cpu'))
+    # The checkpoint too: a resume with other settings is refused before the data are prepared.
+    checkpoint = out / CHECKPOINT_NAME
+    state: dict[str, Any] | None = None
+    if config.resume and checkpoint.is_file():
+        state = _load_checkpoint(checkpoint, config)
+        _check_processes(checkpoint, state, dist.world)
 
     scenes = _prepare(config, False, log)
     index = sample_index(scenes)
@@ -461,9 +561,7 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
     history: list[dict[str, Any]] = []
     start_epoch = 0
     previous_wall = 0.0
-    checkpoint = out / CHECKPOINT_NAME
-    if config.resume and checkpoint.is_file():
-        state = _load_checkpoint(checkpoint, config)
+    if state is not None:
         try:
             net.load_state_dict(state['model'])
             optimiser.load_state_dict(state['optimizer'])
@@ -479,6 +577,11 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         if started_with != config.data_root:
             log(f'note: the run was started with --data-root {started_with}, now '
                 f'{config.data_root}: the same data sets are read from the new place')
+        started_in = state['config'].get('precision', 'fp32')
+        if started_in != config.precision:
+            log(f'note: the run was started with --precision {started_in}, now '
+                f'{config.precision}: the finished epochs keep their arithmetic, the card '
+                f'names {config.precision}')
     elif config.resume:
         log(f'--resume: no checkpoint in {out}, starting from scratch')
     model: nn.Module = _Logits(net)
@@ -517,6 +620,7 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
                     'optimizer': optimiser.state_dict(),
                     'history': history,
                     'config': config.to_dict(),
+                    'processes': dist.world,
                     'wall_time_s': wall,
                 },
             )

@@ -12,7 +12,8 @@ from cva_confidence_ros.datasets import (
     resize_disparity,
     resize_sample,
 )
-from cva_confidence_ros.errors import ConfigError, DataError
+from cva_confidence_ros.datasets.resize import resize_image
+from cva_confidence_ros.errors import ConfigError, DataError, InputError
 
 nan = np.nan
 
@@ -48,6 +49,26 @@ def test_resize_disparity_factor_one_copies() -> None:
 def test_bad_factor(factor: object) -> None:
     with pytest.raises(ConfigError, match='factor'):
         resize_disparity(np.zeros((4, 4), np.float32), factor)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize('factor', [0, -1, -2, 1.5, 2.0, True, '2'])
+def test_resize_image_refuses_bad_factors_as_resize_disparity_does(factor: object) -> None:
+    # Factor 0 raised ZeroDivisionError, negative ones an OpenCV assertion, floats a TypeError
+    # from slicing, and True passed as factor 1.
+    image = np.zeros((4, 6, 3), np.uint8)
+    with pytest.raises(ConfigError, match='factor must be an integer ≥ 1; got'):
+        resize_image(image, factor)  # type: ignore[arg-type]
+
+
+def test_resize_image_factors_and_too_small_images() -> None:
+    image = np.arange(5 * 7, dtype=np.uint8).reshape(5, 7)
+    assert resize_image(image, 1) is image
+    small = resize_image(image, np.int64(2))
+    assert small.shape == (2, 3) and small.dtype == np.uint8
+    np.testing.assert_array_equal(small, resize_image(image, 2))
+    # Smaller than one block: a clear InputError, not an OpenCV assertion.
+    with pytest.raises(InputError, match='cannot shrink a 1×7 image by 2'):
+        resize_image(image[:1], 2)
 
 
 def shifted_sample(height: int, width: int, shift: int, channels: int = 3) -> StereoSample:

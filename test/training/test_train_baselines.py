@@ -102,6 +102,20 @@ def test_resume_repeats_an_uninterrupted_run(tmp_path):
     assert main([*TINY, '--arch', 'lfn', '--epochs', '2', '--out', str(split), '--resume']) == 2
 
 
+def test_lgcnet_resume_keeps_the_stage_of_every_finished_epoch(tmp_path, capsys):
+    out = tmp_path / 'run'
+    args = [*TINY, '--arch', 'lgcnet', '--out', str(out), '--epochs-low-lr', '0',
+            '--fusion-split', 'none']
+    assert main([*args, '--epochs', '1']) == 0  # epoch 1: CCNN + ConfNet, epoch 2: fusion
+    capsys.readouterr()
+    # Two epochs per stage would make finished epoch 2 a CCNN + ConfNet epoch again.
+    assert main([*args, '--epochs', '2', '--resume']) == 2
+    err = capsys.readouterr().err
+    assert ('finished epoch 2 ran at lr 0.001 (fusion stage), this command would run it at '
+            'lr 0.001 (parts stage) (epochs: 1 → 2)') in err
+    assert [h['stage'] for h in _history(out)] == ['parts', 'fusion']
+
+
 def test_resume_refuses_other_arch(tmp_path):
     common = [*TINY, '--epochs', '1', '--epochs-low-lr', '0', '--out', str(tmp_path)]
     assert main([*common, '--arch', 'ccnn']) == 0

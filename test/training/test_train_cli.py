@@ -175,6 +175,75 @@ def test_resume_with_other_settings_is_refused(tmp_path, capsys):
     assert 'seed: 7' in capsys.readouterr().err
 
 
+def test_resume_keeps_the_learning_rate_of_every_finished_epoch(tmp_path, capsys, monkeypatch):
+    from cva_confidence_ros.training import trainer
+
+    out = tmp_path / 'run'
+    base = [*TINY, '--out', str(out)]
+    assert main([*base, '--epochs', '1', '--epochs-low-lr', '1']) == 0  # 1e-4, then 1e-5
+    first = (out / 'checkpoint.pt').read_bytes()
+    capsys.readouterr()
+
+    def no_data(*args, **kwargs):
+        raise AssertionError('a refused resume prepared the training data')
+
+    real_prepare = trainer._prepare
+    monkeypatch.setattr(trainer, '_prepare', no_data)
+    refused = {
+        # Another rate for epochs already trained: two schedules mixed in one run.
+        ('--lr', '1e-3'): 'finished epoch 1 ran at lr 0.0001, this command would run it at '
+        'lr 0.001 (lr: 0.0001 → 0.001)',
+        ('--low-lr-factor', '0.5'): 'finished epoch 2 ran at lr 1e-05, this command would run '
+        'it at lr 5e-05 (low_lr_factor: 0.1 → 0.5)',
+        # Epoch 2 ran at the low rate; two epochs at the first rate would redo it at 1e-4.
+        ('--epochs', '2'): 'finished epoch 2 ran at lr 1e-05, this command would run it at '
+        'lr 0.0001 (epochs: 1 → 2)',
+        # Fewer epochs than are finished: the weights would have more than the card says.
+        ('--epochs-low-lr', '0'): 'it holds 2 finished epochs, this command trains 1 in all '
+        '(epochs_low_lr: 1 → 0)',
+    }
+    for change, message in refused.items():
+        args = [*base, '--epochs', '1', '--epochs-low-lr', '1', *change, '--resume']
+        assert main(args) == 2, change
+        err = capsys.readouterr().err.strip().splitlines()[-1]
+        assert err.startswith('cva-train: error: cannot resume from'), err
+        assert message in err, err
+    assert (out / 'checkpoint.pt').read_bytes() == first
+
+    # Training longer at the low rate keeps epochs 1-2 as they were: allowed.
+    monkeypatch.setattr(trainer, '_prepare', real_prepare)
+    assert main([*base, '--epochs', '1', '--epochs-low-lr', '2', '--resume']) == 0
+    assert [h['lr'] for h in _history(out)] == pytest.approx([1e-4, 1e-5, 1e-5])
+
+
+def test_resume_may_add_epochs_at_the_first_rate_while_none_ran_at_the_low_one(tmp_path):
+    out = tmp_path / 'run'
+    base = [*TINY, '--out', str(out)]
+    assert main([*base, '--epochs', '1', '--epochs-low-lr', '0']) == 0
+    assert main([*base, '--epochs', '2', '--epochs-low-lr', '1', '--resume']) == 0
+    assert [h['lr'] for h in _history(out)] == pytest.approx([1e-4, 1e-4, 1e-5])
+
+
+def test_resume_under_another_number_of_processes_is_refused(tmp_path, capsys):
+    out = tmp_path / 'run'
+    args = [*TINY, '--out', str(out), '--epochs', '1', '--epochs-low-lr', '1']
+    assert main([*args[:-1], '0']) == 0
+    state = torch.load(out / 'checkpoint.pt', weights_only=True)
+    assert state['processes'] == 1
+    # As if written by two processes under torchrun: a step averaged 2 × --batch-size samples.
+    state['processes'] = 2
+    torch.save(state, out / 'checkpoint.pt')
+    assert main([*args, '--resume']) == 2
+    assert 'the run trained in 2 processes, this one in 1 (processes: 2 → 1)' in (
+        capsys.readouterr().err
+    )
+    # Checkpoints written before the count was recorded resume as before.
+    del state['processes']
+    torch.save(state, out / 'checkpoint.pt')
+    assert main([*args, '--resume']) == 0
+    assert [h['epoch'] for h in _history(out)] == [1, 2]
+
+
 def test_a_fresh_run_does_not_overwrite_an_earlier_checkpoint(tmp_path, capsys):
     out = tmp_path / 'run'
     args = [*TINY, '--out', str(out), '--epochs', '1', '--epochs-low-lr', '0']
