@@ -30,6 +30,7 @@ def _network(
     arch: str, matcher: str, max_disparity: int, pretrained: bool, device: str
 ) -> Any:
     from cva_confidence_ros.model import load_weights
+    from cva_confidence_ros.model.hub import HubPredict
     from cva_confidence_ros.model.inference import resolve_device
     from cva_confidence_ros.model.weights import ARCHITECTURES, default_weights_path
 
@@ -42,31 +43,10 @@ def _network(
         net = ARCHITECTURES.get(arch)(meta)
         net.to(resolve_device(device)).eval()
     net.meta = meta
-    net.predict = _Predict(net, arch in _BASELINES)
+    # torch.hub.load takes the package off sys.path again; this keeps its inference at hand.
+    # A class of the package, so that the network can still be pickled (torch.save).
+    net.predict = HubPredict(net, arch in _BASELINES)
     return net
-
-
-class _Predict:
-    """``net.predict(...)`` of a network loaded through the hub, on the network's device
-    (``torch.hub.load`` takes the package off ``sys.path`` again; this keeps its inference at
-    hand): for the CVA-Net family ``predict(cost_volume, **options)``
-    (:func:`cva_confidence_ros.model.predict_confidence`: a whole (D, H, W) volume in
-    memory-bounded tiles); for CCNN, LFN and LGC-Net ``predict(disparity, image)``
-    (:func:`cva_confidence_ros.model.baselines.predict_disparity_confidence`)."""
-
-    def __init__(self, net: Any, baseline: bool) -> None:
-        self._net = [net]  # a list: not registered as a submodule of the network
-        self._baseline = baseline
-
-    def __call__(self, *args: Any, **options: Any) -> Any:
-        from cva_confidence_ros.model import predict_confidence
-        from cva_confidence_ros.model.baselines import predict_disparity_confidence
-
-        net = self._net[0]
-        options.setdefault('device', next(net.parameters()).device)
-        if self._baseline:
-            return predict_disparity_confidence(net, *args, **options)
-        return predict_confidence(net, *args, **options)
 
 
 def cvanet(

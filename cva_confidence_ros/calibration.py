@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Hashable, Iterable, Mapping, MutableMapping
 from dataclasses import dataclass
+import math
 from typing import Any
 
 import numpy as np
@@ -153,8 +154,11 @@ class ReliabilityTable:
         Raises:
             InputError: ``threshold`` is not a bin edge, or the table holds no pixels.
         """
-        position = float(threshold) * self.bins
-        first = round(position)
+        try:
+            position = float(threshold) * self.bins
+        except (TypeError, ValueError):
+            position = math.nan
+        first = round(position) if math.isfinite(position) else -1  # round(nan) raises
         if not 0 <= first <= self.bins or abs(position - first) > 1e-6:
             raise InputError(
                 f'threshold must be a bin edge (a multiple of 1/{self.bins} in [0, 1]); '

@@ -98,8 +98,27 @@ def _check_args(args: argparse.Namespace) -> tuple[list[str], list[str]]:
         MATCHERS.get(name)
     for name in methods:
         CONFIDENCE_METHODS.get(name)
+    _check_weights(matchers, methods, args.max_disparity)
     check_output_dir(args.out, '--out')
     return matchers, methods
+
+
+def _check_weights(matchers: list[str], methods: list[str], max_disparity: int) -> None:
+    """Refuse a learned method without shipped weights for a matcher at this depth (e.g.
+    ``--max-disparity 32``) before step 1, rather than in step 3 after the others ran.
+
+    Raises:
+        ModelError: The first missing weights file, with how to train it.
+    """
+    from cva_confidence_ros.confidence import CONFIDENCE_METHODS
+    from cva_confidence_ros.model import default_weights_path
+
+    for method in methods:
+        arch = getattr(CONFIDENCE_METHODS.get(method), 'arch', None)
+        if not isinstance(arch, str) or not arch:
+            continue  # a hand-crafted measure: no weights
+        for matcher in matchers:
+            default_weights_path(matcher, max_disparity, arch)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -168,8 +168,8 @@ def confidence_overlay(
     on the 2-core CPU of the README's benchmarks.
 
     Args:
-        image: (H, W) or (H, W, 3) uint8 image (the left image at the output resolution); a
-            colour image is shown as the mean of its channels.
+        image: (H, W) or (H, W, C) uint8 image (the left image at the output resolution),
+            C = 1, 3 or 4; a colour image is shown as the mean of its first three channels.
         confidence: (H, W) float confidence in [0, 1] (values outside are clipped, NaN is 0).
         kept: (H, W) bool, the pixels the node keeps (``PipelineResult.valid``).
 
@@ -182,9 +182,14 @@ def confidence_overlay(
     confidence = _check_map('confidence', confidence)
     shape = confidence.shape
     image = np.asarray(image)
-    if image.dtype != np.uint8 or image.shape[:2] != shape or image.ndim not in (2, 3):
+    if (
+        image.dtype != np.uint8
+        or image.shape[:2] != shape
+        or image.ndim not in (2, 3)
+        or (image.ndim == 3 and image.shape[2] not in (1, 3, 4))
+    ):
         raise InputError(
-            f'image must be uint8 (H, W) or (H, W, 3) with (H, W) = {shape}; got '
+            f'image must be uint8 (H, W) or (H, W, 1|3|4) with (H, W) = {shape}; got '
             f'{image.dtype} {image.shape}'
         )
     kept = np.asarray(kept)
@@ -193,7 +198,8 @@ def confidence_overlay(
             f'kept must be a bool array of shape {shape}; got {kept.dtype} {kept.shape}'
         )
     if image.ndim == 3:
-        gray = image[..., :3].sum(axis=2, dtype=np.uint16) // 3
+        channels = min(image.shape[2], 3)  # a (H, W, 1) image is grey already
+        gray = image[..., :channels].sum(axis=2, dtype=np.uint16) // channels
     else:
         gray = image.astype(np.uint16)
     dim = (gray * 115 + 128) >> 8  # 45 %
@@ -239,9 +245,13 @@ def _gray_background(image: np.ndarray | None, shape: tuple[int, int]) -> np.nda
     if image is None:
         return np.zeros((*shape, 3), dtype=np.uint8)
     image = np.asarray(image)
-    if image.shape[:2] != shape or image.ndim not in (2, 3):
+    if (
+        image.shape[:2] != shape
+        or image.ndim not in (2, 3)
+        or (image.ndim == 3 and image.shape[2] not in (1, 3, 4))
+    ):
         raise InputError(
-            f'image must be (H, W) or (H, W, 3) with (H, W) = {shape}; got {image.shape}'
+            f'image must be (H, W) or (H, W, 1|3|4) with (H, W) = {shape}; got {image.shape}'
         )
     gray = image.astype(np.float64)
     if gray.ndim == 3:

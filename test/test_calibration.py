@@ -188,3 +188,11 @@ def test_report_pools_the_data_sets_and_writes_its_files(tmp_path) -> None:
     assert [r['dataset'] for r in records] == ['kitti2015', 'middlebury2003', 'all']
     assert records[-1]['n_pixels'] == 1000
     assert write_calibration({}, tmp_path / 'none') == []
+
+
+@pytest.mark.parametrize('threshold', [float('nan'), float('inf'), -float('inf'), 'high', None])
+def test_kept_at_a_threshold_that_is_no_number_names_it(threshold) -> None:
+    table = reliability(np.array([0.2, 0.9]), np.array([False, True]))
+    with pytest.raises(InputError, match=rf'bin edge .*got {threshold!r}'):
+        table.kept_at(threshold)
+    assert table.kept_at(0.5) == (0.5, 0.0, pytest.approx(0.1))

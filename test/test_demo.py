@@ -64,3 +64,16 @@ def test_out_that_is_a_file(tmp_path, capsys) -> None:
     afile.write_text('not a folder')
     assert _exit_code(['--out', str(afile), '--methods', 'pkrn']) == 2
     assert 'is a file; expected a folder' in capsys.readouterr().err
+
+
+def test_missing_weights_are_refused_before_the_first_step(tmp_path, capsys) -> None:
+    # No CVA-Net-Fast weights are shipped for D = 32: say so before matching and writing the
+    # bag, not in step 3 after them.
+    out = tmp_path / 'demo'
+    assert _exit_code(['--out', str(out), '--matchers', 'census_bm', '--methods',
+                       'pkrn,cva_net_fast', '--max-disparity', '32']) == 2
+    err = capsys.readouterr().err
+    last = err.splitlines()[-1]
+    assert last.startswith('cva-demo: error: no shipped cvanet_fast weights '
+                           'cvanet_fast_census_bm_d32.pt') and 'Traceback' not in err
+    assert '[demo] step' not in err and not out.exists()

@@ -75,3 +75,21 @@ def test_weights_that_are_not_shipped_say_how_to_train_them() -> None:
     with pytest.raises(ModelError, match=r'no shipped cvanet weights cvanet_census_bm_d128\.pt'
                        r'.*cva-train --arch cvanet --matcher census_bm --max-disparity 128'):
         _hub('cvanet', max_disparity=128)
+
+
+@pytest.mark.parametrize('arch', ['cvanet_fast', 'lgcnet'])
+def test_a_hub_network_can_be_saved_whole_and_loaded_back(arch: str, tmp_path: Path) -> None:
+    net = _hub(arch, pretrained=False, max_disparity=16)
+    path = tmp_path / 'net.pt'
+    torch.save(net, path)  # pickles net.predict with the network
+    back = torch.load(path, weights_only=False)
+    assert back.meta == net.meta and back.predict._net[0] is back
+    rng = np.random.default_rng(4)
+    if arch == 'lgcnet':
+        disparity = rng.uniform(0.0, 15.0, (9, 11)).astype(np.float32)
+        image = rng.integers(0, 256, (9, 11), dtype=np.uint8)
+        np.testing.assert_array_equal(back.predict(disparity, image),
+                                      net.predict(disparity, image))
+    else:
+        volume = rng.uniform(0.0, 1.0, (16, 9, 11)).astype(np.float32)
+        np.testing.assert_array_equal(back.predict(volume), net.predict(volume))

@@ -160,3 +160,27 @@ def test_roc_figure_is_written(tmp_path) -> None:
 def test_roc_figure_rejects_ragged_curve(tmp_path) -> None:
     with pytest.raises(InputError, match="'a'"):
         save_roc_curves({'a': (np.array([0.5, 1.0]), np.array([0.1]))}, tmp_path / 'r.png')
+
+
+def test_a_one_channel_image_is_as_bright_as_its_grey_twin(tmp_path) -> None:
+    confidence = np.array([[0.0, 1.0, 0.5]], np.float32)
+    kept = np.array([[True, True, False]])
+    grey = np.array([[100, 200, 100]], np.uint8)
+    expected = confidence_overlay(grey, confidence, kept)
+    np.testing.assert_array_equal(expected[0, 2], [45, 45, 45])  # dimmed 100, not kept
+    np.testing.assert_array_equal(confidence_overlay(grey[..., None], confidence, kept),
+                                  expected)
+    # RGBA: the alpha channel is not part of the mean.
+    rgba = np.dstack([grey, grey, grey, np.zeros_like(grey)])
+    np.testing.assert_array_equal(confidence_overlay(rgba, confidence, kept), expected)
+    # The correctness overlay's background too (dimmed to 50 %).
+    error = np.zeros((1, 3), bool)
+    mask = np.zeros((1, 3), bool)
+    path = save_correctness_overlay(confidence, error, tmp_path / 'c.png',
+                                    image=grey[..., None], mask=mask)
+    np.testing.assert_array_equal(_rgb(path)[0, :, 0], [50, 100, 50])
+    with pytest.raises(InputError, match=r'\(H, W, 1\|3\|4\).*got uint8 \(1, 3, 0\)'):
+        confidence_overlay(np.zeros((1, 3, 0), np.uint8), confidence, kept)
+    with pytest.raises(InputError, match=r'\(H, W, 1\|3\|4\).*got \(1, 3, 2\)'):
+        save_correctness_overlay(confidence, error, tmp_path / 'd.png',
+                                 image=np.zeros((1, 3, 2), np.uint8))

@@ -32,6 +32,7 @@ import argparse
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 import math
+import os
 from pathlib import Path
 import sys
 import time
@@ -82,7 +83,9 @@ def parse_weights(text: str | None, matchers: Sequence[str]) -> dict[str, str | 
     """Map each matcher to its weights file from ``--weights``.
 
     Args:
-        text: ``PATH`` (for every matcher), ``matcher=PATH[,matcher=PATH...]``, or None.
+        text: ``PATH`` (for every matcher), ``matcher=PATH[,matcher=PATH...]``, or None. A
+            PATH may hold ``=`` (``runs/lr=1e-3/w.pt``): an existing file, or text whose part
+            before the first ``=`` is a folder path, is one PATH.
         matchers: The matchers being evaluated.
 
     Returns:
@@ -94,7 +97,12 @@ def parse_weights(text: str | None, matchers: Sequence[str]) -> dict[str, str | 
     if not text:
         return {m: None for m in matchers}
     items = [item.strip() for item in text.split(',') if item.strip()]
-    if not all('=' in item for item in items):
+
+    def pair(item: str) -> bool:
+        name = item.partition('=')[0]
+        return '=' in item and '/' not in name and os.sep not in name
+
+    if Path(text).is_file() or not all(pair(item) for item in items):
         return {m: text for m in matchers}
     chosen: dict[str, str | None] = {m: None for m in matchers}
     for item in items:

@@ -118,12 +118,12 @@ def read_records(path: str | os.PathLike[str]) -> list[EvalRecord]:
     """Read a file written by :func:`write_records`.
 
     Raises:
-        DataError: The file is missing or not a JSON list.
+        DataError: The file is missing, not UTF-8 text (e.g. binary) or not a JSON list.
         InputError: A record lacks keys.
     """
     try:
         items = json.loads(Path(path).read_text(encoding='utf-8'))
-    except (OSError, json.JSONDecodeError) as exc:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise DataError(f'cannot read evaluation records from {path}: {exc}') from None
     if not isinstance(items, list):
         raise DataError(f'{path} must hold a JSON list of records; got {type(items).__name__}')

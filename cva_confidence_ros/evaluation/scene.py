@@ -45,7 +45,9 @@ class ScoredMethod:
 
     Attributes:
         auc: Area under the ROC curve, in [0, 1]; lower = better.
-        auc_opt: Optimal AUC for the error rate (paper Eq. (1)).
+        auc_opt: Optimal AUC for the error rate (paper Eq. (1)), over the density range of
+            the ROC curve: for ε above ``1 −`` its first density (ε > 0.95) the area left of
+            the curve's start is not counted, as it is not in ``auc`` either.
         error_rate: Fraction of the scored pixels whose disparity is wrong.
         n_pixels: Number of scored pixels.
         density: (K,) float ROC density samples in (0, 1], ascending.
@@ -74,13 +76,15 @@ def select_pixels(
         ``(ys, xs)``, two (M,) int64 arrays in row-major order, M = min(N, known pixels).
 
     Raises:
-        InputError: ``known`` is not 2-D or ``max_pixels`` < 1.
+        InputError: ``known`` is not 2-D, ``max_pixels`` < 1 or ``seed`` < 0.
     """
     known = np.asarray(known, dtype=bool)
     if known.ndim != 2:
         raise InputError(f'known must be an (H, W) bool mask; got shape {known.shape}')
     if max_pixels is not None and max_pixels < 1:
         raise InputError(f'max_pixels must be ≥ 1 or None; got {max_pixels}')
+    if seed < 0:  # numpy's generator says only 'expected non-negative integer'
+        raise InputError(f'seed must be ≥ 0; got {seed}')
     flat = np.flatnonzero(known)
     if max_pixels is not None and max_pixels < flat.size:
         rng = np.random.default_rng(seed)
@@ -94,7 +98,8 @@ def score_confidence(confidence: np.ndarray, error: np.ndarray) -> ScoredMethod:
 
     Args:
         confidence: (N,) or (H, W) float confidence at the scored pixels, higher = more
-            confident; ±inf allowed, NaN not.
+            confident; ±inf allowed, NaN not. Scored in float64 (a float64 map keeps its
+            order).
         error: Same shape, bool, True = the disparity is wrong.
 
     Returns:
@@ -103,9 +108,11 @@ def score_confidence(confidence: np.ndarray, error: np.ndarray) -> ScoredMethod:
     Raises:
         InputError: Shapes differ, nothing to score, or NaN confidence.
     """
-    from cva_confidence_ros.metrics import optimal_auc, roc_auc, roc_curve
+    from cva_confidence_ros.metrics import roc_auc, roc_curve
 
-    confidence = np.asarray(confidence, dtype=np.float32).ravel()
+    # float64 holds float32 exactly; casting a float64 map down would tie values that differ
+    # only beyond float32's 7 digits and change the ranking the AUC measures.
+    confidence = np.asarray(confidence, dtype=np.float64).ravel()
     error = np.asarray(error, dtype=bool).ravel()
     if confidence.shape != error.shape:
         raise InputError(
@@ -121,12 +128,29 @@ def score_confidence(confidence: np.ndarray, error: np.ndarray) -> ScoredMethod:
     density, roc_error = roc_curve(confidence, error)
     return ScoredMethod(
         auc=float(roc_auc(confidence, error)),
-        auc_opt=float(optimal_auc(error_rate)),
+        auc_opt=_optimal_auc_from(error_rate, float(density[0])),
         error_rate=error_rate,
         n_pixels=int(confidence.size),
         density=np.asarray(density, dtype=np.float64),
         roc_error=np.asarray(roc_error, dtype=np.float64),
     )
+
+
+def _optimal_auc_from(error_rate: float, start: float) -> float:
+    """Optimal AUC over the density range ``[start, 1]`` that the ROC curve covers.
+
+    The curve starts at its first sample density (``ceil(0.05 N) / N``, see
+    :mod:`cva_confidence_ros.metrics`). While ``ε ≤ 1 − start`` the optimal curve is zero
+    below ``start`` and this is the paper's Eq. (1) exactly. Beyond (ε > 0.95, or a subset of
+    a few pixels) Eq. (1) would count area left of the curve's start that no confidence map
+    can get, so a map would score below its optimum (ε = 1: AUC 0.95 against 1); the integral
+    of the optimal error rate ``1 − (1 − ε) / p`` from ``start`` to 1 is used instead.
+    """
+    from cva_confidence_ros.metrics import optimal_auc
+
+    if error_rate <= 1.0 - start:
+        return float(optimal_auc(error_rate))
+    return float((1.0 - start) + (1.0 - error_rate) * np.log(start))
 
 
 def overlay_threshold(confidence: np.ndarray, error_rate: float) -> float:

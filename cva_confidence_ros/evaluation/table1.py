@@ -470,7 +470,7 @@ def _load_reusable(
 
     try:
         data = json.loads(path.read_text(encoding='utf-8'))
-    except (OSError, json.JSONDecodeError) as exc:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise DataError(f'cannot read --reuse records {path}: {exc}') from None
     items = data.get('records', []) if isinstance(data, dict) else data
     if not isinstance(items, list):

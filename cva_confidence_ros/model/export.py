@@ -31,7 +31,7 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
-from cva_confidence_ros.errors import ModelError
+from cva_confidence_ros.errors import ModelError, reason
 from cva_confidence_ros.model.inference import PAD, fold_batchnorm
 from cva_confidence_ros.model.weights import architecture_of, default_weights_path, load_weights
 
@@ -72,6 +72,16 @@ def _deployable(net: nn.Module) -> tuple[CostVolumeModel, str, int]:
     return CostVolumeModel(folded).eval(), arch, int(typed.max_disparity)
 
 
+def _opset_range() -> tuple[int, int]:
+    """The ONNX opsets this torch's exporter writes (7 to 23 for torch 2.13)."""
+    try:
+        from torch.onnx import _constants
+
+        return int(_constants.ONNX_MIN_OPSET), int(_constants.ONNX_MAX_OPSET)
+    except (ImportError, AttributeError):  # a private module: fall back to a safe range
+        return 9, DEFAULT_OPSET
+
+
 def _trace_to_onnx(
     module: nn.Module,
     example: torch.Tensor,
@@ -84,8 +94,16 @@ def _trace_to_onnx(
     ``confidence`` (B, H, W) dynamic throughout).
 
     Raises:
-        ModelError: The ``onnx`` package (which the exporter writes with) is missing.
+        ModelError: The ``onnx`` package (which the exporter writes with) is missing, or the
+            exporter cannot write the network at ``opset`` (out of the range this torch
+            supports, or too old for an operator of the network).
     """
+    low, high = _opset_range()
+    if isinstance(opset, bool) or not isinstance(opset, int) or not low <= opset <= high:
+        raise ModelError(
+            f'ONNX opset must be an integer in [{low}, {high}] (what this torch exports); '
+            f'got {opset!r}'
+        )
     try:
         with warnings.catch_warnings(), torch.no_grad():
             # The traced shape checks and ONNX's constant folding notes are expected.
@@ -105,6 +123,11 @@ def _trace_to_onnx(
             )
     except ModuleNotFoundError as exc:
         raise ModelError(f'ONNX export needs the onnx package ({exc}): pip install onnx') from exc
+    except RuntimeError as exc:  # torch.onnx.OnnxExporterError is one too
+        raise ModelError(
+            f'cannot export to ONNX at opset {opset} ({reason(exc)}); the default opset '
+            f'{DEFAULT_OPSET} works'
+        ) from exc
 
 
 def export_onnx(
@@ -125,7 +148,8 @@ def export_onnx(
         ``path`` as a :class:`~pathlib.Path`.
 
     Raises:
-        ModelError: Another architecture, or the ``onnx`` package is missing.
+        ModelError: Another architecture, the ``onnx`` package is missing, or ``opset`` is
+            one the exporter cannot write the network at.
     """
     model, _, depth = _deployable(net)
     path = Path(path)

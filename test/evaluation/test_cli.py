@@ -165,3 +165,16 @@ def test_output_paths_and_options_are_checked_before_any_work(tmp_path, capsys) 
         assert err.count('\n') == 1 and err.startswith(f'cva-evaluate: error: {option}')
         assert message in err
     assert not (tmp_path / 'r.json').exists()
+
+
+def test_parse_weights_keeps_a_path_with_an_equals_sign_whole(tmp_path, monkeypatch) -> None:
+    matchers = ['census_bm', 'mccnn_fast']
+    # Experiment folders are often named key=value (hydra, sweeps): one PATH, not a pair.
+    path = 'runs/lr=1e-3/cvanet_census_bm_d64.pt'
+    assert parse_weights(path, matchers) == {'census_bm': path, 'mccnn_fast': path}
+    assert parse_weights(f'census_bm={path}', matchers) == {'census_bm': path,
+                                                           'mccnn_fast': None}
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / 'lr=0.1.pt').write_bytes(b'')  # an existing file in the working folder
+    assert parse_weights('lr=0.1.pt', matchers) == {'census_bm': 'lr=0.1.pt',
+                                                    'mccnn_fast': 'lr=0.1.pt'}

@@ -80,3 +80,10 @@ def test_bad_records_are_rejected(tmp_path) -> None:
     bad.write_text('{"a": 1}')
     with pytest.raises(DataError, match='JSON list'):
         read_records(bad)
+
+
+def test_a_binary_records_file_is_a_data_error(tmp_path) -> None:
+    binary = tmp_path / 'records.json'
+    binary.write_bytes(b'\xff\xfe\x00\x89PNG')
+    with pytest.raises(DataError, match='cannot read evaluation records from .*records.json'):
+        read_records(binary)

@@ -152,3 +152,45 @@ def test_progress_bar_follows_the_network_and_is_removed(tmp_path, capsys) -> No
     err = capsys.readouterr().err
     assert 'census_bm cva_net' in err and 'px' in err
     assert shown[0].auc == quiet[0].auc and method.evaluator.progress is None
+
+
+def test_auc_opt_never_exceeds_what_the_curve_can_reach() -> None:
+    # Every pixel wrong: every ranking gives the curve 1 from its first density 1/20 on, an
+    # area of 0.95; Eq. (1) says 1, which no confidence map could reach.
+    score = score_confidence(np.linspace(0.0, 1.0, 100), np.ones(100, dtype=bool))
+    assert score.auc == pytest.approx(0.95)
+    assert score.auc_opt == pytest.approx(0.95) and score.auc >= score.auc_opt - 1e-12
+    # ε = 0.98 > 0.95: the optimal curve 1 − 0.02 / p from 0.05 to 1.
+    error = np.zeros(100, dtype=bool)
+    error[2:] = True
+    confidence = np.arange(100, 0, -1, dtype=np.float64)  # the 2 correct ones first
+    score = score_confidence(confidence, error)
+    assert score.auc_opt == pytest.approx(0.95 + 0.02 * np.log(0.05))
+    # The perfect ranking meets it up to the trapezoid rule on its 5 % samples (Eq. (1),
+    # 0.9018, was 0.013 above).
+    assert score.auc == pytest.approx(score.auc_opt, abs=2e-3)
+    assert optimal_auc(0.98) - score.auc > 0.01
+    # One pixel, wrong: a one-point curve of area 0, and nothing better than 0 to reach.
+    one = score_confidence(np.array([0.3]), np.array([True]))
+    assert (one.auc, one.auc_opt, one.error_rate) == (0.0, 0.0, 1.0)
+    # ε ≤ 0.95: the paper's Eq. (1) as before.
+    error = np.zeros(100, dtype=bool)
+    error[:30] = True
+    assert score_confidence(np.ones(100), error).auc_opt == optimal_auc(0.3)
+
+
+def test_a_float64_confidence_keeps_its_order() -> None:
+    # Values 1e-9 apart are one float32 value; the ranking below is perfect in float64.
+    confidence = np.array([1.0 - 1e-9, 1.0 - 2e-9] * 50)
+    error = np.array([False, True] * 50)
+    score = score_confidence(confidence, error)
+    perfect = score_confidence(np.where(error, 0.0, 1.0), error)
+    assert score.auc == pytest.approx(perfect.auc) and score.auc < 0.2
+    # float32 input is scored exactly as before.
+    as32 = confidence.astype(np.float32)
+    assert score_confidence(as32, error).auc == pytest.approx(0.475)
+
+
+def test_a_negative_seed_is_an_input_error() -> None:
+    with pytest.raises(InputError, match='seed must be ≥ 0; got -1'):
+        select_pixels(np.ones((3, 4), dtype=bool), max_pixels=2, seed=-1)

@@ -284,3 +284,16 @@ def test_table1_keeps_the_scenes_done_when_interrupted(tmp_path, capsys, monkeyp
     assert [r['scene'] for r in summary['records']] == ['A']
     assert summary['partial'].startswith('**Partial: 1 of 3 scenes** — interrupted')
     assert '**Partial: 1 of 3 scenes**' in (out / 'table1.md').read_text()
+
+
+def test_a_binary_reuse_file_exits_2_with_one_line(data_root, tmp_path, capsys):
+    reuse = tmp_path / 'reuse.json'
+    reuse.write_bytes(b'\x89PNG\r\n\x1a\n\xff\xfe')
+    code = main(['--data-root', str(data_root), '--matchers', 'census_bm', '--methods', 'pkrn',
+                 '--max-disparity', str(D), '--max-pixels', '50', '--out',
+                 str(tmp_path / 'out'), '--reuse', str(reuse)])
+    err = capsys.readouterr().err
+    assert code == 2
+    last = err.splitlines()[-1]
+    assert last.startswith(f'cva-table1: error: cannot read --reuse records {reuse}')
+    assert not (tmp_path / 'out' / 'table1.md').exists()

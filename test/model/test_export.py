@@ -140,3 +140,17 @@ def test_the_pipeline_with_onnxruntime_matches_torch() -> None:
     np.testing.assert_allclose(
         results['onnxruntime'].raw_confidence, results['torch'].raw_confidence, atol=1e-5
     )
+
+
+def test_an_opset_the_exporter_cannot_write_exits_2_with_one_line(tmp_path: Path,
+                                                                  capsys) -> None:
+    weights = tmp_path / 'w.pt'
+    save_weights(_trained_like(CVANetFast, 4), weights, {'matcher': 'census_bm'})
+    for opset in ('0', '-1', '99'):
+        out = tmp_path / f'opset{opset}.onnx'
+        assert main([str(weights), '--out', str(out), '--opset', opset, '--no-check']) == 2
+        err = capsys.readouterr().err
+        assert err.count('\n') == 1 and err.startswith('cva-export: error: ONNX opset must be')
+        assert f'got {opset}' in err and not out.exists()
+    with pytest.raises(ModelError, match=r'ONNX opset must be an integer in \[\d+, \d+\].*got 1'):
+        export_onnx(_trained_like(CVANetFast, 4), tmp_path / 'x.onnx', opset=1)
