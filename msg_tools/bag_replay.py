@@ -5,7 +5,10 @@ and camera infos by stamp with the node's synchroniser, runs the node's pipeline
 confidence method, weights, downsample, threshold), and writes
 
 * an output bag with what the node publishes (``disparity``, ``confidence``, ``points2``,
-  ``disparity_filtered``, ``depth``, ``camera_info``), stamped like the input;
+  ``disparity_filtered``, ``depth``, ``camera_info``), stamped like the input; with
+  ``--compressed``, ``depth`` and the overlay as image_transport's ``depth/compressedDepth``
+  and ``confidence_overlay/compressed`` (the node's encoders and parameters), a fraction of
+  the size;
 * where the bag has ground truth: ``DIR/report.json`` (``frames``: records with ``frame``,
   ``stamp_ns``, ``error_rate``, ``auc``, ``auc_opt``, ``kept_density``, ``kept_error_rate``;
   ``summary``: their means and the frame counters), ``DIR/report.csv``, ``DIR/summary.md`` and
@@ -36,19 +39,27 @@ import argparse
 from pathlib import Path
 import sys
 
-from cva_confidence_ros.errors import CVAError, from_interrupt
+from cva_confidence_ros.errors import ConfigError, CVAError, from_interrupt
 from cva_confidence_ros.mask import load_mask
 from cva_confidence_ros.matching.subpixel import SUBPIXEL_METHODS
 from cva_confidence_ros.pipeline import PipelineConfig
 from cva_confidence_ros.scan import ScanConfig
 from msg_tools.bagio import STORAGES
 from msg_tools.progress import GracefulInterrupt
-from msg_tools.replay import STOPPING, ReplayOptions, TopicNames
+from msg_tools.replay import STOPPING, CompressionConfig, ReplayOptions, TopicNames
 
 __all__ = ['build_parser', 'main', 'options_from_args']
 
 _DEFAULTS = PipelineConfig.__dataclass_fields__
 _SCAN = ScanConfig()
+_COMPRESSION = CompressionConfig.__dataclass_fields__  # defaults without importing rclpy
+#: The compression options: node parameter (and argparse dest) → option.
+_COMPRESSION_OPTIONS = {
+    'overlay_jpeg_quality': '--jpeg-quality',
+    'compressed_depth_max': '--compressed-depth-max',
+    'compressed_depth_quantization': '--compressed-depth-quantization',
+    'compressed_depth_png_level': '--compressed-depth-png-level',
+}
 
 
 def _default(name: str) -> object:
@@ -137,6 +148,40 @@ def build_parser() -> argparse.ArgumentParser:
     node.add_argument('--scan-pitch', type=float, default=_SCAN.pitch,
                       help='radians the camera looks down from level (default %(default)s)')
 
+    compressed = parser.add_argument_group(
+        'compressed outputs (each sets the node parameter its help names)'
+    )
+    compressed.add_argument(
+        '--compressed', action='store_true',
+        help="write depth as image_transport's depth/compressedDepth (16-bit PNG) and, with "
+             '--overlay, the overlay as confidence_overlay/compressed (JPEG), instead of the raw '
+             'images, as the node encodes them (sensor_msgs/CompressedImage; live mode records '
+             "the node's compressed topics)",
+    )
+    compressed.add_argument(
+        '--jpeg-quality', dest='overlay_jpeg_quality', type=int, metavar='Q',
+        default=_COMPRESSION['overlay_jpeg_quality'].default,
+        help='overlay_jpeg_quality: JPEG quality of the compressed overlay, 1-100 (default '
+             '%(default)s)',
+    )
+    compressed.add_argument(
+        '--compressed-depth-max', dest='compressed_depth_max', type=float, metavar='METRES',
+        default=_COMPRESSION['compressed_depth_max'].default,
+        help='compressed_depth_max: deeper pixels travel as no depth (default %(default)s)',
+    )
+    compressed.add_argument(
+        '--compressed-depth-quantization', dest='compressed_depth_quantization', type=float,
+        metavar='Q', default=_COMPRESSION['compressed_depth_quantization'].default,
+        help='compressed_depth_quantization: a 32FC1 depth z comes back within z^2 / (Q (Q + 1)) '
+             'm (default %(default)s)',
+    )
+    compressed.add_argument(
+        '--compressed-depth-png-level', dest='compressed_depth_png_level', type=int,
+        metavar='LEVEL', default=_COMPRESSION['compressed_depth_png_level'].default,
+        help='compressed_depth_png_level: zlib level of the compressedDepth PNG, 0-9 (default '
+             '%(default)s)',
+    )
+
     topics = parser.add_argument_group('topics (relative names are put under --topic-prefix)')
     topics.add_argument('--topic-prefix', default='', help='camera namespace, e.g. /stereo')
     topics.add_argument('--left-topic', default='left/image_rect')
@@ -177,7 +222,8 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
     """Turn parsed arguments into :class:`msg_tools.replay.ReplayOptions`.
 
     Raises:
-        ConfigError: An invalid value (unknown matcher or method, range errors, ...).
+        ConfigError: An invalid value (unknown matcher or method, range errors, ...; a
+            compression value names its option).
     """
     if args.mask is not None:
         load_mask(args.mask)  # a missing or unreadable mask is named before any bag is opened
@@ -205,6 +251,13 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
         range_max=args.scan_range[1],
         pitch=args.scan_pitch,
     )
+    # Checked with or without --compressed, one by one so that the error names the option.
+    for name, option in _COMPRESSION_OPTIONS.items():
+        try:
+            CompressionConfig(**{name: getattr(args, name)})
+        except ConfigError as err:
+            raise ConfigError(f'{option}: {err}') from None
+    compression = CompressionConfig(**{name: getattr(args, name) for name in _COMPRESSION_OPTIONS})
     topics = TopicNames(
         prefix=args.topic_prefix,
         left=args.left_topic,
@@ -234,6 +287,7 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
         publish_depth=not args.no_depth,
         depth_encoding=args.depth_encoding,
         publish_overlay=args.overlay,
+        compressed=compression if args.compressed else None,
         scan=scan if args.scan else None,
         scan_frame_id=args.scan_frame_id,
         overwrite=args.overwrite,

@@ -9,7 +9,10 @@ scored output received).
 
 The node is started as a subprocess (``cva-node`` next to the running Python, with the
 replay's pipeline and sync parameters, reliable QoS, and every topic remapped onto the
-replay's names), or, with ``start_node=False``, an already running one is used.
+replay's names), or, with ``start_node=False``, an already running one is used. With
+``options.compressed`` the replay subscribes to the node's ``depth/compressedDepth`` and
+``confidence_overlay/compressed`` instead of ``depth`` and ``confidence_overlay`` (the node
+then encodes them, with the replay's settings as its parameters, and leaves the raw ones be).
 """
 
 from __future__ import annotations
@@ -36,8 +39,10 @@ from msg_tools.bagio import InputBag
 from msg_tools.convert import camera_geometry, disparity_from_msg, jazzy_typestore, stamp_to_ns
 from msg_tools.progress import GracefulInterrupt, Progress
 from msg_tools.replay import (
+    COMPRESSED_OUTPUTS,
     GT_WAIT_FRAMES,
     STOPPING,
+    CompressionConfig,
     FrameResult,
     Logger,
     ReplayOptions,
@@ -53,7 +58,7 @@ from msg_tools.replay import (
 )
 from msg_tools.scoring import clear_report
 
-__all__ = ['NodeProcess', 'node_arguments', 'run_live']
+__all__ = ['NodeProcess', 'node_arguments', 'recorded_outputs', 'run_live']
 
 # The node's topic names (relative, as it declares them) → the replay's output names.
 _NODE_INPUTS = {
@@ -71,6 +76,8 @@ _NODE_OUTPUTS = {
     'overlay': 'confidence_overlay',
     'scan': 'scan',
     'camera_info': 'camera_info',
+    'depth_compressed': 'depth/compressedDepth',
+    'overlay_compressed': 'confidence_overlay/compressed',
 }
 _OUTPUT_TYPES = {
     'disparity': 'stereo_msgs/msg/DisparityImage',
@@ -81,6 +88,8 @@ _OUTPUT_TYPES = {
     'overlay': 'sensor_msgs/msg/Image',
     'scan': 'sensor_msgs/msg/LaserScan',
     'camera_info': 'sensor_msgs/msg/CameraInfo',
+    'depth_compressed': 'sensor_msgs/msg/CompressedImage',
+    'overlay_compressed': 'sensor_msgs/msg/CompressedImage',
 }
 # Outputs that an option turns off.
 _OPTIONAL = {
@@ -88,6 +97,8 @@ _OPTIONAL = {
     'depth': 'publish_depth',
     'overlay': 'publish_overlay',
     'scan': 'scan',
+    'depth_compressed': 'publish_depth',
+    'overlay_compressed': 'publish_overlay',
 }
 # What a frame needs before it can be scored; points2, depth, the overlay, the scan and
 # camera_info are only recorded.
@@ -105,14 +116,28 @@ def _ros_value(value: object) -> str:
     return str(value)
 
 
+def recorded_outputs(options: ReplayOptions) -> list[str]:
+    """The outputs the replay subscribes to and records: those its options ask for, with
+    ``depth`` and ``overlay`` as their compressed transports under ``options.compressed``."""
+    replaced = (
+        {raw for raw, _ in COMPRESSED_OUTPUTS.values()} if options.compressed is not None
+        else set(COMPRESSED_OUTPUTS)
+    )
+    return [
+        name for name in _OUTPUT_TYPES
+        if name not in replaced and (name not in _OPTIONAL or getattr(options, _OPTIONAL[name]))
+    ]
+
+
 def node_arguments(
     options: ReplayOptions, node_name: str, image_transport: str = 'raw'
 ) -> list[str]:
     """``--ros-args`` for a ``cva-node`` that computes what the replay asks for.
 
-    Parameters: every ``PipelineConfig`` field, the sync and point-cloud options, and
-    reliable QoS on inputs and outputs (so that DDS itself loses nothing and every drop is
-    the node's). Remappings put the node's topics onto the replay's resolved names; with
+    Parameters: every ``PipelineConfig`` field, the sync, point-cloud and compression
+    options, and reliable QoS on inputs and outputs (so that DDS itself loses nothing and
+    every drop is the node's). Remappings put the node's topics (its compressed transports
+    included) onto the replay's resolved names; with
     ``image_transport='compressed'`` the node's ``left/image_rect/compressed`` (and right) go
     onto the bag's image topics.
     """
@@ -120,6 +145,7 @@ def node_arguments(
     from cva_confidence_ros.scan import ScanConfig
 
     node_config = NodeConfig(
+        **asdict(options.compressed or CompressionConfig()),
         publish_scan=options.scan is not None,
         scan_frame_id=options.scan_frame_id,
         **scan_parameters(options.scan or ScanConfig()),
@@ -304,10 +330,7 @@ class _Player:
             topic: self.node.create_publisher(_message_class(kind), topic, publish_qos)
             for topic, kind in plan.input_types.items()
         }
-        names = [
-            name for name in _OUTPUT_TYPES
-            if name not in _OPTIONAL or getattr(options, _OPTIONAL[name])
-        ]
+        names = recorded_outputs(options)
         outputs = options.topics.outputs()
         self.subscriptions = {
             name: self.node.create_subscription(

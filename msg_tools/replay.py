@@ -57,6 +57,8 @@ from msg_tools.scoring import (
 )
 
 __all__ = [
+    'COMPRESSED_OUTPUTS',
+    'CompressionConfig',
     'FrameResult',
     'GT_WAIT_FRAMES',
     'Logger',
@@ -100,6 +102,12 @@ _KEY_NAMES = {
 }
 #: The line a first Ctrl-C prints (a run stops between frames, not inside one).
 STOPPING = '[cva-bag-replay] Ctrl-C: stopping after this frame'
+#: The outputs that also go as ``image_transport``'s compressed transports, as the node
+#: advertises them: output name → (the raw output it encodes, the transport's sub-topic).
+COMPRESSED_OUTPUTS = {
+    'depth_compressed': ('depth', 'compressedDepth'),
+    'overlay_compressed': ('overlay', 'compressed'),
+}
 # Longest span rosbag2 timestamps (int64 nanoseconds) can express, in seconds.
 _MAX_SPAN_S = (2**63 - 1) / 1e9
 #: Most processed frames that wait for their ground truth at once, and most ground-truth
@@ -131,8 +139,10 @@ class TopicNames:
         left, right: Rectified images (sensor_msgs/Image, or CompressedImage: JPEG / PNG).
         left_info, right_info: Camera infos (sensor_msgs/CameraInfo).
         ground_truth: Ground-truth disparity (stereo_msgs/DisparityImage or 32FC1 Image).
-        disparity, confidence, points, disparity_filtered, depth, camera_info: What the node
-            publishes (``camera_info``: the left camera at the output resolution).
+        disparity, confidence, points, disparity_filtered, depth, overlay, scan, camera_info:
+            What the node publishes (``camera_info``: the left camera at the output
+            resolution). ``depth`` and ``overlay`` also name their compressed transports,
+            ``<depth>/compressedDepth`` and ``<overlay>/compressed`` (:meth:`outputs`).
     """
 
     prefix: str = ''
@@ -174,12 +184,65 @@ class TopicNames:
         return {key: self.resolve(key) for key in INPUT_KEYS}
 
     def outputs(self) -> dict[str, str]:
-        """Output name → absolute topic, for what the node publishes."""
+        """Output name → absolute topic, for what the node publishes.
+
+        Besides the raw outputs, ``depth_compressed`` and ``overlay_compressed``
+        (:data:`COMPRESSED_OUTPUTS`): image_transport's sub-topics of the resolved ``depth``
+        and ``overlay``, as the node and ``image_transport`` name them.
+        """
         names = (
             'disparity', 'confidence', 'points', 'disparity_filtered', 'depth', 'overlay', 'scan',
             'camera_info',
         )
-        return {name: self.resolve(name) for name in names}
+        topics = {name: self.resolve(name) for name in names}
+        for name, (raw, transport) in COMPRESSED_OUTPUTS.items():
+            topics[name] = f'{topics[raw]}/{transport}'
+        return topics
+
+
+@dataclass(frozen=True)
+class CompressionConfig:
+    """How ``--compressed`` encodes ``depth`` and ``confidence_overlay``: the node's
+    parameters of the same names (:class:`cva_confidence_ros.ros.params.NodeConfig`), checked
+    as the node checks them (their declared ranges, then ``NodeConfig``'s own checks).
+
+    Attributes:
+        overlay_jpeg_quality: JPEG quality (1–100) of ``confidence_overlay/compressed``.
+        compressed_depth_max: Largest depth on ``depth/compressedDepth``, metres; deeper
+            pixels travel as no depth.
+        compressed_depth_quantization: Inverse-depth quantisation ``q`` of a 32FC1
+            ``depth/compressedDepth``: a depth z comes back within z² / (q·(q + 1)).
+        compressed_depth_png_level: zlib level (0–9) of the ``depth/compressedDepth`` PNG.
+
+    Raises:
+        ConfigError: A value the node would refuse (naming the parameter).
+    """
+
+    # The node's defaults (NodeConfig's; a test keeps them equal without importing rclpy here).
+    overlay_jpeg_quality: int = 95
+    compressed_depth_max: float = 10.0
+    compressed_depth_quantization: float = 100.0
+    compressed_depth_png_level: int = 3
+
+    def __post_init__(self) -> None:
+        from cva_confidence_ros.ros.params import NODE_PARAMETERS, NodeConfig, double_value
+
+        specs = {spec.name: spec for spec in NODE_PARAMETERS}
+        for name, value in asdict(self).items():
+            spec = specs[name]
+            low, high = spec.low, spec.high
+            assert low is not None and high is not None  # the four are declared with a range
+            if isinstance(spec.default, float):
+                # As the node takes a double parameter: an integer is that number; NaN and
+                # values outside the declared range are refused.
+                value = double_value(name, value, low, high)
+            elif isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+                # rclpy refuses these by the descriptor's integer range.
+                raise ConfigError(
+                    f'{name} must be an integer in [{low:g}, {high:g}]; got {value!r}'
+                )
+            object.__setattr__(self, name, value)
+        NodeConfig(**asdict(self))
 
 
 @dataclass(frozen=True)
@@ -210,6 +273,10 @@ class ReplayOptions:
         depth_encoding: ``32FC1`` (metres) or ``16UC1`` (millimetres), the node's parameter.
         publish_overlay: Write ``confidence_overlay`` (rgb8, the kept pixels tinted by
             confidence over the scene; the node computes it only for a subscriber).
+        compressed: Write ``depth`` and ``confidence_overlay`` as image_transport's
+            ``depth/compressedDepth`` and ``confidence_overlay/compressed``
+            (``sensor_msgs/CompressedImage``, encoded with these settings as the node
+            encodes them) instead of the raw images; None = raw.
         scan: Write ``scan`` (``sensor_msgs/LaserScan`` of the kept pixels) with this band,
             ranges and pitch (the node's ``scan_*`` parameters); None = no scan.
         scan_frame_id: Frame of ``scan``; ``''`` = the camera's body frame
@@ -243,6 +310,7 @@ class ReplayOptions:
     publish_depth: bool = True
     depth_encoding: str = '32FC1'
     publish_overlay: bool = False
+    compressed: CompressionConfig | None = None
     scan: ScanConfig | None = None
     scan_frame_id: str = ''
     overwrite: bool = False
@@ -356,6 +424,7 @@ class ReplayOptions:
             'queue_size': self.queue_size,
             'max_pixels': self.max_pixels,
             'seed': self.seed,
+            'compressed': None if self.compressed is None else asdict(self.compressed),
         }
         if self.mode == 'live':
             record.update(rate_scale=self.rate_scale, start_node=self.start_node)
@@ -505,8 +574,9 @@ class NodeOutputs:
 
     Attributes:
         messages: ``(output name, message type, CDR bytes)`` for ``disparity``,
-            ``confidence``, ``disparity_filtered`` and (optionally) ``points``, ``depth``,
-            ``overlay``, ``scan`` and ``camera_info``.
+            ``confidence``, ``disparity_filtered`` and (optionally) ``points``, ``depth`` or
+            ``depth_compressed``, ``overlay`` or ``overlay_compressed``, ``scan`` and
+            ``camera_info``.
         confidence: (h, w) float32 published confidence in [0, 1].
         kept: (h, w) bool, pixels kept by the threshold and the speckle filter (finite in
             ``disparity_filtered``).
@@ -532,6 +602,7 @@ def node_outputs(
     publish_depth: bool = True,
     depth_encoding: str = '32FC1',
     publish_overlay: bool = False,
+    compressed: CompressionConfig | None = None,
     scan: ScanConfig | None = None,
     scan_frame_id: str = '',
     left_info: Any = None,
@@ -558,6 +629,10 @@ def node_outputs(
         publish_depth: Include ``depth``, the depth of the kept pixels.
         depth_encoding: Its encoding, ``32FC1`` or ``16UC1``.
         publish_overlay: Include ``confidence_overlay`` (``plots.confidence_overlay``, rgb8).
+        compressed: Given, ``depth`` and ``confidence_overlay`` come as the node's
+            compressed transports instead (``depth_compressed``, ``overlay_compressed``:
+            ``ros.transport.depth_image_to_compressed_depth`` of the depth image and
+            ``rgb_to_compressed`` of the overlay, JPEG, with these settings).
         scan: Include ``scan`` (``scan.disparity_to_scan`` with this config); None = not.
         scan_frame_id: Its frame; ``''`` = ``scan.scan_frame_id`` of the left image's frame.
         left_info: The left camera info of the input (``rosbags`` or rclpy); given, include
@@ -581,6 +656,10 @@ def node_outputs(
         rgb_to_image,
         scale_camera_info,
         scan_to_message,
+    )
+    from cva_confidence_ros.ros.transport import (
+        depth_image_to_compressed_depth,
+        rgb_to_compressed,
     )
     from cva_confidence_ros.scan import disparity_to_scan
     from cva_confidence_ros.scan import scan_frame_id as body_frame
@@ -621,10 +700,30 @@ def node_outputs(
         messages.append(('points', POINT_CLOUD2, cloud_to_message(cloud, ros_header)))
     if publish_depth:
         depth = disparity_to_depth(disparity, geometry, kept)
-        messages.append(('depth', IMAGE, depth_to_image(depth, ros_header, depth_encoding)))
+        depth_msg = depth_to_image(depth, ros_header, depth_encoding)
+        if compressed is None:
+            messages.append(('depth', IMAGE, depth_msg))
+        else:
+            messages.append(
+                ('depth_compressed', COMPRESSED_IMAGE,
+                 depth_image_to_compressed_depth(
+                     depth_msg,
+                     compressed.compressed_depth_max,
+                     compressed.compressed_depth_quantization,
+                     compressed.compressed_depth_png_level,
+                 ))
+            )
     if publish_overlay:
         overlay = confidence_overlay(result.left, confidence, kept)
-        messages.append(('overlay', IMAGE, rgb_to_image(overlay, ros_header)))
+        if compressed is None:
+            messages.append(('overlay', IMAGE, rgb_to_image(overlay, ros_header)))
+        else:
+            messages.append(
+                ('overlay_compressed', COMPRESSED_IMAGE,
+                 rgb_to_compressed(
+                     overlay, ros_header, jpeg_quality=compressed.overlay_jpeg_quality
+                 ))
+            )
     if scan is not None:
         laser = disparity_to_scan(disparity, geometry, kept, confidence, scan)
         frame = body_frame(ros_header.frame_id, scan_frame_id)
@@ -1213,7 +1312,9 @@ _PRELOAD = (
     'cva_confidence_ros.datasets',
     'cva_confidence_ros.pointcloud',
     'cva_confidence_ros.ros.convert',
+    'cva_confidence_ros.ros.transport',
     'cva_confidence_ros.ros.confidence_node',
+    'cv2',
     'rclpy.serialization',
     'rosbags.serde',
 )
@@ -1325,7 +1426,7 @@ def _process_pair(session: ReplaySession, pipeline: Any, matched: Any, frame: in
         publish_points=options.publish_points, points_organized=options.points_organized,
         points_confidence=options.points_confidence, publish_depth=options.publish_depth,
         depth_encoding=options.depth_encoding, publish_overlay=options.publish_overlay,
-        scan=options.scan, scan_frame_id=options.scan_frame_id,
+        compressed=options.compressed, scan=options.scan, scan_frame_id=options.scan_frame_id,
         left_info=items['left_info'],
     )
     topics = options.topics.outputs()

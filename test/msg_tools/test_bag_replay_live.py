@@ -109,6 +109,43 @@ def test_live_gives_the_offline_results(tmp_path: Path) -> None:
         assert live_png.read_bytes() == offline_png.read_bytes(), name
 
 
+@pytest.mark.timeout(180)
+def test_live_records_the_nodes_compressed_topics(tmp_path: Path) -> None:
+    # --compressed: the replay subscribes to the node's depth/compressedDepth and
+    # confidence_overlay/compressed (which it encodes only while subscribed) under the prefix,
+    # not to the raw ones, and hands it the settings as parameters: the bytes of the offline
+    # run, which encodes with the node's functions.
+    from rosbags.rosbag2 import Reader
+
+    prefix = '/stereo'
+    bag = dataset_bag(tmp_path, 'mcap', 2, '--rate', '2', '--topic-prefix', prefix)
+    extra = ('--topic-prefix', prefix, '--overlay', '--compressed', '--jpeg-quality', '70',
+             '--compressed-depth-max', '3', '--compressed-depth-png-level', '6')
+    code, _ = _replay(bag, tmp_path, 'offline', *extra)
+    assert code == 0
+    code, live = _replay(
+        bag, tmp_path, 'live', *extra, '--startup-timeout', '90', '--rate-scale', '0.5'
+    )
+    assert code == 0, (tmp_path / 'live' / 'node.log').read_text()
+    assert live['summary']['dropped'] == 0 and live['summary']['processed'] == 2
+    with Reader(tmp_path / 'live_bag') as reader:
+        types = {conn.topic: conn.msgtype for conn in reader.connections}
+    packed = {f'{prefix}/depth/compressedDepth', f'{prefix}/confidence_overlay/compressed'}
+    assert set(types) == packed | {
+        f'{prefix}/{name}' for name in
+        ('disparity', 'confidence', 'disparity_filtered', 'points2', 'camera_info')
+    }
+    assert {types[topic] for topic in packed} == {'sensor_msgs/msg/CompressedImage'}
+    first, second = read_bag(tmp_path / 'offline_bag'), read_bag(tmp_path / 'live_bag')
+    assert first.keys() == second.keys()
+    for topic in packed:
+        assert [(t, stamp_to_ns(m.header.stamp), m.header.frame_id, m.format, bytes(m.data))
+                for t, m in first[topic]] == [
+            (t, stamp_to_ns(m.header.stamp), m.header.frame_id, m.format, bytes(m.data))
+            for t, m in second[topic]], topic
+        assert len(second[topic]) == 2
+
+
 def test_no_node_to_connect_to(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     bag = dataset_bag(tmp_path, 'mcap', 1)
     code, _ = _replay(bag, tmp_path, 'live', '--no-start-node', '--startup-timeout', '1')
