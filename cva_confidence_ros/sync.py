@@ -15,17 +15,23 @@ Policies:
 Both policies emit eagerly: a set leaves as soon as it is complete. Messages of a key that are
 older than the ones just emitted can never be part of a later set (streams are time ordered), so
 they are evicted, as is anything that arrives with a stamp at or before the last emitted one of
-its key, and the oldest message of a key whose queue is full. Every evicted message counts once
-in :attr:`StampSynchronizer.dropped`.
+its key, and the oldest message of a key whose queue is full. A second message with the stamp of
+one still waiting on its key replaces it (the newer one is kept: after a bag loop or a restart,
+the old one belongs to another pass). Every evicted message counts once in
+:attr:`StampSynchronizer.dropped`.
 
 Time going backwards (``ros2 bag play --loop``, a driver restart, a simulator reset) is told from
-a late straggler by how far back it goes (``min_jump_ns``, 1 s by default) and by whether the
-old messages form a set: those that far before the last emitted stamp of their key are kept
-aside (bounded like the queues, and counted as dropped); a single straggler, whose partners have
-long gone, never completes a set, but once the old messages do, the streams have jumped back.
-The synchroniser then starts over from them: the set is emitted with
-:attr:`MatchedSet.jumped_from_ns` set, the messages still waiting from before the jump are
-dropped, and :attr:`StampSynchronizer.jumps` counts one.
+late stragglers by whether the old messages form sets, and by how far back they go
+(``min_jump_ns``, 1 s by default). Messages at or before the last emitted stamp of their key are
+kept aside (bounded like the queues, and counted as dropped); a single straggler, whose partners
+have long gone, never completes a set. Once the old messages do complete one, the streams have
+jumped back when that set lies ``min_jump_ns`` or more before the last one, or when it is the
+second such set in a row, with no newer message in between (a shorter jump that goes on: the loop
+of a bag shorter than ``min_jump_ns``); a single whole frame delivered after a newer one is
+dropped. The synchroniser then starts over from them: the set is emitted with
+:attr:`MatchedSet.jumped_from_ns` set (after a shorter jump, the first of the two sets is emitted
+too), the messages still waiting from before the jump are dropped, and
+:attr:`StampSynchronizer.jumps` counts one.
 """
 
 from __future__ import annotations
@@ -40,9 +46,9 @@ from cva_confidence_ros.errors import ConfigError, InputError
 __all__ = ['DEFAULT_KEYS', 'DROP_KINDS', 'Drop', 'MatchedSet', 'StampSynchronizer']
 
 #: Why a message left the synchroniser without a set (:class:`Drop`):
-#: ``duplicate``: its key already held a message with that stamp;
+#: ``duplicate``: a newer message of its key with the same stamp replaced it while it waited;
 #: ``repeat``: its stamp is the one just emitted on its key (paired before);
-#: ``late``: older than the last set of its key, by less than a jump;
+#: ``late``: older than the last set of its key, and the streams did not jump back;
 #: ``overflow``: its key's queue was full, and it was the oldest;
 #: ``passed``: a set of later stamps was emitted first;
 #: ``jump``: it waited when the stamps jumped back and pairing started over;
@@ -89,6 +95,36 @@ class MatchedSet:
     jumped_from_ns: int | None = None
 
 
+@dataclass(eq=False)
+class _Held:
+    """A message kept aside: at or before the last emitted stamp of its key.
+
+    Attributes:
+        stamp_ns: Its stamp.
+        msg: The message.
+        seq: Arrival order (its drop is recorded in that order).
+        near: Less than ``min_jump_ns`` before the last emitted stamp of its key.
+        drop: Its record (``record_drops``), kept until it is let go.
+    """
+
+    stamp_ns: int
+    msg: Any
+    seq: int
+    near: bool
+    drop: Drop | None
+
+
+@dataclass(eq=False)
+class _Behind:
+    """A whole set of held-aside messages less than ``min_jump_ns`` before the last set: a late
+    frame, or the first frame of a shorter jump back, until the next set or a newer message
+    tells which."""
+
+    stamps_ns: dict[Hashable, int]
+    items: dict[Hashable, Any]
+    entries: list[_Held]
+
+
 class StampSynchronizer:
     """Group messages of several keyed streams whose stamps match.
 
@@ -99,11 +135,11 @@ class StampSynchronizer:
         approximate: Use the approximate policy instead of exact stamp equality.
         tolerance_ns: Largest spread of stamps in one set, in nanoseconds (≥ 0). Only used
             when ``approximate`` is True; the exact policy always uses 0.
-        min_jump_ns: How far before the last emitted stamp a message must lie to count as a
-            possible jump back in time (≥ 1; default 1 s). Nearer ones are late stragglers and
-            dropped: a complete frame delivered after a newer one never resets the streams,
-            and a jump back by less than this heals by itself once the stamps pass the old
-            ones.
+        min_jump_ns: How far before the last emitted stamp a whole set must lie to be a jump
+            back in time at once (≥ 1; default 1 s). A nearer one is a jump only when a second
+            one follows with no newer message in between (the loop of a short bag, a small
+            reset); a single complete frame delivered after a newer one is dropped and never
+            resets the streams.
         record_drops: Keep a :class:`Drop` for every message that leaves without a set
             (:meth:`take_drops`), for tools that report them one by one; off in the node.
 
@@ -148,27 +184,43 @@ class StampSynchronizer:
         self.matched = 0
         self.jumps = 0
         self._queues: dict[Hashable, list[tuple[int, Any]]] = {key: [] for key in keys}
-        # Messages before the last emitted stamp of their key: late stragglers, or the first
-        # messages after a jump back in time (see the module docstring).
-        self._stale: dict[Hashable, list[tuple[int, Any]]] = {key: [] for key in keys}
+        # Messages at or before the last emitted stamp of their key: late stragglers, or the
+        # first messages after a jump back in time (see the module docstring).
+        self._stale: dict[Hashable, list[_Held]] = {key: [] for key in keys}
+        # The first whole set of them less than a jump back, until a second one (a jump) or a
+        # newer message (it was a late frame) comes.
+        self._behind: _Behind | None = None
+        self._seq = 0
         self._last: dict[Hashable, int | None] = {key: None for key in keys}
         self._last_set_ns: int | None = None
         self._lock = threading.Lock()
         self.record_drops = bool(record_drops)
         self._drops: list[Drop] = []
 
-    def _note(self, key: Hashable, stamps: Sequence[int], kind: str) -> None:
-        """Record ``stamps`` of ``key`` as dropped for ``kind`` (before the queues change)."""
-        if not self.record_drops or not stamps:
-            return
+    def _drop(self, key: Hashable, stamp_ns: int, kind: str) -> Drop:
+        """The record of ``key``'s message at ``stamp_ns`` leaving for ``kind``, with the stamps
+        the other keys hold now."""
         others = {}
         for other in self.keys:
             if other == key:
                 continue
-            held = [s for s, _ in self._queues[other]] + [s for s, _ in self._stale[other]]
+            held = [s for s, _ in self._queues[other]] + [h.stamp_ns for h in self._stale[other]]
             last = self._last[other]
             others[other] = tuple(sorted(held + ([last] if last is not None else [])))
-        self._drops.extend(Drop(key, int(stamp), kind, others) for stamp in stamps)
+        return Drop(key, int(stamp_ns), kind, others)
+
+    def _note(self, key: Hashable, stamps: Sequence[int], kind: str) -> None:
+        """Record ``stamps`` of ``key`` as dropped for ``kind`` (before the queues change)."""
+        if self.record_drops:
+            self._drops.extend(self._drop(key, stamp, kind) for stamp in stamps)
+
+    def _release(self, held: Sequence[_Held]) -> None:
+        """Record held-aside messages let go (counted as dropped when they came), in the order
+        they came."""
+        if self.record_drops:
+            for entry in sorted(held, key=lambda entry: entry.seq):
+                if entry.drop is not None:
+                    self._drops.append(entry.drop)
 
     def take_drops(self) -> list[Drop]:
         """The drops recorded since the last call, oldest first (``record_drops=True``)."""
@@ -178,18 +230,23 @@ class StampSynchronizer:
 
     def drain(self) -> None:
         """End of input: drop everything still waiting (counted, and recorded as
-        ``unmatched``, or ``late`` for messages kept aside as a possible jump back)."""
+        ``unmatched``, or ``late``/``repeat`` for messages kept aside as a possible jump
+        back)."""
         with self._lock:
             for key in self.keys:
                 self._note(key, [s for s, _ in self._queues[key]], 'unmatched')
-                self._note(key, [s for s, _ in self._stale[key]], 'late')
+            held = [entry for key in self.keys for entry in self._stale[key]]
+            if self._behind is not None:
+                held += self._behind.entries
+            self._release(held)
             for key in self.keys:
                 self.dropped += len(self._queues[key])  # held-aside ones counted already
                 self._queues[key] = []
                 self._stale[key] = []
+            self._behind = None
 
     def add(self, key: Hashable, stamp_ns: int, msg: Any) -> list[MatchedSet]:
-        """Offer one message; return the sets it completes (empty or one element).
+        """Offer one message; return the sets it completes.
 
         Args:
             key: One of :attr:`keys`.
@@ -197,9 +254,9 @@ class StampSynchronizer:
             msg: Any object; handed back untouched inside a :class:`MatchedSet`.
 
         Returns:
-            The completed sets, oldest first (at most one per call with eager emission). A set
-            older than the one before it (the stamps jumped back) has
-            :attr:`MatchedSet.jumped_from_ns` set.
+            The completed sets, oldest first: none or one, or two when a shorter jump back
+            is recognised by its second set. The first set after a jump back (older than the
+            one before it) has :attr:`MatchedSet.jumped_from_ns` set.
 
         Raises:
             ConfigError: ``key`` is not one of :attr:`keys`.
@@ -215,16 +272,14 @@ class StampSynchronizer:
             last = self._last[key]
             if last is not None and stamp_ns <= last:
                 self.dropped += 1
-                if last - stamp_ns < self.min_jump_ns:
-                    # A repeat of what was just emitted (a second publisher, a resent
-                    # message) or a late straggler.
-                    self._note(key, [stamp_ns], 'repeat' if stamp_ns == last else 'late')
-                    return []
-                return self._add_stale(key, stamp_ns, msg)
+                return self._hold(key, stamp_ns, msg, last)
+            # A newer message: the streams go on, so what lay only a little back was late.
+            self._release_near()
             queue = self._queues[key]
             if not self._insert(key, queue, stamp_ns, msg):
                 return []
-            chosen = self._best_set(self._queues, key, stamp_ns)
+            stamps = {other: [s for s, _ in self._queues[other]] for other in self.keys}
+            chosen = self._best_set(stamps, key, stamp_ns)
             if chosen is None:
                 return []
             return [self._emit(chosen)]
@@ -233,11 +288,15 @@ class StampSynchronizer:
         self, key: Hashable, queue: list[tuple[int, Any]], stamp_ns: int, msg: Any
     ) -> bool:
         """Put a message into a queue (sorted, bounded); False if it did not stay there."""
-        if any(stamp == stamp_ns for stamp, _ in queue):
-            # A repeated stamp on one stream: keep the first, the newcomer is a duplicate.
-            self.dropped += 1
-            self._note(key, [stamp_ns], 'duplicate')
-            return False
+        for index, (stamp, _) in enumerate(queue):
+            if stamp == stamp_ns:
+                # A repeated stamp on one stream: the newer message is kept (after a bag loop
+                # or a restart the one waiting is of the pass before, and must not pair with
+                # the partners of this one).
+                self._note(key, [stamp_ns], 'duplicate')
+                queue[index] = (stamp_ns, msg)
+                self.dropped += 1
+                return True
         queue.append((stamp_ns, msg))
         queue.sort(key=lambda entry: entry[0])
         if len(queue) > self.queue_size:
@@ -246,42 +305,113 @@ class StampSynchronizer:
             self.dropped += 1
         return any(entry[0] == stamp_ns for entry in queue)
 
-    def _add_stale(self, key: Hashable, stamp_ns: int, msg: Any) -> list[MatchedSet]:
-        """Keep a message older than the last set aside; start over if the old ones pair up.
+    def _hold(self, key: Hashable, stamp_ns: int, msg: Any, last: int) -> list[MatchedSet]:
+        """Keep a message at or before the last set of its key aside; start over if the held
+        messages show that the streams jumped back.
 
         The message has already been counted as dropped, and so has everything held aside: what
         a jump brings back is taken off :attr:`dropped` again.
         """
-        before = self.dropped
-        kept = self._insert(key, self._stale[key], stamp_ns, msg)
-        # Held-aside messages were counted when they came; evicting or refusing one is no news.
-        self.dropped = before
-        if not kept:
+        near = last - stamp_ns < self.min_jump_ns
+        kind = 'repeat' if stamp_ns == last else 'late'
+        self._seq += 1
+        entry = _Held(
+            stamp_ns,
+            msg,
+            self._seq,
+            near,
+            self._drop(key, stamp_ns, kind) if self.record_drops else None,
+        )
+        held = [h for h in self._stale[key] if h.stamp_ns != stamp_ns]
+        # One of the same stamp came before (a pass before a loop): the newer one is kept.
+        self._release([h for h in self._stale[key] if h.stamp_ns == stamp_ns])
+        held.append(entry)
+        held.sort(key=lambda h: h.stamp_ns)
+        if len(held) > self.queue_size:
+            self._release([held.pop(0)])
+        self._stale[key] = held
+        if not any(h is entry for h in held):
             return []
-        chosen = self._best_set(self._stale, key, stamp_ns)
+        stamps = {other: [h.stamp_ns for h in self._stale[other]] for other in self.keys}
+        chosen = self._best_set(stamps, key, stamp_ns)
         if chosen is None:
             return []
-        # A whole set older than the last one: the streams went back in time, not astray.
+        if not near:
+            # A whole set a jump or more older than the last one: the streams went back in
+            # time, not astray.
+            return self._start_over(chosen)
+        if self._behind is None:
+            # A whole set a little older than the last one: a frame delivered late, or the
+            # first after a shorter jump back; a second one before any newer message tells.
+            self._behind = self._take_held(chosen)
+            return []
+        return self._start_over(chosen, first=self._behind)
+
+    def _take_held(self, chosen: dict[Hashable, int]) -> _Behind:
+        """Take the held-aside messages of the set ``chosen`` out of :attr:`_stale`."""
+        items: dict[Hashable, Any] = {}
+        entries: list[_Held] = []
+        for key in self.keys:
+            (entry,) = [h for h in self._stale[key] if h.stamp_ns == chosen[key]]
+            self._stale[key] = [h for h in self._stale[key] if h is not entry]
+            items[key] = entry.msg
+            entries.append(entry)
+        return _Behind(dict(chosen), items, entries)
+
+    def _release_near(self) -> None:
+        """A message newer than the last set of its key came, so the streams go on: the held
+        messages only a little older were late, and are let go. Those a jump or more back stay
+        (the first messages after a jump may cross the last ones from before it)."""
+        let_go: list[_Held] = []
+        if self._behind is not None:
+            let_go += self._behind.entries
+            self._behind = None
+        for key in self.keys:
+            held = self._stale[key]
+            if any(entry.near for entry in held):
+                let_go += [entry for entry in held if entry.near]
+                self._stale[key] = [entry for entry in held if not entry.near]
+        self._release(let_go)
+
+    def _start_over(
+        self, chosen: dict[Hashable, int], first: _Behind | None = None
+    ) -> list[MatchedSet]:
+        """The streams jumped back: pair from the held-aside messages on, emitting the set
+        ``chosen`` among them (after ``first``, a set taken aside before, when that is older
+        on every key)."""
         jumped_from = self._last_set_ns
         self.jumps += 1
         for other in self.keys:
             self._note(other, [s for s, _ in self._queues[other]], 'jump')
         self.dropped += sum(len(queue) for queue in self._queues.values())
-        self.dropped -= sum(len(queue) for queue in self._stale.values())
-        self._queues = self._stale
-        self._stale = {other: [] for other in self.keys}
+        self.dropped -= sum(len(held) for held in self._stale.values())
+        self._queues = {
+            key: [(entry.stamp_ns, entry.msg) for entry in self._stale[key]] for key in self.keys
+        }
+        self._stale = {key: [] for key in self.keys}
         self._last = dict.fromkeys(self.keys)
-        matched = self._emit(chosen)
-        return [replace(matched, jumped_from_ns=jumped_from)]
+        behind, self._behind = self._behind, None
+        sets: list[MatchedSet] = []
+        if first is not None and all(first.stamps_ns[k] < chosen[k] for k in self.keys):
+            self.dropped -= len(first.entries)
+            sets.append(self._matched(first.stamps_ns, first.items))
+        elif behind is not None:
+            # A late frame after all, or the same stamps again (a bag of one frame on a loop):
+            # the newer set is the one of the new pass.
+            self._release(behind.entries)
+        sets.append(self._emit(chosen))
+        sets[0] = replace(sets[0], jumped_from_ns=jumped_from)
+        return sets
 
     def _best_set(
-        self, queues: dict[Hashable, list[tuple[int, Any]]], key: Hashable, stamp_ns: int
+        self, waiting: dict[Hashable, list[int]], key: Hashable, stamp_ns: int
     ) -> dict[Hashable, int] | None:
-        """The tightest set in ``queues`` that holds the new message, as key → stamp, or None."""
+        """The tightest set among ``waiting`` (key → stamps waiting) that holds the new message,
+        as key → stamp, or None."""
         tol = self.tolerance_ns
         # Only the new message can complete a set: before it came none was complete.
         candidates = {
-            other: [s for s, _ in queues[other] if abs(s - stamp_ns) <= tol]
+            other: [s for s in waiting[other] if abs(s - stamp_ns) <= tol]
             for other in self.keys
             if other != key
         }
@@ -326,10 +456,18 @@ class StampSynchronizer:
                     kept.append((entry_stamp, msg))
             self._queues[key] = kept
             self._last[key] = stamp
+        return self._matched(chosen, items)
+
+    def _matched(self, chosen: dict[Hashable, int], items: dict[Hashable, Any]) -> MatchedSet:
+        """Count and return the set of ``items`` at the stamps ``chosen``."""
         self.matched += 1
         ordered = {key: chosen[key] for key in self.keys}
         self._last_set_ns = ordered[self.keys[0]]
-        return MatchedSet(stamp_ns=ordered[self.keys[0]], items=items, stamps_ns=ordered)
+        return MatchedSet(
+            stamp_ns=ordered[self.keys[0]],
+            items={key: items[key] for key in self.keys},
+            stamps_ns=ordered,
+        )
 
     def pending(self) -> dict[Hashable, int]:
         """Number of messages waiting per key."""
@@ -343,4 +481,5 @@ class StampSynchronizer:
                 self._queues[key] = []
                 self._stale[key] = []
                 self._last[key] = None
+            self._behind = None
             self._last_set_ns = None

@@ -71,7 +71,8 @@ def test_late_and_duplicate_messages_are_dropped() -> None:
     assert sync.add('a', 10, 'again') == []
     assert sync.dropped == 1
     (matched,) = sync.add('b', 10, 'b10')
-    assert matched.items['a'] == 'a10'
+    # The newer of two messages with one stamp is kept (after a loop, the older is stale).
+    assert matched.items['a'] == 'again'
     # Stamps at or before the last emitted one of the key cannot form a new set.
     assert sync.add('a', 10, 'late') == []
     assert sync.add('b', 5, 'later') == []
@@ -361,9 +362,13 @@ def test_a_frame_delivered_late_is_no_jump_back() -> None:
     sets += _feed_frame(sync, 1003 * period)
     assert [s.stamp_ns for s in sets] == [1000 * period, 1002 * period, 1003 * period]
     assert sync.jumps == 0 and sync.dropped == 4
-    # A jump back by less than the threshold heals by itself once the stamps pass the old ones.
-    late = [s.stamp_ns for k in range(995, 1006) for s in _feed_frame(sync, k * period)]
-    assert late == [1004 * period, 1005 * period] and sync.jumps == 0
+    # A jump back by less than the threshold that goes on (a second whole frame before any newer
+    # message) is a jump: pairing starts over from the first of the two frames.
+    later = [s for k in range(995, 1006) for s in _feed_frame(sync, k * period)]
+    assert [s.stamp_ns for s in later] == [k * period for k in range(995, 1006)]
+    assert [s.jumped_from_ns for s in later] == [1003 * period] + [None] * 10
+    assert sync.jumps == 1 and sync.dropped == 4
+    assert _total(sync) == 4 * 15
 
 
 def test_min_jump_must_be_a_positive_integer() -> None:
@@ -422,3 +427,96 @@ def test_drops_are_not_kept_unless_asked() -> None:
     sync.add('a', 1, 'dup')
     sync.drain()
     assert sync.dropped == 2 and sync.take_drops() == []
+
+
+def _passes(sets: list[MatchedSet]) -> list[set[str]]:
+    """For each set, the passes (``#N`` tags) its messages came from: one each if none mixes."""
+    return [{str(msg).split('#')[1].split('@')[0] for msg in m.items.values()} for m in sets]
+
+
+def test_a_bag_loop_never_pairs_a_message_of_the_pass_before() -> None:
+    # ros2 bag play --loop of a 3 s bag at 30 Hz: the stamps start over, the payloads are new.
+    # One left image of the first pass came over a second late and was kept aside: the second
+    # pass's image of that stamp replaces it, instead of the old one pairing with new partners.
+    period = 33 * MS
+    stamps = [10**12 + frame * period for frame in range(90)]
+    sync = StampSynchronizer(record_drops=True)
+    first = []
+    for stamp in stamps[:60]:
+        for key in DEFAULT_KEYS:
+            if (key, stamp) != ('left', stamps[10]):
+                first += sync.add(key, stamp, f'{key}#1@{stamp}')
+    first += sync.add('left', stamps[10], f'left#1@{stamps[10]}')  # 1.6 s late: kept aside
+    first += [s for stamp in stamps[60:] for s in _feed_frame(sync, stamp, '#1')]
+    second = [s for stamp in stamps for s in _feed_frame(sync, stamp, '#2')]
+    assert len(first) == 89 and _passes(first) == [{'1'}] * 89
+    assert [s.stamp_ns for s in second] == stamps
+    assert _passes(second) == [{'2'}] * 90
+    assert second[10].items['left'] == f'left#2@{stamps[10]}'
+    assert [s.jumped_from_ns for s in second] == [stamps[-1]] + [None] * 89
+    sync.drain()
+    assert len(sync.take_drops()) == sync.dropped == 4  # frame 10 of the first pass
+    assert _total(sync) == 4 * 180 - 4 + 4
+
+
+def test_a_bag_shorter_than_a_jump_loops_too() -> None:
+    # A 0.5 s bag on a loop goes back by less than min_jump_ns (1 s): every pass still pairs
+    # all its frames, each with its own messages, and the jumps are counted and marked.
+    period = 33 * MS
+    stamps = [10**12 + frame * period for frame in range(15)]
+    sync = StampSynchronizer(record_drops=True)
+    passes = [[s for t in stamps for s in _feed_frame(sync, t, f'#{n}')] for n in (1, 2, 3)]
+    for n, sets in enumerate(passes, 1):
+        assert [s.stamp_ns for s in sets] == stamps
+        assert _passes(sets) == [{str(n)}] * 15
+    # Recognised by its second frame, the jump emits the first one too.
+    assert [s.jumped_from_ns for s in passes[1]] == [stamps[-1]] + [None] * 14
+    assert sync.jumps == 2 and sync.dropped == 0
+    sync.drain()
+    assert sync.take_drops() == [] and _total(sync) == 4 * 45
+
+
+def test_an_incomplete_last_frame_does_not_pair_with_the_next_pass() -> None:
+    # The last frame of a short bag lost its right camera info; the next pass's one must not
+    # complete it with the three messages of the pass before.
+    stamps = [10**12 + frame * 33 * MS for frame in range(10)]
+    sync = StampSynchronizer(record_drops=True)
+    first = []
+    for stamp in stamps:
+        for key in DEFAULT_KEYS:
+            if (key, stamp) != ('right_info', stamps[-1]):
+                first += sync.add(key, stamp, f'{key}#1@{stamp}')
+    second = [s for stamp in stamps for s in _feed_frame(sync, stamp, '#2')]
+    assert len(first) == 9 and [s.stamp_ns for s in second] == stamps
+    assert _passes(second) == [{'2'}] * 10
+    drops = sync.take_drops()
+    assert sorted((d.stamp_ns, d.kind) for d in drops) == [(stamps[-1], 'jump')] * 3
+    assert len(drops) == sync.dropped
+
+
+def test_a_one_frame_bag_on_a_loop_pairs_every_other_pass() -> None:
+    # Each pass repeats the stamp just paired: the first pass back is taken aside (it could be
+    # a repeat), the next one is the jump; no set mixes two passes.
+    sync = StampSynchronizer(record_drops=True)
+    stamp = 10**12
+    sets = [_feed_frame(sync, stamp, f'#{n}') for n in range(1, 8)]
+    assert [len(s) for s in sets] == [1, 0, 1, 0, 1, 0, 1]
+    assert [_passes(s) for s in sets if s] == [[{'1'}], [{'3'}], [{'5'}], [{'7'}]]
+    assert [s[0].jumped_from_ns for s in sets if s] == [None, stamp, stamp, stamp]
+    sync.drain()
+    assert len(sync.take_drops()) == sync.dropped == 12 and _total(sync) == 28
+
+
+def test_a_late_frame_between_newer_ones_is_dropped_and_recorded_once() -> None:
+    sync = StampSynchronizer(keys=('a', 'b'), record_drops=True)
+    sync.add('a', 2000 * MS, 'a2000')
+    sync.add('b', 2000 * MS, 'b2000')
+    assert sync.add('a', 1967 * MS, 'late a') == [] and sync.add('b', 1967 * MS, 'late b') == []
+    assert sync.dropped == 2 and sync.take_drops() == []  # taken aside: late, or a jump
+    (matched,) = sync.add('a', 2033 * MS, 'a2033') or sync.add('b', 2033 * MS, 'b2033')
+    assert matched.stamp_ns == 2033 * MS and matched.jumped_from_ns is None
+    # The newer message told: it was a late frame, let go in the order it came.
+    assert [(d.key, d.stamp_ns, d.kind) for d in sync.take_drops()] == [
+        ('a', 1967 * MS, 'late'), ('b', 1967 * MS, 'late')
+    ]
+    assert sync.jumps == 0 and sync.dropped == 2

@@ -100,6 +100,7 @@ class _Mailbox:
         self._cond = threading.Condition()
         self._item: MatchedSet | None = None
         self._closed = False
+        self._poked = False
 
     def put(self, item: MatchedSet) -> bool:
         """Store ``item``; return True if it overwrote one that was never taken."""
@@ -110,14 +111,22 @@ class _Mailbox:
             return replaced
 
     def take(self) -> MatchedSet | None:
-        """Wait for an item; None once closed."""
+        """Wait for an item; None once closed, or after a :meth:`poke` (the item, if any, stays
+        for the next call)."""
         with self._cond:
-            while self._item is None and not self._closed:
+            while self._item is None and not self._closed and not self._poked:
                 self._cond.wait()
-            if self._closed:
+            if self._closed or self._poked:
+                self._poked = False
                 return None
             item, self._item = self._item, None
             return item
+
+    def poke(self) -> None:
+        """Wake the worker without an item (a new pipeline to warm up before the next one)."""
+        with self._cond:
+            self._poked = True
+            self._cond.notify()
 
     def clear(self) -> bool:
         """Drop the item waiting, if any; return whether there was one."""
@@ -226,11 +235,14 @@ class ConfidenceCore(Node):
 
     _pipeline: StereoPipeline | None
     _worker: threading.Thread | None
+    # A pipeline a parameter change swapped in, which the worker has yet to warm up.
+    _cold: StereoPipeline | None
 
     def _init_core(self) -> None:
         declare_parameters(self)
         self._lock = threading.Lock()
         self._pipeline = None
+        self._cold = None
         self._worker = None
         self._subscriptions_in: list[Any] = []
         self._owned: list[Any] = []
@@ -271,6 +283,7 @@ class ConfidenceCore(Node):
         publishers = self._output_publishers(node_config.output_qos)
         with self._lock:
             self._pipeline = pipeline
+            self._cold = None
             self._pipeline_config = pipeline_config
             self._node_config = node_config
             # (width, height) of the last images received: a parameter change that could not
@@ -356,7 +369,7 @@ class ConfidenceCore(Node):
                 self.destroy_publisher(entity)
         self._owned = []
         with self._lock:
-            self._pipeline = None
+            self._pipeline = self._cold = None
         return stopped
 
     def _stop_worker(self) -> bool:
@@ -463,6 +476,9 @@ class ConfidenceCore(Node):
         with self._lock:
             if pipeline is not None:
                 self._pipeline, self._pipeline_config = pipeline, pipeline_config
+                # Warmed up as on start-up, but by the worker before its next frame (the
+                # matcher's kernels compile: seconds on a cold cache), not here on the executor.
+                self._cold = pipeline
             old = self._node_config
             self._node_config = node_config
             sync_keys = ('queue_size', 'approximate_sync', 'approximate_sync_tolerance_seconds')
@@ -471,6 +487,7 @@ class ConfidenceCore(Node):
                 self._sync = self._make_sync(node_config)
         self.get_logger().info(f'parameters set: {asked}')
         if pipeline is not None:
+            self._mailbox.poke()
             self._warn_if_slow(pipeline)
         return SetParametersResult(successful=True)
 
@@ -581,8 +598,11 @@ class ConfidenceCore(Node):
         # worker left running with a long frame must not take the new worker's frames.
         while True:
             item = mailbox.take()
-            if item is None or self._stopping(mailbox):
+            if self._stopping(mailbox):
                 return
+            self._warm_up_new_pipeline(mailbox)
+            if item is None:  # woken for the warm-up: the next frame waits in the mailbox
+                continue
             try:
                 self._process(item, mailbox)
             except CVAError as error:
@@ -613,6 +633,35 @@ class ConfidenceCore(Node):
                 # A frame dropped because the stop came while it ran; Ctrl-C (the context
                 # shut down in C) closes no mailbox, so take() would wait for good.
                 return
+
+    def _warm_up_new_pipeline(self, mailbox: _Mailbox) -> None:
+        """Warm up the pipeline a parameter change swapped in, if any, as the node does on
+        start-up: the matcher's kernels compile (or load from their cache) and MC-CNN loads its
+        weights here, on the worker, and not in the parameter callback on the executor. Frames
+        that come meanwhile wait in the mailbox, the newest replacing the others (dropped)."""
+        with self._lock:
+            pipeline, self._cold = self._cold, None
+            dropped = self._stats.dropped
+        if pipeline is None:
+            return
+        tic = time.perf_counter()
+        try:
+            pipeline.warm_up()
+        except Exception as error:  # noqa: BLE001  (the worker must outlive a warm-up)
+            if not self._stopping(mailbox):
+                self.get_logger().warning(
+                    f'warming up the new pipeline failed ({type(error).__name__}: {error}); '
+                    'its first frame may be slow'
+                )
+            return
+        if self._stopping(mailbox):
+            return
+        with self._lock:
+            dropped = self._stats.dropped - dropped
+        self.get_logger().info(
+            f'new pipeline warmed up in {(time.perf_counter() - tic) * 1e3:.0f} ms'
+            + (f'; {dropped} frame(s) dropped meanwhile' if dropped else '')
+        )
 
     def _process(self, item: MatchedSet, mailbox: _Mailbox) -> None:
         start = time.perf_counter()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
+import threading
 import time
 
 import cv2
@@ -34,7 +35,7 @@ import torch
 
 from cva_confidence_ros.matching import remove_speckles
 from cva_confidence_ros.node import ConfidenceNode
-from cva_confidence_ros.pipeline import PipelineConfig
+from cva_confidence_ros.pipeline import PipelineConfig, StereoPipeline
 from cva_confidence_ros.ros.convert import (
     cloud_to_array,
     compressed_image_to_array,
@@ -408,6 +409,56 @@ def test_parameter_service_rebuilds_the_pipeline(running: _Running) -> None:
         result = running.set(max_disparity=MAX_DISPARITY)
         assert result.successful
         client.node.destroy_client(service)
+
+
+def test_a_new_pipeline_is_warmed_up_on_the_worker_before_its_first_frame(
+    running: _Running, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A change that rebuilds the pipeline warms it up as the start does (the matcher's numba
+    # kernels compile: seconds on a cold cache), on the worker and not in the parameter
+    # callback: the executor goes on serving parameters and diagnostics, and frames wait.
+    client = running.client
+    calls: list[tuple[int, str]] = []
+    release = threading.Event()
+    warm_up = StereoPipeline.warm_up
+
+    def slow_warm_up(pipeline: StereoPipeline) -> None:
+        if pipeline.config.max_disparity == 24:  # not one an earlier test left to warm up
+            calls.append((pipeline.config.max_disparity, threading.current_thread().name))
+            release.wait(20.0)
+        warm_up(pipeline)
+
+    monkeypatch.setattr(StereoPipeline, 'warm_up', slow_warm_up)
+    left, right = textured_pair(seed=12)
+    try:
+        tic = time.monotonic()
+        result = running.set(max_disparity=24)
+        assert result.successful and time.monotonic() - tic < 2.0
+        assert client.wait_for(lambda: bool(calls), 10.0), 'the new pipeline was not warmed up'
+        assert calls == [(24, 'cva_confidence_worker')]
+        # While it warms up, the parameter service answers and a frame waits for it.
+        (answer,) = running.set_by_service(min_kept_fraction=0.0)
+        assert answer.successful
+        stamps = [running.next_stamp(), running.next_stamp()]
+        for stamp in stamps:
+            client.publish_frame(left, right, stamp)
+        time.sleep(1.0)
+        assert all(client.by_stamp('disparity', stamp) is None for stamp in stamps)
+        release.set()
+        # The newest waiting frame goes first (best-effort input: either may be lost).
+        assert client.wait_for(
+            lambda: any(client.by_stamp('disparity', stamp) for stamp in stamps), 20.0
+        )
+        out = client.send_until_output(left, right, running.next_stamp(), topics=('disparity',))
+        assert out['disparity'].max_disparity == 23.0
+        assert client.wait_for(
+            lambda: bool(running.logged('new pipeline warmed up in', Log.INFO)), 5.0
+        )
+    finally:
+        release.set()
+        monkeypatch.undo()
+        assert running.set(max_disparity=MAX_DISPARITY).successful
+    assert len(calls) == 1
 
 
 def test_downsample_publishes_at_lower_resolution(running: _Running) -> None:
@@ -933,6 +984,29 @@ def test_stamps_jumping_back_are_logged_and_pairing_goes_on(running: _Running) -
     assert client.wait_for(lambda: bool(running.logged('jumped back 100.')), 5.0)
     (warning,) = running.logged('jumped back 100.')
     assert f'{earlier // 10**9}.{earlier % 10**9:09d}' in warning
+    # Later frames, newer again, pair as before.
+    client.send_until_output(left, right, running.next_stamp(), topics=('disparity',))
+
+
+def test_a_bag_shorter_than_a_second_on_a_loop_goes_on_pairing(running: _Running) -> None:
+    # ros2 bag play --loop of a 0.3 s bag: each pass goes back by less than the 1 s that makes
+    # a jump at once; the second frame back tells that the stamps jumped, and the pass pairs
+    # (before, every later pass was dropped as late: the node went silent after one pass).
+    client, node = running.client, running.node
+    left, right = textured_pair(seed=13)
+    base = running.next_stamp()
+    stamps = [base + k * 100_000_000 for k in range(4)]
+    for number in range(3):
+        before = node.stats()
+        for stamp in stamps:
+            client.publish_frame(left, right, stamp)
+            time.sleep(0.05)
+        # Best-effort input: a message may be lost, so not all four frames need to pair.
+        assert client.wait_for(
+            lambda b=before: node.stats()['frames_received'] >= b['frames_received'] + 2, 20.0
+        ), f'pass {number + 1} of the bag did not pair'
+        jumps = node.stats()['stamp_jumps'] - before['stamp_jumps']
+        assert jumps == (0 if number == 0 else 1)
     # Later frames, newer again, pair as before.
     client.send_until_output(left, right, running.next_stamp(), topics=('disparity',))
 
