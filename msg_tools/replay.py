@@ -918,7 +918,8 @@ class ReplaySession:
         """A drop's reason in words, naming the inputs that lacked its stamp."""
         topic = self.plan.inputs[drop.key]
         if drop.kind == 'duplicate':
-            return f'duplicate stamp: an earlier message on {topic} has the same stamp'
+            return (f'duplicate stamp: a later message on {topic} has the same stamp and '
+                    'took its place')
         if drop.kind == 'repeat':
             return (f'duplicate stamp: an earlier message on {topic} has the same stamp and '
                     'was paired')
