@@ -66,7 +66,8 @@ class EvalRecord:
         """Build a record from a dict with :data:`RECORD_KEYS` (extra keys are ignored).
 
         Raises:
-            InputError: A key is missing or a value has the wrong type.
+            InputError: A key is missing, a value has the wrong type, a rate or AUC is not a
+                number in [0, 1] (NaN included), or ``n_pixels`` is not a whole number ≥ 1.
         """
         if not isinstance(item, Mapping):
             raise InputError(
@@ -76,18 +77,30 @@ class EvalRecord:
         if missing:
             raise InputError(f'evaluation record lacks keys {missing}; got {sorted(item)}')
         try:
-            return cls(
-                dataset=str(item['dataset']),
-                scene=str(item['scene']),
-                matcher=str(item['matcher']),
-                method=str(item['method']),
-                auc=float(item['auc']),  # type: ignore[arg-type]
-                auc_opt=float(item['auc_opt']),  # type: ignore[arg-type]
-                error_rate=float(item['error_rate']),  # type: ignore[arg-type]
-                n_pixels=int(item['n_pixels']),  # type: ignore[call-overload]
-            )
+            rates = {
+                key: float(item[key])  # type: ignore[arg-type]
+                for key in ('auc', 'auc_opt', 'error_rate')
+            }
+            pixels = float(item['n_pixels'])  # type: ignore[arg-type]
         except (TypeError, ValueError) as exc:
             raise InputError(f'evaluation record has a value of the wrong type: {exc}') from None
+        where = f'evaluation record {item["dataset"]}/{item["scene"]} {item["method"]}'
+        for key, value in rates.items():
+            # A NaN would average into every row of the table that holds it.
+            if not 0.0 <= value <= 1.0:
+                raise InputError(f'{where}: {key} must be a number in [0, 1]; got {value}')
+        if isinstance(item['n_pixels'], bool) or not (pixels >= 1 and pixels.is_integer()):
+            raise InputError(
+                f'{where}: n_pixels must be a whole number ≥ 1; got {item["n_pixels"]!r}'
+            )
+        return cls(
+            dataset=str(item['dataset']),
+            scene=str(item['scene']),
+            matcher=str(item['matcher']),
+            method=str(item['method']),
+            n_pixels=int(pixels),
+            **rates,
+        )
 
 
 RecordLike = EvalRecord | Mapping[str, object]

@@ -561,6 +561,8 @@ def run(args: argparse.Namespace) -> int:
             f'no weights for {listed} at D = {args.max_disparity}; train them with '
             f'--train-missing (or cva-train --arch ARCH) or give --weights-dir'
         )
+    # Read before any training: a bad --reuse file fails now, not after hours of it.
+    reusable = _load_reusable(args.reuse, methods) if args.reuse else {}
     by_arch = {arch: method for method, arch in LEARNED.items()}
     for arch, matcher in missing:
         weights[(by_arch[arch], matcher)] = _train(args, protocol, arch, matcher)
@@ -575,7 +577,6 @@ def run(args: argparse.Namespace) -> int:
                 weights=str(path) if path else None, device=args.device,
             )
 
-    reusable = _load_reusable(args.reuse, methods) if args.reuse else {}
     jobs: list[tuple[TableRow, str]] = []
     for row in rows:
         if row.missing:

@@ -87,3 +87,23 @@ def test_a_binary_records_file_is_a_data_error(tmp_path) -> None:
     binary.write_bytes(b'\xff\xfe\x00\x89PNG')
     with pytest.raises(DataError, match='cannot read evaluation records from .*records.json'):
         read_records(binary)
+
+
+@pytest.mark.parametrize(
+    ('key', 'value', 'message'),
+    [
+        ('auc', float('nan'), 'auc must be a number in \\[0, 1\\]; got nan'),
+        ('auc_opt', 1.5, 'auc_opt must be a number in \\[0, 1\\]; got 1.5'),
+        ('error_rate', -0.1, 'error_rate must be a number in \\[0, 1\\]'),
+        ('n_pixels', 12.5, 'n_pixels must be a whole number ≥ 1; got 12.5'),
+        ('n_pixels', 0, 'n_pixels must be a whole number ≥ 1; got 0'),
+        ('n_pixels', True, 'n_pixels must be a whole number ≥ 1; got True'),
+    ],
+)
+def test_a_record_with_an_impossible_value_is_named(key: str, value: object, message: str) -> None:
+    # A NaN AUC used to pass and turn its table cells into nan; 12.5 pixels became 12.
+    item = {**_rec('kitti2015', '000001', 'census_bm', 'pkrn', 0.1).as_dict(), key: value}
+    with pytest.raises(InputError, match=f'kitti2015/000001 pkrn: {message}'):
+        EvalRecord.from_mapping(item)
+    whole = {**item, key: 100.0} if key == 'n_pixels' else {**item, key: 0.25}
+    assert EvalRecord.from_mapping(whole).as_dict()[key] == whole[key]

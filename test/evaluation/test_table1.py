@@ -297,3 +297,24 @@ def test_a_binary_reuse_file_exits_2_with_one_line(data_root, tmp_path, capsys):
     last = err.splitlines()[-1]
     assert last.startswith(f'cva-table1: error: cannot read --reuse records {reuse}')
     assert not (tmp_path / 'out' / 'table1.md').exists()
+
+
+def test_a_bad_reuse_file_is_refused_before_missing_weights_are_trained(
+    data_root, tmp_path, capsys, monkeypatch
+):
+    # With --train-missing the reuse file used to be read only after the training (hours).
+    from cva_confidence_ros.evaluation import table1
+
+    trained = []
+    monkeypatch.setattr(table1, '_train', lambda *args: trained.append(args))
+    reuse = tmp_path / 'reuse.json'
+    reuse.write_text(json.dumps([{'dataset': 'kitti2015', 'scene': '000000',
+                                  'matcher': 'census_bm', 'method': 'cva_net', 'auc': 'nan',
+                                  'auc_opt': 0.01, 'error_rate': 0.1, 'n_pixels': 50}]))
+    code = main(['--data-root', str(data_root), '--matchers', 'census_bm', '--methods',
+                 'cva_net', '--max-disparity', str(D), '--weights-dir', str(tmp_path / 'none'),
+                 '--train-missing', '--max-pixels', '50', '--out', str(tmp_path / 'out'),
+                 '--reuse', str(reuse)])
+    assert code == 2
+    assert 'auc must be a number in [0, 1]; got nan' in capsys.readouterr().err
+    assert trained == []
