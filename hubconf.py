@@ -29,11 +29,18 @@ _BASELINES = ('ccnn', 'lfn', 'lgcnet')
 def _network(
     arch: str, matcher: str, max_disparity: int, pretrained: bool, device: str
 ) -> Any:
+    from cva_confidence_ros.checks import is_int
+    from cva_confidence_ros.errors import ConfigError
+    from cva_confidence_ros.matching import MATCHERS
     from cva_confidence_ros.model import load_weights
     from cva_confidence_ros.model.hub import HubPredict
     from cva_confidence_ros.model.inference import resolve_device
     from cva_confidence_ros.model.weights import ARCHITECTURES, default_weights_path
 
+    # An untrained network would take 64.7 as 64 and any matcher name into its meta.
+    if not is_int(max_disparity) or max_disparity < 1:
+        raise ConfigError(f'max_disparity must be an integer ≥ 1; got {max_disparity!r}')
+    MATCHERS.get(matcher)
     if pretrained:
         path = default_weights_path(matcher, max_disparity, arch)
         net, meta = load_weights(path, matcher=matcher, max_disparity=max_disparity,

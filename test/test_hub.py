@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
+import re
 
 import numpy as np
 import pytest
 
 torch = pytest.importorskip('torch')
 
-from cva_confidence_ros.errors import ModelError  # noqa: E402
+from cva_confidence_ros.errors import ConfigError, ModelError  # noqa: E402
 from cva_confidence_ros.model import load_weights, predict_confidence  # noqa: E402
 from cva_confidence_ros.model.baselines import predict_disparity_confidence  # noqa: E402
 from cva_confidence_ros.model.weights import default_weights_path  # noqa: E402
@@ -75,6 +76,23 @@ def test_weights_that_are_not_shipped_say_how_to_train_them() -> None:
     with pytest.raises(ModelError, match=r'no shipped cvanet weights cvanet_census_bm_d128\.pt'
                        r'.*cva-train --arch cvanet --matcher census_bm --max-disparity 128'):
         _hub('cvanet', max_disparity=128)
+
+
+@pytest.mark.parametrize(
+    ('options', 'message'),
+    [
+        ({'max_disparity': 64.7}, 'max_disparity must be an integer ≥ 1; got 64.7'),
+        ({'max_disparity': 0}, 'max_disparity must be an integer ≥ 1; got 0'),
+        ({'max_disparity': True}, 'max_disparity must be an integer ≥ 1; got True'),
+        ({'matcher': 'census_xx'}, "unknown matcher 'census_xx'"),
+    ],
+)
+def test_an_untrained_network_of_an_impossible_depth_or_matcher_is_refused(
+    options: dict[str, object], message: str
+) -> None:
+    # Untrained, 64.7 used to become D = 64 and any matcher name went into net.meta.
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        _hub('cvanet', pretrained=False, **options)
 
 
 @pytest.mark.parametrize('arch', ['cvanet_fast', 'lgcnet'])
