@@ -9,7 +9,8 @@ pixels first) and the worst case (its wrong pixels first).
 
 Curve start: like the paper, the curve starts at its first sample point (density
 ``ceil(0.05 N) / N``); nothing is extrapolated towards density 0. The optimal curve is zero on
-``[0, 1 - ε]``, so this changes nothing for :func:`optimal_auc` as long as ``ε ≤ 0.95``.
+``[0, 1 - ε]``, so this changes nothing for :func:`optimal_auc` as long as ``ε ≤ 0.95``; above,
+``optimal_auc(ε, N)`` leaves out the area before the curve's start as the AUC does.
 
 All functions are vectorised (one sort, cumulative sums, ``searchsorted``) and handle millions of
 pixels.
@@ -195,18 +196,24 @@ def roc_auc(confidence: np.ndarray, error: np.ndarray) -> float:
     return _trapezoid(density, rate)
 
 
-def optimal_auc(error_rate: float) -> float:
+def optimal_auc(error_rate: float, n_pixels: int | None = None) -> float:
     """AUC of a perfect confidence map: ``ε + (1 − ε) ln(1 − ε)`` (paper, Eq. 1).
 
     Args:
         error_rate: Overall error rate ε of the disparity map, in [0, 1]: a real scalar (Python
             or numpy number, or a 0-d real array); bool is refused, as it is no rate.
+        n_pixels: Given, the optimum over the density range that :func:`roc_auc` of that many
+            pixels covers, from its first sample ``s = ceil(0.05 N) / N`` on: Eq. (1) while
+            ``ε ≤ 1 − s``; above (ε > 0.95, or a few pixels), the area left of ``s``, which no
+            confidence map can get, is left out: ``(1 − s) + (1 − ε) ln s``. Then AUC ≥ the
+            optimum for every map (ε = 1: both 0.95).
 
     Returns:
         The optimal AUC in [0, 1] (1 for ε = 1, the limit of the formula).
 
     Raises:
-        InputError: ``error_rate`` is not a real scalar, is outside [0, 1] or is NaN.
+        InputError: ``error_rate`` is not a real scalar, is outside [0, 1] or is NaN, or
+            ``n_pixels`` is not an integer ≥ 1.
     """
     scalar = isinstance(error_rate, (Real, np.integer)) or (
         isinstance(error_rate, np.ndarray)
@@ -222,6 +229,15 @@ def optimal_auc(error_rate: float) -> float:
     eps = float(error_rate)
     if not 0.0 <= eps <= 1.0:
         raise InputError(f'error_rate must be in [0, 1]; got {error_rate}')
+    if n_pixels is not None:
+        if isinstance(n_pixels, (bool, np.bool_)) or not isinstance(n_pixels, (int, np.integer)):
+            raise InputError(f'n_pixels must be an integer ≥ 1; got {n_pixels!r}')
+        if n_pixels < 1:
+            raise InputError(f'n_pixels must be an integer ≥ 1; got {n_pixels}')
+        count = int(n_pixels)
+        start = -(-count // DENSITY_STEPS) / count  # ceil(0.05 N) / N, the curve's first point
+        if eps > 1.0 - start:
+            return (1.0 - start) + (1.0 - eps) * float(np.log(start))
     if eps == 1.0:
         return 1.0
     return eps + (1.0 - eps) * float(np.log1p(-eps))
@@ -271,7 +287,7 @@ def evaluate_confidence(
     error_rate = float(error.mean())
     return {
         'auc': roc_auc(confidence[valid], error),
-        'auc_opt': optimal_auc(error_rate),
+        'auc_opt': optimal_auc(error_rate, n_pixels),
         'error_rate': error_rate,
         'n_pixels': n_pixels,
     }

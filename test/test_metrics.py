@@ -170,6 +170,25 @@ def test_optimal_auc_formula() -> None:
         optimal_auc(1.5)
 
 
+def test_optimal_auc_over_the_curves_range() -> None:
+    # ε ≤ 1 − ceil(0.05 N) / N: the paper's Eq. (1) whatever N.
+    assert optimal_auc(0.3, 1000) == optimal_auc(0.3)
+    assert optimal_auc(0.95, 100) == optimal_auc(0.95)
+    # Above: the area before the curve's first point (0.05 for N = 100) is left out.
+    assert optimal_auc(1.0, 100) == pytest.approx(0.95)
+    assert optimal_auc(0.98, 100) == pytest.approx(0.95 + 0.02 * math.log(0.05))
+    assert optimal_auc(1.0, 1) == 0.0  # one point: no area
+    # evaluate_confidence, the replay and cva-evaluate agree: with every pixel wrong, a map
+    # reaches its optimum (Eq. (1) said 1 against an AUC of 0.95).
+    d_gt = np.full((10, 10), 5.0)
+    d_est = d_gt + 10.0
+    scores = evaluate_confidence(np.random.default_rng(0).random((10, 10)), d_est, d_gt)
+    assert scores['auc'] == pytest.approx(0.95) and scores['auc_opt'] == pytest.approx(0.95)
+    for bad in (0, -3, 2.5, True):
+        with pytest.raises(InputError, match='n_pixels must be an integer ≥ 1'):
+            optimal_auc(0.5, bad)
+
+
 def test_single_pixel_curve() -> None:
     density, rate = roc_curve(np.array([0.3]), np.array([True]))
     np.testing.assert_array_equal(density, [1.0])

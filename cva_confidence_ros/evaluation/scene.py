@@ -108,7 +108,7 @@ def score_confidence(confidence: np.ndarray, error: np.ndarray) -> ScoredMethod:
     Raises:
         InputError: Shapes differ, nothing to score, or NaN confidence.
     """
-    from cva_confidence_ros.metrics import roc_auc, roc_curve
+    from cva_confidence_ros.metrics import optimal_auc, roc_auc, roc_curve
 
     # float64 holds float32 exactly; casting a float64 map down would tie values that differ
     # only beyond float32's 7 digits and change the ranking the AUC measures.
@@ -128,29 +128,12 @@ def score_confidence(confidence: np.ndarray, error: np.ndarray) -> ScoredMethod:
     density, roc_error = roc_curve(confidence, error)
     return ScoredMethod(
         auc=float(roc_auc(confidence, error)),
-        auc_opt=_optimal_auc_from(error_rate, float(density[0])),
+        auc_opt=float(optimal_auc(error_rate, int(confidence.size))),
         error_rate=error_rate,
         n_pixels=int(confidence.size),
         density=np.asarray(density, dtype=np.float64),
         roc_error=np.asarray(roc_error, dtype=np.float64),
     )
-
-
-def _optimal_auc_from(error_rate: float, start: float) -> float:
-    """Optimal AUC over the density range ``[start, 1]`` that the ROC curve covers.
-
-    The curve starts at its first sample density (``ceil(0.05 N) / N``, see
-    :mod:`cva_confidence_ros.metrics`). While ``ε ≤ 1 − start`` the optimal curve is zero
-    below ``start`` and this is the paper's Eq. (1) exactly. Beyond (ε > 0.95, or a subset of
-    a few pixels) Eq. (1) would count area left of the curve's start that no confidence map
-    can get, so a map would score below its optimum (ε = 1: AUC 0.95 against 1); the integral
-    of the optimal error rate ``1 − (1 − ε) / p`` from ``start`` to 1 is used instead.
-    """
-    from cva_confidence_ros.metrics import optimal_auc
-
-    if error_rate <= 1.0 - start:
-        return float(optimal_auc(error_rate))
-    return float((1.0 - start) + (1.0 - error_rate) * np.log(start))
 
 
 def overlay_threshold(confidence: np.ndarray, error_rate: float) -> float:

@@ -316,7 +316,7 @@ def _auc(net: nn.Module, scenes: list[DisparityScene], subsets: list[Any], devic
     rate = float(wrong.mean())
     return {
         'val_auc': float(roc_auc(confidence, wrong)),
-        'val_auc_opt': float(optimal_auc(rate)),
+        'val_auc_opt': float(optimal_auc(rate, wrong.size)),
         'val_error_rate': rate,
     }
 

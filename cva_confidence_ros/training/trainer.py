@@ -374,7 +374,7 @@ def _validate(
     rate = float(wrong.mean())
     return {
         'val_auc': float(roc_auc(confidence, wrong)),
-        'val_auc_opt': float(optimal_auc(rate)),
+        'val_auc_opt': float(optimal_auc(rate, wrong.size)),
         'val_error_rate': rate,
         # Share of outputs >= 0.5: near 1 means the network calls almost everything correct.
         'val_high': float(np.mean(confidence >= 0.5)),
