@@ -9,6 +9,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+import math
 from pathlib import Path
 import re
 
@@ -107,10 +108,17 @@ def read_pfm(path: str | Path) -> np.ndarray:
         raise DataError(f'{path}: bad PFM size or scale {tokens!r}') from exc
     channels = 3 if magic == b'PF' else 1
     count = width * height * channels
-    if width <= 0 or height <= 0 or scale == 0 or len(data) < 4 * count:
+    # The sign of the scale is the byte order: a NaN one has none (a corrupt header).
+    if (
+        width <= 0
+        or height <= 0
+        or not math.isfinite(scale)
+        or scale == 0
+        or len(data) < 4 * count
+    ):
         raise DataError(
-            f'{path}: expected {width}×{height}×{channels} float32 values and a non-zero scale; '
-            f'got {len(data) // 4} values, scale {scale}'
+            f'{path}: expected {width}×{height}×{channels} float32 values and a finite, '
+            f'non-zero scale; got {len(data) // 4} values, scale {scale}'
         )
     dtype = np.dtype('<f4' if scale < 0 else '>f4')
     array = np.frombuffer(data, dtype=dtype, count=count)
@@ -132,8 +140,11 @@ def write_pfm(path: str | Path, array: np.ndarray, scale: float = 1.0) -> None:
     array = np.asarray(array, dtype=np.float32)
     if not (array.ndim == 2 or (array.ndim == 3 and array.shape[2] == 3)):
         raise DataError(f'PFM holds (H, W) or (H, W, 3) arrays; got shape {array.shape}')
-    if not scale > 0:
-        raise DataError(f'PFM scale must be > 0; got {scale}')
+    if array.shape[0] == 0 or array.shape[1] == 0:
+        # read_pfm (and other readers) refuse a header of size 0: the file would not read back.
+        raise DataError(f'PFM holds at least one pixel; got shape {array.shape}')
+    if not (scale > 0 and math.isfinite(scale)):
+        raise DataError(f'PFM scale must be finite and > 0; got {scale}')
     magic = 'PF' if array.ndim == 3 else 'Pf'
     header = f'{magic}\n{array.shape[1]} {array.shape[0]}\n{-scale}\n'.encode('ascii')
     body = np.flipud(array).astype('<f4').tobytes()
@@ -235,7 +246,9 @@ def read_disparity_png(path: str | Path, scale: float, bits: int | None = None) 
 
 def _read_key_values(path: Path) -> dict[str, str]:
     try:
-        text = path.read_text(encoding='ascii', errors='replace')
+        # utf-8-sig: a file saved by a Windows editor starts with a byte-order mark, which
+        # would otherwise stick to the first key ('\ufeffcam0').
+        text = path.read_text(encoding='utf-8-sig', errors='replace')
     except OSError as exc:
         raise DataError(f'cannot read calibration file {path}: {exc}') from exc
     values: dict[str, str] = {}
@@ -247,7 +260,8 @@ def _read_key_values(path: Path) -> dict[str, str]:
 
 
 def _matrix(text: str, path: Path, key: str) -> np.ndarray:
-    numbers = re.split(r'[\s;\[\]]+', text.strip())
+    # Spaces, commas, semicolons and brackets all separate numbers ('[f, 0, cx; 0, f, cy; …]').
+    numbers = re.split(r'[\s,;\[\]]+', text.strip())
     try:
         values = [float(value) for value in numbers if value]
     except ValueError as exc:
@@ -255,12 +269,38 @@ def _matrix(text: str, path: Path, key: str) -> np.ndarray:
     return np.asarray(values, dtype=np.float64)
 
 
+def _checked(path: Path, calibration: Calibration) -> Calibration:
+    """``calibration`` if it can give depths: finite, focal lengths and baseline > 0.
+
+    Raises:
+        DataError: A value that would make every depth 0, negative, infinite or NaN (a zeroed
+            or corrupt file, or KITTI keys given right camera first).
+    """
+    values = (
+        calibration.fx, calibration.fy, calibration.cx, calibration.cy, calibration.baseline,
+        calibration.doffs,
+    )
+    if not all(math.isfinite(value) for value in values):
+        raise DataError(f'{path}: calibration values must be finite; got {calibration}')
+    if not (calibration.fx > 0 and calibration.fy > 0):
+        raise DataError(
+            f'{path}: focal lengths must be > 0; got fx={calibration.fx}, fy={calibration.fy}'
+        )
+    if not calibration.baseline > 0:
+        raise DataError(
+            f'{path}: baseline must be > 0 (the right camera to the right of the left one); '
+            f'got {calibration.baseline}'
+        )
+    return calibration
+
+
 def read_middlebury_calibration(path: str | Path) -> Calibration:
     """Read a Middlebury / ETH3D ``calib.txt`` (``cam0=[f 0 cx; 0 f cy; 0 0 1]``, ``doffs``,
     ``baseline`` in millimetres).
 
     Raises:
-        DataError: Missing file or fields.
+        DataError: Missing file or fields, or values that give no depth (fx, fy or baseline
+            ≤ 0, or not finite).
     """
     path = Path(path)
     values = _read_key_values(path)
@@ -275,13 +315,16 @@ def read_middlebury_calibration(path: str | Path) -> Calibration:
         ) from exc
     if cam0.size != 9:
         raise DataError(f'{path}: cam0 must hold 9 numbers; got {cam0.size}')
-    return Calibration(
-        fx=float(cam0[0]),
-        fy=float(cam0[4]),
-        cx=float(cam0[2]),
-        cy=float(cam0[5]),
-        baseline=baseline_mm / 1000.0,
-        doffs=doffs,
+    return _checked(
+        path,
+        Calibration(
+            fx=float(cam0[0]),
+            fy=float(cam0[4]),
+            cx=float(cam0[2]),
+            cy=float(cam0[5]),
+            baseline=baseline_mm / 1000.0,
+            doffs=doffs,
+        ),
     )
 
 
@@ -300,7 +343,8 @@ def read_kitti_calibration(
         right_key: Key of the right projection matrix.
 
     Raises:
-        DataError: Missing file or keys.
+        DataError: Missing file or keys, or values that give no depth (fx, fy or baseline
+            ≤ 0, e.g. the keys of the right camera first, or not finite).
     """
     path = Path(path)
     values = _read_key_values(path)
@@ -313,11 +357,16 @@ def read_kitti_calibration(
             f'missing or bad {exc}'
         ) from exc
     fx = float(left[0, 0])
-    return Calibration(
-        fx=fx,
-        fy=float(left[1, 1]),
-        cx=float(left[0, 2]),
-        cy=float(left[1, 2]),
-        baseline=float(left[0, 3] - right[0, 3]) / fx,
-        doffs=float(right[0, 2] - left[0, 2]),
+    if not fx > 0:  # checked here too: the baseline is divided by it
+        raise DataError(f'{path}: {left_key}[0, 0] (fx) must be > 0; got {fx}')
+    return _checked(
+        path,
+        Calibration(
+            fx=fx,
+            fy=float(left[1, 1]),
+            cx=float(left[0, 2]),
+            cy=float(left[1, 2]),
+            baseline=float(left[0, 3] - right[0, 3]) / fx,
+            doffs=float(right[0, 2] - left[0, 2]),
+        ),
     )

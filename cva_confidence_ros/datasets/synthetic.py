@@ -87,12 +87,29 @@ def _photo(name: str) -> tuple[np.ndarray, bool]:
     return image, grey
 
 
-def _check_arguments(seed: int, height: int, width: int, max_disparity: int) -> None:
+def _integral(value: object) -> bool:
+    """Whether ``value`` is a whole number (``32`` or ``32.0``, not ``True``, ``'32'``, NaN)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
+        return False
+    try:
+        return int(value) == value
+    except (OverflowError, ValueError):  # inf, NaN
+        return False
+
+
+def _check_arguments(
+    seed: int, height: int, width: int, max_disparity: int
+) -> tuple[int, int, int, int]:
+    """The arguments as Python ints (``32.0`` → ``32``: the same pair and scene name as
+    ``32``)."""
     for name, value in (('height', height), ('width', width), ('max_disparity', max_disparity)):
-        if isinstance(value, bool) or int(value) != value:
+        if not _integral(value):
             raise ConfigError(f'{name} must be an integer; got {value!r}')
-    if isinstance(seed, bool) or int(seed) != seed or seed < 0:
+    if not _integral(seed) or seed < 0:
         raise ConfigError(f'seed must be an integer >= 0; got {seed!r}')
+    seed, height, width, max_disparity = (
+        int(seed), int(height), int(width), int(max_disparity)
+    )
     if height < 16 or width < 16:
         raise ConfigError(f'synthetic pairs need at least 16×16 pixels; got {height}×{width}')
     if not 4 <= max_disparity <= width // 2:
@@ -100,6 +117,7 @@ def _check_arguments(seed: int, height: int, width: int, max_disparity: int) -> 
             f'max_disparity must be in [4, width / 2 = {width // 2}] for a {height}×{width} '
             f'pair; got {max_disparity}'
         )
+    return seed, height, width, max_disparity
 
 
 def _plane(
@@ -308,8 +326,8 @@ def synthetic_pair(
     Raises:
         ConfigError: Sizes out of range.
     """
-    _check_arguments(seed, height, width, max_disparity)
-    rng = np.random.default_rng([int(seed), height, width, max_disparity])
+    seed, height, width, max_disparity = _check_arguments(seed, height, width, max_disparity)
+    rng = np.random.default_rng([seed, height, width, max_disparity])
     high = float(max_disparity - 1)
     # The right view sees left-view x up to about W + D / (1 − gx); textures cover that.
     texture_width = width + int(np.ceil(high / (1 - _MAX_SLANT_X))) + 2

@@ -267,15 +267,28 @@ def float_image_to_array(msg: Image) -> np.ndarray:
     if msg.encoding != '32FC1':
         raise InputError(f'expected a 32FC1 image; got {msg.encoding!r}')
     height, width, step = int(msg.height), int(msg.width), int(msg.step)
-    data = np.frombuffer(msg.data, dtype=np.uint8)
-    if step < 4 * width or data.size < step * height:
-        raise InputError(
-            f'32FC1 image of {width}×{height} needs step ≥ {4 * width} and {step * height} '
-            f'bytes; got step {step} and {data.size} bytes'
-        )
+    rows = _pixel_rows(msg, '32FC1', height, 4 * width, step)
     dtype = np.dtype('>f4' if msg.is_bigendian else '<f4')
-    rows = data[: step * height].reshape(height, step)[:, : 4 * width]
     return rows.copy().view(dtype).reshape(height, width).astype(np.float32)
+
+
+def _pixel_rows(msg: Any, encoding: str, height: int, row_bytes: int, step: int) -> np.ndarray:
+    """(height, row_bytes) uint8 view of an image's pixel bytes, row padding skipped.
+
+    As :func:`image_to_array`, the last row's padding may be missing from ``data`` (a
+    producer that sends ``step · (height − 1) + row_bytes`` bytes).
+
+    Raises:
+        InputError: ``step`` shorter than a row, or ``data`` too short for the rows.
+    """
+    data = np.frombuffer(msg.data, dtype=np.uint8)
+    needed = step * (height - 1) + row_bytes if height > 0 else 0
+    if step < row_bytes or data.size < needed:
+        raise InputError(
+            f'{encoding} image of {msg.width}×{height} needs step ≥ {row_bytes} and '
+            f'{step * height} bytes; got step {step} and {data.size} bytes'
+        )
+    return np.lib.stride_tricks.as_strided(data, shape=(height, row_bytes), strides=(step, 1))
 
 
 def depth_to_image(depth: np.ndarray, header: Header, encoding: str = '32FC1') -> Image:
@@ -357,14 +370,8 @@ def depth_image_to_array(msg: Image) -> np.ndarray:
         )
     height, width, step = int(msg.height), int(msg.width), int(msg.step)
     size = 4 if encoding == '32FC1' else 2
-    data = np.frombuffer(msg.data, dtype=np.uint8)
-    if step < size * width or data.size < step * height:
-        raise InputError(
-            f'{encoding} image of {width}×{height} needs step ≥ {size * width} and '
-            f'{step * height} bytes; got step {step} and {data.size} bytes'
-        )
+    rows = _pixel_rows(msg, encoding, height, size * width, step)
     order = '>' if msg.is_bigendian else '<'
-    rows = data[: step * height].reshape(height, step)[:, : size * width]
     if encoding == '32FC1':
         depth = rows.copy().view(f'{order}f4').reshape(height, width).astype(np.float32)
     else:

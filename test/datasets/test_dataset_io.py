@@ -156,3 +156,75 @@ def test_bad_pfm_header_is_quoted_short(tmp_path: Path) -> None:
     with pytest.raises(DataError, match='is not a PFM file') as caught:
         read_pfm(tmp_path / 'noise.pfm')
     assert len(str(caught.value)) < len(str(tmp_path)) + 200
+
+
+@pytest.mark.parametrize('scale', [b'nan', b'-nan', b'inf', b'-inf'])
+def test_pfm_with_a_non_finite_scale_is_refused(tmp_path: Path, scale: bytes) -> None:
+    # The sign of the scale is the byte order; a NaN one was read as big-endian garbage.
+    body = np.array([[1.0, 2.0]], dtype='<f4').tobytes()
+    (tmp_path / 's.pfm').write_bytes(b'Pf\n2 1\n' + scale + b'\n' + body)
+    with pytest.raises(DataError, match='finite, non-zero scale'):
+        read_pfm(tmp_path / 's.pfm')
+
+
+def test_write_pfm_refuses_what_cannot_be_read_back(tmp_path: Path) -> None:
+    for shape in ((0, 3), (2, 0), (0, 0, 3)):
+        with pytest.raises(DataError, match='at least one pixel'):
+            write_pfm(tmp_path / 'e.pfm', np.zeros(shape, np.float32))
+    for scale in (float('inf'), float('nan')):
+        with pytest.raises(DataError, match='finite and > 0'):
+            write_pfm(tmp_path / 's.pfm', np.ones((1, 1)), scale)
+    assert not (tmp_path / 'e.pfm').exists() and not (tmp_path / 's.pfm').exists()
+    write_pfm(tmp_path / 'one.pfm', np.full((1, 1), 2.5))
+    np.testing.assert_array_equal(read_pfm(tmp_path / 'one.pfm'), [[2.5]])
+
+
+_CALIB = (
+    'cam0=[999.421 0 294.182; 0 999.421 252.932; 0 0 1]\n'
+    'cam1=[999.421 0 326.96; 0 999.421 252.932; 0 0 1]\n'
+    'doffs=32.778\nbaseline=193.001\n'
+)
+_CALIB_VALUES = Calibration(
+    fx=999.421, fy=999.421, cx=294.182, cy=252.932, baseline=0.193001, doffs=32.778
+)
+
+
+def test_middlebury_calibration_with_a_byte_order_mark_or_commas(tmp_path: Path) -> None:
+    # Saved by a Windows editor: the mark used to stick to the first key ('cam0' missing).
+    (tmp_path / 'bom.txt').write_bytes(('\ufeff' + _CALIB).encode('utf-8'))
+    assert read_middlebury_calibration(tmp_path / 'bom.txt') == _CALIB_VALUES
+    (tmp_path / 'commas.txt').write_text(
+        _CALIB.replace('999.421 0 294.182; 0 999.421 252.932; 0 0 1',
+                       '999.421, 0, 294.182; 0, 999.421, 252.932; 0, 0, 1')
+    )
+    assert read_middlebury_calibration(tmp_path / 'commas.txt') == _CALIB_VALUES
+
+
+@pytest.mark.parametrize(
+    ('old', 'new', 'match'),
+    [
+        ('baseline=193.001', 'baseline=0', 'baseline must be > 0'),
+        ('baseline=193.001', 'baseline=-193.001', 'baseline must be > 0'),
+        ('baseline=193.001', 'baseline=nan', 'finite'),
+        ('[999.421 0 294.182', '[0 0 294.182', 'focal lengths must be > 0'),
+    ],
+)
+def test_middlebury_calibration_that_gives_no_depth_is_refused(
+    tmp_path: Path, old: str, new: str, match: str
+) -> None:
+    (tmp_path / 'calib.txt').write_text(_CALIB.replace(old, new))
+    with pytest.raises(DataError, match=match):
+        read_middlebury_calibration(tmp_path / 'calib.txt')
+
+
+def test_kitti_calibration_that_gives_no_depth_is_refused(tmp_path: Path) -> None:
+    p2 = '7.2e+02 0 6.0e+02 4.5e+01 0 7.2e+02 1.8e+02 0 0 0 1 0'
+    p3 = '7.2e+02 0 6.0e+02 -3.15e+02 0 7.2e+02 1.8e+02 0 0 0 1 0'
+    (tmp_path / 'c.txt').write_text(f'P2: {p2}\nP3: {p3}\nP4: {"0 " * 12}\n')
+    # The right camera's keys first: a negative baseline, every depth negative.
+    with pytest.raises(DataError, match='baseline must be > 0'):
+        read_kitti_calibration(tmp_path / 'c.txt', 'P3', 'P2')
+    # A zeroed matrix: ZeroDivisionError before.
+    with pytest.raises(DataError, match=r'P4\[0, 0\] \(fx\) must be > 0'):
+        read_kitti_calibration(tmp_path / 'c.txt', 'P4', 'P3')
+    assert read_kitti_calibration(tmp_path / 'c.txt').baseline == pytest.approx(0.5)

@@ -86,3 +86,16 @@ def test_bad_arguments():
         synthetic_pair(0, 8, 32, 8)
     with pytest.raises(ConfigError, match='seed'):
         synthetic_pair(-1, 32, 32, 8)
+
+
+def test_whole_float_sizes_and_seed_give_the_int_pair():
+    # 32.0 passed the check, then numpy's seeding refused it ('seed must be integer'), and a
+    # seed of 1.0 named the scene 'seed1.0'.
+    reference = synthetic_pair(1, 32, 48, 16)
+    pair = synthetic_pair(1.0, 32.0, np.int64(48), 16.0)
+    assert pair.scene == 'seed1' and pair.left.shape == (32, 48, 3)
+    np.testing.assert_array_equal(pair.left, reference.left)
+    np.testing.assert_array_equal(pair.disparity, reference.disparity)
+    for bad in ('abc', 32.5, None, float('nan'), True):
+        with pytest.raises(ConfigError, match='height must be an integer'):
+            synthetic_pair(0, bad, 48, 16)

@@ -174,6 +174,24 @@ def test_depth_image_decoding_reads_big_endian_and_row_padding() -> None:
     np.testing.assert_allclose(depth_image_to_array(msg), [[1.0, np.nan], [2.5, 0.007]])
 
 
+def test_float_and_depth_images_without_the_last_rows_padding_decode() -> None:
+    # As image_to_array: data of step · (H − 1) + row bytes, the last row's padding left out,
+    # was refused by the 32FC1 and depth decoders ('needs … 16 bytes; got … 12').
+    values = np.array([[1.5], [-2.0]], '<f4')
+    data = values[0].tobytes() + b'\xff' * 4 + values[1].tobytes()
+    msg = _raw(data, 2, 1, '32FC1', step=8)
+    np.testing.assert_array_equal(float_image_to_array(msg), [[1.5], [-2.0]])
+    np.testing.assert_array_equal(depth_image_to_array(msg), [[1.5], [np.nan]])
+    millimetres = np.array([2500, 7], '>u2').tobytes()
+    msg = _raw(millimetres[:2] + b'\x00' * 2 + millimetres[2:], 2, 1, '16UC1', step=4, big=True)
+    np.testing.assert_allclose(depth_image_to_array(msg), [[2.5], [0.007]])
+    # One byte fewer is still refused, by name.
+    with pytest.raises(InputError, match='32FC1 image of 1×2 needs step ≥ 4 and 16 bytes; got'):
+        float_image_to_array(_raw(data[:-1], 2, 1, '32FC1', step=8))
+    with pytest.raises(InputError, match='16UC1 image of 1×2 needs step ≥ 2'):
+        depth_image_to_array(_raw(b'\x00' * 5, 2, 1, '16UC1', step=4))
+
+
 @pytest.mark.parametrize(
     ('call', 'match'),
     [
