@@ -10,14 +10,18 @@ from dataclasses import dataclass, field, fields
 from functools import cached_property
 import math
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from cva_confidence_ros.checks import is_int, is_real
 from cva_confidence_ros.errors import ConfigError, InputError
 
-__all__ = ['ROI_MARGIN', 'PipelineConfig', 'PipelineResult', 'StereoPipeline', 'judged_region',
+if TYPE_CHECKING:
+    from cva_confidence_ros.confidence import ConfidenceInputs
+
+__all__ = ['ROI_MARGIN', 'WARM_UP_MARGIN', 'WARM_UP_NETWORK_MACS', 'WARM_UP_ROWS',
+           'PipelineConfig', 'PipelineResult', 'StereoPipeline', 'judged_region',
            'output_region']
 
 _DEVICES = ('cpu', 'cuda', 'auto')
@@ -28,6 +32,13 @@ _MAX_SPECKLE_SIZE = 1_000_000
 #: exceptions: SGM's vertical and diagonal paths start at the edge of this margin, and MC-CNN
 #: standardises the image it gets (the rows processed) by its own mean and deviation.
 ROI_MARGIN = 16
+#: Rows of the synthetic pair of :meth:`StereoPipeline.warm_up` (processed resolution).
+WARM_UP_ROWS = 16
+#: Columns of that pair beyond max_disparity.
+WARM_UP_MARGIN = 16
+#: Most multiply-adds a confidence network may spend on the warm-up pair on a CPU; a heavier
+#: one (CVA-Net: 35 M per pixel at D = 64) sees a window of it.
+WARM_UP_NETWORK_MACS = 2e9
 
 
 @dataclass(frozen=True)
@@ -285,7 +296,8 @@ class StereoPipeline:
         config: What to compute. Learned weights are loaded once here, not per frame.
 
     Raises:
-        ConfigError: The device is not available here, or the method's options do not fit.
+        ConfigError: The device is not available here, the method's options do not fit, or
+            max_disparity is below the method's smallest depth (2 for ``pkrn``, ``lrd``).
         ModelError: Weights that cannot be loaded or do not fit the matcher and depth.
     """
 
@@ -310,6 +322,13 @@ class StereoPipeline:
             cva_precision=config.cva_precision,
             cva_backend=config.cva_backend,
         )
+        # Refused here, not on every frame (and in the warm-up's words) later.
+        depth = getattr(self._method, 'min_depth', 1)
+        if config.max_disparity < depth:
+            raise ConfigError(
+                f'confidence_method {config.confidence_method} compares the best cost with '
+                f'the second best and needs max_disparity ≥ {depth}; got {config.max_disparity}'
+            )
         from cva_confidence_ros.mask import load_mask
 
         self._mask = load_mask(config.mask_path) if config.mask_path else None
@@ -351,23 +370,62 @@ class StereoPipeline:
             )
 
     def warm_up(self) -> None:
-        """Run the matcher once on a small random pair.
+        """Run the whole pipeline once on a small synthetic pair, outside every statistic.
 
-        The numba kernels compile (or load from their cache) and MC-CNN loads its weights on
-        first use; doing it here keeps that second-long delay out of the first real frame.
+        Every numba kernel the configuration uses (matcher, winner-takes-all, left–right
+        check, sub-pixel step, speckle filter, hand-crafted measures, the networks' own
+        kernels) compiles or loads from its cache here, MC-CNN loads its weights and the
+        confidence network makes its first torch call, so that none of it lands on the first
+        real frame. The pair is :data:`WARM_UP_ROWS` rows by D + :data:`WARM_UP_MARGIN`
+        columns at the processed resolution; a network whose work on it would exceed
+        :data:`WARM_UP_NETWORK_MACS` multiply-adds (the paper's ``cva_net`` on a CPU) sees
+        only a window of it (at least one pixel), so the warm-up stays well under a second.
+
+        Nothing of the warm-up stays behind: the network evaluator's counters
+        (``path_counts``, ``flops_done``), MC-CNN's last-pair features and SGM's work arrays
+        are as they were, and the ignore mask is not used (its size is that of real images).
         """
-        from cva_confidence_ros.matching import compute_cost_volume
+        from cva_confidence_ros.matching.mccnn_fast import preserved_features
+        from cva_confidence_ros.matching.sgm import preserved_scratch
 
+        cfg = self.config
+        factor = cfg.downsample
+        height, width = WARM_UP_ROWS, cfg.max_disparity + WARM_UP_MARGIN
+        # Random texture on a plane at disparity 2 (a few pixels keep to the left edge):
+        # every stage sees ordinary values, with confident pixels for the speckle filter.
         rng = np.random.default_rng(0)
-        width = self.config.max_disparity + 16
-        left = rng.integers(0, 256, (16, width), dtype=np.uint8)
-        compute_cost_volume(
-            left,
-            np.roll(left, -2, axis=1),
-            self.config.matcher,
-            self.config.max_disparity,
-            **self._matcher_params(),
-        )
+        texture = rng.integers(0, 256, (height * factor, (width + 2) * factor), dtype=np.uint8)
+        left = np.ascontiguousarray(texture[:, 2 * factor:])
+        right = np.ascontiguousarray(texture[:, : width * factor])
+        evaluator = getattr(self._method, 'evaluator', None)
+        saved = None
+        if evaluator is not None:
+            saved = (dict(evaluator.path_counts), evaluator.flops_done, evaluator.progress)
+            evaluator.progress = None
+        try:
+            with preserved_features(), preserved_scratch():
+                self._run(left, right, None, self._warm_up_window(height, width))
+        finally:
+            if evaluator is not None and saved is not None:
+                evaluator.path_counts, evaluator.flops_done, evaluator.progress = saved
+
+    def _warm_up_window(self, height: int, width: int) -> tuple[int, int] | None:
+        """(rows, columns) of the window the method sees in the warm-up, or None for all of
+        the ``height`` × ``width`` pair: a window when the network is too heavy for it."""
+        arch = getattr(self._method, 'arch', None)
+        if not arch or self.device.type != 'cpu':
+            return None
+        from cva_confidence_ros.model import macs_per_pixel
+
+        try:
+            per_pixel = macs_per_pixel(arch, self.config.max_disparity)
+        except ConfigError:  # no count for it (the baselines, light networks): run it all
+            return None
+        pixels = int(WARM_UP_NETWORK_MACS // max(per_pixel, 1))
+        if pixels >= height * width:
+            return None
+        side = max(1, math.isqrt(max(pixels, 1)))
+        return min(height, side), min(width, max(1, pixels // side))
 
     def process(self, left: np.ndarray, right: np.ndarray) -> PipelineResult:
         """Match one rectified pair and estimate per-pixel confidence.
@@ -382,10 +440,26 @@ class StereoPipeline:
         Raises:
             InputError: Shapes, dtypes or values that the matcher cannot use.
         """
+        from cva_confidence_ros.matching import check_image_pair
+
+        # Checked before resizing: OpenCV's resize has its own, less clear, view of bad arrays.
+        left, right = check_image_pair(left, right)
+        self.check_input_size(left.shape[1], left.shape[0])
+        return self._run(left, right, self._processed_mask(left.shape[:2]))
+
+    def _run(
+        self,
+        left: np.ndarray,
+        right: np.ndarray,
+        mask: np.ndarray | None,
+        window: tuple[int, int] | None = None,
+    ) -> PipelineResult:
+        """:meth:`process` of a checked pair with the ignore ``mask`` at the processed
+        resolution; ``window`` (warm-up only): the method sees only that many (rows, columns)
+        of the region processed, its confidence elsewhere is NaN."""
         from cva_confidence_ros.confidence import ConfidenceInputs
         from cva_confidence_ros.datasets.resize import resize_image
         from cva_confidence_ros.matching import (
-            check_image_pair,
             compute_cost_volume,
             left_right_check,
             refine_subpixel,
@@ -393,10 +467,7 @@ class StereoPipeline:
             wta_disparity,
         )
 
-        # Checked before resizing: OpenCV's resize has its own, less clear, view of bad arrays.
-        left, right = check_image_pair(left, right)
         cfg = self.config
-        self.check_input_size(left.shape[1], left.shape[0])
         timings: dict[str, float] = {}
         start = time.perf_counter()
         # Crop to a multiple of the factor first, so that images and a ground truth shrunk with
@@ -406,7 +477,6 @@ class StereoPipeline:
         timings['resize'] = (time.perf_counter() - start) * 1e3
         height = left_s.shape[0]
         rows = cfg.roi_rows(height)
-        mask = self._processed_mask(left.shape[:2])
         if mask is not None:
             rows = _judged_rows(rows, mask)
         # The region of interest with its margin of context: what is matched and judged.
@@ -435,7 +505,7 @@ class StereoPipeline:
             disparity_right=disparity_right,
             matcher=cfg.matcher,
         )
-        raw_confidence = np.asarray(self._method(inputs), dtype=np.float32)
+        raw_confidence = self._confidence(inputs, window)
         confidence = self._method.to_unit_interval(raw_confidence)
         timings['confidence'] = (time.perf_counter() - tic) * 1e3
 
@@ -486,6 +556,33 @@ class StereoPipeline:
             rows=rows,
             mask=mask,
         )
+
+    def _confidence(self, inputs: ConfidenceInputs, window: tuple[int, int] | None) -> np.ndarray:
+        """The method's (H, W) float32 values of ``inputs``; with a ``window`` (rows,
+        columns) only there (the right end of the top rows, where every disparity has a
+        partner pixel), NaN elsewhere."""
+        if window is None:
+            return np.asarray(self._method(inputs), dtype=np.float32)
+        from cva_confidence_ros.confidence import ConfidenceInputs
+
+        height, width = inputs.shape
+        rows = slice(0, min(window[0], height))
+        columns = slice(max(0, width - window[1]), width)
+
+        def crop(values: np.ndarray | None) -> np.ndarray | None:
+            return None if values is None else values[..., rows, columns]
+
+        part = ConfidenceInputs(
+            cost_volume=inputs.cost_volume[:, rows, columns],
+            disparity=inputs.disparity[rows, columns],
+            image=inputs.image[rows, columns],
+            cost_volume_right=crop(inputs.cost_volume_right),
+            disparity_right=crop(inputs.disparity_right),
+            matcher=inputs.matcher,
+        )
+        out = np.full((height, width), np.nan, dtype=np.float32)
+        out[rows, columns] = np.asarray(self._method(part), dtype=np.float32)
+        return out
 
     def _processed_mask(self, shape: tuple[int, int]) -> np.ndarray | None:
         """The ignore mask at the processed resolution for input images of ``shape`` (checked

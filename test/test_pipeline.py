@@ -210,3 +210,130 @@ def test_census_sgm_in_a_region_of_interest_differs_only_near_its_edges(
     y0, y1 = part.rows
     same = part.disparity[y0:y1] == whole.disparity[y0:y1]
     assert same.mean() > 0.97
+
+
+# A fresh interpreter (nothing compiled or loaded from numba's cache yet): for each
+# configuration a new pipeline is warmed up, then its first frame (another size, colour) may
+# add no signature to any numba dispatcher of the package, i.e. compile or load nothing.
+_FIRST_FRAME_COMPILES_NOTHING = r"""
+import json
+import sys
+
+from numba.core.registry import CPUDispatcher
+import numpy as np
+
+from cva_confidence_ros.pipeline import PipelineConfig, StereoPipeline
+
+
+def signatures():
+    found = {}
+    for name, module in list(sys.modules.items()):
+        if name.startswith('cva_confidence_ros'):
+            for attr, value in list(vars(module).items()):
+                if isinstance(value, CPUDispatcher):
+                    found[f'{name}.{attr}'] = len(value.signatures)
+    return found
+
+
+rng = np.random.default_rng(1)
+texture = rng.integers(0, 256, (40, 110, 3), dtype=np.uint8)
+left, right = texture[:, 6:].copy(), texture[:, :104].copy()
+added = {}
+for changes in json.loads(sys.argv[1]):
+    pipeline = StereoPipeline(PipelineConfig(device='cpu', **changes))
+    pipeline.warm_up()
+    before = signatures()
+    pipeline.process(left, right)
+    new = {k: n - before.get(k, 0) for k, n in signatures().items() if n > before.get(k, 0)}
+    added[changes['confidence_method']] = new
+print(json.dumps(added))
+"""
+
+
+def test_after_warm_up_the_first_frame_compiles_no_numba_kernel() -> None:
+    # The old warm-up ran the matcher only: the first frame compiled (or loaded) the
+    # winner-takes-all, sub-pixel and speckle kernels, the hand-crafted measures' and
+    # CVA-Net-Fast's curve kernel, 2–5 s with an empty numba cache.
+    import json
+    import subprocess
+    import sys
+
+    configs = [
+        {'confidence_method': 'cva_net_fast'},
+        {'matcher': 'census_sgm', 'confidence_method': 'pkrn', 'lr_check': True,
+         'downsample': 2, 'max_disparity': 32, 'roi_top': 0.25},
+        {'matcher': 'census_bm', 'confidence_method': 'cva_net', 'cva_stride': 2,
+         'cva_cascade': 'pkrn', 'max_disparity': 64, 'roi_bottom': 0.3},
+        {'matcher': 'mccnn_fast', 'confidence_method': 'lrd', 'max_disparity': 32,
+         'subpixel': 'parabola'},
+    ]
+    run = subprocess.run(
+        [sys.executable, '-c', _FIRST_FRAME_COMPILES_NOTHING, json.dumps(configs)],
+        capture_output=True, text=True, timeout=300, check=False,
+    )
+    assert run.returncode == 0, run.stderr[-3000:]
+    added = json.loads(run.stdout.strip().splitlines()[-1])
+    assert added == {config['confidence_method']: {} for config in configs}
+
+
+def test_warm_up_leaves_no_counts_and_keeps_the_last_mccnn_pair() -> None:
+    from cva_confidence_ros.matching import mccnn_fast
+
+    fast = StereoPipeline(PipelineConfig(device='cpu'))
+    evaluator = fast._method.evaluator  # type: ignore[attr-defined]
+    fast.warm_up()
+    assert evaluator.path_counts == {'tile': 0, 'fused': 0, 'extracts': 0}
+    assert evaluator.flops_done == 0.0
+    fast.process(*_pair(width=96))
+    assert sum(evaluator.path_counts.values()) > 0  # the counters do count real frames
+
+    left, right = _pair(width=48)
+    mccnn = _pipeline(matcher='mccnn_fast')
+    mccnn.process(left, right)
+    key = mccnn_fast._FEATURES.key(left, right, 'cpu', '')
+    assert mccnn_fast._FEATURES.get(key) is not None
+    mccnn.warm_up()
+    assert mccnn_fast._FEATURES.get(key) is not None
+
+
+def test_warm_up_runs_cva_net_on_a_cpu_on_a_small_window(monkeypatch: pytest.MonkeyPatch) -> None:
+    from cva_confidence_ros.confidence.cva_net import CVANetConfidence
+
+    seen: list[tuple[int, int]] = []
+    original = CVANetConfidence.__call__
+
+    def spy(self: CVANetConfidence, inputs):  # type: ignore[no-untyped-def]
+        seen.append(inputs.shape)
+        return original(self, inputs)
+
+    monkeypatch.setattr(CVANetConfidence, '__call__', spy)
+    paper = StereoPipeline(PipelineConfig(confidence_method='cva_net', device='cpu'))
+    paper.warm_up()
+    # 2e9 multiply-adds at 34.7 M per pixel (D = 64): 57 pixels, a 7×8 window
+    assert seen == [(7, 8)]
+    seen.clear()
+    fast = StereoPipeline(PipelineConfig(confidence_method='cva_net_fast', device='cpu'))
+    fast.warm_up()
+    assert seen == [(16, 64 + 16)]  # the light network sees the whole synthetic pair
+
+
+def test_warm_up_ignores_the_mask_of_real_images(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import cv2
+
+    mask = np.full((32, 64), 255, np.uint8)
+    mask[:, :8] = 0
+    cv2.imwrite(str(tmp_path / 'mask.png'), mask)
+    pipeline = _pipeline(mask_path=str(tmp_path / 'mask.png'))
+    pipeline.warm_up()  # 16 × 32 synthetic pair: the 32 × 64 mask does not fit it
+    assert pipeline._reduced is None
+    result = pipeline.process(*_pair())
+    assert not result.valid[:, :8].any() and result.valid[:, 8:].any()
+
+
+@pytest.mark.parametrize('method', ['pkrn', 'lrd'])
+def test_a_method_that_needs_two_disparities_is_refused_at_max_disparity_1(method: str) -> None:
+    # It used to be built, and then every frame failed with an InputError about the volume.
+    with pytest.raises(ConfigError, match=f'{method} .* needs max_disparity ≥ 2; got 1'):
+        _pipeline(confidence_method=method, max_disparity=1)
+    result = _pipeline(confidence_method='mlm', max_disparity=1).process(*_pair())
+    np.testing.assert_array_equal(result.raw_confidence, 1.0)  # one disparity: all certain

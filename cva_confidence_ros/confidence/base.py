@@ -174,6 +174,9 @@ class ConfidenceMethod(ABC):
 
     needs_right: ClassVar[bool] = False
     probabilistic: ClassVar[bool] = False
+    #: Smallest cost-volume depth D the method is defined for (2 for those that need a
+    #: second-best cost).
+    min_depth: ClassVar[int] = 1
 
     @abstractmethod
     def __call__(self, inputs: ConfidenceInputs) -> np.ndarray:

@@ -14,12 +14,13 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from cva_confidence_ros.checks import is_int
 from cva_confidence_ros.confidence.base import (
     CONFIDENCE_METHODS,
     ConfidenceInputs,
     ConfidenceMethod,
 )
-from cva_confidence_ros.errors import InputError
+from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.model import default_weights_path, load_weights, resolve_device
 from cva_confidence_ros.model.baselines import predict_disparity_confidence
 
@@ -40,6 +41,7 @@ class _DisparityNetConfidence(ConfidenceMethod):
     Raises:
         ModelError: Weights missing, corrupt, of another architecture, or for another matcher
             or D.
+        ConfigError: ``max_disparity`` not an integer ≥ 1, or a bad device.
     """
 
     arch: ClassVar[str] = ''
@@ -56,6 +58,9 @@ class _DisparityNetConfidence(ConfidenceMethod):
         **_: Any,
     ) -> None:
         self.matcher = matcher
+        # int() would take '64' or 64.5 (truncated) and raise a bare TypeError for None.
+        if not is_int(max_disparity) or max_disparity < 1:
+            raise ConfigError(f'max_disparity must be an integer ≥ 1; got {max_disparity!r}')
         self.max_disparity = int(max_disparity)
         self.device = resolve_device(device)
         path = (

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numba
 import numpy as np
@@ -114,6 +115,20 @@ def _check_positive(name: str, value: float) -> None:
         raise ConfigError(f'{name} must be a finite number > 0; got {value}')
 
 
+def _check_eps(value: float) -> None:
+    _check_positive('eps', value)
+    # eps is added in float32: one that rounds to 0 or inf there makes 0/0 or inf/inf, a NaN
+    # confidence, at every perfect match.
+    with np.errstate(over='ignore', under='ignore'):
+        single = np.float32(value)
+    if not (np.isfinite(single) and single > 0):
+        raise ConfigError(
+            'eps must stay finite and > 0 in float32 (between about '
+            f'{np.finfo(np.float32).smallest_subnormal:.1e} and {np.finfo(np.float32).max:.1e}); '
+            f'got {value}'
+        )
+
+
 @dataclass(frozen=True)
 class MatchingScore(ConfidenceMethod):
     """Matching score measure (MSM): ``-c1``, the negated minimum cost."""
@@ -136,9 +151,10 @@ class PeakRatioNaive(ConfidenceMethod):
     """
 
     eps: float = 1e-3
+    min_depth: ClassVar[int] = 2
 
     def __post_init__(self) -> None:
-        _check_positive('eps', self.eps)
+        _check_eps(self.eps)
 
     def __call__(self, inputs: ConfidenceInputs) -> np.ndarray:
         """Return (H, W) float32 in [1, (1 + eps) / eps] for costs in [0, 1]."""
@@ -227,9 +243,10 @@ class LeftRightDifference(ConfidenceMethod):
 
     eps: float = 1e-3
     needs_right = True
+    min_depth: ClassVar[int] = 2
 
     def __post_init__(self) -> None:
-        _check_positive('eps', self.eps)
+        _check_eps(self.eps)
 
     def __call__(self, inputs: ConfidenceInputs) -> np.ndarray:
         """Return (H, W) float32 ≥ 0."""

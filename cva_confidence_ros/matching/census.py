@@ -172,9 +172,25 @@ def hamming_cost_volume(
     Returns:
         uint8 Hamming distances in [0, 24]; 24 (:data:`CENSUS_BITS`) where the partner is
         outside the image.
+
+    Raises:
+        InputError: Code arrays that are not 2-D or differ in shape, ``depth`` < 1, ``step``
+            not ±1, a bad ``layout`` or ``out``.
     """
     if layout not in ('dhw', 'hwd'):
         raise InputError(f"layout must be 'dhw' or 'hwd'; got {layout!r}")
+    codes_ref, codes_other = np.asarray(codes_ref), np.asarray(codes_other)
+    # The kernel reads the other row at the reference's width: a narrower one would be read
+    # past its end (numba does not check bounds) and give costs of whatever lies there.
+    if codes_ref.ndim != 2 or codes_ref.shape != codes_other.shape:
+        raise InputError(
+            'codes_ref and codes_other must be (H, W) arrays of the same shape; got '
+            f'{codes_ref.shape} and {codes_other.shape}'
+        )
+    if isinstance(depth, bool) or not isinstance(depth, (int, np.integer)) or depth < 1:
+        raise InputError(f'depth must be an integer ≥ 1; got {depth!r}')
+    if step not in (-1, 1):
+        raise InputError(f'step must be -1 or 1; got {step!r}')
     height, width = codes_ref.shape
     shape = (height, width, int(depth))
     if out is not None and (

@@ -7,6 +7,8 @@ unit-length feature vectors, mapped to [0, 1].
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+import contextlib
 from dataclasses import dataclass
 import hashlib
 import threading
@@ -27,6 +29,7 @@ __all__ = [
     'MCCNNFastMatcher',
     'cosine_cost_volume',
     'cosine_cost_volume_torch',
+    'preserved_features',
 ]
 
 
@@ -149,8 +152,25 @@ class _FeatureCache:
         with self._lock:
             self._key, self._value = key, value
 
+    @contextlib.contextmanager
+    def preserved(self) -> Iterator[None]:
+        """Put the last pair back after the block, so that a warm-up pair in between does not
+        take its place."""
+        with self._lock:
+            saved = self._key, self._value
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._key, self._value = saved
+
 
 _FEATURES = _FeatureCache()
+
+
+def preserved_features() -> contextlib.AbstractContextManager[None]:
+    """A block after which the feature cache holds the pair it held before (a warm-up)."""
+    return _FEATURES.preserved()
 
 
 class MCCNNFastMatcher(Matcher):

@@ -21,15 +21,18 @@ transposes to (D, H, W) and scales finished rows while they are still in cache.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+import contextlib
 import threading
 
 from numba import njit, prange
 import numpy as np
 
+from cva_confidence_ros.checks import is_int
 from cva_confidence_ros.errors import InputError
 from cva_confidence_ros.matching.census import CENSUS_BITS, hamming_cost_volume
 
-__all__ = ['SGM_PATHS', 'sgm_aggregate']
+__all__ = ['SGM_PATHS', 'preserved_scratch', 'sgm_aggregate']
 
 #: Number of path directions that are summed.
 SGM_PATHS = 8
@@ -231,6 +234,17 @@ class _Scratch(threading.local):
 _SCRATCH = _Scratch()
 
 
+@contextlib.contextmanager
+def preserved_scratch() -> Iterator[None]:
+    """Keep this thread's work arrays across the block (a warm-up on a small image), so that
+    the next full-size frame finds the ones of its own size and does not allocate them again."""
+    saved = dict(_SCRATCH.arrays)
+    try:
+        yield
+    finally:
+        _SCRATCH.arrays = saved
+
+
 def aggregate_hwd(
     costs: np.ndarray,
     p1: int,
@@ -304,7 +318,8 @@ def sgm_aggregate(costs: np.ndarray, p1: int, p2: int) -> np.ndarray:
         (D, H, W) int32 S = Σ_r L_r over the 8 directions, each L_r ≤ max C + p2.
 
     Raises:
-        InputError: Not a 3-D integer array in [0, 255], or penalties whose sum bound
+        InputError: Not a 3-D integer array in [0, 255], penalties that are not integers
+            with 0 ≤ p1 ≤ p2, or penalties whose sum bound
             8·(max C + p2) does not fit the uint16 accumulator.
     """
     costs = np.asarray(costs)
@@ -317,6 +332,9 @@ def sgm_aggregate(costs: np.ndarray, p1: int, p2: int) -> np.ndarray:
         raise InputError(
             f'sgm_aggregate expects costs in [0, 255]; got [{costs.min()}, {costs.max()}]'
         )
+    # int16 penalties: a fractional one would be truncated without a word.
+    if not is_int(p1) or not is_int(p2):
+        raise InputError(f'sgm_aggregate expects integer penalties; got p1={p1!r}, p2={p2!r}')
     if not 0 <= p1 <= p2:
         raise InputError(f'sgm_aggregate expects 0 ≤ p1 ≤ p2; got p1={p1}, p2={p2}')
     bound = SGM_PATHS * (int(costs.max()) + int(p2))

@@ -12,10 +12,11 @@ between the integers:
   differences, Hamming distances);
 
 and the disparity becomes d + δ, δ ∈ [−0.5, 0.5]. Where the curve is undefined the integer
-stays: at d = 0 and d = D − 1, where a neighbour's cost is the out-of-image filler (1.0), and
-where both neighbours equal the minimum. Measured on the develop split (README, *Sub-pixel
-disparity*): the mean error of the pixels that were right falls by 13–34 %, the error rate by the
-KITTI criterion stays or falls a little.
+stays: at d = 0 and d = D − 1, where a neighbour's cost is the out-of-image filler (1.0),
+where both neighbours equal the minimum, and where one of the three costs is NaN or
+infinite. Measured on the develop split (README, *Sub-pixel disparity*): the mean error of the
+pixels that were right falls by 13–34 %, the error rate by the KITTI criterion stays or falls
+a little.
 """
 
 from __future__ import annotations
@@ -62,6 +63,10 @@ def _refine(
             low = float(volume[d - 1, y, x])
             mid = float(volume[d, y, x])
             high = float(volume[d + 1, y, x])
+            # A NaN or infinite cost (a caller's own 'invalid' marker) leaves no curve: δ
+            # would come out NaN and turn a valid disparity invalid.
+            if not (np.isfinite(low) and np.isfinite(mid) and np.isfinite(high)):
+                continue
             if code == 0:
                 spread = low - 2.0 * mid + high
             else:
@@ -88,7 +93,8 @@ def refine_subpixel(
             ``compute_cost_volume``).
         disparity: (H, W) integer-valued float disparity in [0, D − 1], usually
             ``wta_disparity(cost_volume)``; NaN pixels stay NaN. Pixels that are not the minimum
-            of their cost curve are refined by the same formula, δ clipped to [−0.5, 0.5].
+            of their cost curve are refined by the same formula, δ clipped to [−0.5, 0.5];
+            pixels with a NaN or infinite cost at d − 1, d or d + 1 keep their integer.
         method: One of :data:`SUBPIXEL_METHODS`; ``none`` returns a float32 copy.
         view: ``left`` or ``right``: which image the volume's pixels belong to (decides which
             neighbours fall outside the other image).

@@ -158,6 +158,19 @@ def test_invalid_option_values(name: str, options: dict[str, float]) -> None:
         CONFIDENCE_METHODS.get(name)(**options)
 
 
+@pytest.mark.parametrize('name', ['pkrn', 'lrd'])
+@pytest.mark.parametrize('eps', [1e-300, 1e300])
+def test_eps_that_leaves_float32_is_refused(name: str, eps: float) -> None:
+    # eps is added in float32: 1e-300 became 0 and 1e300 inf, and a perfect match (c1 = c2
+    # = 0 here) came out as 0/0 or inf/inf = NaN instead of an error.
+    with pytest.raises(ConfigError, match='eps must stay finite and > 0 in float32'):
+        CONFIDENCE_METHODS.get(name)(eps=eps)
+    # The smallest float32 eps still gives numbers, not NaN.
+    volume = np.zeros((3, 2, 2), np.float32)
+    inputs = inputs_for(volume, cost_volume_right=volume)
+    assert not np.isnan(compute_confidence(name, inputs, eps=1e-44)).any()
+
+
 def test_pkrn_needs_two_disparities() -> None:
     with pytest.raises(InputError, match='D ≥ 2'):
         compute_confidence('pkrn', inputs_for(np.zeros((1, 2, 2), np.float32)))

@@ -119,3 +119,13 @@ def test_mlm_extreme_but_valid_sigma_gives_finite_maps(sigma: float, expected: f
     volume = np.stack([np.zeros(SHAPE), np.ones(SHAPE)] * 2).astype(np.float32)
     result = CONFIDENCE_METHODS.get('mlm')(sigma=sigma)(_build(cost_volume=volume))
     np.testing.assert_allclose(result, np.full(SHAPE, expected), rtol=1e-6)
+
+
+@pytest.mark.parametrize('name', ['ccnn', 'lfn', 'lgc_net'])
+@pytest.mark.parametrize('depth', [None, '64', 64.5, True, 0])
+def test_baselines_refuse_a_max_disparity_that_is_no_integer(name: str, depth: object) -> None:
+    # int() used to take '64' and 64.5 (as 64), True (as 1, then a missing-weights error) and
+    # raise a bare TypeError for None; cva_net has always refused them.
+    with pytest.raises(ConfigError, match='max_disparity must be an integer ≥ 1'):
+        CONFIDENCE_METHODS.get(name)(max_disparity=depth)
+    assert CONFIDENCE_METHODS.get(name)(max_disparity=np.int64(64)).max_disparity == 64

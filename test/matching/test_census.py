@@ -91,3 +91,22 @@ def test_hamming_volume_fills_a_given_array_and_checks_it() -> None:
         hamming_cost_volume(codes, codes, 3, -1, layout='hwd', out=np.empty((5, 6, 4), np.uint8))
     with pytest.raises(InputError, match='layout'):
         hamming_cost_volume(codes, codes, 3, -1, layout='whd')
+
+
+@pytest.mark.parametrize(
+    ('other_shape', 'depth', 'step', 'message'),
+    [
+        ((5, 5), 2, -1, 'same shape'),  # narrower: the kernel read past the row's end
+        ((4, 6), 2, 1, 'same shape'),
+        ((5, 6), 0, -1, 'depth'),
+        ((5, 6), 2, 0, 'step'),
+    ],
+)
+def test_hamming_volume_refuses_codes_of_other_shapes_and_bad_arguments(
+    other_shape: tuple[int, int], depth: int, step: int, message: str
+) -> None:
+    rng = np.random.default_rng(4)
+    codes = census_transform(rng.integers(0, 256, (5, 6), dtype=np.uint8))
+    other = census_transform(rng.integers(0, 256, other_shape, dtype=np.uint8))
+    with pytest.raises(InputError, match=message):
+        hamming_cost_volume(codes, other, depth, step)

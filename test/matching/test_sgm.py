@@ -115,6 +115,10 @@ def test_census_sgm_volume_is_the_normalised_textbook_sum(step: int) -> None:
         (np.full((2, 3, 4), 300, np.int32), 1, 2, r'\[0, 255\]'),
         (np.zeros((2, 3, 4), np.uint8), 5, 2, 'p1 ≤ p2'),
         (np.full((2, 3, 4), 255, np.uint8), 1, 8000, 'must be ≤ 65535'),
+        # a fractional penalty was truncated to int16 without a word, a str raised TypeError
+        (np.zeros((2, 3, 4), np.uint8), 1.9, 3, 'integer penalties'),
+        (np.zeros((2, 3, 4), np.uint8), '1', 3, 'integer penalties'),
+        (np.zeros((2, 3, 4), np.uint8), 1, None, 'integer penalties'),
     ],
 )
 def test_sgm_aggregate_rejects_bad_input(

@@ -149,3 +149,19 @@ def test_bad_input_is_refused_naming_the_problem(
 ) -> None:
     with pytest.raises(error, match=message):
         refine_subpixel(volume, disparity, method)
+
+
+@pytest.mark.parametrize('method', ['parabola', 'equiangular'])
+@pytest.mark.parametrize('bad', [np.nan, np.inf])
+def test_a_non_finite_neighbour_cost_keeps_the_integer(method: str, bad: float) -> None:
+    # A caller's own volume may mark invalid costs with NaN or inf; the curve through them is
+    # undefined, so the integer stays (the old code gave NaN, turning a valid pixel invalid).
+    costs = np.array([[0.5], [0.2], [0.1], [0.3], [0.6]], np.float64)
+    volume = _curves(costs)
+    volume[3, 0, -1] = bad
+    disparity = np.full(volume.shape[1:], 2.0, np.float32)
+    refined = refine_subpixel(volume, disparity, method)
+    assert refined[0, -1] == 2.0
+    # The same curve with a finite neighbour is refined as usual.
+    volume[3, 0, -1] = 0.3
+    assert refine_subpixel(volume, disparity, method)[0, -1] != 2.0
