@@ -50,19 +50,25 @@ def _replay(bag: Path, tmp_path: Path, mode: str, *extra: str) -> tuple[int, dic
     return code, json.loads(report.read_text()) if report.exists() else {}
 
 
+def _offline_and_live(bag: Path, tmp_path: Path, *extra: str) -> tuple[dict, dict]:
+    """Replay ``bag`` offline, then live to a node the replay starts; both must succeed."""
+    code, offline = _replay(bag, tmp_path, 'offline', *extra)
+    assert code == 0
+    # --rate-scale 0.5: frames at half the bag's rate, margin for a loaded CI machine.
+    code, live = _replay(
+        bag, tmp_path, 'live', *extra, '--startup-timeout', '90', '--rate-scale', '0.5'
+    )
+    assert code == 0, (tmp_path / 'live' / 'node.log').read_text()
+    return offline, live
+
+
 @pytest.mark.timeout(180)
 def test_live_gives_the_offline_results(tmp_path: Path) -> None:
     # Three tiny frames at 2 Hz: slow enough that the node drops nothing.
     bag = dataset_bag(tmp_path, 'mcap', 3, '--rate', '2')
     extra = ('--overlay', '--scan', '--scan-height', '-5', '5', '--scan-range', '0.05', '50',
              '--scan-frame-id', 'rig')
-    code, offline = _replay(bag, tmp_path, 'offline', *extra)
-    assert code == 0
-    # --rate-scale 0.5: one frame every second, margin for a loaded CI machine.
-    code, live = _replay(
-        bag, tmp_path, 'live', *extra, '--startup-timeout', '90', '--rate-scale', '0.5'
-    )
-    assert code == 0, (tmp_path / 'live' / 'node.log').read_text()
+    offline, live = _offline_and_live(bag, tmp_path, *extra)
     assert live['summary']['dropped'] == 0 and live['summary']['processed'] == 3
     assert live['config']['mode'] == 'live'
     for a, b in zip(offline['frames'], live['frames'], strict=True):
@@ -121,12 +127,7 @@ def test_live_records_the_nodes_compressed_topics(tmp_path: Path) -> None:
     bag = dataset_bag(tmp_path, 'mcap', 2, '--rate', '2', '--topic-prefix', prefix)
     extra = ('--topic-prefix', prefix, '--overlay', '--compressed', '--jpeg-quality', '70',
              '--compressed-depth-max', '3', '--compressed-depth-png-level', '6')
-    code, _ = _replay(bag, tmp_path, 'offline', *extra)
-    assert code == 0
-    code, live = _replay(
-        bag, tmp_path, 'live', *extra, '--startup-timeout', '90', '--rate-scale', '0.5'
-    )
-    assert code == 0, (tmp_path / 'live' / 'node.log').read_text()
+    _, live = _offline_and_live(bag, tmp_path, *extra)
     assert live['summary']['dropped'] == 0 and live['summary']['processed'] == 2
     with Reader(tmp_path / 'live_bag') as reader:
         types = {conn.topic: conn.msgtype for conn in reader.connections}
