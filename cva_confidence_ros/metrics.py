@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from cva_confidence_ros.checks import is_int
 from cva_confidence_ros.errors import InputError
 
 __all__ = [
@@ -209,7 +210,8 @@ def optimal_auc(error_rate: float, n_pixels: int | None = None) -> float:
             optimum for every map (ε = 1: both 0.95).
 
     Returns:
-        The optimal AUC in [0, 1] (1 for ε = 1, the limit of the formula).
+        The optimal AUC in [0, 1] (without ``n_pixels``, 1 for ε = 1, the limit of the
+        formula; with it, ``1 − s``).
 
     Raises:
         InputError: ``error_rate`` is not a real scalar, is outside [0, 1] or is NaN, or
@@ -230,10 +232,8 @@ def optimal_auc(error_rate: float, n_pixels: int | None = None) -> float:
     if not 0.0 <= eps <= 1.0:
         raise InputError(f'error_rate must be in [0, 1]; got {error_rate}')
     if n_pixels is not None:
-        if isinstance(n_pixels, (bool, np.bool_)) or not isinstance(n_pixels, (int, np.integer)):
+        if not is_int(n_pixels) or n_pixels < 1:
             raise InputError(f'n_pixels must be an integer ≥ 1; got {n_pixels!r}')
-        if n_pixels < 1:
-            raise InputError(f'n_pixels must be an integer ≥ 1; got {n_pixels}')
         count = int(n_pixels)
         start = -(-count // DENSITY_STEPS) / count  # ceil(0.05 N) / N, the curve's first point
         if eps > 1.0 - start:

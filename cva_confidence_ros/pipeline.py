@@ -415,17 +415,19 @@ class StereoPipeline:
         arch = getattr(self._method, 'arch', None)
         if not arch or self.device.type != 'cpu':
             return None
-        from cva_confidence_ros.model import macs_per_pixel
+        from cva_confidence_ros.model.complexity import dense_macs
 
+        depth = self.config.max_disparity
         try:
-            per_pixel = macs_per_pixel(arch, self.config.max_disparity)
+            if dense_macs(arch, depth, height, width) <= WARM_UP_NETWORK_MACS:
+                return None
         except ConfigError:  # no count for it (the baselines, light networks): run it all
             return None
-        pixels = int(WARM_UP_NETWORK_MACS // max(per_pixel, 1))
-        if pixels >= height * width:
-            return None
-        side = max(1, math.isqrt(max(pixels, 1)))
-        return min(height, side), min(width, max(1, pixels // side))
+        # The largest square window (padded by the network's border, as counted) in budget.
+        side = min(height, width)
+        while side > 1 and dense_macs(arch, depth, side, side) > WARM_UP_NETWORK_MACS:
+            side -= 1
+        return side, side
 
     def process(self, left: np.ndarray, right: np.ndarray) -> PipelineResult:
         """Match one rectified pair and estimate per-pixel confidence.

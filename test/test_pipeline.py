@@ -309,8 +309,9 @@ def test_warm_up_runs_cva_net_on_a_cpu_on_a_small_window(monkeypatch: pytest.Mon
     monkeypatch.setattr(CVANetConfidence, '__call__', spy)
     paper = StereoPipeline(PipelineConfig(confidence_method='cva_net', device='cpu'))
     paper.warm_up()
-    # 2e9 multiply-adds at 34.7 M per pixel (D = 64): 57 pixels, a 7×8 window
-    assert seen == [(7, 8)]
+    # 2e9 multiply-adds (D = 64, the 12-pixel border counted): a 6×6 window takes 1.84e9,
+    # 7×7 would take 2.35e9
+    assert seen == [(6, 6)]
     seen.clear()
     fast = StereoPipeline(PipelineConfig(confidence_method='cva_net_fast', device='cpu'))
     fast.warm_up()

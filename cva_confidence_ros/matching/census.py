@@ -14,6 +14,7 @@ from numba import njit, types
 from numba.extending import intrinsic
 import numpy as np
 
+from cva_confidence_ros.checks import is_int
 from cva_confidence_ros.errors import InputError
 from cva_confidence_ros.matching.base import to_gray
 
@@ -187,7 +188,7 @@ def hamming_cost_volume(
             'codes_ref and codes_other must be (H, W) arrays of the same shape; got '
             f'{codes_ref.shape} and {codes_other.shape}'
         )
-    if isinstance(depth, bool) or not isinstance(depth, (int, np.integer)) or depth < 1:
+    if not is_int(depth) or depth < 1:
         raise InputError(f'depth must be an integer ≥ 1; got {depth!r}')
     if step not in (-1, 1):
         raise InputError(f'step must be -1 or 1; got {step!r}')

@@ -31,6 +31,7 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
+from cva_confidence_ros.checks import is_int
 from cva_confidence_ros.errors import ModelError, reason
 from cva_confidence_ros.model.inference import PAD, fold_batchnorm
 from cva_confidence_ros.model.weights import architecture_of, default_weights_path, load_weights
@@ -99,7 +100,7 @@ def _trace_to_onnx(
             supports, or too old for an operator of the network).
     """
     low, high = _opset_range()
-    if isinstance(opset, bool) or not isinstance(opset, int) or not low <= opset <= high:
+    if not is_int(opset) or not low <= opset <= high:
         raise ModelError(
             f'ONNX opset must be an integer in [{low}, {high}] (what this torch exports); '
             f'got {opset!r}'
@@ -113,7 +114,7 @@ def _trace_to_onnx(
                 (example,),
                 str(path),
                 dynamo=False,
-                opset_version=opset,
+                opset_version=int(opset),
                 input_names=[input_name],
                 output_names=['confidence'],
                 dynamic_axes={
@@ -124,10 +125,8 @@ def _trace_to_onnx(
     except ModuleNotFoundError as exc:
         raise ModelError(f'ONNX export needs the onnx package ({exc}): pip install onnx') from exc
     except RuntimeError as exc:  # torch.onnx.OnnxExporterError is one too
-        raise ModelError(
-            f'cannot export to ONNX at opset {opset} ({reason(exc)}); the default opset '
-            f'{DEFAULT_OPSET} works'
-        ) from exc
+        hint = '' if opset == DEFAULT_OPSET else f'; the default opset {DEFAULT_OPSET} works'
+        raise ModelError(f'cannot export to ONNX at opset {opset} ({reason(exc)}){hint}') from exc
 
 
 def export_onnx(
