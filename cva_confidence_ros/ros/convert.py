@@ -286,7 +286,8 @@ def _pixel_rows(msg: Any, encoding: str, height: int, row_bytes: int, step: int)
     if step < row_bytes or data.size < needed:
         raise InputError(
             f'{encoding} image of {msg.width}×{height} needs step ≥ {row_bytes} and '
-            f'{step * height} bytes; got step {step} and {data.size} bytes'
+            f'{step * height} bytes; got step {step} and {data.size} bytes ({needed} would '
+            "do without the last row's padding)"
         )
     return np.lib.stride_tricks.as_strided(data, shape=(height, row_bytes), strides=(step, 1))
 
