@@ -19,6 +19,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from cva_confidence_ros.datasets.resize import check_factor
 from cva_confidence_ros.errors import ConfigError, InputError
 
 __all__ = ['check_mask_size', 'load_mask', 'mask_rows', 'reduce_mask']
@@ -64,7 +65,11 @@ def reduce_mask(mask: np.ndarray, factor: int) -> np.ndarray:
     :func:`~cva_confidence_ros.datasets.resize.resize_image` crops the images); an output pixel
     is judged only when all its ``factor × factor`` input pixels are, so that no pixel that
     mixes in the robot's body is published.
+
+    Raises:
+        ConfigError: ``factor`` is not an integer ≥ 1.
     """
+    factor = check_factor(factor)
     mask = np.asarray(mask, dtype=bool)
     if factor == 1:
         return mask

@@ -70,6 +70,9 @@ def test_reduced_masks_ignore_every_block_with_an_ignored_pixel() -> None:
     assert small.shape == (4, 5)  # the odd last row is cropped, as resize_image crops
     assert np.flatnonzero(~small.ravel()).tolist() == [0, 2 * 5 + 3]
     assert reduce_mask(keep, 1) is not None and reduce_mask(keep, 1).shape == (9, 10)
+    for factor in (0, -2, 1.5, True):  # was a ZeroDivisionError / a reshape error
+        with pytest.raises(ConfigError, match=f'factor must be an integer ≥ 1; got {factor!r}'):
+            reduce_mask(keep, factor)  # type: ignore[arg-type]
     assert mask_rows(keep) == (0, 9)
     keep[:3] = False
     keep[7:] = False

@@ -21,13 +21,20 @@ from cva_confidence_ros.datasets.io import Calibration
 from cva_confidence_ros.datasets.loaders import StereoSample
 from cva_confidence_ros.errors import ConfigError, DataError, InputError
 
-__all__ = ['fit_disparity_range', 'resize_disparity', 'resize_image', 'resize_sample']
+__all__ = [
+    'check_factor',
+    'fit_disparity_range',
+    'resize_disparity',
+    'resize_image',
+    'resize_sample',
+]
 
 #: Smallest image side :func:`fit_disparity_range` shrinks a pair to.
 _MIN_FITTED_SIDE = 1
 
 
-def _check_factor(factor: int) -> int:
+def check_factor(factor: int) -> int:
+    """``factor`` as an int, or :class:`ConfigError` unless it is an integer ≥ 1."""
     if isinstance(factor, bool) or not isinstance(factor, (int, np.integer)) or factor < 1:
         raise ConfigError(f'factor must be an integer ≥ 1; got {factor!r}')
     return int(factor)
@@ -54,7 +61,7 @@ def resize_disparity(disparity: np.ndarray, factor: int) -> np.ndarray:
     Raises:
         ConfigError: ``factor`` is not an integer ≥ 1.
     """
-    factor = _check_factor(factor)
+    factor = check_factor(factor)
     disparity = np.asarray(disparity, dtype=np.float32)
     if factor == 1:
         return disparity.copy()
@@ -85,7 +92,7 @@ def resize_image(image: np.ndarray, factor: int) -> np.ndarray:
         ConfigError: ``factor`` is not an integer ≥ 1.
         InputError: The image is smaller than one ``factor × factor`` block.
     """
-    factor = _check_factor(factor)
+    factor = check_factor(factor)
     if factor == 1:
         return image
     height, width = image.shape[0] // factor, image.shape[1] // factor
@@ -129,7 +136,7 @@ def resize_sample(sample: StereoSample, factor: int) -> StereoSample:
         ConfigError: ``factor`` is not an integer ≥ 1.
         DataError: The image is smaller than one block.
     """
-    factor = _check_factor(factor)
+    factor = check_factor(factor)
     if factor == 1:
         return sample
     height, width = sample.shape
