@@ -120,21 +120,8 @@ def image_to_array(msg: Image, name: str = 'image') -> np.ndarray:
             f'{name} encoding must be one of {SUPPORTED_ENCODINGS}; got {msg.encoding!r}'
         )
     channels, depth, order = _ENCODINGS[encoding]
-    height, width, step = int(msg.height), int(msg.width), int(msg.step)
-    if height <= 0 or width <= 0:
-        raise InputError(f'{name} must have a positive size; got {width}×{height}')
-    row_bytes = width * channels * depth
-    if step < row_bytes:
-        raise InputError(
-            f'{name} step must be ≥ {row_bytes} bytes for {width} px of {encoding}; got {step}'
-        )
-    data = np.frombuffer(msg.data, dtype=np.uint8)
-    if not step * (height - 1) + row_bytes <= data.size <= step * height:
-        raise InputError(
-            f'{name} data must hold {height} rows of step {step} '
-            f'({step * height} bytes); got {data.size}'
-        )
-    rows = np.lib.stride_tricks.as_strided(data, shape=(height, row_bytes), strides=(step, 1))
+    height, width = int(msg.height), int(msg.width)
+    rows = _pixel_rows(msg, name, encoding, channels * depth)
     if depth == 2:
         dtype = np.dtype('>u2' if msg.is_bigendian else '<u2')
         return rows.copy().view(dtype).reshape(height, width).astype(np.uint16)
@@ -258,36 +245,51 @@ def rgb_to_image(rgb: np.ndarray, header: Header) -> Image:
     return _packed_image(rgb, header, 'rgb8')
 
 
-def float_image_to_array(msg: Image) -> np.ndarray:
+def float_image_to_array(msg: Image, name: str = '32FC1 image') -> np.ndarray:
     """Decode a 32FC1 ``sensor_msgs/Image`` into (H, W) float32.
 
+    Args:
+        msg: The image; row padding and big-endian data are handled.
+        name: What the error messages call it.
+
     Raises:
-        InputError: Another encoding or a buffer that does not fit the size.
+        InputError: Another encoding, zero size, or a buffer that does not fit the size (as
+            :func:`image_to_array`).
     """
     if msg.encoding != '32FC1':
-        raise InputError(f'expected a 32FC1 image; got {msg.encoding!r}')
-    height, width, step = int(msg.height), int(msg.width), int(msg.step)
-    rows = _pixel_rows(msg, '32FC1', height, 4 * width, step)
+        raise InputError(f'{name}: expected 32FC1; got {msg.encoding!r}')
+    height, width = int(msg.height), int(msg.width)
+    rows = _pixel_rows(msg, name, '32FC1', 4)
     dtype = np.dtype('>f4' if msg.is_bigendian else '<f4')
     return rows.copy().view(dtype).reshape(height, width).astype(np.float32)
 
 
-def _pixel_rows(msg: Any, encoding: str, height: int, row_bytes: int, step: int) -> np.ndarray:
-    """(height, row_bytes) uint8 view of an image's pixel bytes, row padding skipped.
+def _pixel_rows(msg: Any, name: str, encoding: str, pixel_bytes: int) -> np.ndarray:
+    """(height, width · pixel_bytes) uint8 view of an image's pixel bytes, row padding skipped.
 
-    As :func:`image_to_array`, the last row's padding may be missing from ``data`` (a
-    producer that sends ``step · (height − 1) + row_bytes`` bytes).
+    ``data`` must be ``height`` rows of ``step`` bytes; the last row's padding may be missing
+    (a producer that sends ``step · (height − 1) + row`` bytes).
 
     Raises:
-        InputError: ``step`` shorter than a row, or ``data`` too short for the rows.
+        InputError: Zero size, ``step`` shorter than a row, or ``data`` of another length.
     """
-    data = np.frombuffer(msg.data, dtype=np.uint8)
-    needed = step * (height - 1) + row_bytes if height > 0 else 0
-    if step < row_bytes or data.size < needed:
+    height, width, step = int(msg.height), int(msg.width), int(msg.step)
+    if height <= 0 or width <= 0:
+        raise InputError(f'{name} must have a positive size; got {width}×{height}')
+    row_bytes = width * pixel_bytes
+    if step < row_bytes:
         raise InputError(
-            f'{encoding} image of {msg.width}×{height} needs step ≥ {row_bytes} and '
-            f'{step * height} bytes; got step {step} and {data.size} bytes ({needed} would '
-            "do without the last row's padding)"
+            f'{name} step must be ≥ {row_bytes} bytes for {width} px of {encoding}; got {step}'
+        )
+    data = np.frombuffer(msg.data, dtype=np.uint8)
+    shortest = step * (height - 1) + row_bytes
+    if not shortest <= data.size <= step * height:
+        unpadded = ''
+        if shortest < step * height:
+            unpadded = f", or {shortest} without the last row's padding"
+        raise InputError(
+            f'{name} data must hold {height} rows of step {step} '
+            f'({step * height} bytes{unpadded}); got {data.size}'
         )
     return np.lib.stride_tricks.as_strided(data, shape=(height, row_bytes), strides=(step, 1))
 
@@ -354,24 +356,27 @@ def scan_to_message(scan: Scan, header: Header, frame_id: str | None = None) -> 
     )
 
 
-def depth_image_to_array(msg: Image) -> np.ndarray:
+def depth_image_to_array(msg: Image, name: str = '') -> np.ndarray:
     """Decode a REP 118 depth image (``32FC1`` metres or ``16UC1`` millimetres) into metres.
+
+    ``name`` is what the error messages call it ('' = ``<encoding> depth image``).
 
     Returns:
         (H, W) float32 metres, NaN where the image has no depth (NaN, ±inf or ≤ 0 in
         ``32FC1``, 0 in ``16UC1``).
 
     Raises:
-        InputError: Another encoding, or a buffer that does not fit the size.
+        InputError: Another encoding, zero size, or a buffer that does not fit the size (as
+            :func:`image_to_array`).
     """
     encoding = str(msg.encoding)
     if encoding not in DEPTH_ENCODINGS:
         raise InputError(
-            f'expected a depth image ({" or ".join(DEPTH_ENCODINGS)}); got {encoding!r}'
+            f'{name or "depth image"}: expected {" or ".join(DEPTH_ENCODINGS)}; got {encoding!r}'
         )
-    height, width, step = int(msg.height), int(msg.width), int(msg.step)
-    size = 4 if encoding == '32FC1' else 2
-    rows = _pixel_rows(msg, encoding, height, size * width, step)
+    height, width = int(msg.height), int(msg.width)
+    name = name or f'{encoding} depth image'
+    rows = _pixel_rows(msg, name, encoding, 4 if encoding == '32FC1' else 2)
     order = '>' if msg.is_bigendian else '<'
     if encoding == '32FC1':
         depth = rows.copy().view(f'{order}f4').reshape(height, width).astype(np.float32)
@@ -594,7 +599,7 @@ def disparity_to_message(
 
 def disparity_from_message(msg: DisparityImage) -> np.ndarray:
     """(H, W) float32 disparity of a ``DisparityImage``; NaN below ``min_disparity``."""
-    values = float_image_to_array(msg.image)
+    values = float_image_to_array(msg.image, 'disparity image')
     with np.errstate(invalid='ignore'):
         invalid = ~(values >= msg.min_disparity)
     values[invalid] = np.nan

@@ -186,10 +186,26 @@ def test_float_and_depth_images_without_the_last_rows_padding_decode() -> None:
     msg = _raw(millimetres[:2] + b'\x00' * 2 + millimetres[2:], 2, 1, '16UC1', step=4, big=True)
     np.testing.assert_allclose(depth_image_to_array(msg), [[2.5], [0.007]])
     # One byte fewer is still refused, by name.
-    with pytest.raises(InputError, match='32FC1 image of 1×2 needs step ≥ 4 and 16 bytes; got'):
+    with pytest.raises(
+        InputError,
+        match=r"^32FC1 image data must hold 2 rows of step 8 \(16 bytes, or 12 without the last "
+        r"row's padding\); got 11$",
+    ):
         float_image_to_array(_raw(data[:-1], 2, 1, '32FC1', step=8))
-    with pytest.raises(InputError, match='16UC1 image of 1×2 needs step ≥ 2'):
+    with pytest.raises(InputError, match=r'^16UC1 depth image data must hold 2 rows .*; got 5$'):
         depth_image_to_array(_raw(b'\x00' * 5, 2, 1, '16UC1', step=4))
+    # The same checks as image_to_array's (they were a copy that let these through): data
+    # longer than the rows, a zero size, a step shorter than a row; named by the caller.
+    with pytest.raises(InputError, match=r'^32FC1 image data must hold .*; got 17$'):
+        float_image_to_array(_raw(data + b'\x00' * 5, 2, 1, '32FC1', step=8))
+    with pytest.raises(InputError, match=r'^range image must have a positive size; got 1×0$'):
+        depth_image_to_array(_raw(b'', 0, 1, '32FC1', step=4), 'range image')
+    with pytest.raises(InputError, match=r'^16UC1 depth image step must be ≥ 4 bytes for 2 px'):
+        depth_image_to_array(_raw(b'\x00' * 6, 2, 2, '16UC1', step=3))
+    with pytest.raises(InputError, match=r"^disparity image: expected 32FC1; got 'mono8'$"):
+        float_image_to_array(_raw(b'\x00' * 2, 2, 1, 'mono8', step=1), 'disparity image')
+    with pytest.raises(InputError, match=r"^depth image: expected 32FC1 or 16UC1; got 'mono8'$"):
+        depth_image_to_array(_raw(b'\x00' * 2, 2, 1, 'mono8', step=1))
 
 
 @pytest.mark.parametrize(
