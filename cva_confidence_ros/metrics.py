@@ -30,6 +30,7 @@ __all__ = [
     'ABS_THRESHOLD',
     'DENSITY_STEPS',
     'REL_THRESHOLD',
+    'auc_scores',
     'evaluate_confidence',
     'kitti_error',
     'optimal_auc',
@@ -243,6 +244,28 @@ def optimal_auc(error_rate: float, n_pixels: int | None = None) -> float:
     return eps + (1.0 - eps) * float(np.log1p(-eps))
 
 
+def auc_scores(confidence: np.ndarray, error: np.ndarray) -> dict[str, float | int]:
+    """The paper's scores of a confidence over a set of pixels: what every evaluation here
+    (``cva-evaluate``, the replay, training validation) reports.
+
+    Args:
+        confidence: Confidence of the evaluated pixels, any shape, no NaN.
+        error: Bool, same shape, True = wrong.
+
+    Returns:
+        ``auc`` (:func:`roc_auc`), ``auc_opt`` (:func:`optimal_auc` of the error rate over
+        these pixels), ``error_rate`` and ``n_pixels``.
+    """
+    flat_confidence, flat_error = _flatten_pair(confidence, error)
+    error_rate = float(flat_error.mean())
+    return {
+        'auc': roc_auc(flat_confidence, flat_error),
+        'auc_opt': optimal_auc(error_rate, int(flat_error.size)),
+        'error_rate': error_rate,
+        'n_pixels': int(flat_error.size),
+    }
+
+
 def evaluate_confidence(
     confidence: np.ndarray,
     d_est: np.ndarray,
@@ -283,11 +306,4 @@ def evaluate_confidence(
     n_pixels = int(valid.sum())
     if n_pixels == 0:
         raise InputError('no pixel has finite ground truth (inside the mask); nothing to evaluate')
-    error = error[valid]
-    error_rate = float(error.mean())
-    return {
-        'auc': roc_auc(confidence[valid], error),
-        'auc_opt': optimal_auc(error_rate, n_pixels),
-        'error_rate': error_rate,
-        'n_pixels': n_pixels,
-    }
+    return auc_scores(confidence[valid], error[valid])

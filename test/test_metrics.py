@@ -10,6 +10,7 @@ import pytest
 
 from cva_confidence_ros.errors import InputError
 from cva_confidence_ros.metrics import (
+    auc_scores,
     evaluate_confidence,
     kitti_error,
     optimal_auc,
@@ -227,6 +228,33 @@ def test_evaluate_confidence_excludes_unknown_and_masked_pixels() -> None:
     masked = evaluate_confidence(conf, d_est, d_gt, mask=mask)
     assert masked['n_pixels'] == 3
     assert masked['error_rate'] == pytest.approx(1 / 3)
+
+
+def test_every_evaluation_scores_alike() -> None:
+    """cva-evaluate / the replay (score_confidence), evaluate_confidence and training validation
+    all go through auc_scores: the same four numbers for the same pixels."""
+    from cva_confidence_ros.evaluation.scene import score_confidence
+
+    rng = np.random.default_rng(3)
+    # eps near 1 on few pixels: optimal_auc's curve-range case must reach every caller.
+    for n, eps in ((500, 0.3), (30, 0.97)):
+        error = rng.random(n) < eps
+        confidence = np.round(rng.random(n), 1)  # ties
+        scores = auc_scores(confidence.reshape(-1, 10), error.reshape(-1, 10))
+        assert scores == {
+            'auc': roc_auc(confidence, error),
+            'auc_opt': optimal_auc(float(error.mean()), n),
+            'error_rate': float(error.mean()),
+            'n_pixels': n,
+        }
+        scored = score_confidence(confidence, error)
+        assert (scored.auc, scored.auc_opt, scored.error_rate, scored.n_pixels) == tuple(
+            scores.values()
+        )
+        d_gt = np.full(n, 50.0)
+        assert evaluate_confidence(confidence, np.where(error, 0.0, 50.0), d_gt) == scores
+    with pytest.raises(InputError, match='error must be a bool array'):
+        auc_scores(np.zeros(3), np.zeros(3))
 
 
 def test_evaluate_confidence_without_ground_truth_fails() -> None:

@@ -108,7 +108,7 @@ def score_confidence(confidence: np.ndarray, error: np.ndarray) -> ScoredMethod:
     Raises:
         InputError: Shapes differ, nothing to score, or NaN confidence.
     """
-    from cva_confidence_ros.metrics import optimal_auc, roc_auc, roc_curve
+    from cva_confidence_ros.metrics import auc_scores, roc_curve
 
     # float64 holds float32 exactly; casting a float64 map down would tie values that differ
     # only beyond float32's 7 digits and change the ranking the AUC measures.
@@ -124,13 +124,13 @@ def score_confidence(confidence: np.ndarray, error: np.ndarray) -> ScoredMethod:
     if np.isnan(confidence).any():
         bad = int(np.isnan(confidence).sum())
         raise InputError(f'confidence must not be NaN at scored pixels; got {bad} NaN values')
-    error_rate = float(error.mean())
+    scores = auc_scores(confidence, error)
     density, roc_error = roc_curve(confidence, error)
     return ScoredMethod(
-        auc=float(roc_auc(confidence, error)),
-        auc_opt=float(optimal_auc(error_rate, int(confidence.size))),
-        error_rate=error_rate,
-        n_pixels=int(confidence.size),
+        auc=float(scores['auc']),
+        auc_opt=float(scores['auc_opt']),
+        error_rate=float(scores['error_rate']),
+        n_pixels=int(scores['n_pixels']),
         density=np.asarray(density, dtype=np.float64),
         roc_error=np.asarray(roc_error, dtype=np.float64),
     )

@@ -287,7 +287,7 @@ def _masked_bce(logits: torch.Tensor, targets: torch.Tensor, mask: torch.Tensor)
 
 def _auc(net: nn.Module, scenes: list[DisparityScene], subsets: list[Any], device: Any,
          part: str | None = None) -> dict[str, float | None]:
-    from cva_confidence_ros.metrics import optimal_auc, roc_auc
+    from cva_confidence_ros.metrics import auc_scores
 
     confidences, wrongs = [], []
     net.eval()
@@ -312,13 +312,8 @@ def _auc(net: nn.Module, scenes: list[DisparityScene], subsets: list[Any], devic
     net.train()
     if not confidences:
         return {'val_auc': None, 'val_auc_opt': None, 'val_error_rate': None}
-    confidence, wrong = np.concatenate(confidences), np.concatenate(wrongs)
-    rate = float(wrong.mean())
-    return {
-        'val_auc': float(roc_auc(confidence, wrong)),
-        'val_auc_opt': float(optimal_auc(rate, wrong.size)),
-        'val_error_rate': rate,
-    }
+    scores = auc_scores(np.concatenate(confidences), np.concatenate(wrongs))
+    return {f'val_{key}': float(scores[key]) for key in ('auc', 'auc_opt', 'error_rate')}
 
 
 def _freeze_parts(net: LGCNet, scenes: list[DisparityScene], device: Any) -> None:

@@ -360,7 +360,7 @@ def _validate(
     subsets: list[tuple[np.ndarray, np.ndarray]],
     device: torch.device,
 ) -> dict[str, float | None]:
-    from cva_confidence_ros.metrics import optimal_auc, roc_auc
+    from cva_confidence_ros.metrics import auc_scores
 
     confidences, wrongs = [], []
     for scene, (ys, xs) in zip(scenes, subsets, strict=True):
@@ -370,12 +370,10 @@ def _validate(
         wrongs.append(~scene.correct[ys, xs])
     if not confidences:
         return {'val_auc': None, 'val_auc_opt': None, 'val_error_rate': None, 'val_high': None}
-    confidence, wrong = np.concatenate(confidences), np.concatenate(wrongs)
-    rate = float(wrong.mean())
+    confidence = np.concatenate(confidences)
+    scores = auc_scores(confidence, np.concatenate(wrongs))
     return {
-        'val_auc': float(roc_auc(confidence, wrong)),
-        'val_auc_opt': float(optimal_auc(rate, wrong.size)),
-        'val_error_rate': rate,
+        **{f'val_{key}': float(scores[key]) for key in ('auc', 'auc_opt', 'error_rate')},
         # Share of outputs >= 0.5: near 1 means the network calls almost everything correct.
         'val_high': float(np.mean(confidence >= 0.5)),
     }
