@@ -61,6 +61,7 @@ from cva_confidence_ros.model.baselines import (
 from cva_confidence_ros.training.card import hardware_facts, write_model_card
 from cva_confidence_ros.training.config import TrainConfig
 from cva_confidence_ros.training.data import (
+    LabelledScene,
     batches,
     dense_crops,
     match_and_label,
@@ -117,7 +118,7 @@ _LGC_CHOICES = [
 
 
 @dataclass(eq=False)
-class DisparityScene:
+class DisparityScene(LabelledScene):
     """One matched scene at the training resolution, as the baselines see it.
 
     Attributes:
@@ -139,21 +140,6 @@ class DisparityScene:
     correct: np.ndarray
     local: np.ndarray | None = None
     global_: np.ndarray | None = None
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        """(H, W) of the scene's outputs."""
-        return int(self.labelled.shape[0]), int(self.labelled.shape[1])
-
-    @property
-    def n_labelled(self) -> int:
-        """Pixels with ground truth."""
-        return int(self.labelled.sum())
-
-    @property
-    def n_wrong(self) -> int:
-        """Labelled pixels whose WTA disparity is wrong."""
-        return int((self.labelled & ~self.correct).sum())
 
     def planes(self) -> tuple[torch.Tensor, torch.Tensor]:
         """Unpadded (1, 1, H, W) disparity and image tensors (for whole-scene inference)."""
@@ -398,8 +384,8 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
     from cva_confidence_ros.training.trainer import (
         CHECKPOINT_NAME,
         _load_checkpoint,
-        _load_samples,
         _Log,
+        _prepare,
         _progress,
         _save_checkpoint,
         _scene_facts,
@@ -436,22 +422,8 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
                 'folder or the original settings'
             )
 
-    def prepare(validation: bool) -> list[DisparityScene]:
-        scenes = []
-        for label, loader in _load_samples(config, validation):
-            tic = time.perf_counter()
-            scene = prepare_disparity_scene(loader(), config.matcher, config.max_disparity)
-            scenes.append(scene)
-            log(
-                f'{"val " if validation else ""}scene {label}: {scene.shape[0]}×'
-                f'{scene.shape[1]} (factor {scene.factor}), {scene.n_labelled} labelled, '
-                f'{scene.n_wrong / max(1, scene.n_labelled):.1%} wrong, '
-                f'{time.perf_counter() - tic:.1f} s'
-            )
-        return scenes
-
-    scenes = prepare(False)
-    index = sample_index(scenes)  # type: ignore[arg-type]
+    scenes = _prepare(config, False, log, prepare_disparity_scene)
+    index = sample_index(scenes)
     split = config.fusion_split if config.arch == 'lgcnet' else 'none'
     parts_at, fusion_at = split_scenes([s.name for s in scenes], split)
     stage_scenes = {
@@ -461,15 +433,15 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
     }
     stage_index = {
         'single': index,
-        'parts': sample_index(stage_scenes['parts']),  # type: ignore[arg-type]
-        'fusion': sample_index(stage_scenes['fusion']),  # type: ignore[arg-type]
+        'parts': sample_index(stage_scenes['parts']),
+        'fusion': sample_index(stage_scenes['fusion']),
     }
     if config.arch == 'lgcnet':
         log(f'fusion split {split}: parts on {len(parts_at)} scenes '
             f'({len(stage_index["parts"])} labelled px), fusion on {len(fusion_at)} scenes '
             f'({len(stage_index["fusion"])} labelled px)')
-    val_scenes = prepare(True)
-    val_subsets = validation_subset(val_scenes, config.val_pixels, config.seed)  # type: ignore[arg-type]
+    val_scenes = _prepare(config, True, log, prepare_disparity_scene)
+    val_subsets = validation_subset(val_scenes, config.val_pixels, config.seed)
     side = crop_side(config, scenes)
     n_samples = config.samples_per_epoch or len(index)
     log(
@@ -525,7 +497,7 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
             group['lr'] = lr
         torch.manual_seed(config.seed * 1_000_003 + epoch * 7919 + 1)
         crops = dense_crops(
-            stage_scenes[stage],  # type: ignore[arg-type]  # duck-typed as in sample_index
+            stage_scenes[stage],
             stage_index[stage], n_samples, side, config.seed, epoch
         )
         per_step = max(1, math.ceil(config.batch_size / side**2))

@@ -28,6 +28,7 @@ from cva_confidence_ros.model import PAD, PATCH_SIZE, pad_cost_volume
 
 __all__ = [
     'CropBatch',
+    'LabelledScene',
     'PreparedScene',
     'SampleIndex',
     'dense_crops',
@@ -41,8 +42,33 @@ __all__ = [
 ]
 
 
+class LabelledScene:
+    """What every training scene has (a mix-in of the scene dataclasses): a name, the
+    factor it was shrunk by, and its labels."""
+
+    name: str
+    factor: int
+    labelled: np.ndarray  # (H, W) bool, True where ground truth is known
+    correct: np.ndarray  # (H, W) bool, True where the WTA disparity is correct
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(H, W) of the scene's outputs."""
+        return int(self.labelled.shape[0]), int(self.labelled.shape[1])
+
+    @property
+    def n_labelled(self) -> int:
+        """Pixels with ground truth."""
+        return int(self.labelled.sum())
+
+    @property
+    def n_wrong(self) -> int:
+        """Labelled pixels whose WTA disparity is wrong."""
+        return int((self.labelled & ~self.correct).sum())
+
+
 @dataclass(eq=False)
-class PreparedScene:
+class PreparedScene(LabelledScene):
     """One matched scene at the training resolution.
 
     Attributes:
@@ -59,21 +85,6 @@ class PreparedScene:
     volume: torch.Tensor
     labelled: np.ndarray
     correct: np.ndarray
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        """(H, W) of the scene's outputs."""
-        return int(self.labelled.shape[0]), int(self.labelled.shape[1])
-
-    @property
-    def n_labelled(self) -> int:
-        """Pixels with ground truth."""
-        return int(self.labelled.sum())
-
-    @property
-    def n_wrong(self) -> int:
-        """Labelled pixels whose WTA disparity is wrong."""
-        return int((self.labelled & ~self.correct).sum())
 
     def unpadded_volume(self) -> np.ndarray:
         """(D, H, W) float32 cost volume."""
@@ -168,7 +179,7 @@ class SampleIndex:
         return float(1.0 - self.target.mean()) if len(self) else 0.0
 
 
-def sample_index(scenes: Sequence[PreparedScene]) -> SampleIndex:
+def sample_index(scenes: Sequence[LabelledScene]) -> SampleIndex:
     """The :class:`SampleIndex` of all labelled pixels, scene by scene in row-major order."""
     parts = []
     for number, scene in enumerate(scenes):
@@ -270,12 +281,12 @@ class CropBatch:
     n_labelled: np.ndarray
 
 
-def _crop_side(scenes: Sequence[PreparedScene], crop_size: int) -> int:
+def _crop_side(scenes: Sequence[LabelledScene], crop_size: int) -> int:
     return min([crop_size] + [min(s.shape) for s in scenes])
 
 
 def dense_crops(
-    scenes: Sequence[PreparedScene],
+    scenes: Sequence[LabelledScene],
     index: SampleIndex,
     n_samples: int,
     crop_size: int,
@@ -362,7 +373,7 @@ def batches(order: np.ndarray, batch_size: int) -> Iterator[np.ndarray]:
 
 
 def validation_subset(
-    scenes: Sequence[PreparedScene], n_pixels: int, seed: int
+    scenes: Sequence[LabelledScene], n_pixels: int, seed: int
 ) -> list[tuple[np.ndarray, np.ndarray]]:
     """A fixed random subset of labelled pixels per validation scene, ``n_pixels`` in all.
 

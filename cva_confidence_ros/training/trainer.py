@@ -18,7 +18,7 @@ import os
 from pathlib import Path
 import sys
 import time
-from typing import Any, cast
+from typing import Any, TypeVar, cast
 
 import numpy as np
 import torch
@@ -37,6 +37,7 @@ from cva_confidence_ros.outputs import check_output_dir, check_output_file
 from cva_confidence_ros.training.card import hardware_facts, write_model_card
 from cva_confidence_ros.training.config import TrainConfig, parse_dataset_spec
 from cva_confidence_ros.training.data import (
+    LabelledScene,
     PreparedScene,
     SampleIndex,
     batches,
@@ -184,11 +185,22 @@ def _load_samples(
     return loaders
 
 
-def _prepare(config: TrainConfig, validation: bool, log: _Log) -> list[PreparedScene]:
+_Scene = TypeVar('_Scene', bound=LabelledScene)
+
+
+def _prepare(
+    config: TrainConfig,
+    validation: bool,
+    log: _Log,
+    prepare: Callable[[StereoSample, str, int], _Scene],
+) -> list[_Scene]:
+    """The training (or validation) scenes, each prepared by ``prepare`` (the cost-volume
+    networks' :func:`prepare_scene`; the disparity-map networks' ``prepare_disparity_scene``),
+    one line of log each."""
     scenes = []
     for label, loader in _load_samples(config, validation):
         tic = time.perf_counter()
-        scene = prepare_scene(loader(), config.matcher, config.max_disparity)
+        scene = prepare(loader(), config.matcher, config.max_disparity)
         scenes.append(scene)
         log(
             f'{"val " if validation else ""}scene {label}: {scene.shape[0]}×{scene.shape[1]} '
@@ -526,9 +538,9 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         state = _load_checkpoint(checkpoint, config)
         _check_processes(checkpoint, state, dist.world)
 
-    scenes = _prepare(config, False, log)
+    scenes = _prepare(config, False, log, prepare_scene)
     index = sample_index(scenes)
-    val_scenes = _prepare(config, True, log) if dist.main else []
+    val_scenes = _prepare(config, True, log, prepare_scene) if dist.main else []
     val_subsets = validation_subset(val_scenes, config.val_pixels, config.seed)
     n_samples = config.samples_per_epoch or len(index)
     log(
