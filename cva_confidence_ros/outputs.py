@@ -18,13 +18,23 @@ from cva_confidence_ros.errors import ConfigError
 __all__ = ['check_output_dir', 'check_output_file']
 
 
+def _unusable(option: str, path: Path, error: OSError) -> ConfigError:
+    """The error for a path that cannot even be looked at (a name too long, no search
+    permission on a folder above it)."""
+    reason = error.strerror or type(error).__name__
+    return ConfigError(f'{option} {path}: cannot use this path ({reason})')
+
+
 def _probe(folder: Path, option: str, path: Path) -> None:
     """Make ``folder`` (and its parents) and write a probe file in it."""
-    for candidate in (folder, *folder.parents):
-        if candidate.exists():
-            if not candidate.is_dir():
-                raise ConfigError(f'{option} {path}: {candidate} is a file, not a folder')
-            break
+    try:
+        for candidate in (folder, *folder.parents):
+            if candidate.exists():
+                if not candidate.is_dir():
+                    raise ConfigError(f'{option} {path}: {candidate} is a file, not a folder')
+                break
+    except OSError as error:
+        raise _unusable(option, path, error) from None
     try:
         folder.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=folder, prefix='.write-probe-'):
@@ -45,13 +55,17 @@ def check_output_file(path: str | os.PathLike[str], option: str) -> Path:
         ``path`` as a :class:`~pathlib.Path`.
 
     Raises:
-        ConfigError: ``path`` is a folder, lies under a file, or sits where one cannot write.
+        ConfigError: ``path`` is a folder, lies under a file, sits where one cannot write, or
+            cannot be looked at (a name too long, a folder above it without search permission).
     """
     path = Path(path)
-    if path.is_dir():
-        raise ConfigError(f'{option} {path} is a folder; expected a file path')
-    if path.exists() and not os.access(path, os.W_OK):
-        raise ConfigError(f'{option} {path}: the file exists and is not writable')
+    try:
+        if path.is_dir():
+            raise ConfigError(f'{option} {path} is a folder; expected a file path')
+        if path.exists() and not os.access(path, os.W_OK):
+            raise ConfigError(f'{option} {path}: the file exists and is not writable')
+    except OSError as error:
+        raise _unusable(option, path, error) from None
     _probe(path.parent, option, path)
     return path
 
@@ -67,10 +81,14 @@ def check_output_dir(path: str | os.PathLike[str], option: str) -> Path:
         ``path`` as a :class:`~pathlib.Path`.
 
     Raises:
-        ConfigError: ``path`` is a file, lies under a file, or sits where one cannot write.
+        ConfigError: ``path`` is a file, lies under a file, sits where one cannot write, or
+            cannot be looked at (a name too long, a folder above it without search permission).
     """
     path = Path(path)
-    if path.exists() and not path.is_dir():
-        raise ConfigError(f'{option} {path} is a file; expected a folder')
+    try:
+        if path.exists() and not path.is_dir():
+            raise ConfigError(f'{option} {path} is a file; expected a folder')
+    except OSError as error:
+        raise _unusable(option, path, error) from None
     _probe(path, option, path)
     return path

@@ -50,6 +50,11 @@ __all__ = [
 
 NODE_NAME = 'cva_cloud_filter'
 
+# rclpy's timers take whole nanoseconds in an int64: a shorter period is 0 (a timer that fires
+# without pause), a longer one overflows (OverflowError, TypeError) when the timer is made.
+_MIN_PERIOD_S = 1e-9
+_MAX_PERIOD_S = float((2**63 - 1) // 10**9)
+
 
 @dataclass(frozen=True)
 class CloudFilterConfig:
@@ -89,10 +94,12 @@ class CloudFilterConfig:
                     f'{name} must be one of {QOS_CHOICES}; got {getattr(self, name)!r}'
                 )
         if not is_real(self.diagnostics_period_seconds) or not (
-            0 < self.diagnostics_period_seconds < float('inf')
+            _MIN_PERIOD_S <= self.diagnostics_period_seconds <= _MAX_PERIOD_S
         ):
             raise ConfigError(
-                f'diagnostics_period_seconds must be > 0; got {self.diagnostics_period_seconds}'
+                f'diagnostics_period_seconds must be in [{_MIN_PERIOD_S:g}, {_MAX_PERIOD_S:g}] '
+                f'(a timer counts whole nanoseconds in an int64); got '
+                f'{self.diagnostics_period_seconds}'
             )
 
 
