@@ -11,9 +11,10 @@ is triangulated, turned by ``pitch`` (the camera looking down by that angle) int
 frame, and kept if its height above the camera, ``−y_level``, lies in ``[min_height,
 max_height]``. Its beam is the bearing ``atan2(−x, z_level)`` (counter-clockwise from forward,
 REP 103 for a frame with x forward, y left, z up), its range the horizontal distance
-``√(x² + z_level²)``. Beams are spaced evenly between the bearings of the last and first
-column's centres, ``1 / fx`` radians or a little more apart: one per column at the image centre,
-where columns are farthest apart in bearing, so no beam there falls between two columns (an
+``√(x² + z_level²)``. Beams are spaced evenly between the extreme bearings of the image's
+pixels (for a level camera the last and first column's centres; pitched, the corners nearer
+the ground see wider), ``1 / fx`` radians or a little more apart: one per column at the image
+centre, where columns are farthest apart in bearing, so no beam there falls between two columns (an
 increment of the mean column spacing would leave some centre beams empty on a wide lens: every
 fifth or so at 90° of view); each beam takes its nearest point.
 
@@ -35,7 +36,38 @@ from cva_confidence_ros.checks import is_real
 from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.pointcloud import StereoGeometry, _check_disparity
 
-__all__ = ['Scan', 'ScanConfig', 'ScanScore', 'disparity_to_scan', 'scan_frame_id', 'score_scan']
+__all__ = [
+    'Scan',
+    'ScanConfig',
+    'ScanScore',
+    'bearing_range',
+    'disparity_to_scan',
+    'scan_frame_id',
+    'score_scan',
+]
+
+
+def bearing_range(
+    geometry: StereoGeometry, width: int, height: int, pitch: float = 0.0
+) -> tuple[float, float]:
+    """Smallest and largest bearing (radians, counter-clockwise from forward) of a pixel of a
+    ``width × height`` image seen by a camera looking down by ``pitch``.
+
+    A pixel's points all lie on its ray, so they share its bearing ``atan2(cx − u,
+    fx · f)``, where ``f = cos(pitch) − (v − cy) / fy · sin(pitch)`` is the ray's forward
+    part in the level frame. The bearing grows with the column's distance from ``cx`` and as
+    ``f`` shrinks, so the extremes are at the image corners: for a level camera the last and
+    first column's centres; pitched down, the bottom corners, wider. A ray that does not
+    point forward (``f ≤ 0``: a steep pitch) bounds the range at ±π/2, since no point behind
+    the camera is taken.
+    """
+    sin_p, cos_p = math.sin(pitch), math.cos(pitch)
+    bearings = []
+    for u in (0, width - 1):
+        for v in (0, height - 1):
+            forward = cos_p - (v - geometry.cy) / geometry.fy * sin_p
+            bearings.append(math.atan2(geometry.cx - u, geometry.fx * max(forward, 1e-12)))
+    return min(bearings), max(bearings)
 
 
 @dataclass(frozen=True)
@@ -90,8 +122,9 @@ class Scan:
         ranges: (N,) float32, metres; NaN / ±inf as the module says (REP 117).
         intensities: (N,) float32, the confidence of each beam's point in [0, 1]; 0 where the
             range is not finite.
-        angle_min: Bearing of beam 0 (the centre of the last image column), radians.
-        angle_max: Bearing of beam N − 1 (the centre of the first column).
+        angle_min: Bearing of beam 0 (the centre of the last image column for a level
+            camera; see :func:`bearing_range`), radians.
+        angle_max: Bearing of beam N − 1 (the centre of the first column, likewise).
         angle_increment: ``(angle_max − angle_min) / (N − 1)`` (> 0).
         range_min: From the config.
         range_max: From the config.
@@ -120,11 +153,14 @@ def disparity_to_scan(
             invalid.
         geometry: Intrinsics at the disparity map's resolution.
         mask: Optional (H, W) bool, True = keep (the node passes ``PipelineResult.valid``).
-        confidence: Optional (H, W) real array in [0, 1], the beams' intensities; None = 0.
+        confidence: Optional (H, W) real array in [0, 1], the beams' intensities (clipped to
+            it, NaN = 0); None = 0.
         config: Height band, ranges and pitch; None = :class:`ScanConfig` defaults.
 
     Returns:
-        A :class:`Scan`, ``floor(fx · (angle_max − angle_min)) + 1`` beams (≤ W).
+        A :class:`Scan`, ``floor(fx · (angle_max − angle_min)) + 1`` beams between the
+        extreme bearings of :func:`bearing_range` (≤ W for a level camera; a pitched one sees
+        wider at the bottom (or top) corners, and its scan has more beams).
 
     Raises:
         InputError: ``disparity``, ``geometry`` or ``mask`` as
@@ -149,9 +185,8 @@ def disparity_to_scan(
                 f'got {confidence.dtype} {confidence.shape}'
             )
     keep = np.ones(disparity.shape, np.bool_) if mask is None else mask
-    # Beam 0 looks along the last column: bearings grow to the left (counter-clockwise).
-    angle_min = math.atan2(geometry.cx - (width - 1), geometry.fx)
-    angle_max = math.atan2(geometry.cx, geometry.fx)
+    # Beam 0 looks right of the last column: bearings grow to the left (counter-clockwise).
+    angle_min, angle_max = bearing_range(geometry, width, height, config.pitch)
     beams = max(2, int(math.floor((angle_max - angle_min) * geometry.fx)) + 1)
     increment = (angle_max - angle_min) / (beams - 1)
     params = np.array(
@@ -181,7 +216,7 @@ def disparity_to_scan(
     intensity[state != 3] = 0.0
     return Scan(
         ranges=ranges,
-        intensities=np.clip(intensity, 0.0, 1.0),
+        intensities=np.clip(np.nan_to_num(intensity, nan=0.0), 0.0, 1.0),
         angle_min=angle_min,
         angle_max=angle_max,
         angle_increment=increment,

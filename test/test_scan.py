@@ -13,6 +13,7 @@ from cva_confidence_ros.scan import (
     Scan,
     ScanConfig,
     ScanScore,
+    bearing_range,
     disparity_to_scan,
     scan_frame_id,
     score_scan,
@@ -32,9 +33,14 @@ def _reference(disparity, geometry, mask, confidence, config):
     sin_p, cos_p = math.sin(config.pitch), math.cos(config.pitch)
     up = -(y * cos_p + z * sin_p)
     forward = z * cos_p - y * sin_p
-    width = disparity.shape[1]
-    angle_min = math.atan2(geometry.cx - (width - 1), geometry.fx)
-    angle_max = math.atan2(geometry.cx, geometry.fx)
+    # The extreme bearings of every pixel's ray (a ray not pointing forward: ±pi/2).
+    rows, columns = np.mgrid[: disparity.shape[0], : disparity.shape[1]].astype(np.float64)
+    ray_forward = cos_p - (rows - geometry.cy) / geometry.fy * sin_p
+    lateral = geometry.cx - columns
+    with np.errstate(divide='ignore', invalid='ignore'):
+        ahead = np.arctan2(lateral, geometry.fx * ray_forward)
+    ray_bearings = np.where(ray_forward > 0, ahead, np.sign(lateral) * np.pi / 2)
+    angle_min, angle_max = float(ray_bearings.min()), float(ray_bearings.max())
     beams = int(math.floor((angle_max - angle_min) * geometry.fx)) + 1
     increment = (angle_max - angle_min) / (beams - 1)
     nearest = {}
@@ -92,7 +98,7 @@ def test_no_beam_falls_between_two_columns(width: int, fx: float) -> None:
 
 
 @pytest.mark.parametrize('density', [0.7, 0.02])
-@pytest.mark.parametrize('pitch', [0.0, 0.3, -0.2])
+@pytest.mark.parametrize('pitch', [0.0, 0.3, -0.2, 1.4])
 def test_matches_the_points_turned_level_point_by_point(pitch: float, density: float) -> None:
     rng = np.random.default_rng(3)
     geometry = StereoGeometry(fx=80.0, fy=82.0, cx=40.0, cy=25.0, cx_right=43.0, baseline=0.2)
@@ -106,11 +112,42 @@ def test_matches_the_points_turned_level_point_by_point(pitch: float, density: f
     ranges, intensities = _reference(disparity, geometry, mask, confidence, config)
     np.testing.assert_allclose(scan.ranges, ranges, rtol=1e-6)
     np.testing.assert_allclose(scan.intensities, intensities, rtol=1e-6)
-    if density > 0.5:
+    if density > 0.5 or abs(pitch) > 1.0:
         return
-    # All four beam states occur in the sparse map.
+    # All four beam states occur in the sparse map (looking almost straight down, no band
+    # point lies beyond range_max).
     assert np.isnan(scan.ranges).any() and np.isposinf(scan.ranges).any()
     assert np.isneginf(scan.ranges).any() and np.isfinite(scan.ranges).any()
+
+
+@pytest.mark.parametrize('pitch', [0.3, -0.3])
+def test_a_pitched_camera_keeps_the_points_of_its_wider_corners(pitch: float) -> None:
+    # Looking down, the bottom corners see farther to the side than the columns' centres do
+    # at the horizon (up: the top corners): a point there was in no beam (1,734 of 25,000 in
+    # the band for a 200×150 view of a wall at pitch 0.3).
+    disparity = np.full((64, 96), np.nan, np.float32)
+    confidence = np.zeros((64, 96), np.float32)
+    row = 63 if pitch > 0 else 0
+    disparity[row, 95] = disparity[row, 0] = 40.0  # 0.25 m ahead of the camera
+    confidence[row, 95], confidence[row, 0] = 0.9, 0.8
+    config = ScanConfig(min_height=-1.0, max_height=1.0, range_min=0.0, pitch=pitch)
+    scan = disparity_to_scan(disparity, GEOMETRY, confidence=confidence, config=config)
+    level = math.atan2(GEOMETRY.cx - 95, GEOMETRY.fx), math.atan2(GEOMETRY.cx, GEOMETRY.fx)
+    assert scan.angle_min < level[0] and scan.angle_max > level[1]
+    assert (scan.angle_min, scan.angle_max) == bearing_range(GEOMETRY, 96, 64, pitch)
+    finite = np.flatnonzero(np.isfinite(scan.ranges))
+    # The two points are the outermost beams, with their confidences.
+    assert finite.tolist() == [0, scan.ranges.size - 1]
+    assert scan.intensities[finite] == pytest.approx([0.9, 0.8])
+    # Level, the scan is as before: the last and first column's centres.
+    assert bearing_range(GEOMETRY, 96, 64) == pytest.approx(level)
+
+
+def test_nan_confidence_is_intensity_zero() -> None:
+    disparity = np.full((64, 96), 5.0, np.float32)
+    confidence = np.full((64, 96), np.nan, np.float32)
+    scan = disparity_to_scan(disparity, GEOMETRY, confidence=confidence)
+    assert np.isfinite(scan.ranges).all() and (scan.intensities == 0).all()
 
 
 def test_the_nearest_point_wins_and_brings_its_confidence() -> None:
