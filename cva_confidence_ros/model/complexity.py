@@ -20,12 +20,14 @@ from typing import NamedTuple
 
 from torch import nn
 
+from cva_confidence_ros.checks import is_int
 from cva_confidence_ros.errors import ConfigError
 from cva_confidence_ros.model.fast import (
     FAST_CURVE_FEATURES,
     FAST_FC_NODES,
     FAST_FILTERS,
     FAST_INPUTS,
+    FAST_MIN_DISPARITY,
     CVANetFast,
     FoldedCVANetFast,
 )
@@ -35,6 +37,7 @@ from cva_confidence_ros.model.lite import (
     LITE_FC_NODES,
     LITE_FILTERS,
     LITE_FIRST_KERNEL,
+    LITE_MIN_DISPARITY,
     CVANetLite,
     FoldedCVANetLite,
     condensed_depth,
@@ -44,7 +47,9 @@ from cva_confidence_ros.model.network import (
     FC_NODES,
     FILTERS,
     FUSION_LAYERS,
+    MIN_DISPARITY,
     CVANet,
+    check_network_options,
 )
 
 __all__ = ['Layer', 'dense_macs', 'layer_table', 'macs_per_pixel']
@@ -109,6 +114,12 @@ def _fast_layers(max_disparity: int) -> list[Layer]:
 
 
 _TABLES = {'cvanet': _cvanet_layers, 'cvanet_lite': _lite_layers, 'cvanet_fast': _fast_layers}
+# Smallest D each architecture is built for (as its constructor checks).
+_MIN_DISPARITY = {
+    'cvanet': MIN_DISPARITY,
+    'cvanet_lite': LITE_MIN_DISPARITY,
+    'cvanet_fast': FAST_MIN_DISPARITY,
+}
 
 
 def _resolve(net_or_arch: nn.Module | str, max_disparity: int | None) -> tuple[str, int]:
@@ -136,7 +147,9 @@ def _resolve(net_or_arch: nn.Module | str, max_disparity: int | None) -> tuple[s
         raise ConfigError(
             f'the network is built for D = {net_or_arch.max_disparity}; got D = {max_disparity}'
         )
-    return arch, int(max_disparity)
+    minimum = _MIN_DISPARITY[arch]
+    depth = check_network_options(max_disparity, minimum, f'the smallest D of {arch!r}', 0.0)
+    return arch, depth
 
 
 def layer_table(net_or_arch: nn.Module | str, max_disparity: int | None = None) -> list[Layer]:
@@ -171,8 +184,8 @@ def dense_macs(
     The input is the tile padded to (H + 12) × (W + 12), so the unpadded fusion layers work on
     more positions than H × W; ``dense_macs / (H·W)`` tends to :func:`macs_per_pixel`.
     """
-    if height < 1 or width < 1:
-        raise ConfigError(f'height and width must be >= 1; got {height}×{width}')
+    if not (is_int(height) and is_int(width)) or height < 1 or width < 1:
+        raise ConfigError(f'height and width must be integers >= 1; got {height!r}×{width!r}')
     total = 0
     for layer in layer_table(net_or_arch, max_disparity):
         positions = (height + _BORDER - layer.shrink) * (width + _BORDER - layer.shrink)

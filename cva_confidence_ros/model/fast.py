@@ -110,8 +110,8 @@ def aligned_curve(costs: torch.Tensor) -> torch.Tensor:
 
 
 # Serial, in memory order: the first pass streams the volume once with a running minimum per
-# pixel (strict '<': the smallest d among equal costs, like argmin), the second reads only the
-# 2·align + 1 costs around it.
+# pixel (strict '<': the smallest d among equal costs, and the first NaN, like argmin), the
+# second reads only the 2·align + 1 costs around it.
 @njit(cache=True)
 def _aligned_kernel(volume: np.ndarray, align: int, out: np.ndarray) -> None:  # pragma: no cover
     depth, height, width = volume.shape
@@ -124,7 +124,9 @@ def _aligned_kernel(volume: np.ndarray, align: int, out: np.ndarray) -> None:  #
             index = arg[y]
             for x in range(width):
                 value = row[x]
-                if value < low[x]:
+                # As argmin: a NaN counts as the minimum (the first one wins; a NaN minimum
+                # stays), so that a NaN cost reaches the output here as it does through torch.
+                if not value >= low[x] and low[x] == low[x]:
                     low[x] = value
                     index[x] = d
     span = 2 * align + 1

@@ -21,6 +21,7 @@ import torch.nn.functional as F
 
 from cva_confidence_ros.checks import is_int, is_real
 from cva_confidence_ros.errors import ConfigError, InputError
+from cva_confidence_ros.model.lite import check_volume_tensor
 from cva_confidence_ros.model.network import (
     DEPTH_KERNELS,
     FUSION_LAYERS,
@@ -113,7 +114,11 @@ class FoldedCVANet(nn.Module):
         With :meth:`head_logits` this splits the network at the per-pixel cost curves, so
         that :mod:`cva_confidence_ros.model.sparse` can fuse densely and classify only a
         subset of the pixels.
+
+        Raises:
+            InputError: ``volume`` not a floating-point (B, 1, D, ≥13, ≥13) tensor with this D.
         """
+        check_volume_tensor(volume, self.max_disparity)
         x = volume
         for conv in self.fusion:
             x = F.relu(conv(x))
@@ -347,12 +352,13 @@ def predict_confidence(
     with contextlib.ExitStack() as stack:
         stack.enter_context(torch.inference_mode())
         model = _inference_model(net, torch_device, fold_bn, stack)
+        dtype = _input_dtype(model)
         for y0 in range(0, height, rows):
             y1 = min(height, y0 + rows)
             for x0 in range(0, width, columns):
                 x1 = min(width, x0 + columns)
                 tile = padded[:, y0 : y1 + 2 * PAD, x0 : x1 + 2 * PAD]
-                tile = tile.to(torch_device)[None, None]
+                tile = tile.to(torch_device, dtype)[None, None]
                 result[y0:y1, x0:x1] = model(tile)[0].float().cpu().numpy()
     return result
 
@@ -375,12 +381,31 @@ def _inference_model(
                 f'got {type(net).__name__}'
             )
         return fold().to(device)
-    if next(net.parameters()).device != device:
+    if not same_device(next(net.parameters()).device, device):
         raise ConfigError(
             f'fold_bn=False runs the network where it lies ({next(net.parameters()).device}); '
             f'got device {device}'
         )
     return stack.enter_context(_eval_mode(net))
+
+
+def same_device(a: torch.device, b: torch.device) -> bool:
+    """Whether two devices are one: ``cuda`` is the current CUDA device (a tensor there says
+    ``cuda:0``, and ``torch.device('cuda') != torch.device('cuda:0')``)."""
+
+    def index(device: torch.device) -> int | None:
+        if device.type == 'cuda' and device.index is None:
+            return torch.cuda.current_device()
+        return device.index
+
+    return a.type == b.type and index(a) == index(b)
+
+
+def _input_dtype(model: nn.Module) -> torch.dtype:
+    """The dtype the module's input must have: that of its parameters (float32 for the folded
+    networks; a network run as it is with ``fold_bn=False`` may be float64 or half)."""
+    parameter = next(model.parameters(), None)
+    return torch.float32 if parameter is None else parameter.dtype
 
 
 def predict_confidence_at(
@@ -423,11 +448,12 @@ def predict_confidence_at(
     with contextlib.ExitStack() as stack:
         stack.enter_context(torch.inference_mode())
         model = _inference_model(net, torch_device, fold_bn, stack)
+        dtype = _input_dtype(model)
         for start in range(0, len(ys), batch_size):
             stop = min(len(ys), start + batch_size)
             # (D, n, 13, 13) → (n, 1, D, 13, 13)
             batch = np.ascontiguousarray(windows[:, ys[start:stop], xs[start:stop]].swapaxes(0, 1))
-            extracts = torch.from_numpy(batch)[:, None].to(torch_device)
+            extracts = torch.from_numpy(batch)[:, None].to(torch_device, dtype)
             result[start:stop] = model(extracts)[:, 0, 0].float().cpu().numpy()
     return result
 

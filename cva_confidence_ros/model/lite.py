@@ -221,7 +221,8 @@ class CVANetLite(nn.Module):
 
 
 def check_volume_tensor(volume: torch.Tensor, max_disparity: int) -> None:
-    """Raise :class:`InputError` unless ``volume`` is (B, 1, D, ≥13, ≥13) with the given D."""
+    """Raise :class:`InputError` unless ``volume`` is a floating-point (B, 1, D, ≥13, ≥13)
+    tensor with the given D."""
     if volume.ndim != 5 or volume.shape[1] != 1:
         raise InputError(
             f'expected a cost-volume tensor of shape (B, 1, D, H + 12, W + 12); '
@@ -236,6 +237,10 @@ def check_volume_tensor(volume: torch.Tensor, max_disparity: int) -> None:
         raise InputError(
             f'expected at least {PATCH_SIZE}×{PATCH_SIZE} pixels (H + 12, W + 12); '
             f'got {volume.shape[3]}×{volume.shape[4]}'
+        )
+    if not volume.dtype.is_floating_point:
+        raise InputError(
+            f'expected a floating-point cost volume normalised to [0, 1]; got {volume.dtype}'
         )
 
 

@@ -193,7 +193,8 @@ class CVANet(nn.Module):
             nn.init.zeros_(conv_bias(module))
 
     def check_input(self, volume: torch.Tensor) -> None:
-        """Raise :class:`InputError` unless ``volume`` is (B, 1, D, ≥13, ≥13) with this D."""
+        """Raise :class:`InputError` unless ``volume`` is a floating-point (B, 1, D, ≥13, ≥13)
+        tensor with this D."""
         if volume.ndim != 5 or volume.shape[1] != 1:
             raise InputError(
                 f'expected a cost-volume tensor of shape (B, 1, D, H + 12, W + 12); '
@@ -208,6 +209,10 @@ class CVANet(nn.Module):
             raise InputError(
                 f'expected at least {PATCH_SIZE}×{PATCH_SIZE} pixels (H + 12, W + 12); '
                 f'got {volume.shape[3]}×{volume.shape[4]}'
+            )
+        if not volume.dtype.is_floating_point:
+            raise InputError(
+                f'expected a floating-point cost volume normalised to [0, 1]; got {volume.dtype}'
             )
 
     def forward_logits(self, volume: torch.Tensor) -> torch.Tensor:

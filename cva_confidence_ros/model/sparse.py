@@ -73,6 +73,7 @@ from cva_confidence_ros.model.inference import (
     _check_pixels,
     _check_tile_budget,
     _check_volume,
+    _input_dtype,
     _unwrap,
     activations_per_pixel,
     fold_batchnorm,
@@ -132,8 +133,8 @@ class SparseConfig:
     Attributes:
         stride: 1, 2, 4 or 8: the network runs on every stride-th pixel of each axis.
         cascade: ``none``, ``pkrn`` or ``lrd``: the cheap measure that decides the sure pixels.
-        cascade_fraction: Share of the pixels (0, 1] the cascade leaves undecided (the middle
-            of the cheap measure's order) and hands to the network.
+        cascade_fraction: Share of the pixels (0, 1] the cascade leaves undecided (the least
+            confident by the cheap measure) and hands to the network.
         precision: ``fp32``, ``bf16`` or ``fp16`` (CUDA only): autocast dtype of the network.
         path: ``auto`` (cheapest by operation count), ``tile``, ``fused`` or ``extracts``.
 
@@ -309,6 +310,8 @@ class SparseEvaluator:
         precision_context(self.device, precision)  # validates
         check_backend(backend, self.device, precision)
         self.net = net.to(self.device).eval()
+        # Tiles and extracts go in as the network's own dtype (float32 unless it was converted).
+        self._dtype = _input_dtype(self.net)
         self.max_disparity: int = cast(int, net.max_disparity)  # checked above
         self.tile_budget_mb = tile_budget
         self.precision = precision
@@ -354,13 +357,15 @@ class SparseEvaluator:
                 self._meta = copy.deepcopy(self.net).to('meta')
             meta = self._meta
             depth = self.max_disparity
-            volume = torch.empty((1, 1, depth, rows + 2 * PAD, columns + 2 * PAD), device='meta')
+            volume = torch.empty(
+                (1, 1, depth, rows + 2 * PAD, columns + 2 * PAD), device='meta', dtype=self._dtype
+            )
             curves = None
             if kind == 'head':
                 with torch.inference_mode():
                     fused = meta.fusion_features(volume)  # type: ignore[operator]
                 shape = (rows * columns, fused.shape[1], fused.shape[2])
-                curves = torch.empty(shape, device='meta')
+                curves = torch.empty(shape, device='meta', dtype=fused.dtype)
             with FlopCounterMode(display=False) as counter, torch.inference_mode():
                 if kind == 'tile':
                     meta(volume)
@@ -444,7 +449,7 @@ class SparseEvaluator:
                         values = self._extracts(windows, ys + y0, xs + x0, (done, total))
                     else:
                         tile = padded[:, y0 : y1 + 2 * PAD, x0 : x1 + 2 * PAD]
-                        tile = tile.to(self.device)[None, None]
+                        tile = tile.to(self.device, self._dtype)[None, None]
                         values = self._dense(tile, way, ys, xs)
                     result[ys + y0, xs + x0] = values
                     done += ys.size
@@ -501,7 +506,7 @@ class SparseEvaluator:
             stop = min(ys.size, start + _EXTRACT_BATCH)
             # (D, n, 13, 13) → (n, 1, D, 13, 13)
             batch = np.ascontiguousarray(windows[:, ys[start:stop], xs[start:stop]].swapaxes(0, 1))
-            extracts = torch.from_numpy(batch)[:, None].to(self.device)
+            extracts = torch.from_numpy(batch)[:, None].to(self.device, self._dtype)
             out[start:stop] = self._run(extracts)[:, 0, 0].float().cpu().numpy()
             if self.progress is not None:
                 self.progress(done_before + stop, total)
