@@ -274,6 +274,7 @@ def write_dataset_bag(
                 height, width = np.asarray(sample.left).shape[:2]
                 log(f'frame {index}: {sample.dataset}/{sample.scene} {width}×{height} '
                     f'at {stamp / 1e9:.3f} s')
+                interrupts.check()  # before the next scene is loaded, which takes a while
         except KeyboardInterrupt:
             summary.interrupted = True
         except CVAError as err:
@@ -392,6 +393,10 @@ def main(argv: list[str] | None = None) -> int:
             f'the existing bag {args.out} was left as it was' if summary.kept_old
             else f'{args.out} is an empty bag'
         )
+        if summary.interrupted:
+            print(f'cva-bag-from-dataset: interrupted before the first frame was written; '
+                  f'{state}', file=sys.stderr)
+            return 130
         print(f'cva-bag-from-dataset: error: data set {args.dataset!r} yielded no frames; '
               f'{state}', file=sys.stderr)
         return 2

@@ -8,6 +8,8 @@ version 8, Jazzy message definitions and type hashes, MCAP by default.
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
+import contextlib
+import importlib
 import os
 from pathlib import Path
 import re
@@ -26,6 +28,21 @@ except ImportError:  # rosbags before 0.10 read sqlite3 bags through the standar
     _SqliteReadError = sqlite3.Error
 else:
     _SqliteReadError = _ApswError
+
+
+def _zstd_error() -> type[Exception]:
+    """The error of the zstd module ``rosbags`` decompresses with (file and message
+    compression, MCAP chunks): ``compression.zstd`` from Python 3.14, ``backports.zstd``
+    before, ``zstandard`` in older ``rosbags``."""
+    for module in ('compression.zstd', 'backports.zstd', 'zstandard'):
+        try:
+            error = importlib.import_module(module).ZstdError
+        except (ImportError, AttributeError):
+            continue
+        if isinstance(error, type) and issubclass(error, Exception):
+            return error
+    return OSError  # none installed: nothing of the kind can be raised
+
 
 __all__ = [
     'BAG_VERSION',
@@ -64,6 +81,8 @@ _STORAGE_FAULTS = (
     struct.error,
     sqlite3.Error,
     _SqliteReadError,
+    _zstd_error(),  # a damaged zstd frame (compressed file, message or MCAP chunk)
+    RuntimeError,  # what lz4 raises for a damaged lz4 MCAP chunk
 )
 # What the first bytes of a single-file bag hold, per suffix.
 _STORAGE_MAGIC = {'.mcap': b'\x89MCAP0\r\n', '.db3': b'SQLite format 3\x00'}
@@ -144,6 +163,7 @@ class InputBag:
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self._reader: Any = None
+        self._found: set[int] = set()  # connections whose messages the storage was seen to hold
 
     def __enter__(self) -> InputBag:
         from rosbags.rosbag2 import Reader, ReaderError
@@ -162,6 +182,15 @@ class InputBag:
             raise BagError(
                 f'cannot open bag {self.path} (corrupt or truncated?): {reason(err)}'
             ) from None
+        for conn in reader.connections:
+            count = conn.msgcount
+            if isinstance(count, bool) or not isinstance(count, int) or count < 0:
+                reader.close()
+                raise BagError(
+                    f'cannot open bag {self.path}: its metadata gives topic {conn.topic} '
+                    f'{count!r} messages; expected a count >= 0 (a damaged or hand-edited '
+                    f'metadata.yaml?)'
+                )
         self._reader = reader
         return self
 
@@ -225,13 +254,15 @@ class InputBag:
             (topic, message type, bag timestamp in ns, CDR bytes).
 
         Raises:
-            BagError: The storage fails part-way (truncated or corrupt data).
+            BagError: The storage fails part-way (truncated or corrupt data), or holds no
+                message of a topic that the bag's metadata lists messages of.
         """
         from rosbags.rosbag2 import ReaderError
 
         wanted = [conn for conn in self.reader.connections if conn.topic in set(topics)]
         if not wanted:
             return
+        self._check_storage(wanted)
         count = 0
         iterator = self.reader.messages(connections=wanted, start=start)
         while True:
@@ -247,6 +278,36 @@ class InputBag:
             conn, timestamp, data = item
             count += 1
             yield conn.topic, conn.msgtype, int(timestamp), bytes(data)
+
+    def _check_storage(self, connections: Sequence[Any]) -> None:
+        """Check that the storage holds messages of each connection the metadata says has some.
+
+        ``rosbags`` finds a connection's messages by the topic, type, QoS and type hash that
+        ``metadata.yaml`` gives it; where they differ from the storage file's (a metadata.yaml
+        edited by hand, or copied from another bag) it yields nothing, as for an empty topic.
+        A storage fault here is left for the reading itself to report, after the messages
+        before it.
+        """
+        from rosbags.rosbag2 import ReaderError
+
+        for conn in connections:
+            if conn.id in self._found or not conn.msgcount:
+                continue
+            probe = self.reader.messages(connections=[conn])
+            try:
+                found = next(probe, None)
+            except (ReaderError, *_STORAGE_FAULTS):
+                continue
+            finally:
+                probe.close()
+            if found is None:
+                raise BagError(
+                    f'bag {self.path}: its metadata.yaml lists {conn.msgcount} messages on '
+                    f'{conn.topic} [{conn.msgtype}], but its storage file holds none of that '
+                    f'topic and type (metadata.yaml edited or of another bag, or a recording '
+                    f'that failed?)'
+                )
+            self._found.add(conn.id)
 
 
 def deserialize(store: Any, data: bytes, msgtype: str, where: str) -> Any:
@@ -352,7 +413,8 @@ class OutputBag:
     With ``overwrite`` and an existing bag at ``path``, the new bag is written in a hidden
     sibling folder (:func:`staging_folder`) and replaces the old one when it is closed, only
     if at least one message was written (also after a Ctrl-C or a fault part-way); a run that
-    writes nothing leaves the old bag as it was (:attr:`kept_old`).
+    writes nothing leaves the old bag as it was (:attr:`kept_old`), and so does a new bag that
+    cannot be written or finalised (a full disk), which is dropped with a :class:`BagError`.
 
     Args:
         path: Bag folder to create; must not exist unless ``overwrite``.
@@ -434,6 +496,7 @@ class OutputBag:
             target = staging / self.path.name
             self._staging = staging
         plugin = StoragePlugin.MCAP if self.storage == 'mcap' else StoragePlugin.SQLITE3
+        created = not (target.exists() or target.is_symlink())
         try:
             target.parent.mkdir(parents=True, exist_ok=True)
             writer = Writer(target, version=BAG_VERSION, storage_plugin=plugin)
@@ -442,7 +505,13 @@ class OutputBag:
                     CompressionMode[self.compression.upper()], CompressionFormat.ZSTD
                 )
             writer.open()
-        except (WriterError, OSError) as err:
+        except (WriterError, OSError, sqlite3.Error) as err:
+            # The writer makes the bag folder before its storage file: a file it cannot
+            # create (a name too long, ...) would leave an empty folder that no later run
+            # may write or replace (it is no bag).
+            if created:
+                with contextlib.suppress(OSError):
+                    target.rmdir()  # only if empty: never what another process wrote
             self._discard_staging()
             raise BagError(f'cannot create output bag {self.path}: {err}') from None
         self._writer = writer
@@ -462,7 +531,22 @@ class OutputBag:
         data = message if isinstance(message, (bytes, bytearray, memoryview)) else (
             self.typestore.serialize_cdr(message, msgtype)
         )
-        self._writer.write(conn, int(timestamp_ns), data)
+        try:
+            self._writer.write(conn, int(timestamp_ns), data)
+        except (OSError, sqlite3.Error) as err:  # a full disk, a file system gone away
+            state = ''
+            if self._staging is not None:
+                # The new bag is damaged (sqlite3 drops what it had not committed): it must
+                # not replace the old one, which stays.
+                writer, self._writer = self._writer, None
+                with contextlib.suppress(OSError, sqlite3.Error):
+                    writer.close()
+                self._discard_staging()
+                self._staging = None
+                state = '; the old bag was left as it was'
+            raise BagError(
+                f'cannot write to output bag {self.path}: {reason(err)}{state}'
+            ) from None
         self.counts[topic] = self.counts.get(topic, 0) + 1
 
     def close(self) -> None:
@@ -470,12 +554,23 @@ class OutputBag:
         else drop it and keep the old one (idempotent).
 
         Raises:
-            BagError: The old bag cannot be swapped for the new one (the new one is left in
-                the staging folder, and the message says where).
+            BagError: The bag cannot be finalised (a full disk: a staged bag is dropped and
+                the old one kept), or the old bag cannot be swapped for the new one (the new
+                one is left in the staging folder, and the message says where).
         """
         writer, self._writer = self._writer, None
         if writer is not None:
-            writer.close()
+            try:
+                writer.close()
+            except (OSError, sqlite3.Error) as err:
+                staging, self._staging = self._staging, None
+                state = 'it may not be readable'
+                if staging is not None:
+                    self._discard_staging(staging)
+                    state = 'the old bag was left as it was'
+                raise BagError(
+                    f'cannot finish output bag {self.path}: {reason(err)}; {state}'
+                ) from None
         staging, self._staging = self._staging, None
         if staging is None:
             return
