@@ -101,6 +101,14 @@ def _loss_line(facts: Mapping[str, Any]) -> str:
     )
 
 
+def _crop_side(facts: Mapping[str, Any]) -> int | None:
+    """The side of the dense-mode crops: ``crop_size``, or the smallest training scene side if
+    that is smaller (the crops of ``training.data.dense_crops``)."""
+    side = facts.get('crop_size')
+    sides = [min(int(s['height']), int(s['width'])) for s in facts.get('scenes', [])]
+    return min([int(side), *sides]) if side is not None else None
+
+
 def _init_lines(facts: Mapping[str, Any]) -> list[str]:
     if not facts.get('init_weights'):
         return []
@@ -156,11 +164,7 @@ def write_model_card(
         '## Procedure',
         '',
         f'- mode: {facts.get("mode")}'
-        + (
-            f' (crops of {facts.get("crop_size")}² outputs)'
-            if facts.get('mode') == 'dense'
-            else ''
-        )
+        + (f' (crops of {_crop_side(facts)}² outputs)' if facts.get('mode') == 'dense' else '')
         + ('; half of them turned upside down (--vflip)' if facts.get('vflip') else ''),
         f'- epochs: {facts.get("epochs")} at lr {_fmt(facts.get("lr"))} + '
         f'{facts.get("epochs_low_lr")} at lr {_fmt(facts.get("lr_low"))}',

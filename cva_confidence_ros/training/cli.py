@@ -127,7 +127,9 @@ def build_parser() -> argparse.ArgumentParser:
         '--samples-per-epoch',
         type=int,
         default=None,
-        help='labelled samples per epoch (default: every labelled pixel once)',
+        help='labelled samples per epoch (default: as many as there are labelled pixels: '
+        'sparse mode uses each once, dense mode places crops at random and may use a pixel '
+        'more than once and another not at all)',
     )
     run.add_argument(
         '--teacher',

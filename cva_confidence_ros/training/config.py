@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
 import math
+from pathlib import Path
 from typing import Any
 
 from cva_confidence_ros.errors import ConfigError
@@ -40,6 +41,9 @@ DISJOINT_SPLITS: dict[str, tuple[str, ...]] = {'flyingthings3d': ('TRAIN', 'TEST
 _DEVELOP_SCENES: dict[str, str] = {
     'motorcycle': 'the Middlebury 2014 Motorcycle scene of middlebury2014 (MiddEval3)',
 }
+#: Largest run seed: the trainer seeds torch with seed · 1 000 003 + …, which
+#: ``torch.manual_seed`` takes only below 2**64.
+_MAX_SEED = 2**32 - 1
 
 
 def default_synthetic_size(max_disparity: int) -> tuple[int, int]:
@@ -63,7 +67,8 @@ def check_training_datasets(
     develop data sets and the data sets that are develop scenes (``motorcycle``).
 
     Raises:
-        ConfigError: An unknown data set, or a develop one (or a develop scene) to train on.
+        ConfigError: An unknown data set or split, or a develop one (or a develop scene) to
+            train on.
     """
     from cva_confidence_ros.datasets import DATASETS, DEVELOP_DATASETS
 
@@ -82,6 +87,9 @@ def check_training_datasets(
                 f'({", ".join(DEVELOP_DATASETS)}): never train on it, or the reported numbers '
                 'mean nothing'
             )
+    # A split the data set lacks is refused now, not once the training data are prepared.
+    for name, split in parsed:
+        DATASETS.get(name).resolve_split(split)
     return parsed
 
 
@@ -145,7 +153,9 @@ class TrainConfig:
         batch_size: Samples per step (paper: 256). Dense mode uses ceil(batch / crop²) crops.
         lr: Learning rate of Adam (paper: 1e-4).
         low_lr_factor: Factor of the last epochs' learning rate (paper: 0.1).
-        samples_per_epoch: Labelled samples per epoch; None = every labelled pixel once.
+        samples_per_epoch: Labelled samples per epoch; None = as many as there are labelled
+            pixels (sparse mode: each once; dense mode: crops at random places, which may hold
+            a pixel more than once and another not at all).
         seed: Seed of initialisation, sampling and dropout.
         device: ``cpu``, ``cuda`` or ``auto``.
         precision: ``fp32``, or ``bf16``: forward and backward under bfloat16 autocast (CUDA;
@@ -204,6 +214,8 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         from cva_confidence_ros.model import ARCHITECTURES
+        from cva_confidence_ros.model.baselines import BASELINE_ARCHS
+        from cva_confidence_ros.training.card import card_paths
 
         object.__setattr__(self, 'datasets', tuple(self.datasets))
         object.__setattr__(self, 'val_datasets', tuple(self.val_datasets))
@@ -219,6 +231,8 @@ class TrainConfig:
         _at_least('batch_size', self.batch_size, 1)
         _at_least('synthetic_seed', self.synthetic_seed, 0)
         _at_least('seed', self.seed, 0)
+        if self.seed > _MAX_SEED:
+            raise ConfigError(f'seed must be an integer in [0, {_MAX_SEED}]; got {self.seed!r}')
         if self.epochs + self.epochs_low_lr < 1:
             raise ConfigError('epochs + epochs_low_lr must be >= 1; got 0')
         if self.max_scenes is not None:
@@ -243,6 +257,12 @@ class TrainConfig:
             raise ConfigError(
                 f'precision must be one of {TRAIN_PRECISIONS}; got {self.precision!r}'
             )
+        if self.arch in BASELINE_ARCHS and (self.vflip or self.precision != 'fp32'):
+            raise ConfigError(
+                f'--arch {self.arch} trains in float32 without flips: --vflip and --precision '
+                'bf16 are for the cost-volume networks (cvanet, cvanet_lite, cvanet_fast); got '
+                f'vflip {self.vflip}, precision {self.precision!r}'
+            )
         if not (math.isfinite(self.lr) and self.lr > 0 and 0 < self.low_lr_factor <= 1):
             raise ConfigError(
                 f'lr must be finite and > 0, low_lr_factor in (0, 1]; got {self.lr}, '
@@ -254,6 +274,12 @@ class TrainConfig:
             raise ConfigError(
                 'distillation needs both --teacher PATH and --distill-weight A > 0; got '
                 f'teacher {self.teacher!r} and distill_weight {self.distill_weight}'
+            )
+        if self.weights_out and Path(self.weights_out) in card_paths(self.weights_out):
+            raise ConfigError(
+                f'--weights-out {self.weights_out}: the model card is written beside the '
+                'weights as PATH.md and PATH.json and would overwrite them; name the weights '
+                'PATH.pt'
             )
         if not self.datasets and self.synthetic == 0:
             raise ConfigError('no training data: give --datasets and/or --synthetic N (N > 0)')
