@@ -384,6 +384,7 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
     from cva_confidence_ros.training.trainer import (
         CHECKPOINT_NAME,
         _load_checkpoint,
+        _load_samples,
         _Log,
         _prepare,
         _progress,
@@ -422,7 +423,9 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
                 'folder or the original settings'
             )
 
-    scenes = _prepare(config, False, log, prepare_disparity_scene)
+    # Both listed before either is prepared: a missing validation scene costs no matching.
+    loaders, val_loaders = _load_samples(config, False), _load_samples(config, True)
+    scenes = _prepare(loaders, config, False, log, prepare_disparity_scene)
     index = sample_index(scenes)
     split = config.fusion_split if config.arch == 'lgcnet' else 'none'
     parts_at, fusion_at = split_scenes([s.name for s in scenes], split)
@@ -440,7 +443,7 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
         log(f'fusion split {split}: parts on {len(parts_at)} scenes '
             f'({len(stage_index["parts"])} labelled px), fusion on {len(fusion_at)} scenes '
             f'({len(stage_index["fusion"])} labelled px)')
-    val_scenes = _prepare(config, True, log, prepare_disparity_scene)
+    val_scenes = _prepare(val_loaders, config, True, log, prepare_disparity_scene)
     val_subsets = validation_subset(val_scenes, config.val_pixels, config.seed)
     side = crop_side(config, scenes)
     n_samples = config.samples_per_epoch or len(index)

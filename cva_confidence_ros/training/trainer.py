@@ -189,16 +189,17 @@ _Scene = TypeVar('_Scene', bound=LabelledScene)
 
 
 def _prepare(
+    loaders: list[tuple[str, Callable[[], StereoSample]]],
     config: TrainConfig,
     validation: bool,
     log: _Log,
     prepare: Callable[[StereoSample, str, int], _Scene],
 ) -> list[_Scene]:
-    """The training (or validation) scenes, each prepared by ``prepare`` (the cost-volume
-    networks' :func:`prepare_scene`; the disparity-map networks' ``prepare_disparity_scene``),
-    one line of log each."""
+    """The scenes of ``loaders`` (:func:`_load_samples`), each prepared by ``prepare`` (the
+    cost-volume networks' :func:`prepare_scene`; the disparity-map networks'
+    ``prepare_disparity_scene``), one line of log each."""
     scenes = []
-    for label, loader in _load_samples(config, validation):
+    for label, loader in loaders:
         tic = time.perf_counter()
         scene = prepare(loader(), config.matcher, config.max_disparity)
         scenes.append(scene)
@@ -538,9 +539,12 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         state = _load_checkpoint(checkpoint, config)
         _check_processes(checkpoint, state, dist.world)
 
-    scenes = _prepare(config, False, log, prepare_scene)
+    # Both listed before either is prepared: a missing validation scene costs no matching.
+    loaders = _load_samples(config, False)
+    val_loaders = _load_samples(config, True) if dist.main else []
+    scenes = _prepare(loaders, config, False, log, prepare_scene)
     index = sample_index(scenes)
-    val_scenes = _prepare(config, True, log, prepare_scene) if dist.main else []
+    val_scenes = _prepare(val_loaders, config, True, log, prepare_scene)
     val_subsets = validation_subset(val_scenes, config.val_pixels, config.seed)
     n_samples = config.samples_per_epoch or len(index)
     log(
@@ -655,7 +659,8 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         'matcher': config.matcher,
         'max_disparity': config.max_disparity,
         'mode': config.mode,
-        'crop_size': config.crop_size,
+        # The side run: the smallest scene side where that is smaller (dense_crops).
+        'crop_size': min([config.crop_size] + [min(scene.shape) for scene in scenes]),
         'vflip': config.vflip,
         'datasets': list(config.datasets),
         'synthetic': config.synthetic,

@@ -96,3 +96,25 @@ def test_help_of_samples_per_epoch_says_what_dense_mode_does():
     (action,) = [a for a in build_parser()._actions if a.dest == 'samples_per_epoch']
     assert action.help is not None
     assert 'every labelled pixel once' not in action.help and 'dense mode' in action.help
+
+
+@pytest.mark.parametrize('arch', ['cvanet', 'ccnn'])
+def test_missing_validation_data_is_refused_before_training_data_are_prepared(
+    tmp_path, capsys, arch
+):
+    # The validation scenes were listed only after every training scene had been matched
+    # (minutes on real data) and the card recorded the requested crop side.
+    args = [*TINY, '--arch', arch, '--out', str(tmp_path / 'run'), '--data-root', str(tmp_path)]
+    assert main([*args, '--val-datasets', 'eth3d']) == 2
+    err = capsys.readouterr().err
+    assert 'eth3d' in err and 'scene synthetic/seed0' not in err
+
+
+def test_the_summary_records_the_crop_side_that_was_run(tmp_path):
+    from cva_confidence_ros.model import load_weights
+
+    weights = tmp_path / 'cvanet_census_bm_d16.pt'
+    args = [*TINY, '--out', str(tmp_path / 'run'), '--weights-out', str(weights)]
+    args += ['--mode', 'dense', '--crop-size', '64', '--epochs', '1', '--epochs-low-lr', '0']
+    assert main(args) == 0
+    assert load_weights(weights)[1]['crop_size'] == 24  # the 24×40 scenes' smaller side
