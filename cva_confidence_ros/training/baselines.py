@@ -207,7 +207,6 @@ def crop_side(config: TrainConfig, scenes: list[DisparityScene]) -> int:
     Raises:
         ConfigError: LGC-Net with ``--mode sparse``, or scenes smaller than 16 px.
     """
-    smallest = min(min(s.shape) for s in scenes)
     if config.mode == 'sparse':
         if config.arch == 'lgcnet':
             raise ConfigError(
@@ -215,6 +214,7 @@ def crop_side(config: TrainConfig, scenes: list[DisparityScene]) -> int:
                 f'that is a multiple of {CONFNET_FACTOR}'
             )
         return 1
+    smallest = min(min(s.shape) for s in scenes)
     side = min(config.crop_size, smallest)
     if config.arch == 'lgcnet':
         side -= side % CONFNET_FACTOR
@@ -425,9 +425,12 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
 
     # Both listed before either is prepared: a missing validation scene costs no matching.
     loaders, val_loaders = _load_samples(config, False), _load_samples(config, True)
+    split = config.fusion_split if config.arch == 'lgcnet' else 'none'
+    split_scenes([label for label, _ in loaders], split)  # refused now, not after preparing
+    if config.arch == 'lgcnet' and config.mode == 'sparse':
+        crop_side(config, [])  # refused now, not after preparing
     scenes = _prepare(loaders, config, False, log, prepare_disparity_scene)
     index = sample_index(scenes)
-    split = config.fusion_split if config.arch == 'lgcnet' else 'none'
     parts_at, fusion_at = split_scenes([s.name for s in scenes], split)
     stage_scenes = {
         'single': scenes,

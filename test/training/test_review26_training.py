@@ -118,3 +118,19 @@ def test_the_summary_records_the_crop_side_that_was_run(tmp_path):
     args += ['--mode', 'dense', '--crop-size', '64', '--epochs', '1', '--epochs-low-lr', '0']
     assert main(args) == 0
     assert load_weights(weights)[1]['crop_size'] == 24  # the 24×40 scenes' smaller side
+
+
+@pytest.mark.parametrize(
+    ('extra', 'message'),
+    [
+        (['--synthetic', '1', '--mode', 'dense'], 'at least 2 training scenes'),
+        (['--mode', 'sparse'], 'lgcnet trains ConfNet on image crops'),
+    ],
+)
+def test_lgcnet_settings_that_cannot_train_are_refused_before_preparing(
+    tmp_path, capsys, extra, message
+):
+    args = [*TINY, '--arch', 'lgcnet', '--out', str(tmp_path / 'run'), *extra]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert message in err and 'scene synthetic/seed0' not in err
