@@ -17,6 +17,7 @@ from torch import nn
 from cva_confidence_ros.checks import is_int
 from cva_confidence_ros.confidence.base import (
     CONFIDENCE_METHODS,
+    GENERIC_OPTIONS,
     ConfidenceInputs,
     ConfidenceMethod,
 )
@@ -60,7 +61,8 @@ class CVANetConfidence(ConfidenceMethod):
 
     Raises:
         ModelError: Weights missing, corrupt, or trained for another matcher or depth.
-        ConfigError: Bad device, budget or sparse option (the message names the option).
+        ConfigError: Bad device, budget or sparse option (the message names the option), or
+            an option that is neither a parameter nor a generic option.
     """
 
     needs_right: ClassVar[bool] = False
@@ -82,6 +84,14 @@ class CVANetConfidence(ConfidenceMethod):
         cva_backend: str = 'torch',
         **_: Any,
     ) -> None:
+        # Only the pipeline's generic options may be ignored: a misspelt one (cva_strid=4)
+        # would otherwise run the exact network without a word.
+        unknown = set(_) - GENERIC_OPTIONS
+        if unknown:
+            raise ConfigError(
+                f'unknown options {sorted(unknown)} for {type(self).__name__}; expected its '
+                f'parameters or the generic {sorted(GENERIC_OPTIONS)}'
+            )
         budget = _check_tile_budget(tile_budget_mb)
         self.sparse = SparseConfig(
             stride=cva_stride,

@@ -11,6 +11,7 @@ from collections.abc import Iterator
 import contextlib
 from dataclasses import dataclass
 import hashlib
+from pathlib import Path
 import threading
 from typing import TYPE_CHECKING
 
@@ -197,7 +198,10 @@ class MCCNNFastMatcher(Matcher):
 
         device = mccnn_net.resolve_device(self.config.device)
         network = mccnn_net.load_network(self.config.weights, str(device))
-        key = _FEATURES.key(left, right, str(device), self.config.weights)
+        # The file, not the string: a relative path names another file after a change of
+        # directory (load_network resolves it too).
+        weights = str(Path(self.config.weights).resolve()) if self.config.weights else ''
+        key = _FEATURES.key(left, right, str(device), weights)
         features = _FEATURES.get(key)
         if features is None:
             batch = mccnn_net.extract_features(network, [left, right], device)

@@ -126,7 +126,8 @@ def _cached_network(path: str, device: str) -> McCnnFastFeatures:
     network.eval()
     for parameter in network.parameters():
         parameter.requires_grad_(False)
-    return network.to(torch.device(device))
+    # float32 whatever torch's default dtype: the images come as float32.
+    return network.to(device=torch.device(device), dtype=torch.float32)
 
 
 def load_network(weights: str | Path | None = None, device: str = 'cpu') -> McCnnFastFeatures:

@@ -124,6 +124,8 @@ def remove_speckles(
         raise ConfigError(f'max_range must be a finite number ≥ 0; got {max_range!r}')
     if max_size == 0:
         return mask
-    flags = mask.astype(np.uint8)
+    # C order: the kernel works on flat views, and ravel() of a Fortran-ordered array (a
+    # transposed disparity map gives one) is a copy, whose updates would be lost.
+    flags = mask.astype(np.uint8, order='C')
     _remove_speckles(np.ascontiguousarray(values), flags, int(max_size), float(max_range))
     return flags != 0
