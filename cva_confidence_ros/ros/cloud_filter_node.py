@@ -35,6 +35,7 @@ from cva_confidence_ros.ros.common import (
     qos_override_errors,
     qos_profile,
     run_node,
+    warn_unknown_parameters,
 )
 from cva_confidence_ros.ros.convert import point_cloud_to_records, records_to_point_cloud
 from cva_confidence_ros.ros.params import QOS_CHOICES, double_value
@@ -175,6 +176,7 @@ class CloudFilterNode(Node):
                     FloatingPointRange(from_value=0.0, to_value=1.0, step=0.0)
                 ]
             self.declare_parameter(spec.name, spec.default, descriptor)
+        warn_unknown_parameters(self)
         names = [spec.name for spec in fields(CloudFilterConfig)]
         self._config = CloudFilterConfig(
             **_values({name: self.get_parameter(name).value for name in names})

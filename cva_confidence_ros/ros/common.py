@@ -65,6 +65,7 @@ __all__ = [
     'run_node',
     'spin_until_shutdown',
     'usage_text',
+    'warn_unknown_parameters',
 ]
 
 LOG_THROTTLE_S = 5.0
@@ -138,6 +139,41 @@ def qos_override_errors(topic: str) -> Iterator[None]:
             f'QoS override of {topic}: {error}; expected reliability reliable | best_effort, '
             'history keep_last | keep_all, depth >= 1'
         ) from None
+
+
+def warn_unknown_parameters(node: Node) -> list[str]:
+    """Log one warning naming the start-up parameters (``-p``, ``--params-file``) that ``node``
+    does not have, each with the nearest name it has (a misspelt ``confidence_treshold`` is
+    otherwise ignored without a word, and the node runs with the default).
+
+    A warning, not a refusal: a parameter file's ``/**`` section applies to every node, so
+    other nodes' names there are expected. ``qos_overrides.*`` are left out (declared only
+    when the topics are made, which for the managed node is later). Call it once every
+    parameter is declared.
+
+    Returns:
+        The names warned about.
+    """
+    from difflib import get_close_matches
+
+    # rclpy keeps the start-up values in a private attribute; there is no public accessor.
+    overrides = getattr(node, '_parameter_overrides', None) or {}
+    declared = list(node.list_parameters([], 0).names)
+    unknown = sorted(
+        name for name in overrides
+        if not name.startswith('qos_overrides.') and not node.has_parameter(name)
+    )
+    if unknown:
+        named = []
+        for name in unknown:
+            near = get_close_matches(name, declared, n=1, cutoff=0.75)
+            named.append(f'{name} (did you mean {near[0]}?)' if near else name)
+        node.get_logger().warning(
+            f'start-up parameters this node does not have, ignored: {", ".join(named)}; '
+            "its --help lists its parameters (a parameter file's /** section applies to every "
+            'node, so names of other nodes there are expected)'
+        )
+    return unknown
 
 
 class ReasonThrottle:

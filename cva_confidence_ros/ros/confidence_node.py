@@ -40,6 +40,7 @@ from cva_confidence_ros.ros.common import (
     qos_override_errors,
     qos_profile,
     run_node,
+    warn_unknown_parameters,
 )
 from cva_confidence_ros.ros.convert import (
     array_to_image,
@@ -978,6 +979,7 @@ class ConfidenceNode(ConfidenceCore):
         )
         try:
             self._init_core()
+            warn_unknown_parameters(self)
             self._configure()
             self._activate()
         except BaseException:

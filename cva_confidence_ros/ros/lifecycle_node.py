@@ -32,7 +32,7 @@ from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackRet
 from rclpy.parameter import Parameter
 
 from cva_confidence_ros.errors import CVAError
-from cva_confidence_ros.ros.common import QOS_OVERRIDES, run_node
+from cva_confidence_ros.ros.common import QOS_OVERRIDES, run_node, warn_unknown_parameters
 from cva_confidence_ros.ros.confidence_node import NODE_NAME, ConfidenceCore
 
 __all__ = ['AUTOSTART', 'ManagedConfidenceNode', 'run']
@@ -69,6 +69,7 @@ class ManagedConfidenceNode(ConfidenceCore, LifecycleNode):
             False,
             ParameterDescriptor(description=_AUTOSTART_DESCRIPTION, read_only=True),
         )
+        warn_unknown_parameters(self)
         if self.get_parameter(AUTOSTART).value:
             if self.trigger_configure() == TransitionCallbackReturn.SUCCESS:
                 self.trigger_activate()

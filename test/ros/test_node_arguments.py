@@ -157,6 +157,30 @@ def test_ros_arguments_alone_are_not_checked_further() -> None:
     assert check_arguments(['node', '--ros-args', '-r', '__node:=x', '-p', 'a:=1', '--']) is None
 
 
+def _run_until_ready(script: str, *ros_args: str) -> str:
+    """Start ``script --ros-args ros_args``, wait for its ready line, stop it with Ctrl-C
+    (exit status 0); its output."""
+    proc = subprocess.Popen(
+        [str(_script(script)), '--ros-args', *ros_args],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=_env(),
+    )  # fmt: skip
+    lines: list[str] = []
+    try:
+        assert proc.stdout is not None
+        deadline = time.monotonic() + 120.0
+        while not any('ready:' in line for line in lines):
+            assert time.monotonic() < deadline and proc.poll() is None, ''.join(lines)
+            lines.append(proc.stdout.readline())
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=30) == 0, ''.join(lines)
+        lines.extend(proc.stdout.readlines())
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+    return ''.join(lines)
+
+
 @pytest.mark.parametrize(
     ('script', 'parameters', 'ready'),
     [
@@ -178,30 +202,39 @@ def test_launch_style_ros_arguments_start_the_node(
     params = tmp_path / 'params.yaml'
     params.write_text(f'/**:\n  ros__parameters:\n    {parameters}\n')
     name = f'argtest_{script.replace("-", "_")}'
-    proc = subprocess.Popen(
-        [str(_script(script)), '--ros-args', '-r', f'__node:={name}',
-         '-r', f'__ns:=/argtest_{os.getpid()}', '--params-file', str(params)],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=_env(),
+    output = _run_until_ready(
+        script, '-r', f'__node:={name}', '-r', f'__ns:=/argtest_{os.getpid()}',
+        '--params-file', str(params),
     )  # fmt: skip
-    lines: list[str] = []
-    try:
-        assert proc.stdout is not None
-        deadline = time.monotonic() + 120.0
-        while not any('ready:' in line for line in lines):
-            assert time.monotonic() < deadline and proc.poll() is None, ''.join(lines)
-            lines.append(proc.stdout.readline())
-        proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=30) == 0, ''.join(lines)
-        lines.extend(proc.stdout.readlines())
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(10)
-    output = ''.join(lines)
+    lines = output.splitlines()
     (line,) = [line for line in lines if 'ready:' in line]
     # The logger is named <namespace>.<node name>.
     assert f'.{name}]: ready:' in line and ready in line, output
     assert 'Traceback' not in output and 'unrecognised' not in output, output
+
+
+@pytest.mark.parametrize(
+    ('script', 'typo', 'meant'),
+    [
+        ('cva-cloud-filter', 'treshold', 'threshold'),
+        ('cva-lifecycle-node', 'confidence_treshold', 'confidence_threshold'),
+    ],
+)
+def test_a_misspelt_parameter_is_a_warning_with_the_name_meant(
+    script: str, typo: str, meant: str, tmp_path: Path
+) -> None:
+    # Was ignored without a word: the node ran with the default. A warning, not a refusal: a
+    # parameter file's /** section is for every node (other_nodes_gain, no suggestion).
+    params = tmp_path / 'params.yaml'
+    params.write_text('/**:\n  ros__parameters:\n    other_nodes_gain: 3\n')
+    output = _run_until_ready(script, '-p', f'{typo}:=0.8', '--params-file', str(params))
+    (line,) = [line for line in output.splitlines() if 'does not have' in line]
+    assert '[WARN]' in line, output
+    assert f'{typo} (did you mean {meant}?)' in line and 'other_nodes_gain' in line, output
+    assert 'other_nodes_gain (did' not in line and 'qos_overrides' not in line, output
+    # Declared names (use_sim_time is rclpy's own) draw no warning.
+    output = _run_until_ready(script, '-p', f'{meant}:=0.8', '-p', 'use_sim_time:=false')
+    assert 'does not have' not in output, output
 
 
 def test_a_bad_qos_override_stops_the_start_with_one_line() -> None:
