@@ -367,8 +367,9 @@ def main(argv: list[str] | None = None) -> int:
             left_frame=args.left_frame,
             right_frame=args.right_frame,
         )
-        from cva_confidence_ros.datasets import load_dataset
+        from cva_confidence_ros.datasets import DATASETS, load_dataset
 
+        DATASETS.get(args.dataset)  # a misspelt name is that, not a missing --data-root
         root = args.data_root
         if root is None and args.dataset != 'motorcycle':
             raise ConfigError(f'--data-root is needed for data set {args.dataset!r}')

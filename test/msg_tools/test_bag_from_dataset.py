@@ -97,7 +97,8 @@ def test_motorcycle_needs_no_root(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ('args', 'message'),
     [
-        (['--dataset', 'nonsense'], 'nonsense'),
+        # A misspelt name is named as such, not as a missing --data-root.
+        (['--dataset', 'motorcyle'], "unknown data set 'motorcyle'; expected one of"),
         (['--dataset', 'kitti2015'], '--data-root'),
         (['--dataset', 'motorcycle', '--rate', '0'], 'rate'),
         (['--dataset', 'motorcycle', '--max-frames', '0'], 'max-frames'),
