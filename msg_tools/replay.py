@@ -1216,11 +1216,21 @@ class ReplaySession:
                     f'--sync-tolerance); {counts["unpaired"]} messages stayed unpaired'
                     f'{self._unpaired_text()}'
                 )
-            else:
+            elif counts['skipped']:
                 reason = (
                     f'none of the {counts["pairs"]} stereo pairs could be processed '
                     f'({counts["skipped"]} skipped, see the messages above)'
                 )
+            else:
+                from cva_confidence_ros.ros.common import large_messages_unset
+
+                reason = f'the node answered none of the {counts["pairs"]} stereo pairs'
+                if self.options.mode == 'live' and large_messages_unset():
+                    reason += (
+                        ' (images over 512 kB are lost by Fast DDS without '
+                        'config/fastdds_large_messages.xml in FASTRTPS_DEFAULT_PROFILES_FILE '
+                        'on both ends: README, Images of 640×480 and more over DDS)'
+                    )
             return ReplayOutcome(self.report, self.paths, 2, f'{reason} ({where})')
         summary = self.report.summary()
         text = (

@@ -59,6 +59,7 @@ __all__ = [
     'ReasonThrottle',
     'check_arguments',
     'diagnostic_status',
+    'large_messages_unset',
     'publish_status',
     'qos_override_errors',
     'qos_profile',
@@ -174,6 +175,16 @@ def warn_unknown_parameters(node: Node) -> list[str]:
             'node, so names of other nodes there are expected)'
         )
     return unknown
+
+
+def large_messages_unset() -> bool:
+    """Whether no Fast DDS profile file is set: then an image over Fast DDS's 512 kB
+    shared-memory segment goes by UDP in fragments, and with best-effort QoS one lost fragment
+    loses it (``config/fastdds_large_messages.xml`` lets it through)."""
+    return not any(
+        os.environ.get(name)
+        for name in ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
+    )
 
 
 class ReasonThrottle:

@@ -36,6 +36,7 @@ from cva_confidence_ros.ros.common import (
     QOS_OVERRIDES,
     ReasonThrottle,
     diagnostic_status,
+    large_messages_unset,
     publish_status,
     qos_override_errors,
     qos_profile,
@@ -145,6 +146,15 @@ class _Mailbox:
         with self._cond:
             self._closed = True
             self._cond.notify_all()
+
+
+# Fast DDS without a profile: an image over its 512 kB shared-memory segment goes by UDP in
+# fragments, and with best-effort QoS (input_qos: sensor_data) one lost fragment loses it.
+_LARGE_IMAGES_HINT = (
+    ' while the camera infos come: images over 512 kB (640×480 colour) are lost on the way by '
+    'Fast DDS without config/fastdds_large_messages.xml in FASTRTPS_DEFAULT_PROFILES_FILE on '
+    'both ends (README: Images of 640×480 and more over DDS)'
+)
 
 
 def _seconds(stamp_ns: int) -> str:
@@ -572,10 +582,13 @@ class ConfidenceCore(Node):
         names = {key: topic for key, (topic, _) in self._input_topics().items()}
         silent = [topic for key, topic in names.items() if not stats.window_keys.get(key)]
         if silent:
-            return (
+            text = (
                 f'messages arrive but none pair up: nothing on {", ".join(silent)} in the last '
                 f'{elapsed:.1f} s'
             )
+            if all(not key.endswith('_info') for key in names if names[key] in silent):
+                text += _LARGE_IMAGES_HINT if large_messages_unset() else ''
+            return text
         stamps = ', '.join(
             f'{topic} {_seconds(stats.last_stamps_ns[key])}' for key, topic in names.items()
         )

@@ -1080,6 +1080,28 @@ def test_input_that_never_pairs_names_the_silent_topic(running: _Running) -> Non
     (line, *_) = running.logged('nothing on right/camera_info')
     assert line.startswith('messages arrive but none pair up')
     assert 'left/camera_info' not in line.split(';')[0]
+    assert '512 kB' not in line  # the large-image hint is for silent images only
+    client.send_until_output(left, right, running.next_stamp(), topics=('disparity',))
+
+
+def test_camera_infos_without_images_point_at_the_large_message_profile(
+    running: _Running, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # What a 1242×375 colour pair over Fast DDS without the profile looks like: the camera
+    # infos come, the images (fragments over UDP, best effort) never do.
+    for name in ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE'):
+        monkeypatch.delenv(name, raising=False)
+    client, node = running.client, running.node
+    left, right = textured_pair(seed=12)
+    wanted = 'nothing on left/image_rect, right/image_rect'
+    deadline = time.monotonic() + max(10.0, 6 * node.node_config.diagnostics_period_seconds)
+    while time.monotonic() < deadline and not running.logged(wanted):
+        left_info, right_info = info_msgs(running.next_stamp())
+        client.pubs['left_info'].publish(left_info)
+        client.pubs['right_info'].publish(right_info)
+        time.sleep(0.1)
+    (line, *_) = running.logged(wanted)
+    assert 'images over 512 kB' in line and 'fastdds_large_messages.xml' in line
     client.send_until_output(left, right, running.next_stamp(), topics=('disparity',))
 
 
