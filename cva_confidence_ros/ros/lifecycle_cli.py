@@ -92,6 +92,49 @@ def _ask(node: Any, client: Any, request: Any, deadline: float) -> tuple[Any, in
         executor.shutdown()
 
 
+def _change_state(
+    node: Any, client: Any, state_client: Any, request: Any, goal: str | None, deadline: float
+) -> Any:
+    """Send a transition once; its answer, or one made up from the node's state.
+
+    A transition is not sent again as :func:`_ask` would (the node refuses the copy, with an
+    ``rcl_lifecycle`` warning in its log, whenever the first one takes longer than
+    :data:`ATTEMPT_S`: a configure that loads a network does). The request itself reaches the
+    node (``wait_for_service`` saw its reader); only the reply can be lost, so while none has
+    come the state is asked every :data:`ATTEMPT_S` seconds, and the transition's goal state
+    there counts as success.
+
+    Returns:
+        The ``ChangeState`` answer (or one with ``success`` set from the state), or None.
+    """
+    from lifecycle_msgs.srv import ChangeState, GetState
+    from rclpy.executors import SingleThreadedExecutor
+
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    change = client.call_async(request)
+    polls: list[Any] = []
+    next_poll = time.monotonic() + ATTEMPT_S
+    try:
+        while (now := time.monotonic()) < deadline:
+            if change.done():
+                return change.result()
+            for poll in polls:
+                answer = poll.result() if poll.done() else None
+                if answer is not None and goal is not None and (
+                    answer.current_state.label == goal
+                ):
+                    return ChangeState.Response(success=True)
+            if now >= next_poll:
+                polls.append(state_client.call_async(GetState.Request()))
+                next_poll = now + ATTEMPT_S
+            executor.spin_once(timeout_sec=min(0.05, max(deadline - now, 0.0)))
+        return change.result() if change.done() else None
+    finally:
+        executor.remove_node(node)
+        executor.shutdown()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status."""
     args = _parser().parse_args(list(sys.argv[1:] if argv is None else argv))
@@ -117,17 +160,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                 service, srv_type = f'{target}/change_state', ChangeState
                 request = ChangeState.Request(transition=Transition(label=args.transition))
             client = node.create_client(srv_type, service)
-            answer, sent = None, 0
+            answer = None
             if client.wait_for_service(timeout_sec=args.timeout):
-                answer, sent = _ask(node, client, request, deadline)
-            if args.command == 'set' and answer is not None and not answer.success and sent > 1:
-                # A resent transition is refused when the first one went through and only its
-                # reply was lost: the state tells.
-                state_client = node.create_client(GetState, f'{target}/get_state')
-                state, _ = _ask(node, state_client, GetState.Request(), deadline + ATTEMPT_S)
-                goal = GOALS.get(args.transition)
-                if state is not None and goal is not None and state.current_state.label == goal:
-                    answer.success = True
+                if args.command == 'set':
+                    state_client = node.create_client(GetState, f'{target}/get_state')
+                    goal = GOALS.get(args.transition)
+                    answer = _change_state(node, client, state_client, request, goal, deadline)
+                else:
+                    answer, _ = _ask(node, client, request, deadline)
         finally:
             node.destroy_node()
     finally:

@@ -302,6 +302,40 @@ def test_cva_lifecycle_drives_the_node_as_ros2_lifecycle_would() -> None:
         assert '/no_such_node/get_state' in missing.stderr
 
 
+def test_cva_lifecycle_sends_a_slow_transition_once() -> None:
+    # It sent the request again every ATTEMPT_S (3 s): a configure that took longer (one that
+    # loads a network) was answered, and each copy refused with an rcl_lifecycle warning in
+    # the node's log ("No transition matching configure found for current state inactive").
+    from cva_confidence_ros.ros.lifecycle_cli import ATTEMPT_S
+
+    if not CVA_LIFECYCLE.exists():
+        pytest.skip(f'{CVA_LIFECYCLE.name} is not installed next to the interpreter')
+    domain = spare_domain_id()
+    with localhost_context(domain) as context:
+        overrides = [Parameter('confidence_method', value='mlm'),
+                     Parameter('max_disparity', value=MAX_DISPARITY)]
+        managed = _Managed(context, overrides)
+        try:
+            (service,) = [srv for srv in managed.node.services
+                          if srv.srv_name.endswith('/change_state')]
+            labels: list[str] = []
+            answer = service.callback
+
+            def slow(request: Any, response: Any) -> Any:
+                labels.append(request.transition.label)
+                if len(labels) == 1:
+                    time.sleep(ATTEMPT_S + 1.5)
+                return answer(request, response)
+
+            service.callback = slow
+            done = _cli(domain, 'set', '/cva_confidence', 'configure')
+            assert (done.returncode, done.stdout.strip()) == (0, 'Transitioning successful'), done
+            assert labels == ['configure']
+            assert managed.state() == 'inactive'
+        finally:
+            managed.close()
+
+
 def test_a_destroyed_managed_node_leaves_rosout_to_the_next_node_of_its_name() -> None:
     # rclpy's LifecycleNode.destroy_node leaves the state machine holding the node, which then
     # ends only when collected; ending there unregistered the /rosout publisher of its name, by
