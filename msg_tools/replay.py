@@ -1250,7 +1250,7 @@ class ReplaySession:
                 )
         if summary['auc'] is not None:
             text += (
-                f"; mean AUC {100 * summary['auc']:.2f} (opt {100 * summary['auc_opt']:.2f}), "
+                f"; mean AUC ×100 {100 * summary['auc']:.2f} (opt {100 * summary['auc_opt']:.2f}), "
                 f"error rate {100 * summary['error_rate']:.2f} %"
             )
         if summary['scan_beams']:

@@ -302,8 +302,8 @@ PIPELINE_PARAMETERS: tuple[ParamSpec, ...] = (
     ),
     _pipeline(
         'confidence_threshold',
-        'Pixels with confidence below it are dropped from points2, depth and '
-        'disparity_filtered.',
+        'Pixels with confidence below it are dropped from points2, depth, scan, '
+        'disparity_filtered and the overlay.',
         low=0.0,
         high=1.0,
     ),
