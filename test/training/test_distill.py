@@ -23,16 +23,6 @@ from cva_confidence_ros.training.distill import (
 TINY = [*TINY_RUN, '--epochs', '1', '--epochs-low-lr', '0']
 
 
-@pytest.fixture(autouse=True)
-def _restore_threads():
-    import numba
-
-    threads, numba_threads = torch.get_num_threads(), numba.get_num_threads()
-    yield
-    numba.set_num_threads(numba_threads)
-    torch.set_num_threads(threads)
-
-
 @pytest.fixture(scope='module')
 def teacher_path(tmp_path_factory):
     torch.manual_seed(3)

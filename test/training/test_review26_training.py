@@ -3,24 +3,12 @@
 from __future__ import annotations
 
 import pytest
-import torch
 from train_test_utils import TINY
 
 from cva_confidence_ros.errors import ConfigError
 from cva_confidence_ros.training import TrainConfig
 from cva_confidence_ros.training.card import write_model_card
 from cva_confidence_ros.training.cli import build_parser, main
-
-
-@pytest.fixture(autouse=True)
-def _restore_threads():
-    """``--threads 1`` changes process-wide settings; give the other tests theirs back."""
-    import numba
-
-    threads, numba_threads = torch.get_num_threads(), numba.get_num_threads()
-    yield
-    numba.set_num_threads(numba_threads)
-    torch.set_num_threads(threads)
 
 
 def test_card_names_the_crop_side_that_was_run(tmp_path):

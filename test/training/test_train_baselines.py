@@ -32,17 +32,6 @@ TINY = [
 ]  # fmt: skip
 
 
-@pytest.fixture(autouse=True)
-def _restore_threads():
-    """``--threads 1`` changes process-wide settings; give the other tests theirs back."""
-    import numba
-
-    threads, numba_threads = torch.get_num_threads(), numba.get_num_threads()
-    yield
-    numba.set_num_threads(numba_threads)
-    torch.set_num_threads(threads)
-
-
 def _history(out: Path) -> list[dict]:
     return json.loads((out / 'history.json').read_text())
 

@@ -16,17 +16,6 @@ from cva_confidence_ros.training import TrainConfig
 from cva_confidence_ros.training.cli import main
 
 
-@pytest.fixture(autouse=True)
-def _restore_threads():
-    """``--threads 1`` changes process-wide settings; give the other tests theirs back."""
-    import numba
-
-    threads, numba_threads = torch.get_num_threads(), numba.get_num_threads()
-    yield
-    numba.set_num_threads(numba_threads)
-    torch.set_num_threads(threads)
-
-
 def _data_root() -> Path:
     env = os.environ.get('CVA_DATA_ROOT')
     root = Path(env) if env else Path(__file__).resolve().parents[2] / '..' / 'shared' / 'data'
