@@ -113,7 +113,6 @@ _INHERIT = 'inherit'
 #: A ROS parameter name as ``--param`` takes it.
 _PARAM_NAME = re.compile(r'[A-Za-z][A-Za-z0-9_.]*')
 # Fast DDS 2.x (ROS 2 Jazzy) reads the first, Fast DDS 3 the second.
-_PROFILE_VARIABLES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
 
 #: Fast DDS profile for image-sized messages on one host: a 16 MB shared-memory segment per
 #: participant instead of the stock 512 kB. With the stock segment, the four ~1 MB messages of
@@ -759,7 +758,9 @@ def measure_node(
     stamps = stamps or _stamps()
     dds_env = {'ROS_DOMAIN_ID': str(settings.domain), 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
     if dds_profile_file:
-        dds_env.update({name: dds_profile_file for name in _PROFILE_VARIABLES})
+        from cva_confidence_ros.ros.common import PROFILE_VARIABLES
+
+        dds_env.update({name: dds_profile_file for name in PROFILE_VARIABLES})
     env = {**_package_env(settings.threads), **dds_env}
     # The client's participant reads these when its context starts (Fast DDS loads the XML
     # profiles once per process, at its first participant).

@@ -1222,15 +1222,14 @@ class ReplaySession:
                     f'({counts["skipped"]} skipped, see the messages above)'
                 )
             else:
-                from cva_confidence_ros.ros.common import large_messages_unset
+                from cva_confidence_ros.ros.common import (
+                    LARGE_MESSAGES_HINT,
+                    large_messages_unset,
+                )
 
                 reason = f'the node answered none of the {counts["pairs"]} stereo pairs'
                 if self.options.mode == 'live' and large_messages_unset():
-                    reason += (
-                        ' (images over 512 kB are lost by Fast DDS without '
-                        'config/fastdds_large_messages.xml in FASTRTPS_DEFAULT_PROFILES_FILE '
-                        'on both ends: README, Images of 640×480 and more over DDS)'
-                    )
+                    reason += f' ({LARGE_MESSAGES_HINT})'
             return ReplayOutcome(self.report, self.paths, 2, f'{reason} ({where})')
         summary = self.report.summary()
         text = (
@@ -1250,7 +1249,8 @@ class ReplaySession:
                 )
         if summary['auc'] is not None:
             text += (
-                f"; mean AUC ×100 {100 * summary['auc']:.2f} (opt {100 * summary['auc_opt']:.2f}), "
+                f"; mean AUC ×100 {100 * summary['auc']:.2f} "
+                f"(opt {100 * summary['auc_opt']:.2f}), "
                 f"error rate {100 * summary['error_rate']:.2f} %"
             )
         if summary['scan_beams']:

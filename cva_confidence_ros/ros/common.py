@@ -53,7 +53,9 @@ from cva_confidence_ros.ros import interrupt
 __all__ = [
     'EXIT_BAD_START',
     'EXIT_INTERRUPTED',
+    'LARGE_MESSAGES_HINT',
     'LOG_THROTTLE_S',
+    'PROFILE_VARIABLES',
     'QOS_OVERRIDES',
     'READY',
     'ReasonThrottle',
@@ -177,14 +179,21 @@ def warn_unknown_parameters(node: Node) -> list[str]:
     return unknown
 
 
+#: The environment variables Fast DDS reads its XML profile file from (old and new name).
+PROFILE_VARIABLES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
+#: What a message about images that never arrive adds while no profile is set.
+LARGE_MESSAGES_HINT = (
+    'images over 512 kB (640×480 colour) are lost on the way by Fast DDS without '
+    'config/fastdds_large_messages.xml in FASTRTPS_DEFAULT_PROFILES_FILE on both ends (README: '
+    'Images of 640×480 and more over DDS)'
+)
+
+
 def large_messages_unset() -> bool:
     """Whether no Fast DDS profile file is set: then an image over Fast DDS's 512 kB
     shared-memory segment goes by UDP in fragments, and with best-effort QoS one lost fragment
     loses it (``config/fastdds_large_messages.xml`` lets it through)."""
-    return not any(
-        os.environ.get(name)
-        for name in ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
-    )
+    return not any(os.environ.get(name) for name in PROFILE_VARIABLES)
 
 
 class ReasonThrottle:

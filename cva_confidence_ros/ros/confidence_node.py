@@ -32,6 +32,7 @@ from cva_confidence_ros.pipeline import PipelineConfig, PipelineResult, StereoPi
 from cva_confidence_ros.plots import confidence_overlay
 from cva_confidence_ros.pointcloud import StereoGeometry, disparity_to_depth, stereo_cloud
 from cva_confidence_ros.ros.common import (
+    LARGE_MESSAGES_HINT,
     LOG_THROTTLE_S,
     QOS_OVERRIDES,
     ReasonThrottle,
@@ -146,15 +147,6 @@ class _Mailbox:
         with self._cond:
             self._closed = True
             self._cond.notify_all()
-
-
-# Fast DDS without a profile: an image over its 512 kB shared-memory segment goes by UDP in
-# fragments, and with best-effort QoS (input_qos: sensor_data) one lost fragment loses it.
-_LARGE_IMAGES_HINT = (
-    ' while the camera infos come: images over 512 kB (640×480 colour) are lost on the way by '
-    'Fast DDS without config/fastdds_large_messages.xml in FASTRTPS_DEFAULT_PROFILES_FILE on '
-    'both ends (README: Images of 640×480 and more over DDS)'
-)
 
 
 def _seconds(stamp_ns: int) -> str:
@@ -586,8 +578,9 @@ class ConfidenceCore(Node):
                 f'messages arrive but none pair up: nothing on {", ".join(silent)} in the last '
                 f'{elapsed:.1f} s'
             )
-            if all(not key.endswith('_info') for key in names if names[key] in silent):
-                text += _LARGE_IMAGES_HINT if large_messages_unset() else ''
+            images_only = all(not key.endswith('_info') for key in names if names[key] in silent)
+            if images_only and large_messages_unset():
+                text += f' while the camera infos come: {LARGE_MESSAGES_HINT}'
             return text
         stamps = ', '.join(
             f'{topic} {_seconds(stats.last_stamps_ns[key])}' for key, topic in names.items()

@@ -59,7 +59,7 @@ def _node_name(name: str) -> str:
     return name if name.startswith('/') else f'/{name}'
 
 
-def _ask(node: Any, client: Any, request: Any, deadline: float) -> tuple[Any, int]:
+def _ask(node: Any, client: Any, request: Any, deadline: float) -> Any:
     """Send ``request`` until one copy is answered or ``deadline`` (monotonic s) passes.
 
     ``wait_for_service`` sees the request path only: a reply the node sends before it has
@@ -68,7 +68,7 @@ def _ask(node: Any, client: Any, request: Any, deadline: float) -> tuple[Any, in
     sent again every :data:`ATTEMPT_S` seconds, and the first answer to any copy counts.
 
     Returns:
-        ``(answer or None, requests sent)``.
+        The answer, or None.
     """
     from rclpy.executors import SingleThreadedExecutor
 
@@ -80,13 +80,13 @@ def _ask(node: Any, client: Any, request: Any, deadline: float) -> tuple[Any, in
         while (now := time.monotonic()) < deadline:
             done = [future for future in futures if future.done()]
             if done:
-                return done[0].result(), len(futures)
+                return done[0].result()
             if now >= next_send:
                 futures.append(client.call_async(request))
                 next_send = now + ATTEMPT_S
             executor.spin_once(timeout_sec=min(0.05, max(deadline - now, 0.0)))
         done = [future for future in futures if future.done()]
-        return (done[0].result() if done else None), len(futures)
+        return done[0].result() if done else None
     finally:
         executor.remove_node(node)
         executor.shutdown()
@@ -167,7 +167,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     goal = GOALS.get(args.transition)
                     answer = _change_state(node, client, state_client, request, goal, deadline)
                 else:
-                    answer, _ = _ask(node, client, request, deadline)
+                    answer = _ask(node, client, request, deadline)
         finally:
             node.destroy_node()
     finally:

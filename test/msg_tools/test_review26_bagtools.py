@@ -34,6 +34,14 @@ def _read_all(path: Path) -> int:
         return len(list(bag.messages(list(bag.topics))))
 
 
+def _damage_zstd(file: Path, length: int) -> None:
+    """Overwrite ``length`` bytes of the first zstd frame in ``file``, past its magic."""
+    data = bytearray(file.read_bytes())
+    at = data.find(ZSTD_MAGIC)
+    data[at + 4 : at + 4 + length] = b'\xff' * length
+    file.write_bytes(data)
+
+
 def test_damaged_zstd_is_a_bag_error(tmp_path: Path) -> None:
     from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 
@@ -47,11 +55,7 @@ def test_damaged_zstd_is_a_bag_error(tmp_path: Path) -> None:
         message = image_to_msg(np.full((20, 30), index, np.uint8), index, 'f')
         writer.write(conn, index, jazzy_typestore().serialize_cdr(message, IMAGE))
     writer.close()
-    storage = chunked / 'chunked.mcap'
-    data = bytearray(storage.read_bytes())
-    at = data.find(ZSTD_MAGIC)
-    data[at + 4 : at + 12] = b'\xff' * 8
-    storage.write_bytes(data)
+    _damage_zstd(chunked / 'chunked.mcap', 8)
     with pytest.raises(BagError, match='corrupt or truncated after 0 messages: ZstdError'):
         _read_all(chunked)
 
@@ -65,11 +69,7 @@ def test_damaged_zstd_is_a_bag_error(tmp_path: Path) -> None:
                 db.execute("UPDATE messages SET data = x'28b52ffd00000000' WHERE id = 2")
             db.close()
         else:
-            file = path / f'{path.name}.mcap'
-            data = bytearray(file.read_bytes())
-            at = data.find(ZSTD_MAGIC)
-            data[at + 4 : at + 20] = b'\xff' * 16
-            file.write_bytes(data)
+            _damage_zstd(path / f'{path.name}.mcap', 16)
         with pytest.raises(BagError, match='ZstdError'):
             _read_all(path)
 
