@@ -419,6 +419,32 @@ def _init(args: list[str]) -> None:
             rclpy.logging.set_logger_level('rcl', LoggingSeverity.UNSET)
 
 
+def params_file_problems(args: Sequence[str]) -> list[str]:
+    """What is wrong with each ``--params-file FILE`` in the ROS arguments of ``args``.
+
+    rcl answers a missing, unreadable or directory path as it answers bad YAML ("Couldn't parse
+    params file"); this names the path and what is wrong with it. ``[]`` when each one can be
+    opened (whether its YAML is good is left to rcl).
+    """
+    problems = []
+    inside = False
+    items = list(args)
+    for index, item in enumerate(items):
+        if item == '--ros-args':
+            inside = True
+        elif item == '--':
+            inside = False
+        elif inside and item == '--params-file' and index + 1 < len(items):
+            path = items[index + 1]
+            if not os.path.exists(path):
+                problems.append(f'--params-file {path}: no such file')
+            elif os.path.isdir(path):
+                problems.append(f'--params-file {path}: is a folder, not a YAML file')
+            elif not os.access(path, os.R_OK):
+                problems.append(f'--params-file {path}: not readable (permission denied)')
+    return problems
+
+
 def run_node(factory: Callable[[], Node], name: str, argv: Sequence[str] | None = None) -> int:
     """Run the node ``factory()`` builds until Ctrl-C or SIGTERM.
 
@@ -447,6 +473,10 @@ def run_node(factory: Callable[[], Node], name: str, argv: Sequence[str] | None 
     node: Node | None = None
     up = False
     code = 0
+    problems = params_file_problems(args)
+    if problems:
+        logger.fatal(f'cannot start: {"; ".join(problems)}')
+        return EXIT_BAD_START
     try:
         try:
             _init(args)

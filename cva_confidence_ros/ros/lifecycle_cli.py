@@ -161,11 +161,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                 request = ChangeState.Request(transition=Transition(label=args.transition))
             client = node.create_client(srv_type, service)
             answer = None
+            allowed: list[str] | None = None
             if client.wait_for_service(timeout_sec=args.timeout):
                 if args.command == 'set':
                     state_client = node.create_client(GetState, f'{target}/get_state')
                     goal = GOALS.get(args.transition)
                     answer = _change_state(node, client, state_client, request, goal, deadline)
+                    if answer is not None and not answer.success:
+                        allowed = _allowed(node, target, deadline)
                 else:
                     answer = _ask(node, client, request, deadline)
         finally:
@@ -187,9 +190,34 @@ def main(argv: Sequence[str] | None = None) -> int:
     if answer.success:
         print('Transitioning successful')
         return 0
-    print(f'Transitioning failed: {target} refused {args.transition!r} (see its log; '
-          f'`cva-lifecycle list {target}` shows what its state allows)', file=sys.stderr)
+    if allowed is None:
+        hint = f'see its log; `cva-lifecycle list {target}` shows what its state allows'
+    elif args.transition in allowed:
+        hint = 'its state allows it, so the transition itself failed: see its log'
+    else:
+        hint = f'its state allows: {", ".join(allowed) or "no transition"}'
+    print(f'Transitioning failed: {target} refused {args.transition!r} ({hint})', file=sys.stderr)
     return EXIT_REFUSED
+
+
+def _allowed(node: Any, target: str, deadline: float) -> list[str] | None:
+    """The labels of the transitions ``target``'s state allows (once each); None: no answer.
+
+    Asked after a refusal, with at least a second to answer even if ``deadline`` has passed.
+    """
+    from lifecycle_msgs.srv import GetAvailableTransitions
+
+    client = node.create_client(
+        GetAvailableTransitions, f'{target}/get_available_transitions'
+    )
+    deadline = max(deadline, time.monotonic() + 1.0)
+    if not client.wait_for_service(timeout_sec=max(deadline - time.monotonic(), 0.0)):
+        return None
+    answer = _ask(node, client, GetAvailableTransitions.Request(), deadline)
+    if answer is None:
+        return None
+    labels = [item.transition.label for item in answer.available_transitions]
+    return list(dict.fromkeys(labels))
 
 
 if __name__ == '__main__':

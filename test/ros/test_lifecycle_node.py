@@ -282,7 +282,8 @@ def test_cva_lifecycle_drives_the_node_as_ros2_lifecycle_would() -> None:
             assert (got.returncode, got.stdout.strip()) == (0, 'unconfigured [1]'), got
             refused = _cli(domain, 'set', 'cva_confidence', 'configure')
             assert refused.returncode == 1, refused
-            assert "refused 'configure'" in refused.stderr
+            assert "refused 'configure' (its state allows it, so the transition itself " \
+                'failed: see its log)' in refused.stderr, refused
             managed.node.set_parameters([Parameter('confidence_method', value='mlm')])
             for transition in ('configure', 'activate'):
                 done = _cli(domain, 'set', '/cva_confidence', transition)
@@ -295,6 +296,11 @@ def test_cva_lifecycle_drives_the_node_as_ros2_lifecycle_would() -> None:
             assert {'deactivate', 'shutdown'} <= labels and 'configure' not in labels, labels
             wrong = _cli(domain, 'set', '/cva_confidence', 'configure')  # not from active
             assert wrong.returncode == 1 and managed.state() == 'active'
+            assert "refused 'configure' (its state allows: deactivate, shutdown)" \
+                in wrong.stderr, wrong
+            bogus = _cli(domain, 'set', '/cva_confidence', 'bogus')
+            assert bogus.returncode == 1 and managed.state() == 'active'
+            assert "refused 'bogus' (its state allows: deactivate, shutdown)" in bogus.stderr
         finally:
             managed.close()
         missing = _cli(domain, '--timeout', '1', 'get', '/no_such_node')

@@ -21,7 +21,7 @@ from node_test_utils import spare_domain_id
 import pytest
 
 from cva_confidence_ros.ros.cloud_filter_node import CloudFilterConfig
-from cva_confidence_ros.ros.common import EXIT_BAD_START, check_arguments
+from cva_confidence_ros.ros.common import EXIT_BAD_START, check_arguments, params_file_problems
 from cva_confidence_ros.ros.params import PARAMETERS
 
 pytestmark = pytest.mark.timeout(180)
@@ -245,3 +245,24 @@ def test_a_bad_qos_override_stops_the_start_with_one_line() -> None:
     assert done.returncode == EXIT_BAD_START, done.stdout + done.stderr
     assert 'cannot start: QoS override of points2' in done.stderr
     assert 'sometimes' in done.stderr and 'Traceback' not in done.stderr
+
+
+def test_params_files_that_cannot_be_opened_are_named(tmp_path: Path) -> None:
+    good = tmp_path / 'good.yaml'
+    good.write_text('/**:\n  ros__parameters:\n    max_disparity: 64\n')
+    missing = tmp_path / 'missing.yaml'
+    locked = tmp_path / 'locked.yaml'
+    locked.write_text('{}\n')
+    locked.chmod(0)
+    args = ['node', '--ros-args', '--params-file', str(good), '--params-file', str(missing),
+            '--params-file', str(tmp_path), '--params-file', str(locked)]
+    problems = params_file_problems(args)
+    expected = [f'--params-file {missing}: no such file',
+                f'--params-file {tmp_path}: is a folder, not a YAML file']
+    if not os.access(locked, os.R_OK):  # root reads anything
+        expected.append(f'--params-file {locked}: not readable (permission denied)')
+    assert problems == expected
+    # Outside --ros-args the words are not ROS arguments (check_arguments refuses them).
+    assert params_file_problems(['node', '--params-file', str(missing)]) == []
+    assert params_file_problems(['node', '--ros-args', '--', '--params-file', str(missing)]) == []
+    assert params_file_problems(['node', '--ros-args', '--params-file', str(good)]) == []

@@ -173,12 +173,13 @@ def test_stop_during_a_long_frame_ends_the_process_cleanly(
         (('-p', 'matcher:=no_such_matcher'), 'no_such_matcher'),
         (('-p', 'max_disparity:=5000'), 'max_disparity'),
         (('-p', 'confidence_method:=cva_net', '-p', 'model_path:=/nonexistent.pt'), 'cannot'),
-        # Refused by rcl itself, in rclpy.init.
+        # rcl would only say it "couldn't parse" it.
         pytest.param(
             ('--params-file', '/nonexistent.yaml'),
-            "parse params file: '--params-file /nonexistent.yaml'",
+            '--params-file /nonexistent.yaml: no such file',
             id='missing-params-file',
         ),
+        # Refused by rcl itself, in rclpy.init.
         pytest.param(('--no-such-ros-flag',), '--no-such-ros-flag', id='unknown-ros-flag'),
         pytest.param(('-p',), 'trailing -p', id='trailing-p'),
     ],
@@ -194,6 +195,20 @@ def test_invalid_start_configuration_exits_cleanly(args: tuple[str, ...], messag
     assert 'Traceback' not in node.output, node.output
     (line,) = [line for line in node.lines if 'cannot start' in line]
     assert message in line and '[FATAL]' in line
+
+
+def test_params_file_that_is_not_yaml_is_refused_by_rcl(tmp_path: Path) -> None:
+    if not CVA_NODE.exists():
+        pytest.skip('cva-node is not installed')
+    params = tmp_path / 'params.yaml'
+    params.write_text('cva_confidence:\n  ros__parameters: [\n')
+    node = NodeProcess('--params-file', str(params))
+    code = node.process.wait(90)
+    node._reader.join(10)
+    assert code == 2, node.output
+    (line,) = [line for line in node.lines if 'cannot start' in line]
+    assert f"parse params file: '--params-file {params}'" in line, node.output
+    assert 'Traceback' not in node.output, node.output
 
 
 def _loaded(pid: int, library: str, timeout: float = 30.0) -> bool:
