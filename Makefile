@@ -10,9 +10,9 @@ STAMP := $(VENV)/.installed
 # comes with a ROS install of rclpy, not with its wheel.
 TORCH := torch==2.13.0
 DEPS := numpy scipy opencv-python-headless scikit-image numba matplotlib tqdm \
-	rosbags 'ros-jazzy-rclpy[fastrtps]' ros-jazzy-common-interfaces \
+	rosbags pyyaml 'ros-jazzy-rclpy[fastrtps]' ros-jazzy-common-interfaces \
 	ros-jazzy-lifecycle-msgs mccnn onnx onnxruntime
-TEST_DEPS := pytest pyyaml pytest-timeout colcon-core colcon-python-setup-py colcon-ros ruff mypy
+TEST_DEPS := pytest pytest-timeout colcon-core colcon-python-setup-py colcon-ros ruff mypy
 DEMO_OUT ?= out/demo
 
 .PHONY: setup test demo bench bench-fast lint clean

@@ -24,6 +24,7 @@ ENTRY_POINTS = [
     ('node', 'cva-node', 'cva_confidence_ros.node:main'),
     ('lifecycle_node', 'cva-lifecycle-node', 'cva_confidence_ros.node:lifecycle_main'),
     ('lifecycle', 'cva-lifecycle', 'cva_confidence_ros.ros.lifecycle_cli:main'),
+    ('param', 'cva-param', 'cva_confidence_ros.ros.param_cli:main'),
     ('cloud_filter', 'cva-cloud-filter', 'cva_confidence_ros.cloud_filter:main'),
     ('train', 'cva-train', 'cva_confidence_ros.training.cli:main'),
     ('evaluate', 'cva-evaluate', 'cva_confidence_ros.evaluation.cli:main'),
@@ -63,7 +64,7 @@ setup(
                                              + glob('models/*.json') + glob('models/*.yaml'))),
     ],
     install_requires=['setuptools', 'numpy', 'opencv-python-headless', 'scikit-image', 'numba',
-                      'torch', 'matplotlib', 'tqdm', 'rosbags', 'mccnn'],
+                      'torch', 'matplotlib', 'tqdm', 'rosbags', 'mccnn', 'pyyaml'],
     zip_safe=True,
     maintainer='cva_confidence_ros maintainers',
     maintainer_email='maintainers@cva-confidence-ros.dev',
@@ -71,6 +72,6 @@ setup(
     license='Apache-2.0',
     python_requires='>=3.10',
     extras_require={'export': ['onnx', 'onnxruntime']},  # cva-export and its check
-    tests_require=['pytest', 'scipy', 'pyyaml'],
+    tests_require=['pytest', 'scipy'],
     entry_points={'console_scripts': _console_scripts()},
 )

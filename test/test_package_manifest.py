@@ -41,6 +41,7 @@ DECLARATIONS: dict[str, tuple[str | None, str | None]] = {
     'matplotlib': ('python3-matplotlib', 'matplotlib'),
     'tqdm': ('python3-tqdm', 'tqdm'),
     'rosbags': ('python3-rosbags-pip', 'rosbags'),
+    'yaml': ('python3-yaml', 'pyyaml'),  # cva-param (rclpy needs it too)
     # pip only (no rosdep key): package.xml says so in a comment, the README says `pip install`
     'mc_cnn': (None, 'mccnn'),
     # imported only where present: rosbags' own sqlite3 driver (its dependency), and the build

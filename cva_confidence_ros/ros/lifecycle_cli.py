@@ -20,11 +20,11 @@ import sys
 import time
 from typing import Any
 
-__all__ = ['main']
+__all__ = ['ask', 'main']
 
 EXIT_REFUSED = 1
 EXIT_NO_ANSWER = 2
-#: Seconds to wait for an answer before sending the request again (see :func:`_ask`).
+#: Seconds to wait for an answer before sending the request again (see :func:`ask`).
 ATTEMPT_S = 3.0
 #: The state each transition of the standard state machine ends in.
 GOALS = {
@@ -59,7 +59,7 @@ def _node_name(name: str) -> str:
     return name if name.startswith('/') else f'/{name}'
 
 
-def _ask(node: Any, client: Any, request: Any, deadline: float) -> Any:
+def ask(node: Any, client: Any, request: Any, deadline: float) -> Any:
     """Send ``request`` until one copy is answered or ``deadline`` (monotonic s) passes.
 
     ``wait_for_service`` sees the request path only: a reply the node sends before it has
@@ -97,7 +97,7 @@ def _change_state(
 ) -> Any:
     """Send a transition once; its answer, or one made up from the node's state.
 
-    A transition is not sent again as :func:`_ask` would (the node refuses the copy, with an
+    A transition is not sent again as :func:`ask` would (the node refuses the copy, with an
     ``rcl_lifecycle`` warning in its log, whenever the first one takes longer than
     :data:`ATTEMPT_S`: a configure that loads a network does). The request itself reaches the
     node (``wait_for_service`` saw its reader); only the reply can be lost, so while none has
@@ -170,7 +170,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     if answer is not None and not answer.success:
                         allowed = _allowed(node, target, deadline)
                 else:
-                    answer = _ask(node, client, request, deadline)
+                    answer = ask(node, client, request, deadline)
         finally:
             node.destroy_node()
     finally:
@@ -213,7 +213,7 @@ def _allowed(node: Any, target: str, deadline: float) -> list[str] | None:
     deadline = max(deadline, time.monotonic() + 1.0)
     if not client.wait_for_service(timeout_sec=max(deadline - time.monotonic(), 0.0)):
         return None
-    answer = _ask(node, client, GetAvailableTransitions.Request(), deadline)
+    answer = ask(node, client, GetAvailableTransitions.Request(), deadline)
     if answer is None:
         return None
     labels = [item.transition.label for item in answer.available_transitions]
