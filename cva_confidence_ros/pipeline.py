@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from functools import cached_property
 import math
+import os
 import time
 from typing import TYPE_CHECKING, Any
 
@@ -114,6 +115,17 @@ class PipelineConfig:
         from cva_confidence_ros.confidence import CONFIDENCE_METHODS
         from cva_confidence_ros.matching import MATCHERS
 
+        # Checked first: a list or another unhashable name fails the registry look-up with a
+        # TypeError that names no option.
+        for name, what in (('matcher', ''), ('confidence_method', ''),
+                           ('model_path', ' (a file)'), ('mask_path', ' (a file)')):
+            value = getattr(self, name)
+            if not isinstance(value, str):
+                hint = '; pass str(path)' if isinstance(value, os.PathLike) else ''
+                raise ConfigError(f'{name} must be a string{what}; got {value!r}{hint}')
+        # bool('false') is True: a flag given as a string would silently switch the check on.
+        if not isinstance(self.lr_check, (bool, np.bool_)):
+            raise ConfigError(f'lr_check must be True or False; got {self.lr_check!r}')
         if self.matcher not in MATCHERS:
             raise ConfigError(
                 f'unknown matcher {self.matcher!r}; expected one of {MATCHERS.names()}'
@@ -180,8 +192,6 @@ class PipelineConfig:
                 f'roi_top to roi_bottom of the image height); got roi_top = {self.roi_top!r}, '
                 f'roi_bottom = {self.roi_bottom!r}'
             )
-        if not isinstance(self.mask_path, str):
-            raise ConfigError(f'mask_path must be a string (a file); got {self.mask_path!r}')
 
     def roi_rows(self, height: int) -> tuple[int, int]:
         """Rows ``[y0, y1)`` of the region of interest in an image of ``height`` rows (the
@@ -612,14 +622,27 @@ def output_region(
             ``config.mask_path``), or None.
 
     Raises:
-        InputError: The region of interest and the mask have no pixel in common.
+        InputError: The mask, shrunk by ``downsample``, is not of ``shape`` (drawn for another
+            resolution), or the region of interest and the mask have no pixel in common.
     """
     from cva_confidence_ros.mask import reduce_mask
 
     rows = config.roi_rows(shape[0])
     reduced = None
     if mask is not None:
-        reduced = reduce_mask(mask, config.downsample)[: shape[0], : shape[1]]
+        reduced = reduce_mask(mask, config.downsample)
+        # A mask of another camera resolution used to be cropped to the outputs (a larger
+        # one: silently the wrong pixels) or failed numpy's broadcast (a smaller one).
+        if reduced.shape != tuple(shape[:2]):
+            at = ''
+            if config.downsample > 1:
+                at = (f' ({reduced.shape[1]}×{reduced.shape[0]} px at downsample = '
+                      f'{config.downsample})')
+            raise InputError(
+                f'the mask (mask_path) is {mask.shape[1]}×{mask.shape[0]} px{at} but the '
+                f'outputs are {shape[1]}×{shape[0]} px; draw the mask on a frame of this camera '
+                f'at the resolution it publishes'
+            )
         rows = _judged_rows(rows, reduced)
     return judged_region(shape, rows, reduced)
 

@@ -41,6 +41,9 @@ from dataclasses import dataclass, field, replace
 import threading
 from typing import Any
 
+import numpy as np
+
+from cva_confidence_ros.checks import is_int
 from cva_confidence_ros.errors import ConfigError, InputError
 
 __all__ = ['DEFAULT_KEYS', 'DROP_KINDS', 'Drop', 'MatchedSet', 'StampSynchronizer']
@@ -149,8 +152,9 @@ class StampSynchronizer:
         jumps: Times the stamps jumped back and the synchroniser started over.
 
     Raises:
-        ConfigError: Empty or repeated keys, ``queue_size`` < 1, ``tolerance_ns`` < 0 or
-            ``min_jump_ns`` < 1.
+        ConfigError: Empty or repeated keys, or one string as ``keys``; ``queue_size`` < 1,
+            ``tolerance_ns`` < 0 or ``min_jump_ns`` < 1 (integers, numpy ones included);
+            ``approximate`` or ``record_drops`` not a bool.
 
     Thread-safe: :meth:`add` may be called from several threads.
     """
@@ -164,22 +168,31 @@ class StampSynchronizer:
         min_jump_ns: int = 1_000_000_000,
         record_drops: bool = False,
     ) -> None:
+        if isinstance(keys, (str, bytes)):
+            # tuple('left') would make four streams named 'l', 'e', 'f' and 't'.
+            raise ConfigError(
+                f'keys must be a sequence of stream names, not one string; got {keys!r}'
+            )
         keys = tuple(keys)
         if not keys:
             raise ConfigError('keys must name at least one stream; got an empty sequence')
         if len(set(keys)) != len(keys):
             raise ConfigError(f'keys must be distinct; got {keys}')
-        if isinstance(queue_size, bool) or not isinstance(queue_size, int) or queue_size < 1:
+        if not is_int(queue_size) or queue_size < 1:
             raise ConfigError(f'queue_size must be an integer >= 1; got {queue_size!r}')
-        if isinstance(tolerance_ns, bool) or not isinstance(tolerance_ns, int) or tolerance_ns < 0:
+        if not is_int(tolerance_ns) or tolerance_ns < 0:
             raise ConfigError(f'tolerance_ns must be an integer >= 0; got {tolerance_ns!r}')
-        if isinstance(min_jump_ns, bool) or not isinstance(min_jump_ns, int) or min_jump_ns < 1:
+        if not is_int(min_jump_ns) or min_jump_ns < 1:
             raise ConfigError(f'min_jump_ns must be an integer >= 1; got {min_jump_ns!r}')
+        # bool('false') is True: a flag given as a string would silently switch the policy on.
+        for name, flag in (('approximate', approximate), ('record_drops', record_drops)):
+            if not isinstance(flag, (bool, np.bool_)):
+                raise ConfigError(f'{name} must be True or False; got {flag!r}')
         self.keys = keys
-        self.min_jump_ns = min_jump_ns
-        self.queue_size = queue_size
+        self.min_jump_ns = int(min_jump_ns)
+        self.queue_size = int(queue_size)
         self.approximate = bool(approximate)
-        self.tolerance_ns = tolerance_ns if self.approximate else 0
+        self.tolerance_ns = int(tolerance_ns) if self.approximate else 0
         self.dropped = 0
         self.matched = 0
         self.jumps = 0
@@ -260,14 +273,16 @@ class StampSynchronizer:
 
         Raises:
             ConfigError: ``key`` is not one of :attr:`keys`.
-            InputError: ``stamp_ns`` is not an integer.
+            InputError: ``stamp_ns`` is not an integer (Python or numpy).
         """
         if key not in self._queues:
             raise ConfigError(f'unknown key {key!r}; expected one of {self.keys}')
-        if isinstance(stamp_ns, bool) or not isinstance(stamp_ns, int):
+        if not is_int(stamp_ns):
             raise InputError(
                 f'stamp_ns must be an integer number of nanoseconds; got {stamp_ns!r}'
             )
+        # Kept as a Python int: the stamps handed back are plain ints whatever came in.
+        stamp_ns = int(stamp_ns)
         with self._lock:
             last = self._last[key]
             if last is not None and stamp_ns <= last:
@@ -418,7 +433,9 @@ class StampSynchronizer:
         if any(not stamps for stamps in candidates.values()):
             return None
         # Any valid set fits in a window [low, low + tol] that holds stamp_ns and starts at
-        # one of the set's stamps, so trying every such start finds them all.
+        # one of the set's stamps, so trying every such start finds them all. Given its
+        # start, the tightest set takes the earliest stamp of every key in the window (the
+        # one nearest the new stamp may lie further from the other keys' stamps).
         starts = {stamp_ns}
         for stamps in candidates.values():
             starts.update(s for s in stamps if s <= stamp_ns)
@@ -431,7 +448,7 @@ class StampSynchronizer:
                 inside = [s for s in stamps if low <= s <= high]
                 if not inside:
                     break
-                chosen[other] = min(inside, key=lambda s: abs(s - stamp_ns))
+                chosen[other] = min(inside)
             else:
                 spread = max(chosen.values()) - min(chosen.values())
                 if best is None or spread < best_spread:
