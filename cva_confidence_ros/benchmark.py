@@ -292,6 +292,13 @@ def _reset_peak() -> bool:
         return False
 
 
+def _max_rss_kb() -> int:
+    """Peak resident size of this process so far, in kB (``ru_maxrss``: kB on Linux, bytes
+    on macOS)."""
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak // 1024 if sys.platform == 'darwin' else peak
+
+
 def _timed(case: Case, left: np.ndarray, right: np.ndarray) -> tuple[float, dict[str, float]]:
     start = time.perf_counter()
     stage_times = case.frame(left, right)
@@ -342,8 +349,7 @@ def run_case(name: str, settings: BenchSettings) -> dict[str, Any]:
         if round_index == 0:
             peak = memory_kb('VmHWM') if have_hwm else None
             if peak is None:
-                # ru_maxrss is in kB on Linux; it also covers the untimed warm-up frames.
-                peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+                peak = _max_rss_kb()  # it also covers the untimed warm-up frames
         if baseline is not None:
             for left, right in pairs.values():
                 paired.append(_timed(baseline, left, right)[0])
@@ -525,6 +531,11 @@ def _run_in_subprocess(
     )
 
 
+def _peak_cell(peak: float | None) -> str:
+    """The peak-MB column: a dash where the peak could not be read (no ``/proc``)."""
+    return f'{"—":>10}' if peak is None else f'{peak:>10.1f}'
+
+
 def format_table(records: Sequence[dict[str, Any]], threads: int) -> str:
     """Human-readable table of the records with the ratio to OpenCV SGBM."""
     baseline = next((r['ms_per_frame'] for r in records if r['config'] == _BASELINE), None)
@@ -547,7 +558,7 @@ def format_table(records: Sequence[dict[str, Any]], threads: int) -> str:
             f"{per_pair.get('real', nan):>9.1f}{per_pair.get('synthetic', nan):>9.1f}"
             f'{volume if volume is not None else nan:>9.1f}'
             f'{reference if reference else nan:>9.1f}'
-            f'{ratio:>9.2f}{record["peak_mem_mb"]:>10.1f}'
+            f'{ratio:>9.2f}{_peak_cell(record.get("peak_mem_mb"))}'
         )
     lines.append(
         'volume = cost-volume part of a matcher frame (the rest is WTA); real = Motorcycle, '
@@ -662,10 +673,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except CVAError as error:
         parser.exit(2, f'cva-benchmark: error: {error}\n')
     host = host_summary()
-    print(format_table(records, os.cpu_count() or 1))
-    print(f'host: {host}')
+    # The records are saved before anything is printed: a table that fails to print (a closed
+    # pipe) must not lose a run of minutes.
     if args.json is not None:
         write_records(args.json, records, ('extrapolated', 'note'), host=host)
+    print(format_table(records, os.cpu_count() or 1))
+    print(f'host: {host}')
     return 0
 
 
@@ -692,10 +705,10 @@ def run_suite(
     except CVAError as error:
         parser.exit(2, f'cva-benchmark: error: {error}\n')
     host = host_summary()
+    if args.json is not None:  # saved first, as in main
+        write_records(args.json, records, extra_keys, host=host)
     print(table(records))
     print(f'host: {host}')
-    if args.json is not None:
-        write_records(args.json, records, extra_keys, host=host)
     return 0
 
 

@@ -49,6 +49,8 @@ __all__ = ['GPU_NETWORKS', 'PRECISIONS', 'format_gpu_table', 'main', 'run_gpu']
 #: Row prefix → network architecture.
 GPU_NETWORKS = {'exact': 'cvanet', 'lite': 'cvanet_lite', 'fast': 'cvanet_fast'}
 PRECISIONS = ('fp32', 'fp16', 'bf16')
+#: The row every ``auc_rel`` is relative to: the exact float32 CVA-Net.
+_REFERENCE = 'exact:fp32'
 _EXTRA_KEYS = ('gpu_ms', 'gemm_bf16_gflops', 'auc', 'arch', 'precision', 'channels_last',
                'note', 'gpu_name')
 
@@ -186,7 +188,6 @@ def run_gpu(
             rows.append((name, precision, False))
             if channels_last and name == 'exact' and precision != 'fp32' and target.type == 'cuda':
                 rows.append((name, precision, True))
-    reference: float | None = None
     records = []
     for name, precision, layout in rows:
         net, note = nets[name]
@@ -230,8 +231,6 @@ def run_gpu(
                 confidence = evaluator(scene['volume'])[scene['known']]
                 aucs.append(roc_auc(confidence, scene['wrong']))
             auc = float(np.mean(aucs))
-            if (name, precision, layout) == ('exact', 'fp32', False):
-                reference = auc
         record: dict[str, Any] = {
             'config': config,
             'device': target.type,
@@ -246,7 +245,7 @@ def run_gpu(
             'gemm_bf16_gflops': gemm_bf16,
             'peak_mem_mb': peak,
             'auc': auc,
-            'auc_rel': None if auc is None or reference is None else auc / reference,
+            'auc_rel': None,  # filled in below, once the reference row has been measured
             'arch': GPU_NETWORKS[name],
             'precision': precision,
             'channels_last': layout,
@@ -260,7 +259,22 @@ def run_gpu(
         del evaluator, padded
         if target.type == 'cuda':
             torch.cuda.empty_cache()
+    if develop and not _fill_auc_rel(records):
+        log(f'auc_rel left empty: it needs the {_REFERENCE} row (--networks exact '
+            '--precisions fp32) with shipped weights')
     return records
+
+
+def _fill_auc_rel(records: Sequence[dict[str, Any]]) -> bool:
+    """Set ``auc_rel`` = ``auc`` / that of the :data:`_REFERENCE` row in every record with an
+    ``auc``, wherever that row stands; False (nothing set) without it or without its AUC."""
+    reference = next((r.get('auc') for r in records if r['config'] == _REFERENCE), None)
+    if not reference:
+        return False
+    for record in records:
+        if record.get('auc') is not None:
+            record['auc_rel'] = record['auc'] / reference
+    return True
 
 
 def format_gpu_table(records: Sequence[dict[str, Any]]) -> str:
