@@ -22,6 +22,7 @@ from __future__ import annotations
 from collections.abc import Hashable, Iterable, Mapping, MutableMapping
 from dataclasses import dataclass
 import math
+from numbers import Integral, Real
 from typing import Any
 
 import numpy as np
@@ -40,8 +41,19 @@ __all__ = [
 DEFAULT_BINS = 10
 
 
+def _edges(bins: int) -> np.ndarray:
+    # k / B exactly rounded: linspace gives 0.30000000000000004 for 3 / 10.
+    return np.arange(bins + 1) / bins
+
+
+def _numeric(name: str, array: np.ndarray) -> np.ndarray:
+    if array.dtype.kind not in 'biuf':
+        raise InputError(f'{name} must be a numeric array; got dtype {array.dtype}')
+    return array
+
+
 def _confidence_array(confidence: Any) -> np.ndarray:
-    values = np.asarray(confidence, dtype=np.float64).ravel()
+    values = _numeric('confidence', np.asarray(confidence)).astype(np.float64).ravel()
     if np.isnan(values).any():
         raise InputError(
             f'confidence must not be NaN; got {int(np.isnan(values).sum())} NaN values'
@@ -80,7 +92,7 @@ class ReliabilityTable:
     @property
     def edges(self) -> np.ndarray:
         """(B + 1,) float64 bin edges 0, 1/B, …, 1."""
-        return np.linspace(0.0, 1.0, self.bins + 1)
+        return _edges(self.bins)
 
     @property
     def n_pixels(self) -> int:
@@ -145,14 +157,16 @@ class ReliabilityTable:
         """What a robot keeping the pixels with confidence ≥ ``threshold`` gets.
 
         Args:
-            threshold: A bin edge (0, 1/B, …, 1), e.g. 0.5 or 0.8 with 10 bins.
+            threshold: A bin edge below 1 (0, 1/B, …, (B − 1)/B), e.g. 0.5 or 0.8 with 10
+                bins. 1 is refused: the last bin holds 1.0 with the confidences just below
+                it, so the table cannot tell how many pixels reach 1.
 
         Returns:
             ``(kept share, measured error rate, predicted error rate)`` of those pixels, the
             predicted one being mean(1 − confidence); both None when none is kept.
 
         Raises:
-            InputError: ``threshold`` is not a bin edge, or the table holds no pixels.
+            InputError: ``threshold`` is not a bin edge below 1, or the table holds no pixels.
         """
         try:
             position = float(threshold) * self.bins
@@ -163,6 +177,12 @@ class ReliabilityTable:
             raise InputError(
                 f'threshold must be a bin edge (a multiple of 1/{self.bins} in [0, 1]); '
                 f'got {threshold!r}'
+            )
+        if first == self.bins:
+            raise InputError(
+                f'threshold 1 cannot be answered: the last of the {self.bins} bins holds '
+                f'[{(self.bins - 1) / self.bins:g}, 1], not the pixels at 1 alone; use a '
+                f'threshold ≤ {(self.bins - 1) / self.bins:g}'
             )
         if self.n_pixels == 0:
             raise InputError('the reliability table holds no pixels')
@@ -231,29 +251,67 @@ class ReliabilityTable:
         """Rebuild a table from :meth:`as_dict` (the sums from counts × means).
 
         Raises:
-            InputError: Missing keys or bins of different lengths.
+            InputError: Missing keys, bins of different lengths, or a value that
+                :meth:`as_dict` cannot have written: a count that is not a whole number ≥ 0,
+                a mean or Brier score that is not a number in [0, 1], a non-empty bin
+                without a mean.
         """
         try:
             bins = item['bins']
-            counts = np.asarray(bins['counts'], dtype=np.int64)
-            conf = np.asarray(
-                [0.0 if v is None else v for v in bins['mean_confidence']], dtype=np.float64
-            )
-            acc = np.asarray([0.0 if v is None else v for v in bins['accuracy']], dtype=np.float64)
-            brier = float(item['brier'])
-        except (KeyError, TypeError, ValueError) as exc:
+            lists = [bins[key] for key in ('counts', 'mean_confidence', 'accuracy')]
+            brier = item['brier']
+        except (KeyError, TypeError) as exc:
             raise InputError(f'not a reliability table: {exc!r}') from None
-        if not counts.size or not counts.shape == conf.shape == acc.shape:
+        if not all(isinstance(values, list) for values in lists):
+            raise InputError(
+                'not a reliability table: bins counts, mean_confidence and accuracy must be '
+                f'lists; got {", ".join(type(values).__name__ for values in lists)}'
+            )
+        counts, conf, acc = lists
+        if not counts or not len(counts) == len(conf) == len(acc):
             raise InputError(
                 'reliability bins must be non-empty lists of one length; got '
-                f'{counts.size}, {conf.size}, {acc.size}'
+                f'{len(counts)}, {len(conf)}, {len(acc)}'
             )
+        for i, count in enumerate(counts):
+            if isinstance(count, bool) or not isinstance(count, Integral) or count < 0:
+                raise InputError(
+                    f'not a reliability table: bins counts[{i}] must be a whole number ≥ 0; '
+                    f'got {count!r}'
+                )
+            for key, values in (('mean_confidence', conf), ('accuracy', acc)):
+                if (values[i] is None and count == 0) or _unit(values[i]):
+                    continue
+                raise InputError(
+                    f'not a reliability table: bins {key}[{i}] of {count} pixels must be a '
+                    f'number in [0, 1]; got {values[i]!r}'
+                )
+        if not _unit(brier):
+            raise InputError(
+                f'not a reliability table: brier must be a number in [0, 1]; got {brier!r}'
+            )
+        n = np.asarray(counts, dtype=np.int64)
+        filled = n > 0
+
+        def sums(means: list[Any]) -> np.ndarray:
+            return np.where(filled, n * np.asarray([v or 0.0 for v in means], np.float64), 0.0)
+
         return cls(
-            counts=counts,
-            confidence_sums=counts * conf,
-            correct_sums=counts * acc,
-            squared_error_sum=brier * int(counts.sum()),
+            counts=n,
+            confidence_sums=sums(conf),
+            correct_sums=sums(acc),
+            squared_error_sum=float(brier) * int(n.sum()),
         )
+
+
+def _unit(value: Any) -> bool:
+    """Whether ``value`` is a real number (not a bool) in [0, 1]."""
+    if isinstance(value, bool) or not isinstance(value, Real):
+        return False
+    try:
+        return 0.0 <= float(value) <= 1.0
+    except OverflowError:  # an integer of 309 digits or more
+        return False
 
 
 def add_table(
@@ -269,14 +327,16 @@ def reliability(confidence: Any, correct: Any, bins: int = DEFAULT_BINS) -> Reli
 
     Args:
         confidence: (N,) or any-shaped float probabilities in [0, 1] (NaN refused).
-        correct: Same size, bool, True = the disparity is correct (``~metrics.kitti_error``).
+        correct: Same size, bool, True = the disparity is correct (``~metrics.kitti_error``);
+            the same shape where both have two or more dimensions.
         bins: Number of equal-width bins, ≥ 1.
 
     Returns:
         The :class:`ReliabilityTable` (may hold no pixels, when ``confidence`` is empty).
 
     Raises:
-        InputError: Sizes differ, NaN, values outside [0, 1], or ``bins`` < 1.
+        InputError: Sizes or shapes differ, NaN, values outside [0, 1], a confidence that is
+            not numeric, or ``bins`` < 1.
     """
     if isinstance(bins, bool) or not isinstance(bins, (int, np.integer)) or bins < 1:
         raise InputError(f'bins must be an integer ≥ 1; got {bins!r}')
@@ -284,12 +344,19 @@ def reliability(confidence: Any, correct: Any, bins: int = DEFAULT_BINS) -> Reli
     labels = np.asarray(correct)
     if labels.dtype != bool:
         raise InputError(f'correct must be a bool array; got dtype {labels.dtype}')
+    shape = np.shape(confidence)
+    if len(shape) > 1 and labels.ndim > 1 and shape != labels.shape:
+        # Equal sizes are not enough: an (H, W) against a (W, H) array pairs the wrong pixels.
+        raise InputError(
+            f'confidence and correct must have the same shape; got {shape} and {labels.shape}'
+        )
     labels = labels.ravel()
     if labels.size != values.size:
         raise InputError(
             f'confidence and correct must have the same size; got {values.size} and {labels.size}'
         )
-    index = np.minimum((values * bins).astype(np.int64), bins - 1)
+    # Not int(c · B): 15/22 · 22 = 14.999999999999998 would put an edge into the bin below it.
+    index = np.minimum(np.searchsorted(_edges(bins), values, side='right') - 1, bins - 1)
     hits = labels.astype(np.float64)
     return ReliabilityTable(
         counts=np.bincount(index, minlength=bins).astype(np.int64),
@@ -313,10 +380,10 @@ def expected_error(confidence: Any, mask: Any = None) -> float | None:
         The predicted error rate in [0, 1]; None if no pixel is left.
 
     Raises:
-        InputError: Values outside [0, 1], or a mask of another shape.
+        InputError: Values outside [0, 1], no numbers, or a mask of another shape.
     """
     # Called on every frame by the node: pick the pixels first, convert only those.
-    values = np.asarray(confidence)
+    values = _numeric('confidence', np.asarray(confidence))
     if mask is not None:
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != values.shape:

@@ -256,7 +256,10 @@ def _gray_background(image: np.ndarray | None, shape: tuple[int, int]) -> np.nda
     gray = image.astype(np.float64)
     if gray.ndim == 3:
         gray = gray[..., :3].mean(axis=2)
-    if image.dtype != np.uint8 and gray.size and np.nanmax(gray) <= 1.0:
+    # NaN or ±inf in a float image (pixels without a value) are drawn black; left in, they
+    # warned (all-NaN max) and cast to an undefined uint8.
+    gray[~np.isfinite(gray)] = 0.0
+    if image.dtype != np.uint8 and gray.size and gray.max() <= 1.0:
         gray = gray * 255.0
     # Dimmed so that the green/red classes stand out against the scene.
     dim = np.clip(gray * 0.5, 0, 255).astype(np.uint8)
@@ -295,7 +298,8 @@ def save_correctness_overlay(
         error: (H, W) bool, True = disparity wrong.
         path: Output PNG file; parent folders are created.
         tau: Threshold; 0.5 for confidences in [0, 1] as in the paper.
-        image: Optional (H, W) or (H, W, 3) reference image drawn under the classes.
+        image: Optional (H, W) or (H, W, 3) reference image drawn under the classes;
+            uint8, or float in [0, 1] (NaN and ±inf drawn black).
         mask: Optional (H, W) bool, True = pixel is evaluated; default every pixel.
 
     Returns:
@@ -334,8 +338,9 @@ def optimal_roc_curve(error_rate: float, samples: int = 201) -> tuple[np.ndarray
         samples: Number of density samples in (0, 1].
 
     Returns:
-        ``(density, error_rate)``, two (samples + 1,) float64 arrays, density ascending,
-        including the kink at ``1 − ε``.
+        ``(density, error_rate)``, two float64 arrays of ``samples + 1`` values (``samples``
+        where the kink at ``1 − ε`` is 0 or equals a sample, e.g. ε = 0 or ε = 1), density
+        ascending, including the kink.
 
     Raises:
         InputError: ``error_rate`` outside [0, 1] or ``samples`` < 2.
@@ -397,7 +402,8 @@ def save_roc_curves(
     if title:
         axes.set_title(title, fontsize=10)
     axes.grid(True, alpha=0.3)
-    axes.legend(fontsize=8, loc='upper left')
+    if axes.get_legend_handles_labels()[0]:  # no curves: an empty legend only warns
+        axes.legend(fontsize=8, loc='upper left')
     figure.tight_layout()
     out = _prepare_path(path)
     figure.savefig(out, format='png')

@@ -50,7 +50,9 @@ def test_kept_at_a_threshold() -> None:
     assert measured == pytest.approx(1 / 4)
     assert predicted == pytest.approx(1 - np.mean([0.5, 0.7, 0.9, 0.95]))
     assert table.kept_at(0.0)[0] == 1.0
-    assert table.kept_at(1.0) == (0.0, None, None)
+    assert table.kept_at(0.9) == (pytest.approx(2 / 6), 0.0, pytest.approx(0.075))
+    with pytest.raises(InputError, match='threshold 1 cannot be answered'):
+        table.kept_at(1.0)
     with pytest.raises(InputError, match='bin edge'):
         table.kept_at(0.55)
 

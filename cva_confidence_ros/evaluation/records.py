@@ -6,6 +6,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 import json
 import math
+from numbers import Integral, Real
 import os
 from pathlib import Path
 
@@ -57,6 +58,34 @@ class EvalRecord:
     error_rate: float
     n_pixels: int
 
+    def __post_init__(self) -> None:
+        """Check the values where a record is made, so that no file gets one it cannot read.
+
+        Raises:
+            InputError: As :meth:`from_mapping`.
+        """
+        names = [key for key in RECORD_KEYS[:4] if not isinstance(getattr(self, key), str)]
+        if names:
+            raise InputError(
+                'evaluation record: '
+                + ', '.join(f'{key} must be a string; got {getattr(self, key)!r}' for key in names)
+            )
+        where = f'evaluation record {self.dataset}/{self.scene} {self.method}'
+        for key in ('auc', 'auc_opt', 'error_rate'):
+            value: object = getattr(self, key)
+            number = _real(value)
+            # A NaN would average into every row of the table that holds it.
+            if number is None or not 0.0 <= number <= 1.0:
+                kind = '' if number is not None else f' (a {type(value).__name__})'
+                raise InputError(f'{where}: {key} must be a number in [0, 1]; got {value}{kind}')
+            object.__setattr__(self, key, number)  # a numpy scalar is no JSON number
+        pixels: object = self.n_pixels
+        number = _real(pixels)
+        if number is None or not (number >= 1 and number.is_integer()):
+            raise InputError(f'{where}: n_pixels must be a whole number ≥ 1; got {pixels!r}')
+        whole = int(pixels) if isinstance(pixels, Integral) else int(number)
+        object.__setattr__(self, 'n_pixels', whole)
+
     def as_dict(self) -> dict[str, str | float | int]:
         """The record as a JSON-ready dict with exactly :data:`RECORD_KEYS`."""
         return asdict(self)
@@ -66,8 +95,10 @@ class EvalRecord:
         """Build a record from a dict with :data:`RECORD_KEYS` (extra keys are ignored).
 
         Raises:
-            InputError: A key is missing, a value has the wrong type, a rate or AUC is not a
-                number in [0, 1] (NaN included), or ``n_pixels`` is not a whole number ≥ 1.
+            InputError: A key is missing, a value has the wrong type (the names must be
+                strings, the rest numbers; a number in a string is refused), a rate or AUC is
+                not a number in [0, 1] (NaN included), or ``n_pixels`` is not a whole number
+                ≥ 1.
         """
         if not isinstance(item, Mapping):
             raise InputError(
@@ -76,31 +107,17 @@ class EvalRecord:
         missing = [key for key in RECORD_KEYS if key not in item]
         if missing:
             raise InputError(f'evaluation record lacks keys {missing}; got {sorted(item)}')
-        try:
-            rates = {
-                key: float(item[key])  # type: ignore[arg-type]
-                for key in ('auc', 'auc_opt', 'error_rate')
-            }
-            pixels = float(item['n_pixels'])  # type: ignore[arg-type]
-        except (TypeError, ValueError) as exc:
-            raise InputError(f'evaluation record has a value of the wrong type: {exc}') from None
-        where = f'evaluation record {item["dataset"]}/{item["scene"]} {item["method"]}'
-        for key, value in rates.items():
-            # A NaN would average into every row of the table that holds it.
-            if not 0.0 <= value <= 1.0:
-                raise InputError(f'{where}: {key} must be a number in [0, 1]; got {value}')
-        if isinstance(item['n_pixels'], bool) or not (pixels >= 1 and pixels.is_integer()):
-            raise InputError(
-                f'{where}: n_pixels must be a whole number ≥ 1; got {item["n_pixels"]!r}'
-            )
-        return cls(
-            dataset=str(item['dataset']),
-            scene=str(item['scene']),
-            matcher=str(item['matcher']),
-            method=str(item['method']),
-            n_pixels=int(pixels),
-            **rates,
-        )
+        return cls(**{key: item[key] for key in RECORD_KEYS})  # type: ignore[arg-type]
+
+
+def _real(value: object) -> float | None:
+    """``value`` as a float if it is a real number (not a bool, not a string), else None."""
+    if isinstance(value, bool) or not isinstance(value, Real):
+        return None
+    try:
+        return float(value)
+    except OverflowError:  # an integer of 309 digits or more
+        return math.inf if isinstance(value, int) and value > 0 else -math.inf
 
 
 RecordLike = EvalRecord | Mapping[str, object]
@@ -119,11 +136,15 @@ def write_records(records: Iterable[RecordLike], path: str | os.PathLike[str]) -
 
     Returns:
         The path written.
+
+    Raises:
+        InputError: A record is not valid (checked before the file is touched).
     """
+    items = [r.as_dict() for r in _as_records(records)]
+    text = json.dumps(items, indent=2, allow_nan=False) + '\n'
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
-    items = [r.as_dict() for r in _as_records(records)]
-    out.write_text(json.dumps(items, indent=2) + '\n', encoding='utf-8')
+    out.write_text(text, encoding='utf-8')
     return out
 
 
@@ -132,15 +153,24 @@ def read_records(path: str | os.PathLike[str]) -> list[EvalRecord]:
 
     Raises:
         DataError: The file is missing, not UTF-8 text (e.g. binary) or not a JSON list.
-        InputError: A record lacks keys.
+        InputError: A record is not valid (see :meth:`EvalRecord.from_mapping`); the message
+            names the file and the record's index.
     """
     try:
         items = json.loads(Path(path).read_text(encoding='utf-8'))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+    # ValueError: not JSON, not UTF-8, or an integer of more than 4300 digits;
+    # RecursionError: arrays nested thousands deep.
+    except (OSError, ValueError, RecursionError) as exc:
         raise DataError(f'cannot read evaluation records from {path}: {exc}') from None
     if not isinstance(items, list):
         raise DataError(f'{path} must hold a JSON list of records; got {type(items).__name__}')
-    return _as_records(items)
+    records = []
+    for index, item in enumerate(items):
+        try:
+            records.append(EvalRecord.from_mapping(item))
+        except InputError as exc:
+            raise InputError(f'{path}: record {index}: {exc}') from None
+    return records
 
 
 def _mean(values: Sequence[float]) -> float:

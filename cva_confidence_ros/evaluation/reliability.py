@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from cva_confidence_ros.calibration import ReliabilityTable
+from cva_confidence_ros.errors import InputError
 
 __all__ = [
     'ALL_DATASETS',
@@ -37,10 +38,21 @@ Key = tuple[str, str, str]
 
 def pooled(tables: Mapping[Key, ReliabilityTable]) -> dict[Key, ReliabilityTable]:
     """The tables per (dataset, matcher, method) plus one per (matcher, method) over all data
-    sets (``dataset`` = :data:`ALL_DATASETS`), in a stable order."""
+    sets (``dataset`` = :data:`ALL_DATASETS`), in a stable order.
+
+    Raises:
+        InputError: A data set is named :data:`ALL_DATASETS` beside others (its row and the
+            pooled one would be one key), or tables to pool differ in their bins.
+    """
     rows: dict[Key, ReliabilityTable] = dict(sorted(tables.items()))
     datasets = {key[0] for key in tables}
     if len(datasets) > 1:
+        if ALL_DATASETS in datasets:
+            raise InputError(
+                f'a data set named {ALL_DATASETS!r} cannot be pooled with others '
+                f'({sorted(datasets - {ALL_DATASETS})}): the rows over all data sets have '
+                'that name'
+            )
         for matcher, method in sorted({(key[1], key[2]) for key in tables}):
             parts = [t for key, t in tables.items() if key[1:] == (matcher, method)]
             rows[(ALL_DATASETS, matcher, method)] = ReliabilityTable.combine(parts)
@@ -88,21 +100,28 @@ def write_calibration(tables: Mapping[Key, ReliabilityTable], out_dir: str | Pat
 
     Returns:
         The paths written (none if ``tables`` is empty).
+
+    Raises:
+        InputError: As :func:`pooled` and :func:`format_calibration_table` (e.g. tables whose
+            bins do not have 0.5 and 0.8 as edges, or that hold no pixels); raised before any
+            file is written.
     """
     from cva_confidence_ros.plots import save_reliability_diagram
 
     if not tables:
         return []
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     rows = pooled(tables)
     records: list[dict[str, Any]] = [
         {'dataset': dataset, 'matcher': matcher, 'method': method, **table.as_dict()}
         for (dataset, matcher, method), table in rows.items()
     ]
+    # Both texts first: an error in the table must not leave a new JSON beside an old table.
+    texts = (json.dumps(records, indent=1) + '\n', format_calibration_table(tables))
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
     written = [out / 'calibration.json', out / 'calibration.md']
-    written[0].write_text(json.dumps(records, indent=1) + '\n', encoding='utf-8')
-    written[1].write_text(format_calibration_table(tables), encoding='utf-8')
+    for path, text in zip(written, texts, strict=True):
+        path.write_text(text, encoding='utf-8')
     for dataset, matcher in sorted({(key[0], key[1]) for key in rows}):
         per_method = {key[2]: t for key, t in rows.items() if key[:2] == (dataset, matcher)}
         written.append(
