@@ -422,10 +422,15 @@ class OutputBag:
         typestore: ``rosbags`` typestore; the Jazzy one by default.
         compression: ``none`` (default), ``file`` or ``message`` (zstd).
         overwrite: Replace an existing bag at ``path`` (see above).
+        keep_empty: Keep a bag this object created when nothing was written to it; False
+            removes it on :meth:`close` (:attr:`dropped_empty`), so that a run that wrote
+            nothing leaves no bag that a retry would have to be told to overwrite.
 
     Attributes:
         kept_old: After :meth:`close`: an old bag was to be replaced, but nothing was written,
             so it is still there, untouched.
+        dropped_empty: After :meth:`close`: the new bag held nothing and ``keep_empty`` was
+            off, so it was removed (there is no bag at ``path``).
 
     Raises:
         BagError: Unknown storage or compression.
@@ -438,6 +443,7 @@ class OutputBag:
         typestore: Any | None = None,
         compression: str = 'none',
         overwrite: bool = False,
+        keep_empty: bool = True,
     ) -> None:
         if storage not in STORAGES:
             raise BagError(f'storage must be one of {STORAGES}; got {storage!r}')
@@ -449,7 +455,10 @@ class OutputBag:
         self.overwrite = overwrite
         self.typestore = typestore or jazzy_typestore()
         self.counts: dict[str, int] = {}
+        self.keep_empty = keep_empty
         self.kept_old = False
+        self.dropped_empty = False
+        self._created = False
         self._writer: Any = None
         self._staging: Path | None = None
         self._connections: dict[str, Any] = {}
@@ -515,6 +524,7 @@ class OutputBag:
             self._discard_staging()
             raise BagError(f'cannot create output bag {self.path}: {err}') from None
         self._writer = writer
+        self._created = created and self._staging is None
 
     def write(self, topic: str, msgtype: str, message: Any, timestamp_ns: int) -> None:
         """Append one message (a ``rosbags`` message object or CDR bytes)."""
@@ -573,6 +583,10 @@ class OutputBag:
                 ) from None
         staging, self._staging = self._staging, None
         if staging is None:
+            if self._created and self.written == 0 and not self.keep_empty:
+                self._created = False
+                remove_bag(self.path)
+                self.dropped_empty = True
             return
         if self.written == 0:
             self.kept_old = True

@@ -868,8 +868,10 @@ class ReplaySession:
         self.interrupts.__enter__()
         try:
             # With --overwrite the old bag is replaced only once the new one holds a frame.
+            # A run that writes nothing leaves no new bag (a retry needs no --overwrite for it).
             self.out = OutputBag(
-                self.options.out, self.options.storage, overwrite=self.options.overwrite
+                self.options.out, self.options.storage, overwrite=self.options.overwrite,
+                keep_empty=False,
             )
             self.out.open()
         except BaseException:
@@ -1176,7 +1178,7 @@ class ReplaySession:
         finally:
             if self.out is not None:
                 self.out.close()
-                if not self.out.kept_old:
+                if not (self.out.kept_old or self.out.dropped_empty):
                     self.paths['bag'] = Path(self.options.out)
         if self.writer is not None:
             self.paths.update(self.writer.write(self.report))
@@ -1185,16 +1187,20 @@ class ReplaySession:
         """Exit code and closing message of the run (call after leaving the context)."""
         counts = self.counts
         done = counts['processed']
-        bag = (
-            f'the existing output bag {self.options.out} was left as it was (nothing written)'
-            if self.out is not None and self.out.kept_old
-            else f'output bag {self.options.out}'
-        )
+        if self.out is not None and self.out.kept_old:
+            bag = (
+                f'the existing output bag {self.options.out} was left as it was (nothing written)'
+            )
+        elif self.out is not None and self.out.dropped_empty:
+            bag = f'no output bag written (nothing to write at {self.options.out})'
+        else:
+            bag = f'output bag {self.options.out}'
         where = f'{bag}, report {self.paths.get("json", self.options.report)}'
         if self.report.interrupted:
             return ReplayOutcome(
                 self.report, self.paths, 130,
-                f'interrupted after {done} frames; {where} hold them',
+                f'interrupted after {done} frames; {where} hold them' if done
+                else f'interrupted before the first frame; {where}',
             )
         if self.report.error:
             return ReplayOutcome(
