@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
+import contextlib
 from dataclasses import asdict, dataclass
 import json
 import math
@@ -10,7 +11,7 @@ from numbers import Integral, Real
 import os
 from pathlib import Path
 
-from cva_confidence_ros.errors import DataError, InputError
+from cva_confidence_ros.errors import DataError, InputError, reason
 
 __all__ = [
     'RECORD_KEYS',
@@ -139,12 +140,22 @@ def write_records(records: Iterable[RecordLike], path: str | os.PathLike[str]) -
 
     Raises:
         InputError: A record is not valid (checked before the file is touched).
+        DataError: The file cannot be written (a full disk, no permission); an older file at
+            ``path`` is left as it was (the new one is written beside it, then moved in place).
     """
     items = [r.as_dict() for r in _as_records(records)]
     text = json.dumps(items, indent=2, allow_nan=False) + '\n'
     out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(text, encoding='utf-8')
+    tmp = out.with_name(out.name + '.tmp')
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(text, encoding='utf-8')
+        os.replace(tmp, out)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        state = '; the file there was left as it was' if out.exists() else ''
+        raise DataError(f'cannot write records {out}: {reason(exc)}{state}') from None
     return out
 
 

@@ -41,7 +41,7 @@ import sys
 import time
 from typing import Any, cast
 
-from cva_confidence_ros.errors import ConfigError, DataError, ModelError
+from cva_confidence_ros.errors import ConfigError, DataError, ModelError, reason
 from cva_confidence_ros.outputs import check_output_dir
 
 __all__ = [
@@ -470,8 +470,10 @@ def _load_reusable(
 
     try:
         data = json.loads(path.read_text(encoding='utf-8'))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise DataError(f'cannot read --reuse records {path}: {exc}') from None
+    except (OSError, ValueError, RecursionError) as exc:
+        # ValueError: not UTF-8, not JSON, or an integer of more digits than Python converts;
+        # RecursionError: nested deeper than the parser goes.
+        raise DataError(f'cannot read --reuse records {path}: {reason(exc)}') from None
     items = data.get('records', []) if isinstance(data, dict) else data
     if not isinstance(items, list):
         raise DataError(

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 import json
+import resource
+import signal
 
 from matplotlib.image import imread
 import numpy as np
@@ -12,6 +16,7 @@ from cva_confidence_ros.calibration import ReliabilityTable, expected_error, rel
 from cva_confidence_ros.errors import DataError, InputError
 from cva_confidence_ros.evaluation.records import EvalRecord, read_records, write_records
 from cva_confidence_ros.evaluation.reliability import pooled, write_calibration
+from cva_confidence_ros.evaluation.table1 import _load_reusable
 from cva_confidence_ros.plots import save_correctness_overlay, save_roc_curves
 
 
@@ -197,3 +202,40 @@ def test_pooled_refuses_a_data_set_named_all() -> None:
         pooled(tables)
     alone = ('all', 'census_bm', 'cva_net')
     assert list(pooled({alone: one})) == [alone]
+
+
+@contextmanager
+def _file_size_limit(limit: int) -> Iterator[None]:
+    """Files may grow to ``limit`` bytes only: a write past it fails (EFBIG), as on a full
+    disk."""
+    old_limit = resource.getrlimit(resource.RLIMIT_FSIZE)
+    old_handler = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (limit, old_limit[1]))
+    try:
+        yield
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, old_limit)
+        signal.signal(signal.SIGXFSZ, old_handler)
+
+
+def test_a_records_file_that_cannot_be_written_leaves_the_old_one(tmp_path) -> None:
+    path = tmp_path / 'records.json'
+    write_records([_record()], path)
+    before = path.read_bytes()
+    many = [_record(scene=f'{index:06d}') for index in range(200)]
+    # Before: the old file was truncated to what fitted, and an OSError came out.
+    with pytest.raises(DataError, match='cannot write records .*the file there was left as'):
+        with _file_size_limit(len(before) + 1000):
+            write_records(many, path)
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['records.json']
+    assert len(read_records(write_records(many, path))) == 200
+
+
+@pytest.mark.parametrize('text', ['[' * 100_000, '[' + '1' * 5000 + ']'])
+def test_a_reuse_file_too_deep_or_with_a_huge_number_is_a_data_error(tmp_path, text) -> None:
+    path = tmp_path / 'reuse.json'
+    path.write_text(text, encoding='utf-8')
+    # Before: a RecursionError / ValueError traceback out of cva-table1 --reuse.
+    with pytest.raises(DataError, match='cannot read --reuse records .*reuse.json'):
+        _load_reusable(path, ['pkrn'])
