@@ -677,6 +677,8 @@ class _Recorder:
                 parts['disparity_filtered'], geometry.disparity_offset
             )
             confidence = float_image_to_array(parts['confidence'])
+            # An ignore mask of another resolution than the outputs: this frame is skipped.
+            region = output_region(self.options.pipeline, confidence.shape, self.mask)
         except InputError as err:
             self.session.skip(f'outputs of frame {pending.frame}', err)
             return
@@ -693,7 +695,7 @@ class _Recorder:
                 image=None if items is None else lambda: output_left_image(
                     items, confidence.shape, self.options.pipeline.downsample
                 ),
-                region=output_region(self.options.pipeline, confidence.shape, self.mask),
+                region=region,
                 geometry=geometry,
             )
         )

@@ -292,6 +292,12 @@ def main(argv: list[str] | None = None) -> int:
     print(f'{args.out}: {summary(keep)}')
     if preview_path is not None:
         print(f'preview: {preview_path}')
+    else:
+        stale = args.out.with_name(f'{args.out.stem}_preview.png')
+        if stale.exists():
+            # An earlier run's preview of this mask, which no longer shows it.
+            print(f'cva-mask: note: {stale} still shows the previous mask; give --image or '
+                  '--bag to draw it again', file=sys.stderr)
     print(f'use it with: --ros-args -p mask_path:={args.out.resolve()}  '
           f'(cva-bag-replay --mask {args.out})')
     return 0

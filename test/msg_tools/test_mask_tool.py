@@ -150,3 +150,23 @@ def test_a_preview_onto_the_mask_itself_is_refused(tmp_path: Path, capsys) -> No
 def test_draw_mask_refuses_a_start_mask_of_another_size() -> None:
     with pytest.raises(ConfigError, match='start mask is 4×3 px, not 5×3'):
         draw_mask(5, 3, start=np.ones((3, 4), bool))
+
+
+def test_a_preview_left_from_an_earlier_mask_is_pointed_out(tmp_path: Path, capsys) -> None:
+    out = tmp_path / 'mask.png'
+    image = tmp_path / 'frame.png'
+    cv2.imwrite(str(image), np.full((20, 24, 3), 90, np.uint8))
+    assert main([str(out), '--image', str(image), '--rect', '0', '0', '4', '4']) == 0
+    preview = tmp_path / 'mask_preview.png'
+    drawn = preview.read_bytes()
+    assert 'note' not in capsys.readouterr().err
+    # Added to without a frame: the old preview no longer shows the mask, and is left alone.
+    assert main([str(out), '--start', str(out), '--rect', '20', '0', '24', '4',
+                 '--overwrite']) == 0
+    err = capsys.readouterr().err
+    assert f'cva-mask: note: {preview} still shows the previous mask' in err
+    assert preview.read_bytes() == drawn
+    # Drawn again with the frame: no note.
+    assert main([str(out), '--start', str(out), '--image', str(image), '--overwrite']) == 0
+    assert 'note' not in capsys.readouterr().err
+    assert preview.read_bytes() != drawn
