@@ -7,13 +7,14 @@ pipeline inside its ``try``: a Ctrl-C during that second of imports then ends th
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 import threading
 import time
 from typing import Any
+import weakref
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
@@ -149,6 +150,13 @@ class _Mailbox:
             self._cond.notify_all()
 
 
+def _close_mailbox(node: weakref.ref[ConfidenceCore]) -> None:
+    """Close the mailbox of ``node``, if it is still there (a context's shutdown callback)."""
+    alive = node()
+    if alive is not None:
+        alive._mailbox.close()
+
+
 def _seconds(stamp_ns: int) -> str:
     return f'{stamp_ns // 1_000_000_000}.{stamp_ns % 1_000_000_000:09d}'
 
@@ -201,6 +209,11 @@ class _Stats:
     # per synchroniser key: messages in the window, and the stamp of the newest one
     window_keys: dict[str, int] = field(default_factory=dict)
     last_stamps_ns: dict[str, int] = field(default_factory=dict)
+    # per synchroniser key: the stamp of its message in the set paired last (what the
+    # synchroniser holds aside as a repeat or a late one when a message is at or before it),
+    # and how many messages of the window were so (a bag played again, time gone back)
+    paired_stamps_ns: dict[Hashable, int] = field(default_factory=dict)
+    window_old: int = 0
     # left image stamps: the previous one and the last gaps between them (ns)
     left_stamp_ns: int | None = None
     left_gaps_ns: deque[int] = field(default_factory=lambda: deque(maxlen=8))
@@ -254,8 +267,12 @@ class ConfidenceCore(Node):
         #: Set by :meth:`destroy_node` when a frame outlasted the stop's wait.
         self.frame_left_running = False
         # rclpy.shutdown() from another thread: the worker must not publish on a dead context.
-        # (Ctrl-C shuts the context down in C without these callbacks; see _work.)
-        self.context.on_shutdown(lambda: self._mailbox.close())
+        # (Ctrl-C shuts the context down in C without these callbacks; see _work.) The context
+        # keeps the callback as long as it lives: one that held the node would keep a destroyed
+        # node and its pipeline (the network's weights, GPU memory) alive as long. (A bound
+        # method, which the context holds weakly, has its weak reference's callback fail at
+        # interpreter exit: 'Exception ignored in WeakMethod._cb'.)
+        self.context.on_shutdown(partial(_close_mailbox, weakref.ref(self)))
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
     def _create_output_publisher(self, msg_type: type, topic: str, qos: Any) -> Any:
@@ -355,6 +372,7 @@ class ConfidenceCore(Node):
                 self._stats.dropped += 1
             self._stats.unmatched += sum(self._sync.pending().values())
             self._sync = self._make_sync(self._node_config)
+            self._stats.paired_stamps_ns = {}
 
     def _cleanup(self) -> bool:
         """Stop the worker and release the pipeline, publishers and timer.
@@ -488,6 +506,7 @@ class ConfidenceCore(Node):
             if any(getattr(old, key) != getattr(node_config, key) for key in sync_keys):
                 self._stats.unmatched += sum(self._sync.pending().values())
                 self._sync = self._make_sync(node_config)
+                self._stats.paired_stamps_ns = {}
         self.get_logger().info(f'parameters set: {asked}')
         if pipeline is not None:
             self._mailbox.poke()
@@ -503,6 +522,9 @@ class ConfidenceCore(Node):
             self._stats.window_messages += 1
             self._stats.window_keys[key] = self._stats.window_keys.get(key, 0) + 1
             self._stats.last_stamps_ns[key] = stamp
+            paired = self._stats.paired_stamps_ns.get(key)
+            if paired is not None and stamp <= paired:
+                self._stats.window_old += 1
             loose_period = self._note_left_stamp(stamp) if key == 'left' else None
             tolerance_ns = self._node_config.tolerance_ns
             sync = self._sync
@@ -516,6 +538,7 @@ class ConfidenceCore(Node):
             ]
             self._stats.jumps += len(jumps)
             for item in matched:
+                self._stats.paired_stamps_ns.update(item.stamps_ns)
                 self._stats.pairs += 1
                 self._stats.window_pairs += 1
                 if self._throttled(item):
@@ -531,6 +554,16 @@ class ConfidenceCore(Node):
                 f'of different frames can pair; set it below {loose_period / 2e9:.3f}',
             )
         for previous, now in jumps:
+            if previous == now:
+                # Not back at all: the frame paired last came again (a bag of one frame played
+                # again, or on a loop).
+                self._log_throttle.log(
+                    self.get_logger(),
+                    'input stamps repeat',
+                    f'input stamps repeat: the frame {_seconds(now)} came again (a bag played '
+                    'again or on a loop?): pairing starts over from there',
+                )
+                continue
             self._log_throttle.log(
                 self.get_logger(),
                 'input stamps jumped back',
@@ -582,6 +615,10 @@ class ConfidenceCore(Node):
             if images_only and large_messages_unset():
                 text += f' while the camera infos come: {LARGE_MESSAGES_HINT}'
             return text
+        # (A new synchroniser, after a parameter change, forgets what was paired.)
+        paired = stats.paired_stamps_ns
+        if stats.window_old == stats.window_messages and all(key in paired for key in names):
+            return self._old_stamps_reason(stats, names)
         stamps = ', '.join(
             f'{topic} {_seconds(stats.last_stamps_ns[key])}' for key, topic in names.items()
         )
@@ -592,6 +629,29 @@ class ConfidenceCore(Node):
             'that are not hardware-synchronised)'
         )
         return f'messages arrive but none pair up; newest stamps: {stamps}; {how}'
+
+    def _old_stamps_reason(self, stats: _Stats, names: dict[str, str]) -> str:
+        """Why messages no newer than the frame paired last do not pair (lock held): the
+        synchroniser holds them aside as repeats or late ones until they show a jump back."""
+        key = next(iter(names))
+        newest, paired = stats.last_stamps_ns[key], stats.paired_stamps_ns[key]
+        if newest == paired:
+            what = (
+                f'the input stamps repeat: {names[key]} {_seconds(newest)} again, the frame '
+                'paired last (the same frames a second time: a bag played again?)'
+            )
+        else:
+            what = (
+                f'the input stamps went back {(paired - newest) / 1e9:.3f} s: {names[key]} '
+                f'{_seconds(newest)} after the frame {_seconds(paired)} was paired (a bag '
+                'played again, a driver restart or a simulator reset?)'
+            )
+        jump = self._sync.min_jump_ns / 1e9
+        return (
+            f'messages arrive but none pair up: {what}; such messages wait aside (counted '
+            f'unmatched) until a whole frame of them lies {jump:g} s or more back, or a second '
+            'one follows: then pairing starts over from them'
+        )
 
     # Worker side --------------------------------------------------------------------------
 
@@ -888,6 +948,7 @@ class ConfidenceCore(Node):
             stats.window_kept_sum = 0.0
             stats.window_expected_wrong = stats.window_expected_kept = 0.0
             stats.window_keys = {}
+            stats.window_old = 0
             stats.window_start = now
         return diagnostic_status(self, 'stereo confidence', level, message, values)
 

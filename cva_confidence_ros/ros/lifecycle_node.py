@@ -29,6 +29,7 @@ from typing import Any
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.context import Context
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from cva_confidence_ros.errors import CVAError
@@ -63,16 +64,27 @@ class ManagedConfidenceNode(ConfidenceCore, LifecycleNode):
         super().__init__(
             NODE_NAME, context=context, parameter_overrides=parameter_overrides, **kwargs
         )
-        self._init_core()
-        self.declare_parameter(
-            AUTOSTART,
-            False,
-            ParameterDescriptor(description=_AUTOSTART_DESCRIPTION, read_only=True),
-        )
-        warn_unknown_parameters(self)
-        if self.get_parameter(AUTOSTART).value:
-            if self.trigger_configure() == TransitionCallbackReturn.SUCCESS:
-                self.trigger_activate()
+        try:
+            self._init_core()
+            self.declare_parameter(
+                AUTOSTART,
+                False,
+                ParameterDescriptor(description=_AUTOSTART_DESCRIPTION, read_only=True),
+            )
+            warn_unknown_parameters(self)
+            if self.get_parameter(AUTOSTART).value:
+                if self.trigger_configure() == TransitionCallbackReturn.SUCCESS:
+                    self.trigger_activate()
+        except BaseException:
+            # A start-up value of the wrong type (-p max_disparity:=abc): destroyed here, as
+            # ConfidenceNode is, not left to the garbage collector, which would unregister the
+            # /rosout publisher of its name, by then perhaps a later node's.
+            if hasattr(self, '_mailbox'):
+                self.destroy_node()
+            else:  # refused while declaring its parameters
+                Node.destroy_node(self)
+                self._state_machine.destroy_when_not_in_use()
+            raise
 
     def summary(self) -> str:
         """One line on the node's state (and, once configured, what it computes)."""
