@@ -102,6 +102,9 @@ _NETWORK_WORKER_FLAG = '--network-worker'
 _NETWORK_PREFIX = 'cvanet_d'
 _GEMM_SIZE = 2048
 _RECORD_PREFIX = 'BENCH-RECORD '
+#: Keys of the ``cvanet_d<D>`` record that ``--json`` keeps beyond :data:`RECORD_KEYS` (the
+#: README's network-row table quotes the crop and the threads).
+_NETWORK_EXTRA_KEYS = ('extrapolated', 'crop', 'crop_ms', 'threads', 'note')
 _SUITES = ('matchers', 'node', 'fast', 'gpu', 'cloud')
 
 
@@ -676,7 +679,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # The records are saved before anything is printed: a table that fails to print (a closed
     # pipe) must not lose a run of minutes.
     if args.json is not None:
-        write_records(args.json, records, ('extrapolated', 'note'), host=host)
+        write_records(args.json, records, _NETWORK_EXTRA_KEYS, host=host)
     print(format_table(records, os.cpu_count() or 1))
     print(f'host: {host}')
     return 0

@@ -7,16 +7,24 @@ combinations, plus whole-pipeline rows, for CVA-Net and, in the ``lite*`` rows, 
 
 * ``ms_per_frame``: the network part (cheap measure and filling included) on the cost volume of
   the Motorcycle pair fitted to ``--width``×``--height`` (census_bm, D = ``--max-disparity``),
-  median of ``--repeat`` frames after an untimed one. The ``exact`` and ``bf16`` rows would take
-  minutes a frame on a CPU: they are timed on a ``--crop`` square (``bf16``: a quarter of it)
-  and extrapolated to the frame by floating-point operations (``extrapolated: true``).
+  median of ``--repeat`` frames (``timed_calls``) after untimed ones (a warm-up frame, then
+  the frame that gives ``peak_mem_mb``). The ``exact`` and ``bf16`` rows would take minutes a
+  frame on a CPU: they are timed the same way on a ``--crop`` square (``bf16``: a quarter of
+  it), after a warm-up on its 4×4 corner and the untimed call on the square, and extrapolated
+  to the frame by floating-point operations (``extrapolated: true``).
   ``pipeline_*`` rows time :meth:`~cva_confidence_ros.pipeline.StereoPipeline.process` on the
   image pair: matching, WTA, cheap measure and network, what the node does per frame.
 * ``network_gflops``: operations the evaluator chose to run (counted per tile,
   :class:`~cva_confidence_ros.model.SparseEvaluator`) per second of the row's time;
   ``gemm_gflops``: a 2048² float32 matmul in the same process, the practical peak.
-* ``peak_mem_mb``: peak resident memory during the timed frames above the resident memory
-  before them (VmHWM reset first).
+* ``peak_mem_mb``: peak resident memory during the untimed frame before the timed ones above
+  the resident memory before it, freed heap handed back to the OS and VmHWM reset first. The
+  command line keeps freed memory in the process as the node does
+  (:func:`~cva_confidence_ros.memory.keep_freed_memory`), so the timed frames that follow run
+  on a warm heap, as the node's frames do.
+* ``threads`` / ``numba_threads``: torch's and numba's thread counts during the row
+  (``--threads`` sets both, OpenCV's and the OpenMP/MKL variables for the run; ``python -m
+  cva_confidence_ros.fast_benchmark`` runs on 1 unless ``--threads`` says otherwise).
 * ``auc_rel``: mean AUC over the develop scenes of the configuration / that of the exact fp32
   network (the paper network at full resolution), when ``--data-root`` holds the develop split;
   None without it; Lite rows are relative to the same exact CVA-Net (so they can be < 1).
@@ -32,7 +40,8 @@ combinations, plus whole-pipeline rows, for CVA-Net and, in the ``lite*`` rows, 
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 import os
 from pathlib import Path
@@ -141,10 +150,95 @@ FAST_CONFIGS: tuple[FastConfig, ...] = (
     FastConfig('pipeline:fast', pipeline=True, arch=_FAST),
 )
 _EXTRAPOLATED = ('exact', 'bf16')
+#: Environment variables of the thread pools that start after ``--threads`` is applied.
+_THREAD_ENV = ('OMP_NUM_THREADS', 'MKL_NUM_THREADS', 'NUMBA_NUM_THREADS')
 #: Develop window the AUC rows are scored on. 120×200 leaves a stride-8 grid 15×25 samples; on
 #: the 48×96 windows used before (6×12 samples) most filled pixels lay in the grid's border
 #: cells, which overstated the loss of the sparse rows (stride 8: 2.75 there, 1.45 here).
 AUC_CROP = (120, 200)
+
+
+@dataclass(frozen=True)
+class _Timing:
+    """Frames of one row: seconds and results of the timed ones, memory around the untimed one.
+
+    Attributes:
+        seconds: Wall time of each timed frame.
+        results: What each timed frame returned.
+        rss_kb: Resident memory before the untimed frame (None without ``/proc``).
+        peak_kb: Peak resident memory during it (None where VmHWM cannot be reset).
+    """
+
+    seconds: list[float]
+    results: list[dict[str, float]]
+    rss_kb: int | None
+    peak_kb: int | None
+
+
+def _time_frames(frame: Callable[[], dict[str, float]], repeat: int) -> _Timing:
+    """One untimed frame that gives the peak memory, then ``repeat`` timed frames.
+
+    ``frame`` must have run once already (what a first call loads or compiles is no frame's).
+    Freed heap is handed back to the OS before the untimed frame, so that the resident memory
+    before it is what is live and its peak what a frame allocates. That frame pays the page
+    faults of taking the memory back; the node keeps freed memory
+    (:func:`~cva_confidence_ros.memory.keep_freed_memory`) and pays them on its first frame
+    only, so the timed frames come after it, without a trim, as the node's later frames do.
+    """
+    _release_free_heap()
+    rss, have_hwm = memory_kb('VmRSS'), _reset_peak()
+    frame()
+    peak = memory_kb('VmHWM') if have_hwm else None
+    seconds, results = [], []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        results.append(frame())
+        seconds.append(time.perf_counter() - start)
+    return _Timing(seconds, results, rss, peak)
+
+
+def _numba_threads() -> int:
+    import numba
+
+    return int(numba.get_num_threads())
+
+
+@contextmanager
+def _thread_limit(threads: int | None) -> Iterator[None]:
+    """Run torch, numba and OpenCV on ``threads`` threads inside the block, and set the
+    OpenMP/MKL/numba variables for pools started in it; all restored on exit. None: no change.
+
+    numba can use at most the ``NUMBA_NUM_THREADS`` it was imported with; the records report
+    what it really used (``numba_threads``).
+    """
+    if threads is None:
+        yield
+        return
+    if threads < 1:
+        raise ConfigError(f'threads must be ≥ 1; got {threads}')
+    import cv2
+    import numba
+    import torch
+
+    saved_env = {name: os.environ.get(name) for name in _THREAD_ENV}
+    saved = numba.get_num_threads(), torch.get_num_threads(), cv2.getNumThreads()
+    try:
+        os.environ.update({name: str(threads) for name in _THREAD_ENV})
+        # numba's OpenMP layer resets the OpenMP thread count that torch also uses: numba first.
+        available = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
+        numba.set_num_threads(min(threads, available))
+        torch.set_num_threads(threads)
+        cv2.setNumThreads(threads)
+        yield
+    finally:
+        numba.set_num_threads(saved[0])
+        torch.set_num_threads(saved[1])
+        cv2.setNumThreads(saved[2])
+        for name, value in saved_env.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
 
 
 def _cheap(name: str, volume: np.ndarray, disparity: np.ndarray, image: np.ndarray,
@@ -279,6 +373,7 @@ def run_fast(
     auc_crop: tuple[int, int] = AUC_CROP,
     log: Callable[[str], None] = lambda text: print(text, file=sys.stderr, flush=True),
     gemm_size: int = 2048,
+    threads: int | None = None,
 ) -> list[dict[str, Any]]:
     """Measure the fast-path rows in this process (see the module docstring).
 
@@ -290,11 +385,30 @@ def run_fast(
         auc_crop: (rows, columns) of the AUC window of each develop scene.
         log: Progress messages.
         gemm_size: Side of the float32 matmul that gives ``gemm_gflops``.
+        threads: Threads of torch, numba and OpenCV for the run (restored after it); None
+            leaves them as they are.
 
     Returns:
         One record per configuration with :data:`RECORD_KEYS` plus ``network_share`` (share of
-        the pixels the network ran on), ``extrapolated`` and, for cascades, ``cheap_ms``.
+        the pixels the network ran on), ``extrapolated``, ``timed_calls``, ``threads``,
+        ``numba_threads`` and, for cascades, ``cheap_ms``.
+
+    Raises:
+        ConfigError: ``threads`` < 1, or rows of a network that cannot be built.
     """
+    with _thread_limit(threads):
+        return _measure_rows(settings, configs, crop, data_root, auc_crop, log, gemm_size)
+
+
+def _measure_rows(
+    settings: BenchSettings,
+    configs: Sequence[FastConfig],
+    crop: int,
+    data_root: Path | None,
+    auc_crop: tuple[int, int],
+    log: Callable[[str], None],
+    gemm_size: int,
+) -> list[dict[str, Any]]:
     import torch
 
     from cva_confidence_ros.matching import compute_cost_volume, wta_disparity
@@ -333,6 +447,8 @@ def run_fast(
             'gemm_gflops': gemm,
             'auc_rel': auc_rel.get(config.name),
             'threads': torch.get_num_threads(),
+            'numba_threads': _numba_threads(),
+            'timed_calls': settings.repeat,
             'extrapolated': config.name in _EXTRAPOLATED,
             'arch': config.arch,
         }
@@ -343,15 +459,19 @@ def run_fast(
             rows, columns = min(side, settings.height), min(side, settings.width)
             y0, x0 = (settings.height - rows) // 2, (settings.width - columns) // 2
             part = np.ascontiguousarray(volume[:, y0:y0 + rows, x0:x0 + columns])
-            evaluator(part[:, :4, :4])
+            evaluator(part[:, :4, :4])  # loads what every call shares, at a fraction of the cost
             frame = evaluator._flops('tile', settings.height, settings.width)
-            _release_free_heap()
-            rss, have_hwm = memory_kb('VmRSS'), _reset_peak()
+
+            def crop_call(evaluator: Any = evaluator, part: np.ndarray = part
+                          ) -> dict[str, float]:
+                evaluator(part)
+                return {}
+
             flops_before = evaluator.flops_done
-            start = time.perf_counter()
-            evaluator(part)
-            seconds = time.perf_counter() - start
-            done = evaluator.flops_done - flops_before
+            timing = _time_frames(crop_call, settings.repeat)
+            # Every call on the crop runs the same operations: the untimed one included.
+            done = (evaluator.flops_done - flops_before) / (settings.repeat + 1)
+            seconds = statistics.median(timing.seconds)
             record.update(ms_per_frame=seconds * frame / done * 1e3,
                           network_gflops=done / seconds / 1e9, network_share=1.0,
                           crop=[rows, columns])
@@ -385,17 +505,13 @@ def run_fast(
                     return {'cheap': cheap_ms, 'share': result.network_share}
 
                 frame_fn = sparse_frame
-            frame_fn()  # untimed
-            _release_free_heap()
-            rss, have_hwm = memory_kb('VmRSS'), _reset_peak()
+            frame_fn()  # warm-up: first-call costs (kernels, caches) are no frame's
             flops_before = evaluator.flops_done
-            times, extras = [], []
-            for _ in range(settings.repeat):
-                start = time.perf_counter()
-                extras.append(frame_fn())
-                times.append(time.perf_counter() - start)
-            done = (evaluator.flops_done - flops_before) / settings.repeat
-            seconds = statistics.median(times)
+            timing = _time_frames(frame_fn, settings.repeat)
+            extras = timing.results
+            # The frames are the same: the untimed one ran the operations of a timed one.
+            done = (evaluator.flops_done - flops_before) / (settings.repeat + 1)
+            seconds = statistics.median(timing.seconds)
             record.update(ms_per_frame=seconds * 1e3, network_gflops=done / seconds / 1e9)
             if config.pipeline:
                 record['stages_ms'] = {key: statistics.median(e[key] for e in extras)
@@ -403,7 +519,7 @@ def run_fast(
             else:
                 record['network_share'] = extras[0]['share']
                 record['cheap_ms'] = statistics.median(e['cheap'] for e in extras)
-        peak = memory_kb('VmHWM') if have_hwm else None
+        peak, rss = timing.peak_kb, timing.rss_kb
         record['peak_mem_mb'] = (
             max(peak - rss, 0) / 1024.0 if peak is not None and rss is not None else None
         )
@@ -446,9 +562,13 @@ def _light_network(depth: int, arch: str) -> tuple[Any, str | None]:
 def format_fast_table(records: Sequence[dict[str, Any]]) -> str:
     """Markdown table of the fast-path records."""
     first = records[0]
+    threads = first.get('threads', '?')
+    numba = first.get('numba_threads', threads)
+    used = (f'{threads} thread(s)' if numba == threads
+            else f'{threads} torch / {numba} numba threads')
     lines = [
-        f"{first['width']}×{first['height']}, D = {first['max_disparity']}, "
-        f"{first.get('threads', '?')} thread(s), census_bm cost volume of the Motorcycle pair",
+        f"{first['width']}×{first['height']}, D = {first['max_disparity']}, {used}, "
+        'census_bm cost volume of the Motorcycle pair',
         '',
         '| config | ms/frame | fps | network share | network GFLOP/s | GEMM GFLOP/s '
         '| peak MB | auc_rel |',
@@ -488,6 +608,10 @@ def _parser() -> argparse.ArgumentParser:
                         metavar='ROWSxCOLUMNS',
                         help='window of every develop scene that the AUC is computed on '
                         '(default %(default)s)')
+    parser.add_argument('--threads', type=int, default=None, metavar='N',
+                        help='torch, numba and OpenCV threads for the run, and the OpenMP/MKL '
+                        'variables (default: as they are; python -m '
+                        'cva_confidence_ros.fast_benchmark: 1)')
     parser.add_argument('--json', type=Path, default=None, metavar='PATH')
     return parser
 
@@ -506,13 +630,17 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise ConfigError(f'--auc-crop must be ROWSxCOLUMNS; got {args.auc_crop!r}') from exc
         if args.crop < 4 or rows < 16 or columns < 16:
             raise ConfigError('--crop must be ≥ 4 and --auc-crop at least 16x16')
-        return run_fast(settings, [by_name[n] for n in names], args.crop, args.data_root,
-                        (rows, columns))
+        from cva_confidence_ros.memory import keep_freed_memory
 
-    extra = ('network_share', 'extrapolated', 'threads', 'cheap_ms', 'stages_ms', 'note', 'arch')
+        keep_freed_memory()  # as the node does, so that the timed frames see the node's heap
+        return run_fast(settings, [by_name[n] for n in names], args.crop, args.data_root,
+                        (rows, columns), threads=args.threads)
+
+    extra = ('network_share', 'extrapolated', 'crop', 'timed_calls', 'threads', 'numba_threads',
+             'cheap_ms', 'stages_ms', 'note', 'arch')
     return run_suite(_parser(), argv, measure, format_fast_table, extra)
 
 
 if __name__ == '__main__':
-    os.environ.setdefault('OMP_NUM_THREADS', '1')
-    sys.exit(main())
+    # One thread unless the command line asks for more (of two --threads the later counts).
+    sys.exit(main(['--threads', '1', *sys.argv[1:]]))

@@ -25,7 +25,8 @@ smoke test of the suite on a machine without a GPU.
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 import statistics
 import sys
@@ -89,6 +90,23 @@ class _Timer:
         end.record()
         end.synchronize()
         return begin.elapsed_time(end) / 1e3
+
+
+@contextmanager
+def _cudnn_autotuner(device: Any) -> Iterator[None]:
+    """Switch cuDNN's autotuner (``torch.backends.cudnn.benchmark``) on inside the block on a
+    CUDA ``device``, and put the flag back as it was on exit; other devices: no change."""
+    import torch
+
+    if device.type != 'cuda':
+        yield
+        return
+    before = torch.backends.cudnn.benchmark
+    torch.backends.cudnn.benchmark = True
+    try:
+        yield
+    finally:
+        torch.backends.cudnn.benchmark = before
 
 
 def _develop_scenes(root: Path, depth: int, log: Callable[[str], None]) -> list[dict[str, Any]]:
@@ -169,100 +187,101 @@ def run_gpu(
     target = resolve_device(device)
     if target.type != 'cuda' and 'fp16' in precisions:
         raise ConfigError('fp16 needs a CUDA device; use --precisions fp32 bf16 on a CPU')
-    if target.type == 'cuda':
-        torch.backends.cudnn.benchmark = True  # fixed shapes: let cuDNN time its kernels
-    depth = settings.max_disparity
-    timer = _Timer(target)
-    gpu_name = torch.cuda.get_device_name(target) if target.type == 'cuda' else 'cpu'
-    nets = _networks(depth, networks)
-    left, right = make_pairs(settings)['real']
-    volume = compute_cost_volume(left, right, NETWORK_MATCHER, depth)
-    gemm = _gemm_gflops(target, 4096 if target.type == 'cuda' else 1024)
-    gemm_bf16 = _bf16_gemm_gflops(target) if target.type == 'cuda' else None
-    log(f'{gpu_name}: float32 matmul {gemm:.0f} GFLOP/s'
-        + ('' if gemm_bf16 is None else f', bf16 matmul {gemm_bf16:.0f} GFLOP/s'))
-    develop = _develop_scenes(data_root, depth, log) if data_root is not None else []
-    rows: list[tuple[str, str, bool]] = []
-    for name in networks:
-        for precision in precisions:
-            rows.append((name, precision, False))
-            if channels_last and name == 'exact' and precision != 'fp32' and target.type == 'cuda':
-                rows.append((name, precision, True))
-    records = []
-    for name, precision, layout in rows:
-        net, note = nets[name]
-        config = f'{name}:{precision}' + ('+cl' if layout else '')
-        log(f'measuring {config} …')
-        evaluator = SparseEvaluator(net, target, tile_budget_mb=1e9, precision=precision,
-                                    path='tile')
-        if layout:
-            # torch's stubs of Module.to omit memory_format, which it accepts at run time.
-            evaluator.net = evaluator.net.to(  # type: ignore[call-overload]
-                memory_format=torch.channels_last_3d
-            )
-        padded = torch.from_numpy(pad_cost_volume(volume)).to(target)[None, None]
-        if layout:
-            padded = padded.contiguous(memory_format=torch.channels_last_3d)
+    # Fixed shapes: let cuDNN time its kernels; the flag is the process's, so it is put back.
+    with _cudnn_autotuner(target):
+        depth = settings.max_disparity
+        timer = _Timer(target)
+        gpu_name = torch.cuda.get_device_name(target) if target.type == 'cuda' else 'cpu'
+        nets = _networks(depth, networks)
+        left, right = make_pairs(settings)['real']
+        volume = compute_cost_volume(left, right, NETWORK_MATCHER, depth)
+        gemm = _gemm_gflops(target, 4096 if target.type == 'cuda' else 1024)
+        gemm_bf16 = _bf16_gemm_gflops(target) if target.type == 'cuda' else None
+        log(f'{gpu_name}: float32 matmul {gemm:.0f} GFLOP/s'
+            + ('' if gemm_bf16 is None else f', bf16 matmul {gemm_bf16:.0f} GFLOP/s'))
+        develop = _develop_scenes(data_root, depth, log) if data_root is not None else []
+        rows: list[tuple[str, str, bool]] = []
+        for name in networks:
+            for precision in precisions:
+                rows.append((name, precision, False))
+                if (channels_last and name == 'exact' and precision != 'fp32'
+                        and target.type == 'cuda'):
+                    rows.append((name, precision, True))
+        records = []
+        for name, precision, layout in rows:
+            net, note = nets[name]
+            config = f'{name}:{precision}' + ('+cl' if layout else '')
+            log(f'measuring {config} …')
+            evaluator = SparseEvaluator(net, target, tile_budget_mb=1e9, precision=precision,
+                                        path='tile')
+            if layout:
+                # torch's stubs of Module.to omit memory_format, which it accepts at run time.
+                evaluator.net = evaluator.net.to(  # type: ignore[call-overload]
+                    memory_format=torch.channels_last_3d
+                )
+            padded = torch.from_numpy(pad_cost_volume(volume)).to(target)[None, None]
+            if layout:
+                padded = padded.contiguous(memory_format=torch.channels_last_3d)
 
-        def network_only(padded: torch.Tensor = padded, evaluator: Any = evaluator,
-                         precision: str = precision) -> None:
-            with torch.inference_mode(), precision_context(target, precision):
-                evaluator.net(padded)
+            def network_only(padded: torch.Tensor = padded, evaluator: Any = evaluator,
+                             precision: str = precision) -> None:
+                with torch.inference_mode(), precision_context(target, precision):
+                    evaluator.net(padded)
 
-        for _ in range(warmup):
-            evaluator(volume)
-            network_only()
-        if target.type == 'cuda':
-            torch.cuda.synchronize(target)
-            torch.cuda.reset_peak_memory_stats(target)
-        walls = []
-        for _ in range(settings.repeat):
-            start = time.perf_counter()
-            evaluator(volume)
-            walls.append(time.perf_counter() - start)
-        gpu = statistics.median(timer(network_only) for _ in range(settings.repeat))
-        peak = (torch.cuda.max_memory_allocated(target) / 2**20
-                if target.type == 'cuda' else None)
-        flops = evaluator._flops('tile', settings.height, settings.width)
-        auc = None
-        if develop and note is None:
-            aucs = []
-            for scene in develop:
-                confidence = evaluator(scene['volume'])[scene['known']]
-                aucs.append(roc_auc(confidence, scene['wrong']))
-            auc = float(np.mean(aucs))
-        record: dict[str, Any] = {
-            'config': config,
-            'device': target.type,
-            'gpu_name': gpu_name,
-            'width': settings.width,
-            'height': settings.height,
-            'max_disparity': depth,
-            'ms_per_frame': statistics.median(walls) * 1e3,
-            'gpu_ms': gpu * 1e3,
-            'network_gflops': flops / gpu / 1e9,
-            'gemm_gflops': gemm,
-            'gemm_bf16_gflops': gemm_bf16,
-            'peak_mem_mb': peak,
-            'auc': auc,
-            'auc_rel': None,  # filled in below, once the reference row has been measured
-            'arch': GPU_NETWORKS[name],
-            'precision': precision,
-            'channels_last': layout,
-        }
-        if note is not None:
-            record['note'] = note
-        log(f"  {config}: {record['ms_per_frame']:.1f} ms/frame, network {gpu * 1e3:.2f} ms "
-            f"= {record['network_gflops'] / 1e3:.1f} TFLOP/s"
-            + ('' if auc is None else f', AUC {auc:.4f}'))
-        records.append(record)
-        del evaluator, padded
-        if target.type == 'cuda':
-            torch.cuda.empty_cache()
-    if develop and not _fill_auc_rel(records):
-        log(f'auc_rel left empty: it needs the {_REFERENCE} row (--networks exact '
-            '--precisions fp32) with shipped weights')
-    return records
+            for _ in range(warmup):
+                evaluator(volume)
+                network_only()
+            if target.type == 'cuda':
+                torch.cuda.synchronize(target)
+                torch.cuda.reset_peak_memory_stats(target)
+            walls = []
+            for _ in range(settings.repeat):
+                start = time.perf_counter()
+                evaluator(volume)
+                walls.append(time.perf_counter() - start)
+            gpu = statistics.median(timer(network_only) for _ in range(settings.repeat))
+            peak = (torch.cuda.max_memory_allocated(target) / 2**20
+                    if target.type == 'cuda' else None)
+            flops = evaluator._flops('tile', settings.height, settings.width)
+            auc = None
+            if develop and note is None:
+                aucs = []
+                for scene in develop:
+                    confidence = evaluator(scene['volume'])[scene['known']]
+                    aucs.append(roc_auc(confidence, scene['wrong']))
+                auc = float(np.mean(aucs))
+            record: dict[str, Any] = {
+                'config': config,
+                'device': target.type,
+                'gpu_name': gpu_name,
+                'width': settings.width,
+                'height': settings.height,
+                'max_disparity': depth,
+                'ms_per_frame': statistics.median(walls) * 1e3,
+                'gpu_ms': gpu * 1e3,
+                'network_gflops': flops / gpu / 1e9,
+                'gemm_gflops': gemm,
+                'gemm_bf16_gflops': gemm_bf16,
+                'peak_mem_mb': peak,
+                'auc': auc,
+                'auc_rel': None,  # filled in below, once the reference row has been measured
+                'arch': GPU_NETWORKS[name],
+                'precision': precision,
+                'channels_last': layout,
+            }
+            if note is not None:
+                record['note'] = note
+            log(f"  {config}: {record['ms_per_frame']:.1f} ms/frame, network {gpu * 1e3:.2f} ms "
+                f"= {record['network_gflops'] / 1e3:.1f} TFLOP/s"
+                + ('' if auc is None else f', AUC {auc:.4f}'))
+            records.append(record)
+            del evaluator, padded
+            if target.type == 'cuda':
+                torch.cuda.empty_cache()
+        if develop and not _fill_auc_rel(records):
+            log(f'auc_rel left empty: it needs the {_REFERENCE} row (--networks exact '
+                '--precisions fp32) with shipped weights')
+        return records
 
 
 def _fill_auc_rel(records: Sequence[dict[str, Any]]) -> bool:
