@@ -68,6 +68,11 @@ import numpy as np
 from cva_confidence_ros.benchmark import RECORD_KEYS as MATCHER_RECORD_KEYS
 from cva_confidence_ros.benchmark import BenchSettings, host_summary, make_pairs, memory_kb
 from cva_confidence_ros.errors import ConfigError, CVAError, ModelError
+from cva_confidence_ros.ros.dds_profile import (  # noqa: F401 (the profile, for callers)
+    FASTDDS_LARGE_MESSAGES_XML,
+    profile_environment,
+    write_profile,
+)
 
 __all__ = [
     'BASE_METHOD',
@@ -112,37 +117,7 @@ _LARGE_SHM = 'large-shm'
 _INHERIT = 'inherit'
 #: A ROS parameter name as ``--param`` takes it.
 _PARAM_NAME = re.compile(r'[A-Za-z][A-Za-z0-9_.]*')
-# Fast DDS 2.x (ROS 2 Jazzy) reads the first, Fast DDS 3 the second.
 
-#: Fast DDS profile for image-sized messages on one host: a 16 MB shared-memory segment per
-#: participant instead of the stock 512 kB. With the stock segment, the four ~1 MB messages of
-#: one 640×480 frame do not all fit; the ones that miss are repaired only at the writer's next
-#: heartbeat (every 3 s), and most frames then take 3 s instead of a tenth of that.
-FASTDDS_LARGE_MESSAGES_XML = """\
-<?xml version="1.0" encoding="UTF-8" ?>
-<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
-  <transport_descriptors>
-    <transport_descriptor>
-      <transport_id>shm_large_messages</transport_id>
-      <type>SHM</type>
-      <segment_size>16777216</segment_size>
-    </transport_descriptor>
-    <transport_descriptor>
-      <transport_id>udp</transport_id>
-      <type>UDPv4</type>
-    </transport_descriptor>
-  </transport_descriptors>
-  <participant profile_name="cva_large_messages" is_default_profile="true">
-    <rtps>
-      <userTransports>
-        <transport_id>shm_large_messages</transport_id>
-        <transport_id>udp</transport_id>
-      </userTransports>
-      <useBuiltinTransports>false</useBuiltinTransports>
-    </rtps>
-  </participant>
-</profiles>
-"""
 
 
 @dataclass(frozen=True)
@@ -758,9 +733,7 @@ def measure_node(
     stamps = stamps or _stamps()
     dds_env = {'ROS_DOMAIN_ID': str(settings.domain), 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
     if dds_profile_file:
-        from cva_confidence_ros.ros.common import PROFILE_VARIABLES
-
-        dds_env.update({name: dds_profile_file for name in PROFILE_VARIABLES})
+        dds_env.update(profile_environment(dds_profile_file))
     env = {**_package_env(settings.threads), **dds_env}
     # The client's participant reads these when its context starts (Fast DDS loads the XML
     # profiles once per process, at its first participant).
@@ -1185,8 +1158,7 @@ def run_suite(
     with tempfile.TemporaryDirectory(prefix='cva_node_bench_') as folder:
         profile = None if settings.dds_profile == _INHERIT else settings.dds_profile
         if settings.dds_profile == _LARGE_SHM:
-            profile = str(Path(folder) / 'fastdds_large_messages.xml')
-            Path(profile).write_text(FASTDDS_LARGE_MESSAGES_XML, encoding='utf-8')
+            profile = str(write_profile(folder))
 
         def measure(method: str, model_path: str = '') -> dict[str, Any]:
             return measure_node(settings, matcher, method, pair, stamps, model_path, profile)

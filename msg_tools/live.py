@@ -28,6 +28,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from typing import Any, cast
@@ -405,29 +406,72 @@ def run_live(
         preload()
         plan = plan_topics(bag, options, log)
         interrupts.check()
-        node = None
         check_output_bag_folder(options.out)  # before the old report goes
         if options.overwrite:
             clear_report(options.report)  # the files of an earlier report, node.log too
-        if options.start_node:
-            node = NodeProcess(
-                options, Path(options.report) / 'node.log', plan.image_transport
-            ).start()
-            log(f'started cva-node (log {node.log_path})')
-        player = None
+        with _large_messages_profile(options.start_node, log):
+            return _run_with_node(bag, plan, options, log, interrupts)
+
+
+@contextmanager
+def _large_messages_profile(start_node: bool, log: Logger) -> Iterator[None]:
+    """While no Fast DDS profile is set and the replay starts its own node: the large-message
+    profile for this process's participant and the node's (both read it at their first).
+
+    Without it an image over Fast DDS's 512 kB shared-memory segment (a 640×480 colour one)
+    goes by UDP in fragments, and the node's best-effort input loses it at one lost fragment.
+    A node already running (``--no-start-node``) keeps its own settings: they are left alone.
+    """
+    from cva_confidence_ros.ros.common import large_messages_unset
+    from cva_confidence_ros.ros.dds_profile import profile_environment, write_profile
+
+    if not (start_node and large_messages_unset()):
+        yield
+        return
+    with tempfile.TemporaryDirectory(prefix='cva_replay_dds_') as folder:
+        variables = profile_environment(write_profile(folder))
+        previous = {name: os.environ.get(name) for name in variables}
+        os.environ.update(variables)
+        log('no Fast DDS profile set: this replay and its node use the large-message one '
+            '(config/fastdds_large_messages.xml)')
         try:
-            player = _Player(plan, options, reliable_outputs=node is not None)
-            _wait_for_node(player, node, options, log, interrupts)
-            return _play(bag, plan, player, node, options, log, interrupts)
+            yield
         finally:
-            # A second Ctrl-C must not cut the clean-up short (and leave the node running).
-            with _signals_ignored():
-                if player is not None:
-                    player.close()
-                if node is not None:
-                    code = node.stop()
-                    if code not in (0, None):
-                        log(f'cva-node exited with code {code}: {node.last_lines()}')
+            for name, value in previous.items():
+                if value is None:
+                    os.environ.pop(name, None)
+                else:
+                    os.environ[name] = value
+
+
+def _run_with_node(
+    bag: InputBag,
+    plan: TopicPlan,
+    options: ReplayOptions,
+    log: Logger,
+    interrupts: GracefulInterrupt,
+) -> ReplayOutcome:
+    """Start the node (unless one runs), connect, play and record; stop the node after."""
+    node = None
+    if options.start_node:
+        node = NodeProcess(
+            options, Path(options.report) / 'node.log', plan.image_transport
+        ).start()
+        log(f'started cva-node (log {node.log_path})')
+    player = None
+    try:
+        player = _Player(plan, options, reliable_outputs=node is not None)
+        _wait_for_node(player, node, options, log, interrupts)
+        return _play(bag, plan, player, node, options, log, interrupts)
+    finally:
+        # A second Ctrl-C must not cut the clean-up short (and leave the node running).
+        with _signals_ignored():
+            if player is not None:
+                player.close()
+            if node is not None:
+                code = node.stop()
+                if code not in (0, None):
+                    log(f'cva-node exited with code {code}: {node.last_lines()}')
 
 
 @contextmanager

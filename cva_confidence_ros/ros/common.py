@@ -49,6 +49,7 @@ from rclpy.utilities import remove_ros_args
 
 from cva_confidence_ros.errors import ConfigError, CVAError, reason
 from cva_confidence_ros.ros import interrupt
+from cva_confidence_ros.ros.dds_profile import PROFILE_VARIABLES
 
 __all__ = [
     'EXIT_BAD_START',
@@ -179,8 +180,6 @@ def warn_unknown_parameters(node: Node) -> list[str]:
     return unknown
 
 
-#: The environment variables Fast DDS reads its XML profile file from (old and new name).
-PROFILE_VARIABLES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
 #: What a message about images that never arrive adds while no profile is set.
 LARGE_MESSAGES_HINT = (
     'images over 512 kB (640×480 colour) are lost on the way by Fast DDS without '
