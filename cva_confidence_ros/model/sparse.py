@@ -268,7 +268,9 @@ class SparseEvaluator:
         net: A :class:`CVANet` (folded here), a :class:`FoldedCVANet`, or any module with its
             contract ((B, 1, D, H + 12, W + 12) → (B, H, W) probabilities and a
             ``max_disparity`` attribute). Modules that also have ``fusion_features`` and
-            ``head_logits`` can fuse densely and classify sparsely.
+            ``head_logits`` can fuse densely and classify sparsely. The evaluator runs its
+            own copy (folded, or copied as it is): ``net`` is left on its device and in its
+            mode, and later changes to its weights do not reach the evaluator.
         device: ``'cpu'``, ``'cuda'`` or ``'auto'``.
         tile_budget_mb: Memory budget of one tile's activations, megabytes.
         precision: ``fp32``, ``bf16`` or ``fp16`` (CUDA).
@@ -291,13 +293,17 @@ class SparseEvaluator:
         path: str = 'auto',
         backend: str = 'torch',
     ) -> None:
-        net = _unwrap(net)
+        given = net = _unwrap(net)
         if isinstance(net, CVANet):
             net = fold_batchnorm(net)
         elif not getattr(net, 'is_folded', False) and callable(
             getattr(net, 'fold_batchnorm', None)
         ):
             net = cast('Callable[[], nn.Module]', net.fold_batchnorm)()  # e.g. CVA-Net-Lite
+        if net is given and isinstance(net, nn.Module):
+            # An inference copy, as folding makes one: moving the caller's module to the
+            # device and switching it to eval mode would change it under the caller's feet.
+            net = copy.deepcopy(net)
         if not isinstance(getattr(net, 'max_disparity', None), int):
             raise ConfigError(
                 f'expected a cost-volume network with an integer max_disparity; '

@@ -354,3 +354,16 @@ def test_real_sparse_run_matches_the_lookup(scene):
     )
     np.testing.assert_allclose(real.confidence, lookup.confidence, atol=1e-4, rtol=0)
     np.testing.assert_array_equal(real.evaluated, lookup.evaluated)
+
+
+def test_the_evaluator_leaves_the_callers_module_as_it_was() -> None:
+    torch.manual_seed(0)
+    folded = fold_batchnorm(CVANet(max_disparity=16).eval())
+    folded.train()  # e.g. a module the caller goes on training
+    evaluator = SparseEvaluator(folded)
+    # Before: the caller's module was switched to eval mode (and moved to the device).
+    assert folded.training
+    assert evaluator.net is not folded and not evaluator.net.training
+    volume = np.random.default_rng(0).random((16, 9, 11), dtype=np.float32)
+    expected = predict_confidence(folded.eval(), volume)
+    np.testing.assert_allclose(evaluator(volume), expected, atol=1e-5)
