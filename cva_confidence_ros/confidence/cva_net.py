@@ -21,7 +21,7 @@ from cva_confidence_ros.confidence.base import (
     ConfidenceInputs,
     ConfidenceMethod,
 )
-from cva_confidence_ros.errors import ConfigError, InputError
+from cva_confidence_ros.errors import ConfigError, InputError, ModelError
 from cva_confidence_ros.model import (
     SparseConfig,
     SparseEvaluator,
@@ -112,6 +112,12 @@ class CVANetConfidence(ConfidenceMethod):
             if weights
             else default_weights_path(matcher, self.max_disparity, self.arch)
         )
+        if weights and path.is_dir():
+            # Path('') is the current folder, not "no path": say how to get the shipped ones.
+            raise ModelError(
+                f'weights {os.fspath(weights)!r} is a folder ({path.resolve()}), not a weights '
+                f"file; None or '' selects the shipped weights"
+            )
         net, self.meta = load_weights(
             path,
             matcher=matcher,

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
 
 from cva_confidence_ros.confidence import CONFIDENCE_METHODS, ConfidenceInputs, compute_confidence
+from cva_confidence_ros.confidence.cva_net import CVANetConfidence
 from cva_confidence_ros.errors import ConfigError, InputError, ModelError
 from cva_confidence_ros.model import CVANet, predict_confidence, save_weights
 
@@ -133,3 +136,11 @@ def test_sparse_options_through_the_pipeline_config(weights):
     if not torch.cuda.is_available():
         with pytest.raises(ConfigError, match='fp16'):
             StereoPipeline(config.replace(cva_precision='fp16'))
+
+
+def test_a_folder_as_weights_says_how_to_get_the_shipped_ones(tmp_path) -> None:
+    # Path('') is Path('.'): a folder, where None or '' would have meant the shipped weights.
+    with pytest.raises(ModelError, match=r"weights '\.' is a folder .*None or '' selects"):
+        CVANetConfidence(max_disparity=64, weights=Path(''))
+    with pytest.raises(ModelError, match='is a folder'):
+        CVANetConfidence(max_disparity=64, weights=tmp_path)
