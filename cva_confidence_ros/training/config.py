@@ -67,8 +67,9 @@ def check_training_datasets(
     develop data sets and the data sets that are develop scenes (``motorcycle``).
 
     Raises:
-        ConfigError: An unknown data set or split, or a develop one (or a develop scene) to
-            train on.
+        ConfigError: An unknown data set or split, a develop one (or a develop scene) to
+            train on, or scenes given twice (``kitti2012,kitti2012``, or ``name`` and
+            ``name:split`` of a data set whose splits are disjoint).
     """
     from cva_confidence_ros.datasets import DATASETS, DEVELOP_DATASETS
 
@@ -88,8 +89,24 @@ def check_training_datasets(
                 'mean nothing'
             )
     # A split the data set lacks is refused now, not once the training data are prepared.
-    for name, split in parsed:
-        DATASETS.get(name).resolve_split(split)
+    resolved = [(name, DATASETS.get(name).resolve_split(split)) for name, split in parsed]
+    given = [f'{name}:{split}' if split else name for name, split in parsed]
+    for index, (name, split) in enumerate(resolved):
+        for before, (other, other_split) in enumerate(resolved[:index]):
+            # The same scenes twice (sizes of the same scenes, e.g. trainingQ and trainingH,
+            # are a choice: each size is its own sample).
+            if other == name and (
+                split == other_split
+                or (name in DISJOINT_SPLITS and None in (split, other_split))
+            ):
+                twice = (
+                    f'{given[index]} is given twice'
+                    if given[index] == given[before]
+                    else f'{given[index]} and {given[before]} hold the same scenes'
+                )
+                raise ConfigError(
+                    f'{twice}: they would count twice; give each data set (and split) once'
+                )
     return parsed
 
 

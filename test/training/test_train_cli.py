@@ -291,6 +291,25 @@ def test_disjoint_splits_may_train_and_validate():
 
 
 @pytest.mark.parametrize(
+    ('specs', 'message'),
+    [
+        (('kitti2012', 'eth3d', 'kitti2012'), 'kitti2012 is given twice'),
+        (('kitti2012', 'kitti2012:training'), 'kitti2012:training and kitti2012 hold the same'),
+        (('flyingthings3d:TRAIN', 'flyingthings3d'), 'flyingthings3d and flyingthings3d:TRAIN'),
+    ],
+)
+def test_scenes_given_twice_are_refused(specs, message):
+    # Before: each scene of a data set given twice was prepared and trained on twice as often.
+    with pytest.raises(ConfigError, match=message):
+        TrainConfig(data_root='/nonexistent', datasets=specs)
+    with pytest.raises(ConfigError, match=message):
+        TrainConfig(data_root='/nonexistent', datasets=('middlebury2005',), val_datasets=specs)
+    # Sizes of the same scenes are a choice (each size its own samples); disjoint splits too.
+    sizes = ('middlebury2006:ThirdSize', 'middlebury2006:HalfSize', 'flyingthings3d:TRAIN')
+    TrainConfig(data_root='/nonexistent', datasets=sizes, val_datasets=('flyingthings3d:TEST',))
+
+
+@pytest.mark.parametrize(
     ('dataset', 'split'), [('middlebury2014', ''), ('motorcycle', ''), ('motorcycle', ':x')]
 )
 def test_develop_data_is_never_trained_on(dataset, split):
