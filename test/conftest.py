@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager, contextmanager
+import resource
+import signal
 
 import numpy as np
 import pytest
@@ -31,3 +34,22 @@ def slanted_pair() -> tuple[np.ndarray, np.ndarray]:
         shift = 3 + (8 * y) // height
         right[y] = texture[y, shift : shift + width]
     return left, right
+
+
+@contextmanager
+def _file_size_limit(limit: int) -> Iterator[None]:
+    old_limit = resource.getrlimit(resource.RLIMIT_FSIZE)
+    old_handler = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (limit, old_limit[1]))
+    try:
+        yield
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, old_limit)
+        signal.signal(signal.SIGXFSZ, old_handler)
+
+
+@pytest.fixture
+def file_size_limit() -> Callable[[int], AbstractContextManager[None]]:
+    """``with file_size_limit(n):`` files may grow to ``n`` bytes only: a write past it fails
+    (EFBIG), as on a full disk."""
+    return _file_size_limit

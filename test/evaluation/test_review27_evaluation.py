@@ -2,11 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
 import json
-import resource
-import signal
 
 from matplotlib.image import imread
 import numpy as np
@@ -204,28 +200,16 @@ def test_pooled_refuses_a_data_set_named_all() -> None:
     assert list(pooled({alone: one})) == [alone]
 
 
-@contextmanager
-def _file_size_limit(limit: int) -> Iterator[None]:
-    """Files may grow to ``limit`` bytes only: a write past it fails (EFBIG), as on a full
-    disk."""
-    old_limit = resource.getrlimit(resource.RLIMIT_FSIZE)
-    old_handler = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-    resource.setrlimit(resource.RLIMIT_FSIZE, (limit, old_limit[1]))
-    try:
-        yield
-    finally:
-        resource.setrlimit(resource.RLIMIT_FSIZE, old_limit)
-        signal.signal(signal.SIGXFSZ, old_handler)
-
-
-def test_a_records_file_that_cannot_be_written_leaves_the_old_one(tmp_path) -> None:
+def test_a_records_file_that_cannot_be_written_leaves_the_old_one(
+    tmp_path, file_size_limit
+) -> None:
     path = tmp_path / 'records.json'
     write_records([_record()], path)
     before = path.read_bytes()
     many = [_record(scene=f'{index:06d}') for index in range(200)]
     # Before: the old file was truncated to what fitted, and an OSError came out.
     with pytest.raises(DataError, match='cannot write records .*the file there was left as'):
-        with _file_size_limit(len(before) + 1000):
+        with file_size_limit(len(before) + 1000):
             write_records(many, path)
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ['records.json']

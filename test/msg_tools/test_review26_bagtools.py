@@ -4,10 +4,8 @@ its storage, an output bag whose storage file cannot be created, Ctrl-C in
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from pathlib import Path
-import resource
 import signal
 import sqlite3
 from typing import Any
@@ -193,22 +191,10 @@ def test_ctrl_c_during_a_frame_loads_no_further_scene(tmp_path: Path) -> None:
     assert _read_all(tmp_path / 'bag') == 5
 
 
-@contextmanager
-def _file_size_limit(limit: int) -> Iterator[None]:
-    """Files may grow to ``limit`` bytes only: a write past it fails (EFBIG), as on a full
-    disk."""
-    old_limit = resource.getrlimit(resource.RLIMIT_FSIZE)
-    old_handler = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-    resource.setrlimit(resource.RLIMIT_FSIZE, (limit, old_limit[1]))
-    try:
-        yield
-    finally:
-        resource.setrlimit(resource.RLIMIT_FSIZE, old_limit)
-        signal.signal(signal.SIGXFSZ, old_handler)
-
-
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
-def test_a_full_disk_keeps_the_old_bag(tmp_path: Path, storage: str) -> None:
+def test_a_full_disk_keeps_the_old_bag(
+    tmp_path: Path, storage: str, file_size_limit: Callable[[int], Any]
+) -> None:
     path = tmp_path / 'bag'
     with OutputBag(path, storage) as bag:
         _images(bag, '/old', 1)
@@ -217,7 +203,7 @@ def test_a_full_disk_keeps_the_old_bag(tmp_path: Path, storage: str) -> None:
     # replaced by the new one, whose metadata listed messages its storage had rolled back
     # (0 messages), and for MCAP the staging folder was left behind.
     with pytest.raises(BagError, match='output bag .*the old bag was left as it was'):
-        with _file_size_limit(400_000), OutputBag(path, storage, overwrite=True) as bag:
+        with file_size_limit(400_000), OutputBag(path, storage, overwrite=True) as bag:
             for index in range(12):
                 bag.write('/new', IMAGE, big, index)
     with InputBag(path) as old:
@@ -225,6 +211,6 @@ def test_a_full_disk_keeps_the_old_bag(tmp_path: Path, storage: str) -> None:
     assert list(tmp_path.iterdir()) == [path]
     # Without an old bag: an error that says so, not a traceback.
     with pytest.raises(BagError, match=f'output bag {tmp_path / "new"}'):
-        with _file_size_limit(400_000), OutputBag(tmp_path / 'new', storage) as bag:
+        with file_size_limit(400_000), OutputBag(tmp_path / 'new', storage) as bag:
             for index in range(12):
                 bag.write('/new', IMAGE, big, index)
