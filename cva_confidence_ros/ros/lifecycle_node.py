@@ -15,7 +15,12 @@ over the standard transitions (``lifecycle_msgs``):
 * ``deactivate``: unsubscribes; a frame waiting is dropped, a frame in progress finishes
   unpublished; pairing starts afresh on the next activate;
 * ``cleanup``: stops the worker and releases the pipeline, back to *unconfigured*;
-* ``shutdown``: all of the above from any state.
+* ``shutdown``: all of the above from any state, to *finalized*, where no transition is left
+  and the node is only to be destroyed.
+
+In every state :meth:`~ManagedConfidenceNode.stats`, :meth:`~ManagedConfidenceNode.diagnostics`
+and :meth:`~ManagedConfidenceNode.summary` answer; ``pipeline_config`` and ``node_config`` exist
+only while configured (*inactive*, *active*) and raise :class:`NotConfiguredError` otherwise.
 
 ``autostart: true`` (start-up only) configures and activates at once, for use without a
 lifecycle manager.
@@ -26,6 +31,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.context import Context
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
@@ -33,16 +39,34 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from cva_confidence_ros.errors import CVAError
-from cva_confidence_ros.ros.common import QOS_OVERRIDES, run_node, warn_unknown_parameters
-from cva_confidence_ros.ros.confidence_node import NODE_NAME, ConfidenceCore
+from cva_confidence_ros.pipeline import PipelineConfig
+from cva_confidence_ros.ros.common import (
+    QOS_OVERRIDES,
+    diagnostic_status,
+    run_node,
+    warn_unknown_parameters,
+)
+from cva_confidence_ros.ros.confidence_node import NODE_NAME, ConfidenceCore, _Stats
+from cva_confidence_ros.ros.params import NodeConfig
 
-__all__ = ['AUTOSTART', 'ManagedConfidenceNode', 'run']
+__all__ = ['AUTOSTART', 'ManagedConfidenceNode', 'NotConfiguredError', 'run']
 
 #: The managed node's own parameter: configure and activate at start-up.
 AUTOSTART = 'autostart'
 _AUTOSTART_DESCRIPTION = (
     'Configure and activate at start-up, without a lifecycle manager (start-up only).'
 )
+
+# What a node that is not configured can do next, by its lifecycle state.
+_NEXT = {
+    'unconfigured': 'lifecycle transitions: configure, then activate',
+    'finalized': 'shut down, no lifecycle transition left: destroy the node',
+}
+
+
+class NotConfiguredError(CVAError, RuntimeError):
+    """The managed node was asked for what exists only while it is configured (*inactive* or
+    *active*): ``pipeline_config``, ``node_config``."""
 
 
 class ManagedConfidenceNode(ConfidenceCore, LifecycleNode):
@@ -66,6 +90,7 @@ class ManagedConfidenceNode(ConfidenceCore, LifecycleNode):
         )
         try:
             self._init_core()
+            self._stats = _Stats()  # stats() and diagnostics() answer before the first configure
             self.declare_parameter(
                 AUTOSTART,
                 False,
@@ -87,28 +112,92 @@ class ManagedConfidenceNode(ConfidenceCore, LifecycleNode):
             raise
 
     def summary(self) -> str:
-        """One line on the node's state (and, once configured, what it computes)."""
-        state = self._state_machine.current_state[1]
+        """One line on the node's lifecycle state and, configured, what it computes; not
+        configured, what it can do next (*finalized*: nothing, the node is to be destroyed)."""
+        state = self._state_label()
         if not self.configured:
-            return f'{state}; lifecycle transitions: configure, then activate'
+            return f'{state}; {_NEXT.get(state, "not configured")}'
         return f'{state}; {super().summary()}'
+
+    # State-aware views ---------------------------------------------------------------------
+
+    @property
+    def pipeline_config(self) -> PipelineConfig:
+        """The configuration the next frame is processed with.
+
+        Raises:
+            NotConfiguredError: The node is not configured (*unconfigured* — before configure
+                or after cleanup — or *finalized*): there is no pipeline to describe; the
+                values to come are the node's parameters.
+        """
+        with self._lock:
+            if self._pipeline is not None:
+                return self._pipeline_config
+        raise self._not_configured('pipeline_config')
+
+    @property
+    def node_config(self) -> NodeConfig:
+        """The node-side configuration in force.
+
+        Raises:
+            NotConfiguredError: The node is not configured (as :attr:`pipeline_config`).
+        """
+        with self._lock:
+            if self._pipeline is not None:
+                return self._node_config
+        raise self._not_configured('node_config')
+
+    def stats(self) -> dict[str, int]:
+        """Counters of the current configuration (see :meth:`ConfidenceCore.stats`): zero
+        before the first configure; after cleanup or shutdown those of the configuration
+        released, until the next configure starts them afresh."""
+        return super().stats()
+
+    def diagnostics(self) -> DiagnosticStatus:
+        """The node's current ``DiagnosticStatus``.
+
+        Configured (*inactive*, *active*), that of :class:`ConfidenceNode`. Otherwise level
+        ``STALE`` (nothing is processed and no ``/diagnostics`` is published, which a
+        diagnostic aggregator shows as stale too), the lifecycle state and what it can do
+        next as the message, the state (``lifecycle_state``) and :meth:`stats` as values.
+        """
+        if self.configured:
+            return super().diagnostics()
+        state = self._state_label()
+        values: dict[str, object] = {'lifecycle_state': state, **self.stats()}
+        message = f'{state}: not processing ({_NEXT.get(state, "not configured")})'
+        return diagnostic_status(
+            self, 'stereo confidence', DiagnosticStatus.STALE, message, values
+        )
+
+    def _state_label(self) -> str:
+        return str(self._state_machine.current_state[1])
+
+    def _not_configured(self, what: str) -> NotConfiguredError:
+        return NotConfiguredError(
+            f'{what} exists only while the node is configured (inactive or active); it is '
+            f'{self._state_label()}'
+        )
 
     # Transitions --------------------------------------------------------------------------
 
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        before = [*self.publishers, *self.timers]
         try:
             self._configure()
         except CVAError as error:
             # Raised while building the pipeline or the publishers (a bad qos_overrides
-            # value), before anything is kept.
+            # value), before anything is kept; whatever was made is released all the same.
+            self._abandon_configure(before)
             self.get_logger().error(
                 f'configure failed: {error}; still unconfigured (set other parameters and '
                 'configure again)'
             )
             return TransitionCallbackReturn.FAILURE
         except Exception as error:  # noqa: BLE001  (rclpy would turn it into a silent ERROR)
+            self._abandon_configure(before)
             self.get_logger().error(f'configure raised {type(error).__name__}: {error}')
-            return TransitionCallbackReturn.ERROR  # on_error releases what was made
+            return TransitionCallbackReturn.ERROR  # on_error: back to unconfigured
         self.get_logger().info(f'configured: {super().summary()}')
         return super().on_configure(state)
 
@@ -143,6 +232,18 @@ class ManagedConfidenceNode(ConfidenceCore, LifecycleNode):
         if self.configured:
             self._cleanup()
         return TransitionCallbackReturn.SUCCESS
+
+    def _abandon_configure(self, before: list[Any]) -> None:
+        """Release what a configure that raised had made: the pipeline and the worker once
+        kept, and every publisher and timer the node has gained since ``before`` (rclpy
+        records them as they are created; the core's ``_owned`` lists them only at the end, so
+        that one raising before, ``create_timer`` say, left the publishers behind)."""
+        if self.configured:
+            self._cleanup()
+        for timer in [timer for timer in self.timers if timer not in before]:
+            self.destroy_timer(timer)
+        for publisher in [publisher for publisher in self.publishers if publisher not in before]:
+            self.destroy_publisher(publisher)
 
     def destroy_node(self) -> None:
         """Stop the worker and destroy the node, its lifecycle state machine included.
