@@ -20,7 +20,7 @@ import sys
 import time
 from typing import Any
 
-__all__ = ['ask', 'main']
+__all__ = ['ask', 'call', 'main', 'node_name']
 
 EXIT_REFUSED = 1
 EXIT_NO_ANSWER = 2
@@ -55,7 +55,8 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _node_name(name: str) -> str:
+def node_name(name: str) -> str:
+    """``name`` as a fully qualified node name (a leading ``/``)."""
     return name if name.startswith('/') else f'/{name}'
 
 
@@ -90,6 +91,18 @@ def ask(node: Any, client: Any, request: Any, deadline: float) -> Any:
     finally:
         executor.remove_node(node)
         executor.shutdown()
+
+
+def call(node: Any, srv_type: Any, service: str, request: Any, deadline: float) -> Any:
+    """The answer of ``service`` to ``request`` (sent as :func:`ask` sends it), or None when
+    the service or its answer does not come by ``deadline`` (monotonic s)."""
+    client = node.create_client(srv_type, service)
+    try:
+        if not client.wait_for_service(timeout_sec=max(deadline - time.monotonic(), 0.0)):
+            return None
+        return ask(node, client, request, deadline)
+    finally:
+        node.destroy_client(client)
 
 
 def _change_state(
@@ -145,7 +158,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from lifecycle_msgs.srv import ChangeState, GetAvailableTransitions, GetState
     import rclpy
 
-    target = _node_name(args.node)
+    target = node_name(args.node)
     deadline = time.monotonic() + args.timeout
     rclpy.init(args=['cva-lifecycle'])  # the command line is argparse's, not rclpy's
     try:
@@ -207,13 +220,10 @@ def _allowed(node: Any, target: str, deadline: float) -> list[str] | None:
     """
     from lifecycle_msgs.srv import GetAvailableTransitions
 
-    client = node.create_client(
-        GetAvailableTransitions, f'{target}/get_available_transitions'
+    answer = call(
+        node, GetAvailableTransitions, f'{target}/get_available_transitions',
+        GetAvailableTransitions.Request(), max(deadline, time.monotonic() + 1.0),
     )
-    deadline = max(deadline, time.monotonic() + 1.0)
-    if not client.wait_for_service(timeout_sec=max(deadline - time.monotonic(), 0.0)):
-        return None
-    answer = ask(node, client, GetAvailableTransitions.Request(), deadline)
     if answer is None:
         return None
     labels = [item.transition.label for item in answer.available_transitions]

@@ -25,7 +25,7 @@ import sys
 import time
 from typing import Any
 
-from cva_confidence_ros.ros.lifecycle_cli import ask
+from cva_confidence_ros.ros.lifecycle_cli import call, node_name
 
 __all__ = ['main', 'parse_value', 'yaml_scalar']
 
@@ -127,25 +127,10 @@ def yaml_scalar(value: Any) -> str:
     return text.removesuffix('\n').removesuffix('\n...')
 
 
-def _node_name(name: str) -> str:
-    return name if name.startswith('/') else f'/{name}'
-
-
-def _call(node: Any, srv_type: Any, service: str, request: Any, deadline: float) -> Any:
-    """The answer of ``service`` to ``request``, or None when it does not come by ``deadline``."""
-    client = node.create_client(srv_type, service)
-    try:
-        if not client.wait_for_service(timeout_sec=max(deadline - time.monotonic(), 0.0)):
-            return None
-        return ask(node, client, request, deadline)
-    finally:
-        node.destroy_client(client)
-
-
 def _describe(node: Any, target: str, names: list[str], deadline: float) -> list[Any] | None:
     from rcl_interfaces.srv import DescribeParameters
 
-    answer = _call(node, DescribeParameters, f'{target}/describe_parameters',
+    answer = call(node, DescribeParameters, f'{target}/describe_parameters',
                    DescribeParameters.Request(names=names), deadline)
     return None if answer is None else list(answer.descriptors)
 
@@ -167,14 +152,14 @@ def _run(node: Any, args: argparse.Namespace, target: str, deadline: float) -> t
 
     no_answer = (EXIT_NO_ANSWER, '')
     if args.command in ('list', 'dump'):
-        listed = _call(node, ListParameters, f'{target}/list_parameters',
+        listed = call(node, ListParameters, f'{target}/list_parameters',
                        ListParameters.Request(), deadline)
         if listed is None:
             return no_answer
         names = sorted(listed.result.names)
         if args.command == 'list':
             return 0, ''.join(f'  {name}\n' for name in names)
-        got = _call(node, GetParameters, f'{target}/get_parameters',
+        got = call(node, GetParameters, f'{target}/get_parameters',
                     GetParameters.Request(names=names), deadline)
         if got is None:
             return no_answer
@@ -209,7 +194,7 @@ def _run(node: Any, args: argparse.Namespace, target: str, deadline: float) -> t
         lines.append(f'  Read only: {str(descriptor.read_only).lower()}')
         return 0, '\n'.join(lines) + '\n'
     if args.command == 'get':
-        got = _call(node, GetParameters, f'{target}/get_parameters',
+        got = call(node, GetParameters, f'{target}/get_parameters',
                     GetParameters.Request(names=[args.name]), deadline)
         if got is None:
             return no_answer
@@ -217,7 +202,7 @@ def _run(node: Any, args: argparse.Namespace, target: str, deadline: float) -> t
         python = parameter_value_to_python(value)
         return 0, f'{TYPE_NAMES.get(value.type, value.type)} value is: {python}\n'
     parameter = Parameter(name=args.name, value=parse_value(args.value, declared))
-    done = _call(node, SetParameters, f'{target}/set_parameters',
+    done = call(node, SetParameters, f'{target}/set_parameters',
                  SetParameters.Request(parameters=[parameter]), deadline)
     if done is None:
         return no_answer
@@ -244,7 +229,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_NO_ANSWER
     import rclpy
 
-    target = _node_name(args.node)
+    target = node_name(args.node)
     deadline = time.monotonic() + args.timeout
     rclpy.init(args=['cva-param'])  # the command line is argparse's, not rclpy's
     try:
