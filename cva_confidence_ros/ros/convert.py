@@ -34,7 +34,12 @@ from std_msgs.msg import Header
 from stereo_msgs.msg import DisparityImage
 
 from cva_confidence_ros.errors import InputError
-from cva_confidence_ros.pointcloud import CLOUD_CONFIDENCE_DTYPE, CLOUD_DTYPE, StereoGeometry
+from cva_confidence_ros.pointcloud import (
+    CLOUD_CONFIDENCE_DTYPE,
+    CLOUD_DTYPE,
+    FX_TOLERANCE,
+    StereoGeometry,
+)
 from cva_confidence_ros.scan import Scan
 
 __all__ = [
@@ -393,6 +398,10 @@ def camera_info_to_geometry(
 ) -> StereoGeometry:
     """Check that a pair of rectified camera infos fits the images and read the geometry.
 
+    Binning and region of interest are folded in as REP 104 and ``image_geometry`` have them
+    (:func:`_image_projection`), and the two projection matrices must then share fy and cy as
+    well as fx: the rows of a rectified pair correspond, or the matcher compares the wrong ones.
+
     Args:
         left_info: ``CameraInfo`` of the left camera.
         right_info: ``CameraInfo`` of the right camera (``p[3] = −fx·B``).
@@ -403,52 +412,92 @@ def camera_info_to_geometry(
         The stereo geometry at the received resolution.
 
     Raises:
-        InputError: A camera info whose size is not the image's, a degenerate projection
-            matrix, or a baseline ≤ 0.
+        InputError: A camera info whose size (after binning and region of interest) is not
+            the images', a region of interest outside its calibration size, a degenerate
+            projection matrix, fx, fy or cy that differ between left and right, or a
+            baseline ≤ 0.
     """
-    projections = []
-    for side, info in (('left', left_info), ('right', right_info)):
-        size, projection = _image_projection(info, width, height)
-        if size != (width, height):
-            folded = ''
-            if size != (int(info.width), int(info.height)):
-                folded = (
-                    f' (binning {info.binning_x}×{info.binning_y} and region of interest '
-                    f'{info.roi.width}×{info.roi.height} at ({info.roi.x_offset}, '
-                    f'{info.roi.y_offset}) of its {info.width}×{info.height})'
-                )
-            raise InputError(
-                f'{side} camera info must be for {width}×{height} images; '
-                f'got {size[0]}×{size[1]}{folded}'
-            )
-        projections.append(projection)
-    return StereoGeometry.from_projections(*projections)
+    left = _image_projection(left_info, width, height, 'left camera info')
+    right = _image_projection(right_info, width, height, 'right camera info')
+    geometry = StereoGeometry.from_projections(left, right)  # shapes and finite values
+    _check_rows(left, right)
+    return geometry
 
 
-def _image_projection(
-    info: Any, width: int, height: int
-) -> tuple[tuple[int, int], list[float]]:
-    """The size and projection matrix of the images a camera info describes.
+#: Largest difference of cy between the left and right projection matrices, pixels: a
+#: rectified pair has one cy; this only absorbs float and text round-off.
+CY_TOLERANCE_PX = 0.1
 
-    A driver may keep the full-sensor calibration and size in the info and send binned or
-    cropped images (``sensor_msgs/CameraInfo``'s own convention): when the images of
-    ``width`` × ``height`` are not the info's size, its binning and region of interest are
-    folded in as ``image_geometry`` (and so ``stereo_image_proc``) does: the ROI offset moved
-    out of the principal point, then rows 0 and 1 of P divided by the binning. Images of the
-    info's own size take it as it is (drivers that fill the ROI with the valid rectified area).
+
+def _check_rows(p_left: list[float], p_right: list[float]) -> None:
+    """Refuse projection matrices whose rows do not correspond (fy or cy differ)."""
+    fy_left, fy_right = float(p_left[5]), float(p_right[5])
+    if fy_left > 0 and abs(fy_right - fy_left) > FX_TOLERANCE * fy_left:
+        raise InputError(
+            'left and right projection matrices must share fy (a rectified pair); got '
+            f'P_left[1, 1] = {fy_left:g} and P_right[1, 1] = {fy_right:g}'
+        )
+    cy_left, cy_right = float(p_left[6]), float(p_right[6])
+    if abs(cy_right - cy_left) > CY_TOLERANCE_PX:
+        raise InputError(
+            'left and right projection matrices must share cy (a rectified pair: row v of '
+            f'one image is row v of the other); got P_left[1, 2] = {cy_left:g} and '
+            f'P_right[1, 2] = {cy_right:g}'
+        )
+
+
+def _image_projection(info: Any, width: int, height: int, name: str) -> list[float]:
+    """The projection matrix of the ``width`` × ``height`` images a camera info describes.
+
+    REP 104: the info's ``width`` × ``height`` is the calibration (full sensor) size, ``roi``
+    the window of it that was read (all zeros = the whole), ``binning_x`` × ``binning_y``
+    the binning of that window (0 and 1 = none); the images are the window divided by the
+    binning. So P is folded as ``image_geometry`` (and so ``stereo_image_proc``) folds it:
+    the ROI offset moved out of the principal point, then rows 0 and 1 divided by the
+    binning. ``roi.do_rectify`` does not change that (``image_geometry`` shifts P by the raw
+    ROI either way).
+
+    An info whose binning or ROI describe images of another size than those that came is
+    refused, images of its own calibration size included: there the info says binned or
+    cropped while the images are not, and neither reading is safe (the ROI-offset shift or
+    the binning would move every triangulated point).
+
+    Raises:
+        InputError: The images are not the size the info describes, or the ROI does not lie
+            within the calibration size; ``name`` says whose info.
     """
     full_w, full_h = int(info.width), int(info.height)
-    if (full_w, full_h) == (width, height):
-        return (full_w, full_h), list(info.p)
     binning_x, binning_y = max(int(info.binning_x), 1), max(int(info.binning_y), 1)
     roi = info.roi
     x0, y0 = int(roi.x_offset), int(roi.y_offset)
     crop_w = int(roi.width) if int(roi.width) > 0 else full_w - x0
     crop_h = int(roi.height) if int(roi.height) > 0 else full_h - y0
     if (binning_x, binning_y, x0, y0, crop_w, crop_h) == (1, 1, 0, 0, full_w, full_h):
-        return (full_w, full_h), list(info.p)
-    p = _folded(np.array(info.p, dtype=np.float64).reshape(3, 4), info)
-    return (crop_w // binning_x, crop_h // binning_y), p.ravel().tolist()
+        if (full_w, full_h) != (width, height):
+            raise InputError(
+                f'{name} must be for {width}×{height} images; got {full_w}×{full_h}'
+            )
+        return list(info.p)
+    if crop_w <= 0 or crop_h <= 0 or x0 + crop_w > full_w or y0 + crop_h > full_h:
+        raise InputError(
+            f'{name}: roi {int(roi.width)}×{int(roi.height)} at ({x0}, {y0}) must lie within '
+            f'its calibration size {full_w}×{full_h} (REP 104)'
+        )
+    size = (crop_w // binning_x, crop_h // binning_y)
+    if size != (width, height):
+        folded = (
+            f' (binning {info.binning_x}×{info.binning_y} and region of interest '
+            f'{roi.width}×{roi.height} at ({x0}, {y0}) of its {full_w}×{full_h})'
+        )
+        if (width, height) == (full_w, full_h):
+            folded += (
+                '; images of the calibration size itself must come with binning_x and '
+                'binning_y 0 or 1 and an empty roi (REP 104)'
+            )
+        raise InputError(
+            f'{name} must be for {width}×{height} images; got {size[0]}×{size[1]}{folded}'
+        )
+    return _folded(np.array(info.p, dtype=np.float64).reshape(3, 4), info).ravel().tolist()
 
 
 def _folded(matrix: np.ndarray, info: Any) -> np.ndarray:
@@ -465,15 +514,20 @@ def image_camera_info(info: Any, width: int, height: int) -> CameraInfo:
     """A camera info for the ``width`` × ``height`` images as they arrive: binning and region
     of interest folded into the size, K and P (:func:`camera_info_to_geometry`'s rule), binning
     1 and no ROI, no header (:func:`scale_camera_info` gives the output's); the message
-    itself when the images have its size. For consumers of the outputs, which have the images'
-    size. Reads rclpy and ``rosbags`` messages alike."""
-    size, projection = _image_projection(info, width, height)
-    if size == (int(info.width), int(info.height)):
-        return info
+    itself when it has neither binning nor ROI. For consumers of the outputs, which have the
+    images' size. Reads rclpy and ``rosbags`` messages alike.
+
+    Raises:
+        InputError: An info that does not describe images of that size (as
+            :func:`camera_info_to_geometry`).
+    """
+    projection = _image_projection(info, width, height, 'camera info')
+    if (int(info.width), int(info.height)) == (width, height):
+        return info  # neither binning nor ROI: _image_projection refuses them at this size
     k = _folded(np.array(info.k, dtype=np.float64).reshape(3, 3), info)
     return CameraInfo(
-        width=size[0],
-        height=size[1],
+        width=width,
+        height=height,
         distortion_model=info.distortion_model,
         d=list(info.d),
         k=k.ravel().tolist(),
@@ -497,7 +551,8 @@ def stereo_pair_from_messages(
 
     Raises:
         InputError: Unknown encoding, images of different sizes or bit depths, or camera
-            infos that do not fit them.
+            infos that do not fit them or are not a rectified pair
+            (:func:`camera_info_to_geometry`).
     """
     left = image_to_array(left_msg, 'left image')
     right = image_to_array(right_msg, 'right image')

@@ -125,6 +125,12 @@ class NodeConfig:
     compressed_depth_png_level: int = 3
 
     def __post_init__(self) -> None:
+        # A quoted YAML 'false' or a 0/1 would pass for a switch (truthy) or fail later, in
+        # the synchroniser; the switches take booleans only, as PipelineConfig's do.
+        for item in fields(self):
+            value = getattr(self, item.name)
+            if isinstance(item.default, bool) and not isinstance(value, bool):
+                raise ConfigError(f'{item.name} must be True or False; got {value!r}')
         if self.depth_encoding not in DEPTH_ENCODINGS:
             raise ConfigError(
                 f'depth_encoding must be one of {DEPTH_ENCODINGS}; got {self.depth_encoding!r}'
