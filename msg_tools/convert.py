@@ -238,13 +238,16 @@ def disparity_from_msg(msg: Any, offset: float = 0.0, what: str = 'disparity') -
     return values
 
 
-def camera_geometry(left_info: Any, right_info: Any) -> tuple[StereoGeometry, int, int]:
+def camera_geometry(
+    left_info: Any, right_info: Any, image_size: tuple[int, int] | None = None
+) -> tuple[StereoGeometry, int, int]:
     """Read the rectified stereo geometry from the left and right ``CameraInfo`` messages.
 
     Binning and region of interest are folded in as REP 104 and ``image_geometry`` (and the
     node, ``ros.convert.camera_info_to_geometry``) have them: the images are the ROI of the
     calibration size divided by the binning, the ROI offset is moved out of the principal
-    point and rows 0 and 1 of P are divided by the binning.
+    point and rows 0 and 1 of P are divided by the binning. As the node does, images known
+    (``image_size`` = (width, height)) to have the calibration size take P as it is.
 
     Returns:
         ``(geometry, width, height)``: intrinsics and baseline from the projection matrices
@@ -256,8 +259,8 @@ def camera_geometry(left_info: Any, right_info: Any) -> tuple[StereoGeometry, in
             rectified pair), or a right projection without a positive baseline
             (P_right[0, 3] must be −fx·B < 0).
     """
-    size_left, p_left = _image_projection(left_info, 'left')
-    size_right, p_right = _image_projection(right_info, 'right')
+    size_left, p_left = _image_projection(left_info, 'left', image_size)
+    size_right, p_right = _image_projection(right_info, 'right', image_size)
     if size_left != size_right:
         raise InputError(
             f'left and right camera infos must declare the same size; got {size_left[0]}×'
@@ -278,9 +281,13 @@ def camera_geometry(left_info: Any, right_info: Any) -> tuple[StereoGeometry, in
     return geometry, size_left[0], size_left[1]
 
 
-def _image_projection(info: Any, side: str) -> tuple[tuple[int, int], np.ndarray]:
+def _image_projection(
+    info: Any, side: str, image_size: tuple[int, int] | None
+) -> tuple[tuple[int, int], np.ndarray]:
     """``((width, height), P)`` of the images a camera info describes (REP 104)."""
     full_w, full_h = int(info.width), int(info.height)
+    if image_size is not None and tuple(image_size) == (full_w, full_h):
+        return (full_w, full_h), np.array(info.p, dtype=np.float64).reshape(3, 4)
     binning_x, binning_y = max(int(info.binning_x), 1), max(int(info.binning_y), 1)
     roi = info.roi
     x0, y0 = int(roi.x_offset), int(roi.y_offset)

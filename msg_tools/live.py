@@ -614,8 +614,11 @@ class _Recorder:
             items=dict(matched.items),
         )
         try:
+            left = matched.items['left']
+            size = getattr(left, 'width', None), getattr(left, 'height', None)
             geometry, width, height = camera_geometry(
-                matched.items['left_info'], matched.items['right_info']
+                matched.items['left_info'], matched.items['right_info'],
+                None if None in size else size,  # a compressed image: decoded by the node
             )
             pending.geometry, pending.size = geometry, (height, width)
         except InputError:

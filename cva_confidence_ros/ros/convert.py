@@ -457,10 +457,11 @@ def _image_projection(info: Any, width: int, height: int, name: str) -> list[flo
     binning. ``roi.do_rectify`` does not change that (``image_geometry`` shifts P by the raw
     ROI either way).
 
-    An info whose binning or ROI describe images of another size than those that came is
-    refused, images of its own calibration size included: there the info says binned or
-    cropped while the images are not, and neither reading is safe (the ROI-offset shift or
-    the binning would move every triangulated point).
+    Images of the info's own calibration size take P as it is, whatever binning and ROI
+    say: P is always for the full resolution (REP 104), so that reading is right either way,
+    and drivers that fill the ROI with the valid rectified area of full-size images keep
+    working (``image_geometry`` would shift their points by the ROI offset). Any other size
+    must be the one binning and ROI describe.
 
     Raises:
         InputError: The images are not the size the info describes, or the ROI does not lie
@@ -472,12 +473,10 @@ def _image_projection(info: Any, width: int, height: int, name: str) -> list[flo
     x0, y0 = int(roi.x_offset), int(roi.y_offset)
     crop_w = int(roi.width) if int(roi.width) > 0 else full_w - x0
     crop_h = int(roi.height) if int(roi.height) > 0 else full_h - y0
-    if (binning_x, binning_y, x0, y0, crop_w, crop_h) == (1, 1, 0, 0, full_w, full_h):
-        if (full_w, full_h) != (width, height):
-            raise InputError(
-                f'{name} must be for {width}×{height} images; got {full_w}×{full_h}'
-            )
+    if (full_w, full_h) == (width, height):
         return list(info.p)
+    if (binning_x, binning_y, x0, y0, crop_w, crop_h) == (1, 1, 0, 0, full_w, full_h):
+        raise InputError(f'{name} must be for {width}×{height} images; got {full_w}×{full_h}')
     if crop_w <= 0 or crop_h <= 0 or x0 + crop_w > full_w or y0 + crop_h > full_h:
         raise InputError(
             f'{name}: roi {int(roi.width)}×{int(roi.height)} at ({x0}, {y0}) must lie within '
@@ -489,11 +488,6 @@ def _image_projection(info: Any, width: int, height: int, name: str) -> list[flo
             f' (binning {info.binning_x}×{info.binning_y} and region of interest '
             f'{roi.width}×{roi.height} at ({x0}, {y0}) of its {full_w}×{full_h})'
         )
-        if (width, height) == (full_w, full_h):
-            folded += (
-                '; images of the calibration size itself must come with binning_x and '
-                'binning_y 0 or 1 and an empty roi (REP 104)'
-            )
         raise InputError(
             f'{name} must be for {width}×{height} images; got {size[0]}×{size[1]}{folded}'
         )
@@ -514,8 +508,8 @@ def image_camera_info(info: Any, width: int, height: int) -> CameraInfo:
     """A camera info for the ``width`` × ``height`` images as they arrive: binning and region
     of interest folded into the size, K and P (:func:`camera_info_to_geometry`'s rule), binning
     1 and no ROI, no header (:func:`scale_camera_info` gives the output's); the message
-    itself when it has neither binning nor ROI. For consumers of the outputs, which have the
-    images' size. Reads rclpy and ``rosbags`` messages alike.
+    itself when the images have its calibration size. For consumers of the outputs, which
+    have the images' size. Reads rclpy and ``rosbags`` messages alike.
 
     Raises:
         InputError: An info that does not describe images of that size (as
@@ -523,7 +517,7 @@ def image_camera_info(info: Any, width: int, height: int) -> CameraInfo:
     """
     projection = _image_projection(info, width, height, 'camera info')
     if (int(info.width), int(info.height)) == (width, height):
-        return info  # neither binning nor ROI: _image_projection refuses them at this size
+        return info  # P as it is (_image_projection's rule)
     k = _folded(np.array(info.k, dtype=np.float64).reshape(3, 3), info)
     return CameraInfo(
         width=width,

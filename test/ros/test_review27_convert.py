@@ -53,27 +53,48 @@ def test_float_noise_in_fy_and_cy_is_accepted() -> None:
 
 
 @pytest.mark.parametrize(
-    ('change', 'described'),
-    [
-        ({'binning_x': 2}, r'got 48×64 \(binning 2×0 and region of interest 0×0 at \(0, 0\)'),
-        ({'binning_y': 4}, r'got 96×16 \(binning 0×4'),
-        ({'x_offset': 8, 'y_offset': 4, 'width': 48, 'height': 32},
-         r'got 48×32 \(binning 0×0 and region of interest 48×32 at \(8, 4\) of its 96×64\)'),
-        ({'x_offset': 8}, r'got 88×64 \(binning 0×0 and region of interest 0×0 at \(8, 0\)'),
-    ],
+    'change',
+    [{'binning_x': 2}, {'binning_y': 4}, {'x_offset': 8, 'y_offset': 4, 'width': 48, 'height': 32},
+     {'x_offset': 8}],
 )
-def test_binning_or_roi_the_full_size_images_do_not_follow_is_refused(
-    change: dict[str, int], described: str
-) -> None:
-    # 96×64 images with infos of a 96×64 calibration that say they are binned or cropped:
-    # REP 104 would make them smaller; they were read as they were (wrong geometry).
+def test_images_of_the_calibration_size_take_p_as_it_is(change: dict[str, int]) -> None:
+    # P is for the full resolution (REP 104) and the images have it: binning or an ROI (the
+    # valid rectified area, as some drivers fill it) does not move the geometry, in the node
+    # and in the bag tools once they know the image size.
+    plain = stereo_pair_from_messages(*_pair(), *info_msgs(0))[2]
     for side in ('left', 'right'):
         infos = info_msgs(0)
         info = infos[0] if side == 'left' else infos[1]
         for name, value in change.items():
             setattr(info if name.startswith('binning') else info.roi, name, value)
+        assert stereo_pair_from_messages(*_pair(), *infos)[2] == plain
+        assert image_camera_info(info, 96, 64) is info
+        assert camera_geometry(*infos, image_size=(96, 64)) == (plain, 96, 64)
+
+
+@pytest.mark.parametrize(
+    ('change', 'described'),
+    [
+        ({'binning_x': 2}, r'got 96×128 \(binning 2×0 and region of interest 0×0 at \(0, 0\) of '
+                          r'its 192×128\)'),
+        ({'x_offset': 8, 'y_offset': 4, 'width': 48, 'height': 32},
+         r'got 48×32 \(binning 0×0 and region of interest 48×32 at \(8, 4\) of its 192×128\)'),
+    ],
+)
+def test_binning_or_roi_that_the_images_do_not_follow_is_refused(
+    change: dict[str, int], described: str
+) -> None:
+    # 96×64 images, infos of a 192×128 calibration whose binning or ROI give another size.
+    for side in ('left', 'right'):
+        infos = info_msgs(0, height=128, width=192)
+        for info in infos:
+            info.binning_x = info.binning_y = 2
+        info = infos[0] if side == 'left' else infos[1]
+        info.binning_x = info.binning_y = 0
+        for name, value in change.items():
+            setattr(info if name.startswith('binning') else info.roi, name, value)
         with pytest.raises(InputError, match=rf'^{side} camera info must be for 96×64 images; '
-                                             rf'{described}.*\(REP 104\)$'):
+                                             rf'{described}$'):
             stereo_pair_from_messages(*_pair(), *infos)
         with pytest.raises(InputError, match='must be for 96×64 images'):
             image_camera_info(info, 96, 64)

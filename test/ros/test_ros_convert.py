@@ -261,11 +261,11 @@ def test_binning_and_region_of_interest_are_folded_in_as_image_geometry_does() -
     cropped = camera_info_to_geometry(left_info, right_info, 96, 64)
     assert (cropped.fx, cropped.cx, cropped.cy, cropped.cx_right) == (200.0, 46.0, 44.0, 46.0)
     assert cropped.baseline == pytest.approx(0.1)
-    # Images of the info's own size contradict its ROI (REP 104): refused, not read as it is.
-    with pytest.raises(InputError, match=r'must be for 192×128 images; got 96×64 .*REP 104'):
-        camera_info_to_geometry(left_info, right_info, 192, 128)
-    with pytest.raises(InputError, match=r'must be for 192×128 images; got 96×64'):
-        image_camera_info(left_info, 192, 128)
+    # Images of the info's own size take it as it is (P is for the full resolution; drivers
+    # that fill the ROI with the valid rectified area).
+    whole = camera_info_to_geometry(left_info, right_info, 192, 128)
+    assert (whole.cx, whole.cy) == (96.0, 64.0)
+    assert image_camera_info(left_info, 192, 128) is left_info
     with pytest.raises(InputError, match=r'got 96×64 \(binning 0×0 and region of interest '
                                          r'96×64 at \(50, 20\) of its 192×128\)'):
         camera_info_to_geometry(left_info, right_info, 48, 32)
