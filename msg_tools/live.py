@@ -615,10 +615,10 @@ class _Recorder:
         )
         try:
             left = matched.items['left']
-            size = getattr(left, 'width', None), getattr(left, 'height', None)
+            # (A compressed image has no size field: the node decodes it.)
+            size = (int(left.width), int(left.height)) if hasattr(left, 'width') else None
             geometry, width, height = camera_geometry(
-                matched.items['left_info'], matched.items['right_info'],
-                None if None in size else size,  # a compressed image: decoded by the node
+                matched.items['left_info'], matched.items['right_info'], size
             )
             pending.geometry, pending.size = geometry, (height, width)
         except InputError:
