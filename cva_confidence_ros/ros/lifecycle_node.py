@@ -31,7 +31,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.context import Context
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
@@ -156,14 +156,24 @@ class ManagedConfidenceNode(ConfidenceCore, LifecycleNode):
     def diagnostics(self) -> DiagnosticStatus:
         """The node's current ``DiagnosticStatus``.
 
-        Configured (*inactive*, *active*), that of :class:`ConfidenceNode`. Otherwise level
-        ``STALE`` (nothing is processed and no ``/diagnostics`` is published, which a
-        diagnostic aggregator shows as stale too), the lifecycle state and what it can do
-        next as the message, the state (``lifecycle_state``) and :meth:`stats` as values.
+        *Active*, that of :class:`ConfidenceNode`. *Inactive* (configured, published, but not
+        subscribed to the inputs), the same values with the state as the message, not a
+        "processing at 0.0 Hz" that reads as a silent camera; level OK unless what is left of
+        the last active window says otherwise. Not configured, level ``STALE`` (nothing is
+        processed and no ``/diagnostics`` is published, which a diagnostic aggregator shows as
+        stale too), the lifecycle state and what it can do next as the message, the state and
+        :meth:`stats` as values. Every state gives its name as ``lifecycle_state``.
         """
-        if self.configured:
-            return super().diagnostics()
         state = self._state_label()
+        if self.configured:
+            status = super().diagnostics()
+            status.values.append(KeyValue(key='lifecycle_state', value=state))
+            if state == 'inactive' and status.level == DiagnosticStatus.OK:
+                status.message = (
+                    'inactive: configured, not subscribed to the stereo inputs (activate to '
+                    'process)'
+                )
+            return status
         values: dict[str, object] = {'lifecycle_state': state, **self.stats()}
         message = f'{state}: not processing ({_NEXT.get(state, "not configured")})'
         return diagnostic_status(

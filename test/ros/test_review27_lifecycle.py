@@ -152,3 +152,23 @@ def test_a_configure_that_raises_half_way_leaves_no_publisher_or_timer_behind(
     node.trigger_cleanup()
     assert list(node.publishers) == publishers
     assert list(node.timers) == timers
+
+
+def test_an_inactive_node_says_so_in_its_diagnostics(node: ManagedConfidenceNode) -> None:
+    # Configured but not subscribed, /diagnostics said 'processing at 0.0 Hz' (OK), which reads
+    # as a camera that went quiet; the state was in no value.
+    node.trigger_configure()
+    status = node.diagnostics()
+    values = {kv.key: kv.value for kv in status.values}
+    assert status.level == DiagnosticStatus.OK
+    assert status.message == (
+        'inactive: configured, not subscribed to the stereo inputs (activate to process)'
+    )
+    assert values['lifecycle_state'] == 'inactive'
+    assert values['matcher'] == 'census_bm' and values['processing_rate_hz'] == '0.000'
+    node.trigger_activate()
+    status = node.diagnostics()
+    assert status.message.startswith('processing at ')
+    assert {kv.key: kv.value for kv in status.values}['lifecycle_state'] == 'active'
+    node.trigger_deactivate()
+    assert node.diagnostics().message.startswith('inactive: configured')
