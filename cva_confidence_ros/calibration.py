@@ -380,12 +380,16 @@ def expected_error(confidence: Any, mask: Any = None) -> float | None:
         The predicted error rate in [0, 1]; None if no pixel is left.
 
     Raises:
-        InputError: Values outside [0, 1], no numbers, or a mask of another shape.
+        InputError: Values outside [0, 1], no numbers, or a mask of another shape or with NaN.
     """
     # Called on every frame by the node: pick the pixels first, convert only those.
     values = _numeric('confidence', np.asarray(confidence))
     if mask is not None:
-        mask = np.asarray(mask, dtype=bool)
+        mask = np.asarray(mask)
+        if mask.dtype.kind in 'fc' and np.isnan(mask).any():
+            # NaN cast to bool is True: the pixel would be counted as selected.
+            raise InputError('mask must be a bool array; got NaN in a float mask')
+        mask = mask.astype(bool)
         if mask.shape != values.shape:
             raise InputError(
                 f'mask must have the shape of confidence {values.shape}; got {mask.shape}'

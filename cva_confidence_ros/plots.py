@@ -259,8 +259,13 @@ def _gray_background(image: np.ndarray | None, shape: tuple[int, int]) -> np.nda
     # NaN or ±inf in a float image (pixels without a value) are drawn black; left in, they
     # warned (all-NaN max) and cast to an undefined uint8.
     gray[~np.isfinite(gray)] = 0.0
-    if image.dtype != np.uint8 and gray.size and gray.max() <= 1.0:
+    peak = float(gray.max()) if gray.size else 0.0
+    if image.dtype != np.uint8 and peak <= 1.0:
         gray = gray * 255.0
+    elif peak > 255.0:
+        # 16-bit (often 10 or 12 bits used) or a float image beyond 8 bits: scaled by its
+        # peak, as the node scales a mono16 pair; clipped, it was a white sheet.
+        gray = gray * (255.0 / peak)
     # Dimmed so that the green/red classes stand out against the scene.
     dim = np.clip(gray * 0.5, 0, 255).astype(np.uint8)
     return np.repeat(dim[..., None], 3, axis=2)
@@ -295,11 +300,13 @@ def save_correctness_overlay(
 
     Args:
         confidence: (H, W) float confidence.
-        error: (H, W) bool, True = disparity wrong.
+        error: (H, W) bool, True = disparity wrong (numbers: non-zero = wrong, NaN = not
+            judged, drawn as outside ``mask``).
         path: Output PNG file; parent folders are created.
         tau: Threshold; 0.5 for confidences in [0, 1] as in the paper.
         image: Optional (H, W) or (H, W, 3) reference image drawn under the classes;
-            uint8, or float in [0, 1] (NaN and ±inf drawn black).
+            uint8, float in [0, 1] (NaN and ±inf drawn black), or 16-bit / beyond 255
+            (scaled by its peak).
         mask: Optional (H, W) bool, True = pixel is evaluated; default every pixel.
 
     Returns:
@@ -309,7 +316,11 @@ def save_correctness_overlay(
         InputError: Shapes disagree.
     """
     confidence = _check_map('confidence', confidence).astype(np.float64)
-    error = _check_map('error', error).astype(bool)
+    error_in = _check_map('error', error)
+    # A float error map may hold NaN for "not judged": shown as unevaluated, not as wrong
+    # (NaN cast to bool is True).
+    judged = ~np.isnan(error_in) if error_in.dtype.kind == 'f' else None
+    error = np.nan_to_num(error_in).astype(bool) if judged is not None else error_in.astype(bool)
     shape = confidence.shape
     if error.shape != shape:
         raise InputError(f'error must have shape {shape} like confidence; got {error.shape}')
@@ -321,6 +332,8 @@ def save_correctness_overlay(
             raise InputError(f'mask must have shape {shape} like confidence; got {mask.shape}')
     rgb = _gray_background(image, shape)
     shown = mask & ~np.isnan(confidence)
+    if judged is not None:
+        shown &= judged
     right = correctness_classes(confidence, error, tau)
     rgb[shown & right] = CORRECT_RGB
     rgb[shown & ~right] = WRONG_RGB

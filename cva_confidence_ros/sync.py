@@ -246,17 +246,20 @@ class StampSynchronizer:
         ``unmatched``, or ``late``/``repeat`` for messages kept aside as a possible jump
         back)."""
         with self._lock:
-            for key in self.keys:
-                self._note(key, [s for s, _ in self._queues[key]], 'unmatched')
-            held = [entry for key in self.keys for entry in self._stale[key]]
-            if self._behind is not None:
-                held += self._behind.entries
-            self._release(held)
-            for key in self.keys:
-                self.dropped += len(self._queues[key])  # held-aside ones counted already
-                self._queues[key] = []
-                self._stale[key] = []
-            self._behind = None
+            self._drain()
+
+    def _drain(self) -> None:
+        for key in self.keys:
+            self._note(key, [s for s, _ in self._queues[key]], 'unmatched')
+        held = [entry for key in self.keys for entry in self._stale[key]]
+        if self._behind is not None:
+            held += self._behind.entries
+        self._release(held)
+        for key in self.keys:
+            self.dropped += len(self._queues[key])  # held-aside ones counted already
+            self._queues[key] = []
+            self._stale[key] = []
+        self._behind = None
 
     def add(self, key: Hashable, stamp_ns: int, msg: Any) -> list[MatchedSet]:
         """Offer one message; return the sets it completes.
@@ -492,11 +495,11 @@ class StampSynchronizer:
             return {key: len(queue) for key, queue in self._queues.items()}
 
     def reset(self) -> None:
-        """Forget every waiting message and the last emitted stamps (counters are kept)."""
+        """Forget every waiting message and the last emitted stamps. The messages let go are
+        counted in :attr:`dropped` and recorded as :meth:`drain` does (they were forgotten
+        uncounted, so that received ≠ matched + dropped); the counters are kept."""
         with self._lock:
+            self._drain()
             for key in self.keys:
-                self._queues[key] = []
-                self._stale[key] = []
                 self._last[key] = None
-            self._behind = None
             self._last_set_ns = None

@@ -210,10 +210,16 @@ def format_table(
     Returns:
         The Markdown table, lines joined with ``\\n``, ending in a newline. An empty input
         gives a header-only table.
+
+    Raises:
+        InputError: ``methods`` is one string or holds a non-string.
     """
     items = _as_records(records)
     if methods is None:
         methods = list(dict.fromkeys(r.method for r in items))
+    elif isinstance(methods, str) or not all(isinstance(m, str) for m in methods):
+        # One string is a sequence of one-letter columns ('mlm' gave m, l, m).
+        raise InputError(f'methods must be a sequence of method names; got {methods!r}')
     rows = list(dict.fromkeys((r.dataset, r.matcher) for r in items))
 
     aucs: dict[tuple[str, str, str], list[float]] = {}
