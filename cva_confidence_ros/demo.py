@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from cva_confidence_ros.errors import ConfigError, CVAError
+from cva_confidence_ros.errors import ConfigError, CVAError, DataError, reason
 from cva_confidence_ros.outputs import check_output_dir
 
 __all__ = ['main']
@@ -37,10 +37,27 @@ def _log(message: str) -> None:
     print(f'[demo] {message}', file=sys.stderr, flush=True)
 
 
+def _write_png(path: Path, image: np.ndarray) -> None:
+    """``cv2.imwrite``, which only returns False (a full disk, a folder in the way).
+
+    Raises:
+        DataError: The file cannot be written.
+    """
+    import cv2
+
+    if not cv2.imwrite(str(path), image):
+        raise DataError(f'cannot write {path} (a full disk, or no permission?)')
+
+
 def _match_all(
     out: Path, matchers: list[str], max_disparity: int, downsample: int
 ) -> list[dict[str, object]]:
-    """Run the matchers on the Motorcycle pair; write disparity PNGs; return a summary."""
+    """Run the matchers on the Motorcycle pair; write disparity PNGs; return a summary.
+
+    Raises:
+        CVAError: A depth the pair cannot be matched at, or an output that cannot be written
+            (:class:`DataError`).
+    """
     import cv2
 
     from cva_confidence_ros.datasets import fit_disparity_range, load_scene, resize_sample
@@ -50,7 +67,11 @@ def _match_all(
     sample = load_scene('motorcycle', None, 'motorcycle')
     if downsample > 1:
         sample = resize_sample(sample, downsample)
-    sample, _ = fit_disparity_range(sample, max_disparity)
+    sample, factor = fit_disparity_range(sample, max_disparity)
+    if factor > 1:  # step 1 then runs at another size than the replay of step 3
+        height, width = sample.left.shape[:2]
+        _log(f'the ground truth does not fit into D = {max_disparity} at 1/{downsample} size: '
+             f'matching at 1/{downsample * factor} ({width}×{height} px) instead')
     rows = []
     for name in matchers:
         tic = time.perf_counter()
@@ -61,7 +82,7 @@ def _match_all(
         wrong = kitti_error(disparity, sample.disparity)[known]
         png = out / f'disparity_{name}.png'
         scaled = np.clip(disparity * (255.0 / max(max_disparity - 1, 1)), 0, 255)
-        cv2.imwrite(str(png), cv2.applyColorMap(scaled.astype(np.uint8), cv2.COLORMAP_TURBO))
+        _write_png(png, cv2.applyColorMap(scaled.astype(np.uint8), cv2.COLORMAP_TURBO))
         rows.append(
             {
                 'matcher': name,
@@ -76,8 +97,12 @@ def _match_all(
         )
         _log(f'{name}: cost volume {volume.shape} in {seconds:.2f} s, '
              f'WTA error rate {wrong.mean():.3f} -> {png}')
-    cv2.imwrite(str(out / 'left.png'), cv2.cvtColor(sample.left, cv2.COLOR_RGB2BGR))
-    (out / 'cost_volume_summary.json').write_text(json.dumps(rows, indent=2))
+    _write_png(out / 'left.png', cv2.cvtColor(sample.left, cv2.COLOR_RGB2BGR))
+    summary = out / 'cost_volume_summary.json'
+    try:
+        summary.write_text(json.dumps(rows, indent=2))
+    except OSError as exc:
+        raise DataError(f'cannot write {summary}: {reason(exc)}') from None
     return rows
 
 
@@ -90,8 +115,9 @@ def _check_args(args: argparse.Namespace) -> tuple[list[str], list[str]]:
         raise ConfigError(f'--downsample must be 1, 2 or 4; got {args.downsample}')
     if not 1 <= args.max_disparity <= 1024:
         raise ConfigError(f'--max-disparity must be in [1, 1024]; got {args.max_disparity}')
-    matchers = [name.strip() for name in args.matchers.split(',') if name.strip()]
-    methods = [name.strip() for name in args.methods.split(',') if name.strip()]
+    # dict.fromkeys: a name given twice is run once (not twice, in twice the time)
+    matchers = list(dict.fromkeys(n.strip() for n in args.matchers.split(',') if n.strip()))
+    methods = list(dict.fromkeys(n.strip() for n in args.methods.split(',') if n.strip()))
     if not matchers or not methods:
         raise ConfigError('--matchers and --methods must each name at least one')
     for name in matchers:
@@ -100,7 +126,35 @@ def _check_args(args: argparse.Namespace) -> tuple[list[str], list[str]]:
         CONFIDENCE_METHODS.get(name)
     _check_weights(matchers, methods, args.max_disparity)
     check_output_dir(args.out, '--out')
+    _check_in_the_way(args.out, matchers, methods)
     return matchers, methods
+
+
+def _check_in_the_way(out: Path, matchers: list[str], methods: list[str]) -> None:
+    """Refuse, before step 1, what stands where the demo writes under ``--out``: a file or a
+    link where it replaces a folder (steps 2 and 3 delete and remake theirs), a folder where
+    it writes a file.
+
+    Raises:
+        ConfigError: The first such path, named.
+    """
+    replaced = [out / 'motorcycle_bag'] + [
+        out / 'replay' / f'{matcher}__{method}' for matcher in matchers for method in methods
+    ]
+    for folder in replaced:
+        if folder.is_symlink() or (folder.exists() and not folder.is_dir()):
+            kind = 'a link' if folder.is_symlink() else 'a file'
+            raise ConfigError(
+                f'--out {out}: {folder} is {kind}, where the demo writes a folder of its '
+                f'outputs (deleting an older one); move it away or pick another --out'
+            )
+    replay = out / 'replay'
+    if replay.exists() and not replay.is_dir():
+        raise ConfigError(f'--out {out}: {replay} is a file, where the demo writes a folder')
+    files = [out / f'disparity_{matcher}.png' for matcher in matchers]
+    for path in (*files, out / 'left.png', out / 'cost_volume_summary.json'):
+        if path.is_dir():
+            raise ConfigError(f'--out {out}: {path} is a folder, where the demo writes a file')
 
 
 def _check_weights(matchers: list[str], methods: list[str], max_disparity: int) -> None:
@@ -158,6 +212,9 @@ def main(argv: list[str] | None = None) -> int:
     except CVAError as err:  # e.g. a depth too wide for the pair at this size
         print(f'cva-demo: error: {err}', file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # steps 2 and 3 answer Ctrl-C with 130 themselves
+        print('cva-demo: interrupted in step 1', file=sys.stderr)
+        return 130
 
     bag = out / 'motorcycle_bag'
     _log(f'step 2/3: writing the pair as a rosbag2 (MCAP) to {bag}')

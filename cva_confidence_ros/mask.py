@@ -25,11 +25,13 @@ from cva_confidence_ros.errors import ConfigError, InputError
 __all__ = ['check_mask_size', 'load_mask', 'mask_rows', 'reduce_mask']
 
 
-def load_mask(path: str | Path) -> np.ndarray:
+def load_mask(path: str | Path, option: str = 'mask_path') -> np.ndarray:
     """Read an ignore mask.
 
     Args:
         path: An image file that OpenCV reads (PNG, BMP, TIFF, …); black = ignore.
+        option: The parameter or option that named the file, for the messages (e.g.
+            ``'--start'`` of ``cva-mask``).
 
     Returns:
         (H, W) bool, True where pixels are judged.
@@ -39,12 +41,12 @@ def load_mask(path: str | Path) -> np.ndarray:
     """
     path = Path(path)
     if not path.is_file():
-        raise ConfigError(f'mask_path {str(path)!r} is not a file')
+        raise ConfigError(f'{option} {str(path)!r} is not a file')
     if path.stat().st_size == 0:
-        raise ConfigError(f'mask_path {str(path)!r} is an empty file')
+        raise ConfigError(f'{option} {str(path)!r} is an empty file')
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None or image.size == 0:
-        raise ConfigError(f'mask_path {str(path)!r} cannot be read as an image')
+        raise ConfigError(f'{option} {str(path)!r} cannot be read as an image')
     if image.ndim == 3:
         # Colour: a pixel is ignored where every colour channel is 0 (alpha is not looked at).
         keep = np.any(image[..., :3] != 0, axis=2)
@@ -52,7 +54,7 @@ def load_mask(path: str | Path) -> np.ndarray:
         keep = image != 0
     if not keep.any():
         raise ConfigError(
-            f'mask_path {str(path)!r} ignores every pixel (black everywhere); black = ignore, '
+            f'{option} {str(path)!r} ignores every pixel (black everywhere); black = ignore, '
             f'any other value = judge'
         )
     return keep

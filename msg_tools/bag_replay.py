@@ -226,7 +226,8 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
             compression value names its option).
     """
     if args.mask is not None:
-        load_mask(args.mask)  # a missing or unreadable mask is named before any bag is opened
+        # A missing or unreadable mask is named before any bag is opened.
+        load_mask(args.mask, '--mask')
     pipeline = PipelineConfig(
         matcher=args.matcher,
         max_disparity=args.max_disparity,

@@ -35,6 +35,7 @@ from cva_confidence_ros.outputs import check_output_file
 __all__ = ['build_parser', 'draw_mask', 'frame_from_bag', 'main']
 
 _IMAGE_TYPES = ('sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage')
+_INT32_MAX = 2**31 - 1
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -74,7 +75,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _parse_size(text: str) -> tuple[int, int]:
     parts = text.lower().split('x')
-    if len(parts) != 2 or not all(part.strip().isdigit() for part in parts):
+    # isdecimal, not isdigit: '4²' is a digit to Python, but not a number int() reads
+    if len(parts) != 2 or not all(part.strip().isdecimal() for part in parts):
         raise ConfigError(f'--size must be WIDTHxHEIGHT in pixels, e.g. 640x480; got {text!r}')
     width, height = (int(part) for part in parts)
     if width <= 0 or height <= 0:
@@ -92,6 +94,10 @@ def _parse_polygon(corners: list[str]) -> np.ndarray:
             raise ConfigError(
                 f'--polygon corners must be X,Y in whole pixels; got {corner!r}'
             ) from None
+        if max(abs(x), abs(y)) > _INT32_MAX:  # OpenCV takes 32-bit corners
+            raise ConfigError(
+                f'--polygon corners must lie within ±{_INT32_MAX} px; got {corner!r}'
+            )
         points.append((x, y))
     if len(points) < 3:
         raise ConfigError(f'--polygon needs 3 corners or more; got {len(points)}: {corners}')
@@ -111,7 +117,7 @@ def draw_mask(
     """An ignore mask of ``width`` × ``height``: (H, W) bool, False = ignore.
 
     Args:
-        start: A mask to add to (True = judged), or None for all judged.
+        start: A mask to add to (True or nonzero = judged), or None for all judged.
         rects: ``[x0, y0, x1, y1]``, each ignoring ``x0 ≤ x < x1``, ``y0 ≤ y < y1`` (clipped
             to the image; one that leaves no pixel of the image is refused).
         polygons: (N, 2) int corners (x, y), N ≥ 3, each ignoring its inside and edges.
@@ -120,7 +126,8 @@ def draw_mask(
     Raises:
         ConfigError: A rectangle or row outside the image, or the wrong size of ``start``.
     """
-    keep = np.ones((height, width), dtype=bool) if start is None else start.copy()
+    # A copy as bool: a 0/255 start mask would otherwise come back as 0/1 uint8 after &=
+    keep = np.ones((height, width), dtype=bool) if start is None else np.array(start, bool)
     if keep.shape != (height, width):
         raise ConfigError(f'the start mask is {keep.shape[1]}×{keep.shape[0]} px, not '
                           f'{width}×{height}')
@@ -244,7 +251,7 @@ def main(argv: list[str] | None = None) -> int:
                 'replace the mask; give the preview another name'
             )
         frame = None
-        start = None if args.start is None else load_mask(args.start)
+        start = None if args.start is None else load_mask(args.start, '--start')
         if args.size is not None:
             width, height = _parse_size(args.size)
         elif args.image is None and args.bag is None:
@@ -256,6 +263,11 @@ def main(argv: list[str] | None = None) -> int:
                 frame = cv2.imread(str(args.image), cv2.IMREAD_UNCHANGED)
                 if frame is None or frame.size == 0:
                     raise InputError(f'--image {args.image} cannot be read as an image')
+                if frame.dtype not in (np.uint8, np.uint16):  # what the node takes
+                    raise InputError(
+                        f'--image {args.image} is a {frame.dtype} image; expected an 8- or '
+                        f'16-bit camera frame'
+                    )
                 if frame.ndim == 3:
                     frame = cv2.cvtColor(frame[..., :3], cv2.COLOR_BGR2RGB)
             else:
@@ -276,16 +288,20 @@ def main(argv: list[str] | None = None) -> int:
             preview_path = args.out.with_name(f'{args.out.stem}_preview.png')
         # The start mask may be the output itself: --overwrite says so.
         for path in (args.out, preview_path):
-            if path is not None and path.exists() and not args.overwrite:
+            # a folder is not replaced by --overwrite either: check_output_file names it
+            if (path is not None and path.exists() and not path.is_dir()
+                    and not args.overwrite):
                 raise ConfigError(f'{path} exists already; use --overwrite to replace it')
         if preview_path is not None and frame is None:
             raise ConfigError('--preview needs a frame to draw on: --image or --bag')
         check_output_file(args.out, 'out')
         if preview_path is not None:
             check_output_file(preview_path, '--preview')
+        # The preview is drawn before the mask is written: a frame it fails on writes nothing.
+        shaded = None if frame is None else preview(frame, keep)
         _write_atomically(args.out, np.where(keep, 255, 0).astype(np.uint8))
-        if preview_path is not None and frame is not None:
-            _write_atomically(preview_path, preview(frame, keep))
+        if preview_path is not None and shaded is not None:
+            _write_atomically(preview_path, shaded)
     except CVAError as err:
         print(f'cva-mask: error: {err}', file=sys.stderr)
         return 2
