@@ -138,16 +138,30 @@ def match_and_label(sample: StereoSample, matcher: str, max_disparity: int) -> M
     """Shrink ``sample`` until its ground truth fits D, match it and label its pixels.
 
     Raises:
-        DataError: No pixel with ground truth after shrinking.
+        DataError: No pixel with ground truth after shrinking, or the shrunk pair is not wider
+            than D.
     """
     from cva_confidence_ros.matching import compute_cost_volume, wta_disparity
     from cva_confidence_ros.metrics import kitti_error
 
+    name = f'{sample.dataset}/{sample.scene}'
     fitted, factor = fit_disparity_range(sample, max_disparity)
+    height, width = fitted.left.shape[:2]
+    if width <= max_disparity:
+        # The matcher's own message names neither the scene nor the shrinking.
+        shrunk = (
+            f'its ground truth reaches {sample.max_disparity:.4g} px, which shrinks it by '
+            f'{factor} to {width}×{height}'
+            if factor > 1
+            else f'it is {width}×{height}'
+        )
+        raise DataError(
+            f'{name}: {shrunk}; matching needs images wider than D = {max_disparity} '
+            '(check the ground truth and its scale, or use another D)'
+        )
     volume = compute_cost_volume(fitted.left, fitted.right, matcher, max_disparity)
     estimate = wta_disparity(volume)
     labelled = np.isfinite(fitted.disparity)
-    name = f'{sample.dataset}/{sample.scene}'
     if not labelled.any():
         raise DataError(f'{name}: no pixel with ground truth at factor {factor}')
     correct = ~kitti_error(estimate, fitted.disparity) & labelled
@@ -297,7 +311,12 @@ def dense_crops(
     ``n_samples`` labelled outputs in total.
 
     The crop side is ``crop_size`` or the smallest scene side if that is smaller.
+
+    Raises:
+        DataError: ``index`` is empty (no labelled pixel to place a crop around).
     """
+    if len(index) < 1:
+        raise DataError('no labelled training samples')
     side = _crop_side(scenes, crop_size)
     rng = np.random.default_rng([seed, epoch, 2])
     counts = [
@@ -306,7 +325,7 @@ def dense_crops(
     chosen: list[tuple[int, int, int, int]] = []
     total = 0
     while total < n_samples:
-        for centre in rng.permutation(len(index))[: max(1, min(len(index), 4096))]:
+        for centre in rng.permutation(len(index))[:4096]:
             number = int(index.scene[centre])
             height, width = scenes[number].shape
             y = int(index.ys[centre]) - int(rng.integers(0, side))
@@ -323,8 +342,8 @@ def dense_crops(
             total += n
             if total >= n_samples:
                 break
-    columns = [np.array(column, dtype=np.int32) for column in zip(*chosen, strict=True)]
-    return CropBatch(*columns)
+    columns = np.array(chosen, dtype=np.int32).reshape(-1, 4).T  # (4, N), also for N = 0
+    return CropBatch(*(np.ascontiguousarray(column) for column in columns))
 
 
 def gather_crops(

@@ -29,6 +29,7 @@ from cva_confidence_ros.datasets.synthetic import synthetic_pair
 from cva_confidence_ros.errors import ConfigError, ModelError, reason
 from cva_confidence_ros.model import (
     ARCHITECTURES,
+    PATCH_SIZE,
     predict_confidence_at,
     resolve_device,
     save_weights,
@@ -422,6 +423,51 @@ def _share(items: np.ndarray, dist: _Dist) -> np.ndarray:
     return padded[dist.rank :: dist.world]
 
 
+def _steps(count: int, size: int, single_extract: bool) -> list[np.ndarray]:
+    """Positions ``0 … count − 1`` of an epoch in steps of ``size`` inputs.
+
+    Where an input is a single 13×13 extract (``single_extract``), a last step of one input
+    joins the step before: batch normalisation cannot train on one extract (CVA-Net-Fast's
+    fusion ends in one value per channel, which PyTorch refuses in training mode).
+    """
+    steps = list(batches(np.arange(count), size))
+    if single_extract and len(steps) > 1 and steps[-1].size == 1:
+        steps[-2:] = [np.concatenate(steps[-2:])]
+    return steps
+
+
+def _check_step_inputs(config: TrainConfig) -> None:
+    """Refuse a run whose steps would each hold a single 13×13 extract (``--batch-size 1``, or
+    one sample an epoch) when its network cannot train on one (see :func:`_steps`).
+
+    Raises:
+        ConfigError: Naming the options that make the steps that small.
+    """
+    single = config.batch_size == 1 or config.samples_per_epoch == 1
+    if not single or (config.mode == 'dense' and config.crop_size > 1):
+        return
+    net = ARCHITECTURES.get(config.arch)({'max_disparity': config.max_disparity}).train()
+    probe = torch.zeros((1, 1, config.max_disparity, PATCH_SIZE, PATCH_SIZE))
+    try:
+        with torch.no_grad():
+            _Logits(net)(probe)
+    except ValueError as exc:
+        causes = [
+            option
+            for option, value in (
+                ('--batch-size', config.batch_size),
+                ('--samples-per-epoch', config.samples_per_epoch),
+                ('--crop-size', config.crop_size if config.mode == 'dense' else None),
+            )
+            if value == 1
+        ]
+        raise ConfigError(
+            f'{" 1 and ".join(causes)} 1 make{"" if len(causes) > 1 else "s"} steps of a single '
+            f'{PATCH_SIZE}×{PATCH_SIZE} extract, which --arch {config.arch} cannot train on '
+            f'({reason(exc)}); use 2 or more'
+        ) from exc
+
+
 def _run_epoch(
     config: TrainConfig,
     model: nn.Module,
@@ -442,7 +488,7 @@ def _run_epoch(
     if config.mode == 'sparse':
         order = _share(epoch_order(len(index), n_samples, config.seed, epoch), dist)
         flips = _share(flip_draws(n_samples, config.seed, epoch, config.vflip), dist)
-        steps = list(batches(np.arange(len(order)), config.batch_size))
+        steps = _steps(len(order), config.batch_size, single_extract=True)
         total = len(order)
     else:
         crops = dense_crops(scenes, index, n_samples, config.crop_size, config.seed, epoch)
@@ -450,7 +496,7 @@ def _run_epoch(
         flips = _share(flip_draws(len(crops.scene), config.seed, epoch, config.vflip), dist)
         side = min([config.crop_size] + [min(s.shape) for s in scenes])
         per_step = max(1, math.ceil(config.batch_size / side**2))
-        steps = list(batches(np.arange(len(order)), per_step))
+        steps = _steps(len(order), per_step, single_extract=side == 1)
         total = int(crops.n_labelled[order].sum())
     description = f'epoch {epoch + 1}/{config.total_epochs}'
     with _progress(total, description, config.progress and dist.main) as bar:
@@ -513,6 +559,7 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
 
         return train_baseline(config, command)
     check_run_setup(config)
+    _check_step_inputs(config)
     dist = _setup_distributed(config.device)
     if dist.device.type == 'cuda':
         # Fixed crop shapes: let cuDNN time its kernels once and keep the fastest.
