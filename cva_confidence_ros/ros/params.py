@@ -22,7 +22,7 @@ from rcl_interfaces.msg import (
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from cva_confidence_ros.errors import ConfigError
+from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.pipeline import PipelineConfig
 from cva_confidence_ros.ros.convert import DEPTH_ENCODINGS
 from cva_confidence_ros.scan import ScanConfig
@@ -174,6 +174,23 @@ class NodeConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ConfigError(f'{name} must be a finite number > 0; got {value}')
+        if self.depth_encoding == '32FC1':
+            # A pair float32 cannot hold in the header would drop every frame once a
+            # compressedDepth subscriber came: refused here, at start-up.
+            import numpy as np
+
+            from cva_confidence_ros.ros.transport import compressed_depth_values
+
+            try:
+                compressed_depth_values(
+                    np.zeros((1, 1), np.float32),
+                    self.compressed_depth_max,
+                    self.compressed_depth_quantization,
+                )
+            except InputError as error:
+                raise ConfigError(
+                    f'compressed_depth_quantization and compressed_depth_max: {error}'
+                ) from None
         if not 0 <= self.compressed_depth_png_level <= 9:
             raise ConfigError(
                 'compressed_depth_png_level must be in [0, 9]; '

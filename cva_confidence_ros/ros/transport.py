@@ -27,12 +27,14 @@ without ``image_transport``).
 
 from __future__ import annotations
 
+import math
 import struct
 from typing import Any
 
 import numpy as np
 from sensor_msgs.msg import CompressedImage, Image
 
+from cva_confidence_ros.checks import is_real
 from cva_confidence_ros.errors import InputError
 
 __all__ = [
@@ -64,12 +66,15 @@ def rgb_to_compressed(
         png_level: zlib level 0–9 (PNG only).
 
     Raises:
-        InputError: Not an (H, W, 3) uint8 array, another format, or a level out of range.
+        InputError: Not an (H, W, 3) uint8 array (or an empty one), another format, or a level
+            out of range.
     """
     import cv2
 
-    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
-        raise InputError(f'an rgb8 image must be (H, W, 3) uint8; got {rgb.dtype} {rgb.shape}')
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8 or rgb.size == 0:
+        raise InputError(
+            f'an rgb8 image must be (H, W, 3) uint8, H and W > 0; got {rgb.dtype} {rgb.shape}'
+        )
     if image_format == 'jpeg':
         if not 1 <= jpeg_quality <= 100:
             raise InputError(f'jpeg_quality must be in [1, 100]; got {jpeg_quality}')
@@ -102,13 +107,24 @@ def compressed_depth_values(
         ``(codes, A, B)``, with ``A`` and ``B`` rounded to float32 as the header holds them.
 
     Raises:
-        InputError: ``depth_max`` or ``depth_quantization`` not a positive finite number.
+        InputError: ``depth_max`` or ``depth_quantization`` not a positive finite number, or
+            so far apart that float32 (the header's type) cannot hold a finite ``A`` > 0 and
+            ``B`` < 1, which every code needs to decode to a positive depth.
     """
     for name, value in (('depth_max', depth_max), ('depth_quantization', depth_quantization)):
-        if not (np.isfinite(value) and value > 0):
-            raise InputError(f'{name} must be a positive number; got {value}')
-    a = np.float32(depth_quantization) * (np.float32(depth_quantization) + np.float32(1.0))
-    b = np.float32(1.0) - a / np.float32(depth_max)
+        if not (is_real(value) and np.isfinite(value) and value > 0):
+            raise InputError(f'{name} must be a positive number; got {value!r}')
+    with np.errstate(over='ignore', divide='ignore', invalid='ignore'):
+        a = np.float32(depth_quantization) * (np.float32(depth_quantization) + np.float32(1.0))
+        b = np.float32(1.0) - a / np.float32(depth_max)
+    # Else inf in the header and NaN codes (cast to anything) in the PNG, or codes that decode
+    # to infinite or negative depths (what compressed_depth_to_array refuses).
+    if not (np.isfinite(a) and a > 0 and np.isfinite(b) and b < 1):
+        raise InputError(
+            f'depth_quantization {depth_quantization:g} and depth_max {depth_max:g} give '
+            f'A = Q·(Q + 1) = {a:g} and B = 1 − A / depth_max = {b:g} in float32; a '
+            'compressedDepth header needs a finite A > 0 and B < 1'
+        )
     depth = np.asarray(depth, dtype=np.float32)
     with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
         sent = (depth > 0) & (depth < np.float32(depth_max))
@@ -141,12 +157,13 @@ def depth_image_to_compressed_depth(
     if msg.encoding == '32FC1':
         codes, a, b = compressed_depth_values(metres, depth_max, depth_quantization)
     else:
-        if not (np.isfinite(depth_max) and depth_max > 0):
-            raise InputError(f'depth_max must be a positive number; got {depth_max}')
+        if not (is_real(depth_max) and np.isfinite(depth_max) and depth_max > 0):
+            raise InputError(f'depth_max must be a positive number; got {depth_max!r}')
         with np.errstate(invalid='ignore'):
             millimetres = np.where(np.isfinite(metres), np.rint(metres * 1000.0), 0.0)
-        # The plugin's cut: above depth_max in whole millimetres, as an unsigned short.
-        millimetres[millimetres > int(depth_max * 1000.0)] = 0.0
+        # The plugin's cut: above depth_max in whole millimetres. 16UC1 holds no more than
+        # 65535 mm, so a larger depth_max cuts nothing (and int() of it could overflow).
+        millimetres[millimetres > math.floor(min(depth_max * 1000.0, _CODE_MAX))] = 0.0
         codes, a, b = millimetres.astype(np.uint16), 0.0, 0.0
     ok, png = cv2.imencode('.png', codes, [cv2.IMWRITE_PNG_COMPRESSION, int(png_level)])
     if not ok:
@@ -165,8 +182,9 @@ def compressed_depth_to_array(msg: Any, name: str = 'depth') -> np.ndarray:
     the older messages whose format names no compression (PNG).
 
     Raises:
-        InputError: Not a compressedDepth format, an RVL payload, or data that is too short or
-            does not decode as a 16-bit PNG.
+        InputError: Not a compressedDepth format, an RVL payload, data that is too short or
+            does not decode as a 16-bit PNG, or a 32FC1 header whose ``A`` and ``B`` give no
+            positive depths (``A`` ≤ 0, ``B`` ≥ 1 or either not finite).
     """
     import cv2
 
@@ -194,6 +212,14 @@ def compressed_depth_to_array(msg: Any, name: str = 'depth') -> np.ndarray:
     )
     if codes is None or codes.dtype != np.uint16 or codes.ndim != 2:
         raise InputError(f'{name}: the compressedDepth payload is not a one-channel 16-bit PNG')
+    # Every valid encoder writes A = Q·(Q + 1) > 0 and B = 1 − A / depth_max < 1, so that each
+    # code q ≥ 1 decodes to a positive depth A / (q − B); another header (corrupt, or the
+    # zeros of a 16UC1 one) would give negative, zero or infinite depths.
+    if encoding == '32FC1' and not (np.isfinite(a) and a > 0 and np.isfinite(b) and b < 1):
+        raise InputError(
+            f'{name}: the compressedDepth header holds A = {a:g}, B = {b:g}; a 32FC1 one needs '
+            'a finite A > 0 and B < 1'
+        )
     depth = np.full(codes.shape, np.nan, dtype=np.float32)
     sent = codes > 0
     if encoding == '32FC1':
