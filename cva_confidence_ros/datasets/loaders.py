@@ -17,6 +17,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 import re
+from typing import Any
 
 import numpy as np
 
@@ -115,6 +116,16 @@ def _clean_disparity(disparity: np.ndarray) -> np.ndarray:
     return disparity
 
 
+def _sample(files: dict[str, Path | None], **fields: Any) -> StereoSample:
+    """``StereoSample(**fields)``; shapes or dtypes it refuses are reported with the files read,
+    so that a ground truth or mask of the wrong size names the file to look at."""
+    try:
+        return StereoSample(**fields)
+    except DataError as exc:
+        read = ', '.join(f'{role} {path}' for role, path in files.items() if path is not None)
+        raise DataError(f'{exc} (files: {read})') from None
+
+
 def _im0_im1_sample(
     dataset: str, scene: str, folder: Path, gt: Path, mask: Path | None
 ) -> StereoSample:
@@ -128,11 +139,13 @@ def _im0_im1_sample(
     calib = None
     if (folder / 'calib.txt').is_file():
         calib = read_middlebury_calibration(folder / 'calib.txt')
-    return StereoSample(
+    left, right = folder / 'im0.png', folder / 'im1.png'
+    return _sample(
+        {'left': left, 'right': right, 'disparity': gt, 'nonocc': mask},
         dataset=dataset,
         scene=scene,
-        left=read_image(folder / 'im0.png'),
-        right=read_image(folder / 'im1.png'),
+        left=read_image(left),
+        right=read_image(right),
         disparity=_clean_disparity(read_pfm(gt)),
         nonocc=nonocc,
         calib=calib,
@@ -250,11 +263,18 @@ class _Kitti(StereoDataset):
         nonocc = None
         if noc_path.is_file():
             nonocc = np.isfinite(read_disparity_png(noc_path, 256.0, bits=16))
+        files = {
+            'left': left_path,
+            'right': right_path,
+            'disparity': gt_path,
+            'nonocc': noc_path if nonocc is not None else None,
+        }
         calib = None
         calib_path = base / self.calib_dir / f'{scene}.txt'
         if calib_path.is_file():
             calib = read_kitti_calibration(calib_path, *self.calib_keys[image_dir])
-        return StereoSample(
+        return _sample(
+            files,
             dataset=self.name,
             scene=scene,
             left=read_image(left_path),
@@ -407,11 +427,18 @@ class _FolderPerScene(StereoDataset):
         else:
             scale = self._width_scale(left.shape[1])
         nonocc = None
-        if (folder / 'nonocc.png').is_file():
-            nonocc = read_image(folder / 'nonocc.png') == 255
+        mask_path = folder / 'nonocc.png'
+        if mask_path.is_file():
+            nonocc = read_image(mask_path) == 255
             if nonocc.ndim == 3:
                 nonocc = nonocc.all(axis=2)
-        return StereoSample(
+        return _sample(
+            {
+                'left': left_path,
+                'right': right_path,
+                'disparity': gt_path,
+                'nonocc': mask_path if nonocc is not None else None,
+            },
             dataset=self.name,
             scene=scene,
             left=left,
@@ -617,7 +644,8 @@ class FlyingThings3D(StereoDataset):
         gt = root.joinpath('disparity', *parts[:3], 'left', f'{parts[-1]}.pfm')
         if found is None or not gt.is_file():
             raise self.missing(root, scene)
-        return StereoSample(
+        return _sample(
+            {'left': found[0], 'right': found[1], 'disparity': gt},
             dataset=self.name,
             scene=scene,
             left=read_image(found[0]),
@@ -678,7 +706,8 @@ class SceneFlowExtra(StereoDataset):
             nonocc = read_image(occlusion) == 0
             if nonocc.ndim == 3:
                 nonocc = nonocc.all(axis=2)
-        return StereoSample(
+        return _sample(
+            {'left': left, 'right': right, 'disparity': gt, 'nonocc': occlusion},
             dataset=self.name,
             scene=scene,
             left=read_image(left),
@@ -754,7 +783,8 @@ class TartanAir(StereoDataset):
         if is_depth:
             with np.errstate(divide='ignore'):
                 values = np.float32(_TARTANAIR_CALIB.fx * _TARTANAIR_CALIB.baseline) / values
-        return StereoSample(
+        return _sample(
+            {'left': left, 'right': right, 'disparity': gt},
             dataset=self.name,
             scene=scene,
             left=read_image(left),

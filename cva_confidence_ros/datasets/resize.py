@@ -13,6 +13,7 @@ depth edge and its image pixel mixes two surfaces, so no single disparity is rig
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import cv2
 import numpy as np
@@ -177,7 +178,14 @@ def fit_disparity_range(sample: StereoSample, max_disparity: int) -> tuple[Stere
         DataError: The image would shrink below one pixel (an outlier or a ground truth
             stored at another scale).
     """
-    if isinstance(max_disparity, bool) or int(max_disparity) != max_disparity or max_disparity < 1:
+    # NaN, inf or None would escape int() as ValueError, OverflowError or TypeError.
+    if (
+        isinstance(max_disparity, bool)
+        or not isinstance(max_disparity, (int, float, np.integer, np.floating))
+        or not math.isfinite(max_disparity)
+        or int(max_disparity) != max_disparity
+        or max_disparity < 1
+    ):
         raise ConfigError(f'max_disparity must be an integer ≥ 1; got {max_disparity!r}')
     largest = sample.max_disparity
     factor = 1
