@@ -9,7 +9,8 @@ px, with the KITTI-criterion labels of the pixels that have ground truth.
 Samples are output pixels with a label, drawn as crops:
 
 * ``--mode sparse``: crops of one output pixel, i.e. the 9×9 patches of the published CCNN /
-  LFN recipes (``--batch-size`` patches per step);
+  LFN recipes (``--batch-size`` patches per step), each labelled pixel once before any repeats
+  (``training.data.epoch_order``, as CVA-Net's sparse mode);
 * ``--mode dense``: ``--crop-size``² outputs per crop with a masked loss (the inputs are the
   crop plus the networks' margins), ``ceil(batch / crop²)`` crops per step.
 
@@ -61,9 +62,12 @@ from cva_confidence_ros.model.baselines import (
 from cva_confidence_ros.training.card import hardware_facts, write_model_card
 from cva_confidence_ros.training.config import TrainConfig
 from cva_confidence_ros.training.data import (
+    CropBatch,
     LabelledScene,
+    SampleIndex,
     batches,
     dense_crops,
+    epoch_order,
     match_and_label,
     sample_index,
     validation_subset,
@@ -75,6 +79,7 @@ __all__ = [
     'crop_side',
     'split_scenes',
     'gather_planes',
+    'pixel_crops',
     'prepare_disparity_scene',
     'train_baseline',
 ]
@@ -190,8 +195,15 @@ def split_scenes(names: list[str], how: str) -> tuple[list[int], list[int]]:
         return everything, list(everything)
     if how != 'alternate':
         raise ConfigError(f'unknown fusion split {how!r}; expected alternate or none')
-    if len(set(names)) != len(names):
-        raise ConfigError('--fusion-split alternate needs distinct scene names')
+    repeated = sorted({name for name in names if names.count(name) > 1})
+    if repeated:
+        # E.g. two sizes of one Middlebury scene (trainingQ and trainingH): adjacent in the
+        # sorted order, they would land in both halves.
+        raise ConfigError(
+            f'--fusion-split alternate needs distinct scene names; given more than once: '
+            f'{", ".join(repeated)} (a scene in two sizes would train both stages); give each '
+            'scene once or use --fusion-split none'
+        )
     if len(names) < 2:
         raise ConfigError(
             f'--fusion-split alternate needs at least 2 training scenes; got {len(names)} '
@@ -204,8 +216,13 @@ def split_scenes(names: list[str], how: str) -> tuple[list[int], list[int]]:
 def crop_side(config: TrainConfig, scenes: list[DisparityScene]) -> int:
     """Output side of the training crops (see the module docstring).
 
+    Args:
+        config: The run's configuration.
+        scenes: The prepared training scenes; none (before preparing) checks the options only.
+
     Raises:
-        ConfigError: LGC-Net with ``--mode sparse``, or scenes smaller than 16 px.
+        ConfigError: LGC-Net with ``--mode sparse``, or crops (``--crop-size`` or the smallest
+            scene side) smaller than 16 px.
     """
     if config.mode == 'sparse':
         if config.arch == 'lgcnet':
@@ -214,16 +231,33 @@ def crop_side(config: TrainConfig, scenes: list[DisparityScene]) -> int:
                 f'that is a multiple of {CONFNET_FACTOR}'
             )
         return 1
-    smallest = min(min(s.shape) for s in scenes)
-    side = min(config.crop_size, smallest)
+    sides = [min(s.shape) for s in scenes]
+    side = min([config.crop_size, *sides])
     if config.arch == 'lgcnet':
         side -= side % CONFNET_FACTOR
         if side < CONFNET_FACTOR:
             raise ConfigError(
                 f'lgcnet needs crops of at least {CONFNET_FACTOR} px (ConfNet pools 4 times); '
-                f'got --crop-size {config.crop_size} and a smallest scene side of {smallest}'
+                f'got --crop-size {config.crop_size}'
+                + (f' and a smallest scene side of {min(sides)}' if sides else '')
             )
     return side
+
+
+def pixel_crops(index: SampleIndex, n_samples: int, seed: int, epoch: int) -> CropBatch:
+    """``--mode sparse``: one-pixel crops of one epoch, each labelled pixel of ``index`` once
+    before any repeats, shuffled by (seed, epoch) (``training.data.epoch_order``).
+
+    Returns:
+        A ``CropBatch`` of ``n_samples`` crops of side 1, one labelled output each.
+
+    Raises:
+        DataError: ``index`` is empty.
+    """
+    order = epoch_order(len(index), n_samples, seed, epoch)
+    return CropBatch(
+        index.scene[order], index.ys[order], index.xs[order], np.ones(order.size, np.int32)
+    )
 
 
 def gather_planes(
@@ -297,9 +331,14 @@ def _auc(net: nn.Module, scenes: list[DisparityScene], subsets: list[Any], devic
             wrongs.append(~scene.correct[ys, xs])
     net.train()
     if not confidences:
-        return {'val_auc': None, 'val_auc_opt': None, 'val_error_rate': None}
-    scores = auc_scores(np.concatenate(confidences), np.concatenate(wrongs))
-    return {f'val_{key}': float(scores[key]) for key in ('auc', 'auc_opt', 'error_rate')}
+        return {'val_auc': None, 'val_auc_opt': None, 'val_error_rate': None, 'val_high': None}
+    confidence = np.concatenate(confidences)
+    scores = auc_scores(confidence, np.concatenate(wrongs))
+    return {
+        **{f'val_{key}': float(scores[key]) for key in ('auc', 'auc_opt', 'error_rate')},
+        # The model card's share of outputs >= 0.5, as CVA-Net's trainer records it.
+        'val_high': float(np.mean(confidence >= 0.5)),
+    }
 
 
 def _freeze_parts(net: LGCNet, scenes: list[DisparityScene], device: Any) -> None:
@@ -427,8 +466,8 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
     loaders, val_loaders = _load_samples(config, False), _load_samples(config, True)
     split = config.fusion_split if config.arch == 'lgcnet' else 'none'
     split_scenes([label for label, _ in loaders], split)  # refused now, not after preparing
-    if config.arch == 'lgcnet' and config.mode == 'sparse':
-        crop_side(config, [])  # refused now, not after preparing
+    if config.arch == 'lgcnet':
+        crop_side(config, [])  # sparse mode or too small a --crop-size: refused now
     scenes = _prepare(loaders, config, False, log, prepare_disparity_scene)
     index = sample_index(scenes)
     parts_at, fusion_at = split_scenes([s.name for s in scenes], split)
@@ -502,10 +541,15 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
         for group in optimiser.param_groups:
             group['lr'] = lr
         torch.manual_seed(config.seed * 1_000_003 + epoch * 7919 + 1)
-        crops = dense_crops(
-            stage_scenes[stage],
-            stage_index[stage], n_samples, side, config.seed, epoch
-        )
+        if config.mode == 'sparse':
+            # dense_crops would redraw a permutation of all pixels per 4096 crops: a quarter
+            # to a third of the pixels unseen, and minutes an epoch on real data sets.
+            crops = pixel_crops(stage_index[stage], n_samples, config.seed, epoch)
+        else:
+            crops = dense_crops(
+                stage_scenes[stage],
+                stage_index[stage], n_samples, side, config.seed, epoch
+            )
         per_step = max(1, math.ceil(config.batch_size / side**2))
         steps = list(batches(np.arange(len(crops.scene)), per_step))
         net.train()
@@ -615,6 +659,9 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
         if selected is not None:
             summary['fusion_epoch_selected'] = selected['epoch']
             summary['final_val_auc'] = selected['val_auc']
+            summary['final_val_high'] = next(
+                (r.get('val_high') for r in history if r['epoch'] == selected['epoch']), None
+            )
             summary['network_notes'].append(
                 f'fusion weights of run epoch {selected["epoch"]}, the stage-2 epoch with the '
                 f'best validation AUC ({selected["val_auc"]:.4f})'
@@ -684,6 +731,7 @@ def _summary(
         'final_val_auc': last.get('val_auc'),
         'final_val_auc_opt': last.get('val_auc_opt'),
         'final_val_error_rate': last.get('val_error_rate'),
+        'final_val_high': last.get('val_high'),
         'history': history,
         'date': datetime.date.today().isoformat(),
     }
