@@ -1,6 +1,7 @@
 """Review 28: leftovers of the earlier reviews (each a regression test of a fault found there):
 the synchroniser's reset counts what it lets go, plots of 16-bit images and NaN error maps,
-NaN in an expected-error mask, one string as Table 1's method columns."""
+NaN in an expected-error mask, one string as Table 1's method columns, a whole float as the
+count of synthetic pairs."""
 
 from __future__ import annotations
 
@@ -93,3 +94,15 @@ def test_format_table_refuses_one_string_as_its_methods() -> None:
     with pytest.raises(InputError, match='must be a sequence of method names'):
         format_table([record], methods=['mlm', 3])  # type: ignore[list-item]
     assert '| mlm |' in format_table([record], methods=['mlm'])
+
+
+def test_synthetic_pairs_takes_a_whole_float_and_refuses_other_counts() -> None:
+    # synthetic_pairs(2.0) raised a bare TypeError from range(); '2' and True passed the check.
+    from cva_confidence_ros.datasets.synthetic import synthetic_pairs
+    from cva_confidence_ros.errors import ConfigError
+
+    assert len(synthetic_pairs(2.0, height=32, width=48, max_disparity=8)) == 2
+    assert len(synthetic_pairs(np.int64(1), height=32, width=48, max_disparity=8)) == 1
+    for bad in (1.5, float('nan'), -1, '2', True):
+        with pytest.raises(ConfigError, match='^count must be a whole number >= 0; got '):
+            synthetic_pairs(bad)  # type: ignore[arg-type]

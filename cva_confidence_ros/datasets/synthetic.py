@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 import skimage.data
 
+from cva_confidence_ros.checks import is_int, is_real
 from cva_confidence_ros.datasets.io import Calibration
 from cva_confidence_ros.datasets.loaders import StereoSample
 from cva_confidence_ros.errors import ConfigError
@@ -383,6 +384,10 @@ def synthetic_pairs(
     count: int, first_seed: int = 0, height: int = 128, width: int = 160, max_disparity: int = 64
 ) -> list[StereoSample]:
     """``count`` pairs of :func:`synthetic_pair` with seeds ``first_seed … first_seed+count−1``."""
-    if count < 0:
-        raise ConfigError(f'count must be >= 0; got {count}')
-    return [synthetic_pair(first_seed + i, height, width, max_disparity) for i in range(count)]
+    # A whole float (2.0, as synthetic_pair takes its sizes) is a count; range() refused it.
+    whole = is_real(count) and float(count).is_integer()
+    if not (is_int(count) or whole) or count < 0:
+        raise ConfigError(f'count must be a whole number >= 0; got {count!r}')
+    return [
+        synthetic_pair(first_seed + i, height, width, max_disparity) for i in range(int(count))
+    ]
