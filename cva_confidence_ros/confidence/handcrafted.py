@@ -160,6 +160,10 @@ class PeakRatioNaive(ConfidenceMethod):
         """Return (H, W) float32 in [1, (1 + eps) / eps] for costs in [0, 1]."""
         c1, _, c2 = two_smallest(inputs.cost_volume)
         eps = np.float32(self.eps)
+        # ConfidenceInputs lets costs dip 1e-4 below 0 (rounding slack); read as 0, so that an
+        # eps below that cannot make c1 + eps zero or negative (an inf or a negative PKRN).
+        zero = np.float32(0.0)
+        c1, c2 = np.maximum(c1, zero), np.maximum(c2, zero)
         return ((c2 + eps) / (c1 + eps)).astype(np.float32)
 
     def to_unit_interval(self, confidence: np.ndarray) -> np.ndarray:
@@ -223,7 +227,15 @@ def left_right_difference_map(
     Returns:
         (H, W) float32 ≥ 0. Where ``x - d1 < 0`` the right pixel lies outside the image and the
         nearest column (0) is used.
+
+    Raises:
+        InputError: ``volume_right`` not of the shape of ``volume``.
     """
+    if np.shape(volume_right) != np.shape(volume):
+        raise InputError(
+            f'volume_right must have the shape of volume {np.shape(volume)} (D, H, W); '
+            f'got {np.shape(volume_right)}'
+        )
     c1, d1, c2 = two_smallest(volume)
     right_min = volume_right.min(axis=0)
     height, width = c1.shape
