@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from light_net_test_utils import with_data_bn
 import numpy as np
 import pytest
 import torch
@@ -36,15 +37,7 @@ def _volume(seed: int = 0) -> np.ndarray:
 def net() -> CVANet:
     """A network whose BN statistics come from data, so that eval outputs are not flat."""
     torch.manual_seed(0)
-    model = CVANet(DEPTH)
-    for module in model.modules():
-        if isinstance(module, torch.nn.modules.batchnorm._BatchNorm):
-            module.momentum = None  # cumulative average over the calibration passes
-    model.train()
-    with torch.no_grad():
-        for seed in range(3):
-            model(torch.from_numpy(_volume(seed + 10))[None, None, :, :HEIGHT, :WIDTH])
-    return model.eval()
+    return with_data_bn(CVANet(DEPTH), [_volume(seed + 10) for seed in range(3)])
 
 
 def test_output_varies(net):

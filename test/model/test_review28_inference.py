@@ -3,6 +3,7 @@ input contract (costs in the rounding slack below 0, a right volume of another s
 
 from __future__ import annotations
 
+from light_net_test_utils import with_data_bn
 import numpy as np
 import pytest
 import torch
@@ -44,15 +45,8 @@ def test_lrd_map_rejects_right_volume_of_other_shape(right_width: int) -> None:
 @pytest.fixture(scope='module')
 def net() -> CVANet:
     torch.manual_seed(0)
-    model = CVANet(DEPTH)
-    for module in model.modules():
-        if isinstance(module, torch.nn.modules.batchnorm._BatchNorm):
-            module.momentum = None
-    model.train()
-    volume = np.random.default_rng(1).random((1, 1, DEPTH, 16, 16)).astype(np.float32)
-    with torch.no_grad():
-        model(torch.from_numpy(volume))
-    return model.eval()
+    volume = np.random.default_rng(1).random((DEPTH, 16, 16)).astype(np.float32)
+    return with_data_bn(CVANet(DEPTH), [volume])
 
 
 @pytest.mark.parametrize(('height', 'width'), [(1, 7), (5, 1), (3, 17), (14, 15)])

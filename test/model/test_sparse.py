@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from light_net_test_utils import with_data_bn
 import numpy as np
 import pytest
 import torch
@@ -70,15 +71,8 @@ def _volume(seed: int = 0) -> np.ndarray:
 def net() -> nn.Module:
     """A seeded network with data-driven BN statistics, folded for inference."""
     torch.manual_seed(0)
-    model = CVANet(DEPTH)
-    for module in model.modules():
-        if isinstance(module, torch.nn.modules.batchnorm._BatchNorm):
-            module.momentum = None
-    model.train()
-    with torch.no_grad():
-        for seed in range(3):
-            model(torch.from_numpy(_volume(seed + 10))[None, None, :, :HEIGHT, :WIDTH])
-    return fold_batchnorm(model.eval())
+    model = with_data_bn(CVANet(DEPTH), [_volume(seed + 10) for seed in range(3)])
+    return fold_batchnorm(model)
 
 
 class _PlainNet(nn.Module):
