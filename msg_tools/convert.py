@@ -15,8 +15,9 @@ from typing import Any
 
 import numpy as np
 
+from cva_confidence_ros.camera_info import check_rows, image_projection
 from cva_confidence_ros.errors import InputError
-from cva_confidence_ros.pointcloud import FX_TOLERANCE, StereoGeometry
+from cva_confidence_ros.pointcloud import StereoGeometry
 
 __all__ = [
     'COMPRESSED_IMAGE',
@@ -46,8 +47,6 @@ LASER_SCAN = 'sensor_msgs/msg/LaserScan'
 _FLOAT_ENCODINGS: dict[str, tuple[str, int]] = {'32FC1': ('f4', 1), '64FC1': ('f8', 1)}
 
 _NS = 1_000_000_000
-# Largest cy difference of a rectified pair, pixels (ros.convert.CY_TOLERANCE_PX).
-CY_TOLERANCE_PX = 0.1
 
 
 @lru_cache(maxsize=1)
@@ -244,66 +243,33 @@ def camera_geometry(
     """Read the rectified stereo geometry from the left and right ``CameraInfo`` messages.
 
     Binning and region of interest are folded in as REP 104 and ``image_geometry`` (and the
-    node, ``ros.convert.camera_info_to_geometry``) have them: the images are the ROI of the
-    calibration size divided by the binning, the ROI offset is moved out of the principal
-    point and rows 0 and 1 of P are divided by the binning. As the node does, images known
-    (``image_size`` = (width, height)) to have the calibration size take P as it is.
+    node, ``ros.convert.camera_info_to_geometry``) have them, by the node's own
+    ``camera_info.image_projection``: the images are the ROI of the calibration size divided
+    by the binning, the ROI offset is moved out of the principal point and rows 0 and 1 of P
+    are divided by the binning. When the images' size is known (``image_size`` = (width,
+    height)) it is checked as the node checks it, and images of the calibration size take P
+    as it is.
 
     Returns:
         ``(geometry, width, height)``: intrinsics and baseline from the projection matrices
         (``pointcloud.StereoGeometry``) and the size of the images both infos describe.
 
     Raises:
-        InputError: Sizes that differ, a region of interest outside the calibration size, a
-            focal length ≤ 0, fx, fy or cy that differ between left and right (not a
-            rectified pair), or a right projection without a positive baseline
-            (P_right[0, 3] must be −fx·B < 0).
+        InputError: Sizes that differ (from each other or from ``image_size``), a region of
+            interest outside the calibration size, a focal length ≤ 0, fx, fy or cy that
+            differ between left and right (not a rectified pair), or a right projection
+            without a positive baseline (P_right[0, 3] must be −fx·B < 0).
     """
-    size_left, p_left = _image_projection(left_info, 'left', image_size)
-    size_right, p_right = _image_projection(right_info, 'right', image_size)
+    size_left, p_left = image_projection(left_info, 'left camera info', image_size)
+    size_right, p_right = image_projection(right_info, 'right camera info', image_size)
     if size_left != size_right:
         raise InputError(
             f'left and right camera infos must declare the same size; got {size_left[0]}×'
             f'{size_left[1]} and {size_right[0]}×{size_right[1]}'
         )
     geometry = StereoGeometry.from_projections(p_left, p_right)
-    # The rows of a rectified pair correspond (ros.convert's check, with its tolerances).
-    if p_left[1, 1] > 0 and abs(p_right[1, 1] - p_left[1, 1]) > FX_TOLERANCE * p_left[1, 1]:
-        raise InputError(
-            'left and right projection matrices must share fy (a rectified pair); got '
-            f'P_left[1, 1] = {p_left[1, 1]:g} and P_right[1, 1] = {p_right[1, 1]:g}'
-        )
-    if abs(p_right[1, 2] - p_left[1, 2]) > CY_TOLERANCE_PX:
-        raise InputError(
-            'left and right projection matrices must share cy (a rectified pair); got '
-            f'P_left[1, 2] = {p_left[1, 2]:g} and P_right[1, 2] = {p_right[1, 2]:g}'
-        )
+    check_rows(p_left, p_right)
     return geometry, size_left[0], size_left[1]
-
-
-def _image_projection(
-    info: Any, side: str, image_size: tuple[int, int] | None
-) -> tuple[tuple[int, int], np.ndarray]:
-    """``((width, height), P)`` of the images a camera info describes (REP 104)."""
-    full_w, full_h = int(info.width), int(info.height)
-    if image_size is not None and tuple(image_size) == (full_w, full_h):
-        return (full_w, full_h), np.array(info.p, dtype=np.float64).reshape(3, 4)
-    binning_x, binning_y = max(int(info.binning_x), 1), max(int(info.binning_y), 1)
-    roi = info.roi
-    x0, y0 = int(roi.x_offset), int(roi.y_offset)
-    crop_w = int(roi.width) if int(roi.width) > 0 else full_w - x0
-    crop_h = int(roi.height) if int(roi.height) > 0 else full_h - y0
-    if crop_w <= 0 or crop_h <= 0 or x0 + crop_w > full_w or y0 + crop_h > full_h:
-        raise InputError(
-            f'{side} camera info: roi {int(roi.width)}×{int(roi.height)} at ({x0}, {y0}) must '
-            f'lie within its calibration size {full_w}×{full_h} (REP 104)'
-        )
-    p = np.array(info.p, dtype=np.float64).reshape(3, 4)
-    p[0, 2] -= x0 * p[2, 2]
-    p[1, 2] -= y0 * p[2, 2]
-    p[0] /= binning_x
-    p[1] /= binning_y
-    return (crop_w // binning_x, crop_h // binning_y), p
 
 
 def camera_info_msgs(

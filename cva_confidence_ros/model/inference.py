@@ -222,6 +222,11 @@ def _check_volume(net: nn.Module, cost_volume: np.ndarray) -> np.ndarray:
     if not np.issubdtype(cost_volume.dtype, np.floating):
         raise InputError(f'cost_volume must be floating point in [0, 1]; got {cost_volume.dtype}')
     depth = getattr(net, 'max_disparity', None)
+    if not is_int(depth):
+        raise ConfigError(
+            'expected a cost-volume network that says its depth (max_disparity: CVANet, a '
+            f'folded network, CVA-Net-Lite or -Fast); got {type(net).__name__}'
+        )
     if cost_volume.shape[0] != depth:
         raise InputError(
             f'the network was built for cost volumes of depth D = {depth}; '
@@ -337,7 +342,8 @@ def predict_confidence(
 
     Raises:
         InputError: Wrong shape, depth, dtype or values of ``cost_volume``.
-        ConfigError: Bad device, or ``tile_budget_mb`` not a finite number > 0.
+        ConfigError: Bad device, ``tile_budget_mb`` not a finite number > 0, or a network
+            without ``max_disparity``.
     """
     net = _unwrap(net)
     volume = _check_volume(net, cost_volume)
@@ -436,7 +442,8 @@ def predict_confidence_at(
 
     Raises:
         InputError: Bad volume, or coordinates of the wrong shape or outside the image.
-        ConfigError: Bad device, or ``batch_size`` not an integer >= 1.
+        ConfigError: Bad device, ``batch_size`` not an integer >= 1, or a network without
+            ``max_disparity``.
     """
     net = _unwrap(net)
     volume = _check_volume(net, cost_volume)

@@ -98,33 +98,36 @@ _OUTPUTS: tuple[tuple[type, str], ...] = (
 
 
 class _Mailbox:
-    """A one-slot hand-over between the executor and the worker: the newest item wins."""
+    """A hand-over between the executor and the worker: the newest sets win.
+
+    It holds the sets of one synchroniser call (one, or the two a short jump back emits at
+    once, oldest first); a newer call's sets replace those never taken.
+    """
 
     def __init__(self) -> None:
         self._cond = threading.Condition()
-        self._item: MatchedSet | None = None
+        self._items: deque[MatchedSet] = deque()
         self._closed = False
         self._poked = False
 
-    def put(self, item: MatchedSet) -> bool:
-        """Store ``item``; return True if it overwrote one that was never taken."""
+    def put(self, items: list[MatchedSet]) -> int:
+        """Store ``items`` (oldest first); return how many waiting ones they replaced."""
         with self._cond:
-            replaced = self._item is not None
-            self._item = item
+            replaced = len(self._items)
+            self._items = deque(items)
             self._cond.notify()
             return replaced
 
     def take(self) -> MatchedSet | None:
-        """Wait for an item; None once closed, or after a :meth:`poke` (the item, if any, stays
-        for the next call)."""
+        """Wait for an item (the oldest waiting); None once closed, or after a :meth:`poke`
+        (the items, if any, stay for the next call)."""
         with self._cond:
-            while self._item is None and not self._closed and not self._poked:
+            while not self._items and not self._closed and not self._poked:
                 self._cond.wait()
             if self._closed or self._poked:
                 self._poked = False
                 return None
-            item, self._item = self._item, None
-            return item
+            return self._items.popleft()
 
     def poke(self) -> None:
         """Wake the worker without an item (a new pipeline to warm up before the next one)."""
@@ -132,11 +135,11 @@ class _Mailbox:
             self._poked = True
             self._cond.notify()
 
-    def clear(self) -> bool:
-        """Drop the item waiting, if any; return whether there was one."""
+    def clear(self) -> int:
+        """Drop the items waiting; return how many there were."""
         with self._cond:
-            dropped = self._item is not None
-            self._item = None
+            dropped = len(self._items)
+            self._items.clear()
             return dropped
 
     @property
@@ -368,8 +371,7 @@ class ConfidenceCore(Node):
             self.destroy_subscription(subscription)
         self._subscriptions_in = []
         with self._lock:
-            if self._mailbox.clear():
-                self._stats.dropped += 1
+            self._stats.dropped += self._mailbox.clear()
             self._stats.unmatched += sum(self._sync.pending().values())
             self._sync = self._make_sync(self._node_config)
             self._stats.paired_stamps_ns = {}
@@ -537,14 +539,17 @@ class ConfidenceCore(Node):
                 if item.jumped_from_ns is not None
             ]
             self._stats.jumps += len(jumps)
+            taken = []
             for item in matched:
                 self._stats.paired_stamps_ns.update(item.stamps_ns)
                 self._stats.pairs += 1
                 self._stats.window_pairs += 1
                 if self._throttled(item):
                     self._stats.throttled += 1
-                elif self._mailbox.put(item):
-                    self._stats.dropped += 1
+                else:
+                    taken.append(item)
+            if taken:  # both sets of a short jump back are processed, oldest first
+                self._stats.dropped += self._mailbox.put(taken)
         if loose_period is not None:
             self._log_throttle.log(
                 self.get_logger(),

@@ -33,11 +33,11 @@ from sensor_msgs.msg import (
 from std_msgs.msg import Header
 from stereo_msgs.msg import DisparityImage
 
+from cva_confidence_ros.camera_info import check_rows, fold, image_projection
 from cva_confidence_ros.errors import InputError
 from cva_confidence_ros.pointcloud import (
     CLOUD_CONFIDENCE_DTYPE,
     CLOUD_DTYPE,
-    FX_TOLERANCE,
     StereoGeometry,
 )
 from cva_confidence_ros.scan import Scan
@@ -399,8 +399,9 @@ def camera_info_to_geometry(
     """Check that a pair of rectified camera infos fits the images and read the geometry.
 
     Binning and region of interest are folded in as REP 104 and ``image_geometry`` have them
-    (:func:`_image_projection`), and the two projection matrices must then share fy and cy as
-    well as fx: the rows of a rectified pair correspond, or the matcher compares the wrong ones.
+    (``camera_info.image_projection``), and the two projection matrices must then share fy
+    and cy as well as fx: the rows of a rectified pair correspond, or the matcher compares
+    the wrong ones.
 
     Args:
         left_info: ``CameraInfo`` of the left camera.
@@ -417,91 +418,11 @@ def camera_info_to_geometry(
             projection matrix, fx, fy or cy that differ between left and right, or a
             baseline ≤ 0.
     """
-    left = _image_projection(left_info, width, height, 'left camera info')
-    right = _image_projection(right_info, width, height, 'right camera info')
+    _, left = image_projection(left_info, 'left camera info', (width, height))
+    _, right = image_projection(right_info, 'right camera info', (width, height))
     geometry = StereoGeometry.from_projections(left, right)  # shapes and finite values
-    _check_rows(left, right)
+    check_rows(left, right)
     return geometry
-
-
-#: Largest difference of cy between the left and right projection matrices, pixels: a
-#: rectified pair has one cy; this only absorbs float and text round-off.
-CY_TOLERANCE_PX = 0.1
-
-
-def _check_rows(p_left: list[float], p_right: list[float]) -> None:
-    """Refuse projection matrices whose rows do not correspond (fy or cy differ)."""
-    fy_left, fy_right = float(p_left[5]), float(p_right[5])
-    if fy_left > 0 and abs(fy_right - fy_left) > FX_TOLERANCE * fy_left:
-        raise InputError(
-            'left and right projection matrices must share fy (a rectified pair); got '
-            f'P_left[1, 1] = {fy_left:g} and P_right[1, 1] = {fy_right:g}'
-        )
-    cy_left, cy_right = float(p_left[6]), float(p_right[6])
-    if abs(cy_right - cy_left) > CY_TOLERANCE_PX:
-        raise InputError(
-            'left and right projection matrices must share cy (a rectified pair: row v of '
-            f'one image is row v of the other); got P_left[1, 2] = {cy_left:g} and '
-            f'P_right[1, 2] = {cy_right:g}'
-        )
-
-
-def _image_projection(info: Any, width: int, height: int, name: str) -> list[float]:
-    """The projection matrix of the ``width`` × ``height`` images a camera info describes.
-
-    REP 104: the info's ``width`` × ``height`` is the calibration (full sensor) size, ``roi``
-    the window of it that was read (all zeros = the whole), ``binning_x`` × ``binning_y``
-    the binning of that window (0 and 1 = none); the images are the window divided by the
-    binning. So P is folded as ``image_geometry`` (and so ``stereo_image_proc``) folds it:
-    the ROI offset moved out of the principal point, then rows 0 and 1 divided by the
-    binning. ``roi.do_rectify`` does not change that (``image_geometry`` shifts P by the raw
-    ROI either way).
-
-    Images of the info's own calibration size take P as it is, whatever binning and ROI
-    say: P is always for the full resolution (REP 104), so that reading is right either way,
-    and drivers that fill the ROI with the valid rectified area of full-size images keep
-    working (``image_geometry`` would shift their points by the ROI offset). Any other size
-    must be the one binning and ROI describe.
-
-    Raises:
-        InputError: The images are not the size the info describes, or the ROI does not lie
-            within the calibration size; ``name`` says whose info.
-    """
-    full_w, full_h = int(info.width), int(info.height)
-    binning_x, binning_y = max(int(info.binning_x), 1), max(int(info.binning_y), 1)
-    roi = info.roi
-    x0, y0 = int(roi.x_offset), int(roi.y_offset)
-    crop_w = int(roi.width) if int(roi.width) > 0 else full_w - x0
-    crop_h = int(roi.height) if int(roi.height) > 0 else full_h - y0
-    if (full_w, full_h) == (width, height):
-        return list(info.p)
-    if (binning_x, binning_y, x0, y0, crop_w, crop_h) == (1, 1, 0, 0, full_w, full_h):
-        raise InputError(f'{name} must be for {width}×{height} images; got {full_w}×{full_h}')
-    if crop_w <= 0 or crop_h <= 0 or x0 + crop_w > full_w or y0 + crop_h > full_h:
-        raise InputError(
-            f'{name}: roi {int(roi.width)}×{int(roi.height)} at ({x0}, {y0}) must lie within '
-            f'its calibration size {full_w}×{full_h} (REP 104)'
-        )
-    size = (crop_w // binning_x, crop_h // binning_y)
-    if size != (width, height):
-        folded = (
-            f' (binning {info.binning_x}×{info.binning_y} and region of interest '
-            f'{roi.width}×{roi.height} at ({x0}, {y0}) of its {full_w}×{full_h})'
-        )
-        raise InputError(
-            f'{name} must be for {width}×{height} images; got {size[0]}×{size[1]}{folded}'
-        )
-    return _folded(np.array(info.p, dtype=np.float64).reshape(3, 4), info).ravel().tolist()
-
-
-def _folded(matrix: np.ndarray, info: Any) -> np.ndarray:
-    """K (3×3) or P (3×4) of ``info`` with its ROI offset moved out of the principal point and
-    rows 0 and 1 divided by its binning (``image_geometry``'s rule), in place."""
-    matrix[0, 2] -= int(info.roi.x_offset) * matrix[2, 2]
-    matrix[1, 2] -= int(info.roi.y_offset) * matrix[2, 2]
-    matrix[0] /= max(int(info.binning_x), 1)
-    matrix[1] /= max(int(info.binning_y), 1)
-    return matrix
 
 
 def image_camera_info(info: Any, width: int, height: int) -> CameraInfo:
@@ -515,10 +436,10 @@ def image_camera_info(info: Any, width: int, height: int) -> CameraInfo:
         InputError: An info that does not describe images of that size (as
             :func:`camera_info_to_geometry`).
     """
-    projection = _image_projection(info, width, height, 'camera info')
+    _, projection = image_projection(info, 'camera info', (width, height))
     if (int(info.width), int(info.height)) == (width, height):
-        return info  # P as it is (_image_projection's rule)
-    k = _folded(np.array(info.k, dtype=np.float64).reshape(3, 3), info)
+        return info  # P as it is (image_projection's rule)
+    k = fold(np.array(info.k, dtype=np.float64).reshape(3, 3), info)
     return CameraInfo(
         width=width,
         height=height,
@@ -526,7 +447,7 @@ def image_camera_info(info: Any, width: int, height: int) -> CameraInfo:
         d=list(info.d),
         k=k.ravel().tolist(),
         r=list(info.r),
-        p=list(projection),
+        p=projection.ravel().tolist(),
     )
 
 

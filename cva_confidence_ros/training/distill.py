@@ -98,10 +98,15 @@ def distillation_loss(
         weight: A in [0, 1].
 
     Returns:
-        The scalar loss.
+        The scalar loss; 0 (still tied to ``logits``, so backward and DDP's gradient
+        exchange run) when there are no outputs, where a mean would be NaN.
     """
     if not 0.0 <= weight <= 1.0:
         raise ConfigError(f'distill weight must be in [0, 1]; got {weight}')
+    if logits.numel() == 0:
+        if teacher is None and weight != 0.0:
+            raise ConfigError('a distill weight > 0 needs teacher logits')
+        return logits.sum() * 0.0
     hard = F.binary_cross_entropy_with_logits(logits, targets)
     if teacher is None or weight == 0.0:
         if weight != 0.0:

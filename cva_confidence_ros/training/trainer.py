@@ -436,14 +436,17 @@ def _steps(count: int, size: int, single_extract: bool) -> list[np.ndarray]:
     return steps
 
 
-def _check_step_inputs(config: TrainConfig) -> None:
+def _check_step_inputs(config: TrainConfig, world: int = 1) -> None:
     """Refuse a run whose steps would each hold a single 13×13 extract (``--batch-size 1``, or
-    one sample an epoch) when its network cannot train on one (see :func:`_steps`).
+    one sample an epoch for each of the ``world`` processes) when its network cannot train
+    on one (see :func:`_steps`).
 
     Raises:
         ConfigError: Naming the options that make the steps that small.
     """
-    single = config.batch_size == 1 or config.samples_per_epoch == 1
+    samples = config.samples_per_epoch
+    per_process = samples is not None and math.ceil(samples / max(world, 1)) == 1
+    single = config.batch_size == 1 or per_process
     if not single or (config.mode == 'dense' and config.crop_size > 1):
         return
     net = ARCHITECTURES.get(config.arch)({'max_disparity': config.max_disparity}).train()
@@ -452,19 +455,21 @@ def _check_step_inputs(config: TrainConfig) -> None:
         with torch.no_grad():
             _Logits(net)(probe)
     except ValueError as exc:
-        causes = [
-            option
-            for option, value in (
-                ('--batch-size', config.batch_size),
-                ('--samples-per-epoch', config.samples_per_epoch),
-                ('--crop-size', config.crop_size if config.mode == 'dense' else None),
+        causes = []
+        if config.batch_size == 1:
+            causes.append('--batch-size 1')
+        if per_process:
+            causes.append(
+                f'--samples-per-epoch {samples}'
+                + (f' over {world} processes' if world > 1 and samples != 1 else '')
             )
-            if value == 1
-        ]
+        if config.mode == 'dense' and config.crop_size == 1:
+            causes.append('--crop-size 1')
         raise ConfigError(
-            f'{" 1 and ".join(causes)} 1 make{"" if len(causes) > 1 else "s"} steps of a single '
+            f'{" and ".join(causes)} make{"" if len(causes) > 1 else "s"} steps of a single '
             f'{PATCH_SIZE}×{PATCH_SIZE} extract, which --arch {config.arch} cannot train on '
             f'({reason(exc)}); use 2 or more'
+            + (' samples per process' if world > 1 and per_process else '')
         ) from exc
 
 
@@ -559,7 +564,7 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
 
         return train_baseline(config, command)
     check_run_setup(config)
-    _check_step_inputs(config)
+    _check_step_inputs(config, int(os.environ.get('WORLD_SIZE', '1')))
     dist = _setup_distributed(config.device)
     if dist.device.type == 'cuda':
         # Fixed crop shapes: let cuDNN time its kernels once and keep the fastest.
