@@ -12,6 +12,7 @@ import contextlib
 from dataclasses import dataclass, fields
 import datetime
 from functools import partial
+import hashlib
 import json
 import math
 import os
@@ -195,14 +196,31 @@ def _prepare(
     validation: bool,
     log: _Log,
     prepare: Callable[[StereoSample, str, int], _Scene],
+    seen: dict[str, str] | None = None,
 ) -> list[_Scene]:
     """The scenes of ``loaders`` (:func:`_load_samples`), each prepared by ``prepare`` (the
     cost-volume networks' :func:`prepare_scene`; the disparity-map networks'
-    ``prepare_disparity_scene``), one line of log each."""
+    ``prepare_disparity_scene``), one line of log each.
+
+    A pair met before (the same images and ground truth under another name, here or in
+    ``seen``, which collects the pairs across calls: pass the training call's to the
+    validation call) is taken once, and said so: data sets that ship one another's frames
+    would weigh it twice, or validate on a training scene.
+    """
+    seen = {} if seen is None else seen
     scenes = []
     for label, loader in loaders:
         tic = time.perf_counter()
-        scene = prepare(loader(), config.matcher, config.max_disparity)
+        sample = loader()
+        fingerprint = _pair_fingerprint(sample)
+        first = seen.setdefault(fingerprint, label)
+        if first != label:
+            log(
+                f'{"val " if validation else ""}scene {label}: the same pair as {first} (taken '
+                'once)'
+            )
+            continue
+        scene = prepare(sample, config.matcher, config.max_disparity)
         scenes.append(scene)
         log(
             f'{"val " if validation else ""}scene {label}: {scene.shape[0]}×{scene.shape[1]} '
@@ -211,6 +229,16 @@ def _prepare(
             f'{time.perf_counter() - tic:.1f} s'
         )
     return scenes
+
+
+def _pair_fingerprint(sample: StereoSample) -> str:
+    """A digest of a pair's images and ground truth (shapes and dtypes included)."""
+    digest = hashlib.blake2b(digest_size=16)
+    for array in (sample.left, sample.right, sample.disparity):
+        array = np.ascontiguousarray(array)
+        digest.update(f'{array.dtype.str}{array.shape}'.encode())
+        digest.update(array.tobytes())
+    return digest.hexdigest()
 
 
 def _scene_facts(scenes: list[PreparedScene]) -> list[dict[str, Any]]:
@@ -594,9 +622,10 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
     # Both listed before either is prepared: a missing validation scene costs no matching.
     loaders = _load_samples(config, False)
     val_loaders = _load_samples(config, True) if dist.main else []
-    scenes = _prepare(loaders, config, False, log, prepare_scene)
+    seen: dict[str, str] = {}
+    scenes = _prepare(loaders, config, False, log, prepare_scene, seen)
     index = sample_index(scenes)
-    val_scenes = _prepare(val_loaders, config, True, log, prepare_scene)
+    val_scenes = _prepare(val_loaders, config, True, log, prepare_scene, seen)
     val_subsets = validation_subset(val_scenes, config.val_pixels, config.seed)
     n_samples = config.samples_per_epoch or len(index)
     log(

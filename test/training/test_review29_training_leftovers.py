@@ -3,6 +3,9 @@ torchrun, and inference on a network that does not say its depth."""
 
 from __future__ import annotations
 
+import dataclasses
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 import torch
@@ -49,3 +52,30 @@ def test_a_network_without_its_depth_is_named() -> None:
     ):
         with pytest.raises(ConfigError, match='says its depth .*got Conv3d$'):
             predict(torch.nn.Conv3d(1, 1, 1))
+
+
+def test_a_pair_two_data_sets_ship_is_trained_on_once_and_not_validated_on(tmp_path) -> None:
+    # ../shared/data's flyingthings3d TEST/A/0000/0006 is sceneflow_extra's 0006, byte for
+    # byte: both in the training split, it weighed twice.
+    from cva_confidence_ros.datasets.synthetic import synthetic_pair
+    from cva_confidence_ros.training.config import TrainConfig
+    from cva_confidence_ros.training.trainer import _Log, _prepare
+
+    pair, other = synthetic_pair(0, 24, 40, 16), synthetic_pair(1, 24, 40, 16)
+    renamed = dataclasses.replace(pair, dataset='sceneflow_extra', scene='0006')
+    config = TrainConfig(matcher='census_bm', max_disparity=16, synthetic=1)
+    log = _Log(tmp_path / 'train.log', True)
+
+    def prepare(sample, matcher, depth):
+        return SimpleNamespace(name=sample.scene, shape=(24, 40), factor=1, n_labelled=1,
+                               n_wrong=0)
+
+    seen: dict[str, str] = {}
+    loaders = [('a/0006', lambda: pair), ('b/1', lambda: other), ('b/0006', lambda: renamed)]
+    scenes = _prepare(loaders, config, False, log, prepare, seen)
+    assert [s.name for s in scenes] == [pair.scene, other.scene]
+    val = _prepare([('v/0', lambda: pair)], config, True, log, prepare, seen)
+    assert val == []
+    text = (tmp_path / 'train.log').read_text()
+    assert 'scene b/0006: the same pair as a/0006 (taken once)' in text
+    assert 'val scene v/0: the same pair as a/0006 (taken once)' in text
