@@ -54,6 +54,16 @@ FX_TOLERANCE = 1e-3
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
+def _confidence_fraction(values: np.ndarray) -> np.ndarray:
+    """Confidence values as fractions in [0, 1]: an integer array is read as a fraction of its
+    type's full scale, like a ``mono8`` / ``mono16`` image (uint8 255 or uint16 65535 = 1, so a
+    uint8 200 is 200 / 255 ≈ 0.78); a float array is returned as it is."""
+    values = np.asarray(values)
+    if values.dtype.kind in 'iu':
+        return values.astype(np.float64) / float(np.iinfo(values.dtype).max)
+    return values
+
+
 def _projection(matrix: Sequence[float] | np.ndarray, name: str) -> np.ndarray:
     array = np.asarray(matrix, dtype=np.float64)
     if array.size != 12:
@@ -207,10 +217,26 @@ def _check_disparity(
 
 
 def _depth(disparity: np.ndarray, geometry: StereoGeometry, mask: np.ndarray | None) -> np.ndarray:
-    """Z = fx·B / (d + Δ) in float64, NaN where invalid or masked out (inputs checked)."""
+    """Z = fx·B / (d + Δ) in float64, NaN where invalid or masked out (inputs checked).
+
+    A ``d + Δ`` so near 0 that X, Y or Z of a pixel of the image would not fit float32 (the
+    outputs' type) is invalid too: it would be published as inf, and off-axis (``|u − cx| >
+    fx``) as an infinite X beside a finite Z.
+    """
+    height, width = disparity.shape
+    # The largest |X| / Z and |Y| / Z of any pixel of the image (at least 1, for Z itself).
+    spread = max(
+        1.0,
+        abs(geometry.cx) / geometry.fx,
+        abs(width - 1 - geometry.cx) / geometry.fx,
+        abs(geometry.cy) / geometry.fy,
+        abs(height - 1 - geometry.cy) / geometry.fy,
+    )
     shifted = disparity.astype(np.float64) + geometry.disparity_offset
-    with np.errstate(invalid='ignore'):
-        keep = np.isfinite(shifted) & (shifted > 0)
+    with np.errstate(invalid='ignore', over='ignore'):
+        keep = np.isfinite(shifted) & (
+            shifted * _FLOAT32_MAX > geometry.fx * geometry.baseline * spread
+        )
     if mask is not None:
         keep &= mask
     depth = np.full(disparity.shape, np.nan)
@@ -234,7 +260,8 @@ def disparity_to_depth(
     Returns:
         (H, W) float32 depth along the left camera's optical axis, in the baseline's units
         (metres in ROS). NaN where the disparity is NaN, where ``d + Δ ≤ 0`` (at or beyond
-        infinity) or where ``mask`` is False. The ``Z`` of :func:`disparity_to_points`.
+        infinity) or so near 0 that a coordinate of the image's points would not fit float32,
+        or where ``mask`` is False. The ``Z`` of :func:`disparity_to_points`.
 
     Raises:
         InputError: As :func:`disparity_to_points`.
@@ -261,7 +288,8 @@ def disparity_to_points(
     Returns:
         (H, W, 3) float32 points (X, Y, Z) in the left camera frame (x right, y down, z
         forward), world units of the baseline. NaN in all three where the disparity is NaN,
-        where ``d + Δ ≤ 0`` or where ``mask`` is False.
+        where ``d + Δ ≤ 0`` or so near 0 that a coordinate of the image's points would not
+        fit float32, or where ``mask`` is False: a point is finite in all three or in none.
 
     Raises:
         InputError: ``disparity`` is not a 2-D real array, ``geometry`` is not a
@@ -327,7 +355,9 @@ def make_cloud(
         organized: Keep the (H, W) grid with NaN points (``stereo_image_proc`` style); if False,
             return only the finite points, row-major, as (N,).
         confidence: Optional (H, W) real confidence map in [0, 1] (NaN allowed where the point
-            is NaN); given, each point carries its value in a ``confidence`` field.
+            is NaN; an integer map is a fraction of its type's full scale, uint8 255 = 1, as
+            :func:`filter_cloud` reads it); given, each point carries its value in a
+            ``confidence`` field.
 
     Returns:
         (H, W) or (N,) structured array of :data:`CLOUD_DTYPE`, or of
@@ -359,9 +389,9 @@ def make_cloud(
         raise InputError(f'points must be (H, W, 3); got {points.shape}')
     if colours.shape != points.shape[:2]:
         raise InputError(f'colours must be {points.shape[:2]}; got {colours.shape}')
-    finite = np.isfinite(points[..., 2])
+    finite = np.isfinite(points).all(axis=2)
     if confidence is not None:
-        _check_confidence(confidence, points.shape[:2], finite)
+        confidence = _check_confidence(confidence, points.shape[:2], finite)
     cloud = np.empty(
         points.shape[:2], dtype=CLOUD_DTYPE if confidence is None else CLOUD_CONFIDENCE_DTYPE
     )
@@ -376,11 +406,15 @@ def make_cloud(
     return cloud[finite]
 
 
-def _check_confidence(confidence: np.ndarray, shape: tuple[int, ...], kept: np.ndarray) -> None:
+def _check_confidence(
+    confidence: np.ndarray, shape: tuple[int, ...], kept: np.ndarray
+) -> np.ndarray:
+    """The confidence as fractions (:func:`_confidence_fraction`), checked."""
     if confidence.dtype.kind not in 'fiu':
         raise InputError(f'confidence must hold real numbers; got dtype {confidence.dtype}')
     if confidence.shape != shape:
         raise InputError(f'confidence must be {shape}; got {confidence.shape}')
+    confidence = _confidence_fraction(confidence)
     values = confidence[kept]
     with np.errstate(invalid='ignore'):
         bad = ~((values >= 0) & (values <= 1))
@@ -389,6 +423,7 @@ def _check_confidence(confidence: np.ndarray, shape: tuple[int, ...], kept: np.n
             f'confidence must lie in [0, 1] at every kept point; {int(bad.sum())} do not '
             f'(e.g. {values[bad][0]})'
         )
+    return confidence
 
 
 def stereo_cloud(
@@ -440,7 +475,9 @@ def filter_cloud(
     :func:`make_cloud` builds with ``confidence`` or
     :func:`cva_confidence_ros.ros.convert.point_cloud_to_records` decodes from a
     ``PointCloud2``. A point is kept where its x, y, z are finite and its confidence is
-    ≥ ``threshold`` (a NaN confidence is never kept).
+    ≥ ``threshold`` (a NaN confidence is never kept). A float field holds the confidence in
+    [0, 1] as it is; an integer field is a fraction of its type's full scale, like a ``mono8``
+    or ``mono16`` image: a uint8 200 is 200 / 255 ≈ 0.78, uint8 255 and uint16 65535 are 1.
 
     Args:
         cloud: (H, W) organised or (N,) structured point array.
@@ -485,7 +522,7 @@ def filter_cloud(
             f'got {cloud.dtype[field]}'
         )
     with np.errstate(invalid='ignore'):
-        keep = cloud[field] >= threshold
+        keep = _confidence_fraction(cloud[field]) >= threshold
     for name in ('x', 'y', 'z'):
         keep &= np.isfinite(cloud[name])
     if not organized:

@@ -34,7 +34,7 @@ import numpy as np
 
 from cva_confidence_ros.checks import is_real
 from cva_confidence_ros.errors import ConfigError, InputError
-from cva_confidence_ros.pointcloud import StereoGeometry, _check_disparity
+from cva_confidence_ros.pointcloud import StereoGeometry, _check_disparity, _confidence_fraction
 
 __all__ = [
     'Scan',
@@ -154,7 +154,8 @@ def disparity_to_scan(
         geometry: Intrinsics at the disparity map's resolution.
         mask: Optional (H, W) bool, True = keep (the node passes ``PipelineResult.valid``).
         confidence: Optional (H, W) real array in [0, 1], the beams' intensities (clipped to
-            it, NaN = 0); None = 0.
+            it, NaN = 0; an integer array is a fraction of its type's full scale, uint8 255 =
+            1, as :func:`~cva_confidence_ros.pointcloud.filter_cloud` reads it); None = 0.
         config: Height band, ranges and pitch; None = :class:`ScanConfig` defaults.
 
     Returns:
@@ -184,6 +185,7 @@ def disparity_to_scan(
                 f'confidence must be a real array of the disparity shape {disparity.shape}; '
                 f'got {confidence.dtype} {confidence.shape}'
             )
+        confidence = _confidence_fraction(confidence)
     keep = np.ones(disparity.shape, np.bool_) if mask is None else mask
     # Beam 0 looks right of the last column: bearings grow to the left (counter-clockwise).
     angle_min, angle_max = bearing_range(geometry, width, height, config.pitch)
@@ -313,7 +315,9 @@ def scan_frame_id(camera_frame: str, configured: str = '') -> str:
     has z forward: the scan belongs in the camera's body frame. Drivers name the pair
     ``<name>_optical_frame`` / ``<name>_frame`` (ZED, RealSense's ``camera_color_*``) or
     ``<name>_optical`` / ``<name>``, so those suffixes are swapped; any other frame is returned
-    as it is (the caller warns: set ``scan_frame_id``).
+    as it is (the caller warns: set ``scan_frame_id``). The scan's bearings and ranges are
+    level (``pitch`` taken out), so with a pitch other than 0 the body frame of a camera
+    mounted at that pitch is tilted with it: name a level frame in ``scan_frame_id`` then.
 
     Args:
         camera_frame: ``header.frame_id`` of the left image.

@@ -319,8 +319,8 @@ def test_filter_cloud_other_layouts() -> None:
     cloud = np.zeros(4, dtype)
     cloud['score'] = [0, 100, 200, 255]
     cloud['ring'] = [1, 2, 3, 4]
-    kept = filter_cloud(cloud, 0.5, organized=False, field='score')
-    assert kept.dtype == dtype and kept['ring'].tolist() == [2, 3, 4]
+    kept = filter_cloud(cloud, 0.5, organized=False, field='score')  # 100/255 < 0.5
+    assert kept.dtype == dtype and kept['ring'].tolist() == [3, 4]
     with pytest.raises(InputError, match="no confidence field 'confidence'.*'ring'"):
         filter_cloud(cloud, 0.5)
 
