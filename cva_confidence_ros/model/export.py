@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Sequence
+import copy
 import json
 import os
 from pathlib import Path
@@ -33,7 +34,8 @@ import torch.nn.functional as F
 
 from cva_confidence_ros.checks import is_int
 from cva_confidence_ros.errors import ModelError, reason
-from cva_confidence_ros.model.inference import PAD, fold_batchnorm
+from cva_confidence_ros.model.inference import PAD, _unwrap, fold_batchnorm
+from cva_confidence_ros.model.lite import check_volume_tensor
 from cva_confidence_ros.model.weights import architecture_of, default_weights_path, load_weights
 
 __all__ = ['EXPORTABLE', 'CostVolumeModel', 'OnnxRuntimeNet', 'check_onnx', 'export_onnx', 'main']
@@ -61,15 +63,22 @@ class CostVolumeModel(nn.Module):
 
 
 def _deployable(net: nn.Module) -> tuple[CostVolumeModel, str, int]:
+    """The folded, float32 CPU copy of ``net`` behind the padding; ``net`` itself (its
+    train/eval mode, device and dtype) is left as it was."""
     arch = architecture_of(net)
     if arch not in EXPORTABLE:
         raise ModelError(
             f'ONNX export covers the cost-volume networks {EXPORTABLE}; got {arch!r} (its '
             'input is a disparity map and an image)'
         )
-    net = net.eval()
-    typed: Any = net  # each of the three has max_disparity; Lite and Fast fold themselves
+    # A (Distributed)DataParallel wrapper, which architecture_of accepts, has no
+    # fold_batchnorm and no max_disparity. Folding reads the BN running statistics whatever
+    # the mode, so the caller's network need not be switched to eval mode.
+    typed: Any = _unwrap(net)  # each of the three has max_disparity; Lite and Fast fold themselves
     folded = fold_batchnorm(typed) if arch == 'cvanet' else typed.fold_batchnorm()
+    # The graph is float32 on the CPU as documented, whatever the network's device, its dtype
+    # or torch's default dtype (the folded layers are built in the default dtype).
+    folded = folded.to('cpu', torch.float32)
     return CostVolumeModel(folded).eval(), arch, int(typed.max_disparity)
 
 
@@ -153,7 +162,8 @@ def export_onnx(
     model, _, depth = _deployable(net)
     path = Path(path)
     _trace_to_onnx(
-        model, torch.rand(1, depth, *example_size), path, opset, 'cost_volume',
+        model, torch.rand(1, depth, *example_size, dtype=torch.float32), path, opset,
+        'cost_volume',
         {0: 'batch', 2: 'height', 3: 'width'},
     )
     return path
@@ -183,7 +193,8 @@ def check_onnx(
         ``torch_ms`` of ``repeat`` runs (this machine's threads).
 
     Raises:
-        ModelError: ONNX Runtime is not installed, or the graph does not run.
+        ModelError: ONNX Runtime is not installed, or the graph does not load, does not run
+            on a (1, D, H, W) volume of ``net``'s depth, or gives another shape than ``net``.
     """
     try:
         import onnxruntime
@@ -204,9 +215,19 @@ def check_onnx(
             times.append((time.perf_counter() - tic) * 1e3)
         return np.asarray(out), float(np.median(times))
 
-    ort_out, ort_ms = timed(lambda: session.run(None, {'cost_volume': volume})[0])
+    try:
+        ort_out, ort_ms = timed(lambda: session.run(None, {'cost_volume': volume})[0])
+    except Exception as exc:  # onnxruntime's own types: another D, input name or dtype
+        raise ModelError(
+            f'ONNX Runtime cannot run {path} on a float32 cost volume of shape {volume.shape}, '
+            f'what the network takes ({reason(exc)})'
+        ) from exc
     with torch.inference_mode():
         torch_out, torch_ms = timed(lambda: model(torch.from_numpy(volume)).numpy())
+    if ort_out.shape != torch_out.shape:
+        raise ModelError(
+            f'{path} gives confidence of shape {ort_out.shape}; the network {torch_out.shape}'
+        )
     return {
         'max_abs_diff': float(np.abs(ort_out - torch_out).max()),
         'onnxruntime_ms': ort_ms,
@@ -223,7 +244,8 @@ class OnnxRuntimeNet:
     ``backend='onnxruntime'``.
 
     Args:
-        net: A folded CVA-Net, CVA-Net-Lite or CVA-Net-Fast (``fold_batchnorm``), on the CPU.
+        net: A folded CVA-Net, CVA-Net-Lite or CVA-Net-Fast (``fold_batchnorm``); a float32
+            CPU copy of it is exported (``net`` itself is left as it is).
         threads: ONNX Runtime's intra-op threads; None = torch's current thread count.
 
     Raises:
@@ -241,18 +263,29 @@ class OnnxRuntimeNet:
             ) from exc
         typed: Any = net
         depth = int(typed.max_disparity)
-        example = torch.rand(1, 1, depth, 2 * PAD + 8, 2 * PAD + 8)
+        self.max_disparity = depth
+        # The graph runs float32 on the CPU: a float64 (or CUDA) network, or layers built under
+        # a float64 default dtype, would be traced into a graph that the float32 feed of
+        # __call__ cannot run (or that ONNX Runtime cannot load).
+        model = copy.deepcopy(net).to('cpu', torch.float32).eval()
+        example = torch.rand(1, 1, depth, 2 * PAD + 8, 2 * PAD + 8, dtype=torch.float32)
         with tempfile.TemporaryDirectory() as folder:
             path = Path(folder) / 'net.onnx'
             _trace_to_onnx(
-                net.eval(), example, path, DEFAULT_OPSET, 'padded',
+                model, example, path, DEFAULT_OPSET, 'padded',
                 {0: 'batch', 3: 'rows', 4: 'columns'},
             )
             graph = path.read_bytes()
         self.session = _cpu_session(onnxruntime, graph, threads)
 
     def __call__(self, padded: torch.Tensor) -> torch.Tensor:
-        """(B, 1, D, h + 12, w + 12) float32 CPU tensor → (B, h, w) confidence tensor."""
+        """(B, 1, D, h + 12, w + 12) float32 CPU tensor → (B, h, w) confidence tensor.
+
+        Raises:
+            InputError: ``padded`` not a floating-point (B, 1, D, ≥13, ≥13) tensor with the
+                network's D (as the network itself; an integer volume is not cast silently).
+        """
+        check_volume_tensor(padded, self.max_disparity)
         feed = np.ascontiguousarray(padded.detach().numpy(), dtype=np.float32)
         (out,) = self.session.run(None, {'padded': feed})
         return torch.from_numpy(out)

@@ -129,8 +129,8 @@ def save_weights(net: nn.Module, path: str | os.PathLike[str], meta: Mapping[str
         )
     if meta.setdefault('max_disparity', model.max_disparity) != model.max_disparity:
         raise ModelError(
-            f"meta['max_disparity'] = {meta['max_disparity']} contradicts the network's "
-            f'D = {model.max_disparity}'
+            f"meta['max_disparity'] = {meta['max_disparity']!r} contradicts the network's "
+            f'D = {model.max_disparity} (an integer)'
         )
     # load_weights wants an int: 16.0 or np.int64(16) pass the check above but would not load.
     meta['max_disparity'] = int(meta['max_disparity'])
