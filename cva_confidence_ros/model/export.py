@@ -335,37 +335,47 @@ def run(args: argparse.Namespace) -> int:
     net, meta = load_weights(weights, arch=None)
     arch = architecture_of(net)
     depth = int(meta.get('max_disparity') or net.max_disparity)
-    tic = time.perf_counter()
-    export_onnx(net, out, opset=args.opset)
+    # Written beside --out and moved there once checked: a graph that fails the check is not
+    # left where a deploy script looks (nor put over a good one from before).
+    staging = out.with_name(f'.{out.stem}.unchecked.onnx')
+    try:
+        tic = time.perf_counter()
+        export_onnx(net, staging, opset=args.opset)
+        seconds = time.perf_counter() - tic
+        record: dict[str, Any] = {
+            'arch': arch,
+            'matcher': meta.get('matcher'),
+            'max_disparity': depth,
+            'weights': str(weights),
+            'weights_facts': {
+                k: meta[k] for k in ('samples_seen', 'command', 'date') if k in meta
+            },
+            'opset': args.opset,
+            'input': {'name': 'cost_volume', 'shape': ['batch', depth, 'height', 'width'],
+                      'dtype': 'float32', 'range': [0.0, 1.0]},
+            'output': {'name': 'confidence', 'shape': ['batch', 'height', 'width'],
+                       'dtype': 'float32', 'range': [0.0, 1.0]},
+        }
+        if not args.no_check:
+            size = args.check_size or ((240, 320) if arch == 'cvanet_fast' else (60, 80))
+            check = check_onnx(staging, net, size)
+            height, width = size
+            record['check'] = {'size': [height, width], **check}
+            print(f'{PROG}: ONNX Runtime vs PyTorch at {width}x{height}: max |difference| '
+                  f'{check["max_abs_diff"]:.2e}; {check["onnxruntime_ms"]:.1f} ms against '
+                  f'{check["torch_ms"]:.1f} ms (median of 3, {torch.get_num_threads()} torch '
+                  'threads)', file=sys.stderr)
+            if not check['max_abs_diff'] < 1e-4:
+                raise ModelError(
+                    f'the exported graph differs from PyTorch by {check["max_abs_diff"]:.2e} '
+                    f'(more than 1e-4); {out} not written'
+                )
+        os.replace(staging, out)
+    finally:
+        staging.unlink(missing_ok=True)
     print(f'{PROG}: wrote {out} ({arch}, {meta.get("matcher")}, D = {depth}, opset '
-          f'{args.opset}, {out.stat().st_size / 1e6:.2f} MB) in {time.perf_counter() - tic:.1f} s',
+          f'{args.opset}, {out.stat().st_size / 1e6:.2f} MB; exported in {seconds:.1f} s)',
           file=sys.stderr)
-    record: dict[str, Any] = {
-        'arch': arch,
-        'matcher': meta.get('matcher'),
-        'max_disparity': depth,
-        'weights': str(weights),
-        'weights_facts': {k: meta[k] for k in ('samples_seen', 'command', 'date') if k in meta},
-        'opset': args.opset,
-        'input': {'name': 'cost_volume', 'shape': ['batch', depth, 'height', 'width'],
-                  'dtype': 'float32', 'range': [0.0, 1.0]},
-        'output': {'name': 'confidence', 'shape': ['batch', 'height', 'width'],
-                   'dtype': 'float32', 'range': [0.0, 1.0]},
-    }
-    if not args.no_check:
-        size = args.check_size or ((240, 320) if arch == 'cvanet_fast' else (60, 80))
-        check = check_onnx(out, net, size)
-        height, width = size
-        record['check'] = {'size': [height, width], **check}
-        print(f'{PROG}: ONNX Runtime vs PyTorch at {width}x{height}: max |difference| '
-              f'{check["max_abs_diff"]:.2e}; {check["onnxruntime_ms"]:.1f} ms against '
-              f'{check["torch_ms"]:.1f} ms (median of 3, {torch.get_num_threads()} torch threads)',
-              file=sys.stderr)
-        if not check['max_abs_diff'] < 1e-4:
-            raise ModelError(
-                f'the exported graph differs from PyTorch by {check["max_abs_diff"]:.2e} '
-                '(more than 1e-4)'
-            )
     out.with_suffix('.json').write_text(json.dumps(record, indent=2) + '\n', encoding='utf-8')
     return 0
 

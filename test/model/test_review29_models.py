@@ -153,3 +153,29 @@ def test_a_depth_of_another_type_is_named_as_it_is(tmp_path: Path):
     with pytest.raises(ModelError, match=r"= '16' contradicts the network's D = 16"):
         save_weights(CVANetLite(D), tmp_path / 'w.pt', {'matcher': 'm', 'max_disparity': '16'})
     assert not (tmp_path / 'w.pt').exists()
+
+
+def test_cva_export_leaves_no_graph_that_failed_its_check(tmp_path, capsys, monkeypatch):
+    # The .onnx was written before the check and stayed when the check failed (exit 2), over
+    # any good graph from before: a deploy script looking for the file took it.
+    from cva_confidence_ros.model import CVANetFast, save_weights
+    import cva_confidence_ros.model.export as export
+
+    torch.manual_seed(0)
+    weights = tmp_path / 'cvanet_fast_census_sgm_d16.pt'
+    save_weights(CVANetFast(16).eval(), weights, {'matcher': 'census_sgm'})
+    out = tmp_path / 'fast.onnx'
+    assert export.main([str(weights), '--out', str(out), '--check-size', '24x40']) == 0
+    good = out.read_bytes()
+    capsys.readouterr()
+
+    def failing(path, net, size, repeat=3):
+        return {'max_abs_diff': 0.5, 'onnxruntime_ms': 1.0, 'torch_ms': 1.0}
+
+    monkeypatch.setattr(export, 'check_onnx', failing)
+    assert export.main([str(weights), '--out', str(out), '--check-size', '24x40']) == 2
+    assert f'differs from PyTorch by 5.00e-01 (more than 1e-4); {out} not written' in (
+        capsys.readouterr().err
+    )
+    assert out.read_bytes() == good
+    assert not list(tmp_path.glob('.*unchecked*'))  # the graph that failed is gone
