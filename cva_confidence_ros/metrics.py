@@ -9,8 +9,9 @@ pixels first) and the worst case (its wrong pixels first).
 
 Curve start: like the paper, the curve starts at its first sample point (density
 ``ceil(0.05 N) / N``); nothing is extrapolated towards density 0. The optimal curve is zero on
-``[0, 1 - ε]``, so this changes nothing for :func:`optimal_auc` as long as ``ε ≤ 0.95``; above,
-``optimal_auc(ε, N)`` leaves out the area before the curve's start as the AUC does.
+``[0, 1 - ε]``, so this changes nothing for :func:`optimal_auc` as long as
+``ε ≤ 1 - ceil(0.05 N) / N`` (0.95 when 20 divides N); above, ``optimal_auc(ε, N)`` leaves out
+the area before the curve's start as the AUC does.
 
 All functions are vectorised (one sort, cumulative sums, ``searchsorted``) and handle millions of
 pixels.
@@ -110,7 +111,9 @@ def _flatten_pair(confidence: np.ndarray, error: np.ndarray) -> tuple[np.ndarray
         raise InputError(f'error must be a bool array (True = wrong); got dtype {error.dtype}')
     if confidence.size == 0:
         raise InputError('confidence and error are empty; expected at least one pixel')
-    confidence = confidence.reshape(-1).astype(np.float64, copy=False)
+    # Ranked in its own dtype: float64 would tie int64 / uint64 values beyond 2**53 and
+    # long-double values closer than float64's resolution, and change the ranking.
+    confidence = confidence.reshape(-1)
     if np.isnan(confidence).any():
         raise InputError(
             f'confidence holds {int(np.isnan(confidence).sum())} NaN values; '
@@ -144,7 +147,9 @@ def roc_curve(confidence: np.ndarray, error: np.ndarray) -> tuple[np.ndarray, np
     """
     confidence, error = _flatten_pair(confidence, error)
     n = confidence.size
-    order = np.argsort(-confidence, kind='stable')
+    # Descending order: ascending, reversed (negating would wrap unsigned and INT_MIN values);
+    # the order within a run of equal values does not matter, runs are taken together.
+    order = np.argsort(confidence, kind='stable')[::-1]
     sorted_conf = confidence[order]
     cum_err = np.cumsum(error[order], dtype=np.int64)
     # Group ends as pixel counts: the position after the last pixel of every run of equal values.
@@ -207,8 +212,10 @@ def optimal_auc(error_rate: float, n_pixels: int | None = None) -> float:
         n_pixels: Given, the optimum over the density range that :func:`roc_auc` of that many
             pixels covers, from its first sample ``s = ceil(0.05 N) / N`` on: Eq. (1) while
             ``ε ≤ 1 − s``; above (ε > 0.95, or a few pixels), the area left of ``s``, which no
-            confidence map can get, is left out: ``(1 − s) + (1 − ε) ln s``. Then AUC ≥ the
-            optimum for every map (ε = 1: both 0.95).
+            confidence map can get, is left out: ``(1 − s) + (1 − ε) ln s`` (ε = 1, N = 100:
+            0.95, the AUC of every map). The optimum is the exact area under the optimal
+            curve; the AUC, a trapezoid rule over 5 % samples of a concave curve, can fall a
+            little below it for a perfect map (ε = 0.1, N = 1000: 0.00513 against 0.00518).
 
     Returns:
         The optimal AUC in [0, 1] (without ``n_pixels``, 1 for ε = 1, the limit of the

@@ -97,28 +97,38 @@ def score_confidence(confidence: np.ndarray, error: np.ndarray) -> ScoredMethod:
     """ROC curve, AUC and optimal AUC of confidence values against error labels.
 
     Args:
-        confidence: (N,) or (H, W) float confidence at the scored pixels, higher = more
-            confident; ±inf allowed, NaN not. Scored in float64 (a float64 map keeps its
-            order).
+        confidence: (N,) or (H, W) real (float or int) confidence at the scored pixels,
+            higher = more confident; ±inf allowed, NaN not. Ranked in its own dtype (a
+            float64 map keeps its order).
         error: Same shape, bool, True = the disparity is wrong.
 
     Returns:
         The :class:`ScoredMethod`.
 
     Raises:
-        InputError: Shapes differ, nothing to score, or NaN confidence.
+        InputError: Shapes differ, nothing to score, NaN confidence, ``confidence`` is not
+            real (bool, complex, str, object) or ``error`` is not bool.
     """
     from cva_confidence_ros.metrics import auc_scores, roc_curve
 
-    # float64 holds float32 exactly; casting a float64 map down would tie values that differ
-    # only beyond float32's 7 digits and change the ranking the AUC measures.
-    confidence = np.asarray(confidence, dtype=np.float64).ravel()
-    error = np.asarray(error, dtype=bool).ravel()
+    # No cast: casting to float would read a bool confidence as 0 / 1, drop a complex one's
+    # imaginary part, parse a str one ('a' a bare ValueError), and casting a float64 map down
+    # would tie values that differ only beyond float32's 7 digits.
+    confidence = np.asarray(confidence)
+    error = np.asarray(error)
+    if confidence.dtype.kind not in 'fiu':
+        raise InputError(
+            f'confidence must hold real numbers (float or int); got dtype {confidence.dtype}'
+        )
+    if error.dtype != np.bool_:
+        raise InputError(f'error must be a bool array (True = wrong); got dtype {error.dtype}')
     if confidence.shape != error.shape:
         raise InputError(
-            f'confidence and error must have the same size; got {confidence.size} '
-            f'and {error.size}'
+            f'confidence and error must have the same shape; got {confidence.shape} '
+            f'and {error.shape}'
         )
+    confidence = confidence.ravel()
+    error = error.ravel()
     if confidence.size == 0:
         raise InputError('no pixels to score: the scene has no ground-truth pixels')
     if np.isnan(confidence).any():
