@@ -170,6 +170,17 @@ class TopicNames:
             if not str(value).strip('/'):
                 raise ConfigError(f'topic {name} must be a non-empty name; got {value!r}')
             check_topic_name(self.resolve(name), f'topic {name}')
+        # The replay tells its inputs apart by topic: two on one topic would leave one of
+        # them without messages (every frame unpaired, or the images read as ground truth).
+        named: dict[str, str] = {}
+        for name in (*INPUT_KEYS, 'ground_truth'):
+            topic = self.resolve(name)
+            if topic in named:
+                raise ConfigError(
+                    f'topics {named[topic]} and {name} are both {topic!r}; every input (and '
+                    f'the ground truth) needs a topic of its own'
+                )
+            named[topic] = name
 
     def resolve(self, name: str) -> str:
         """The absolute topic name of ``name`` (which may be one of the attribute names)."""
@@ -798,7 +809,8 @@ class ReplaySession:
     Use as a context manager: leaving it (normally, on a bag fault, or on Ctrl-C) finalises
     the output bag and writes the report with the frames done so far; the two expected ways
     to stop early (``KeyboardInterrupt``, ``BagError``) are recorded in the report and not
-    raised further, see :meth:`outcome`.
+    raised further, see :meth:`outcome`; another error of the package (a report folder that
+    is full) is recorded in the report too, and raised further.
 
     Ground truth and results meet by stamp: whichever comes first waits. The ground-truth
     topic comes in stamp order, so a result stops waiting once ground truth of a later stamp
@@ -889,7 +901,9 @@ class ReplaySession:
         try:
             if interrupted:
                 self.report.interrupted = True
-            elif isinstance(exc, BagError):
+            elif isinstance(exc, CVAError):
+                # A bag fault ends the run here; another fault (a report folder that is full)
+                # is raised further, but the report says what stopped it all the same.
                 self.report.error = str(exc)
             self.finish()
         finally:
@@ -1168,7 +1182,9 @@ class ReplaySession:
     def finish(self) -> None:
         """Score what still waits, close the output bag, write the report.
 
-        The bag is closed even if scoring fails, so that what was written stays readable.
+        The bag is closed even if scoring fails, so that what was written stays readable. A
+        bag that cannot be finished (a full disk) is recorded as the run's error, and the
+        report of the frames done is written all the same.
         """
         stopped = self.report.interrupted or bool(self.report.error)
         try:
@@ -1177,9 +1193,13 @@ class ReplaySession:
                 self._score(result, None, note=self._no_truth(stamp, stopped))
         finally:
             if self.out is not None:
-                self.out.close()
-                if not (self.out.kept_old or self.out.dropped_empty):
-                    self.paths['bag'] = Path(self.options.out)
+                try:
+                    self.out.close()
+                except BagError as err:
+                    self.report.error = '; '.join(filter(None, (self.report.error, str(err))))
+                else:
+                    if not (self.out.kept_old or self.out.dropped_empty):
+                        self.paths['bag'] = Path(self.options.out)
         if self.writer is not None:
             self.paths.update(self.writer.write(self.report))
 

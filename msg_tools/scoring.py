@@ -510,13 +510,11 @@ class ReportWriter:
 
         Returns:
             The PNGs written now.
-        """
-        from cva_confidence_ros.plots import (
-            save_confidence_map,
-            save_confidence_overlay,
-            save_roc_curves,
-        )
 
+        Raises:
+            ConfigError: A PNG cannot be written (a full disk), naming the frame and folder;
+                no further frame gets PNGs.
+        """
         left: np.ndarray | None = None
         if kept is not None and image is not None and score.kept_fraction is not None:
             key = (score.kept_fraction, score.frame)
@@ -527,6 +525,33 @@ class ReportWriter:
         if not self.wants(score.frame):
             return []
         self._plotted += 1
+        try:
+            return self._draw_frame(score, confidence, label, kept, image, left)
+        except OSError as err:
+            # A full disk: no more PNGs (the report files may still fit), and the run stops
+            # with the reason rather than a traceback.
+            self.max_plots = self._plotted
+            raise ConfigError(
+                f'cannot write the PNGs of frame {score.frame} into the report folder '
+                f'{self.folder}: {reason(err)}'
+            ) from None
+
+    def _draw_frame(
+        self,
+        score: FrameScore,
+        confidence: np.ndarray,
+        label: str,
+        kept: np.ndarray | None,
+        image: Callable[[], np.ndarray | None] | None,
+        left: np.ndarray | None,
+    ) -> list[Path]:
+        """Write the PNGs of one frame (see :meth:`frame_plots`)."""
+        from cva_confidence_ros.plots import (
+            save_confidence_map,
+            save_confidence_overlay,
+            save_roc_curves,
+        )
+
         finite = confidence[np.isfinite(confidence)]
         vmin = vmax = None
         if finite.size:
@@ -559,7 +584,19 @@ class ReportWriter:
         return paths
 
     def write(self, report: ReplayReport) -> dict[str, Path]:
-        """Write JSON, CSV, Markdown and the AUC-over-time plot; return their paths."""
+        """Write JSON, CSV, Markdown and the AUC-over-time plot; return their paths.
+
+        Raises:
+            ConfigError: A file cannot be written (a full disk), naming the folder.
+        """
+        try:
+            return self._write(report)
+        except OSError as err:
+            raise ConfigError(
+                f'cannot write the report into {self.folder}: {reason(err)}'
+            ) from None
+
+    def _write(self, report: ReplayReport) -> dict[str, Path]:
         document = report.as_dict()
         paths = {
             'json': self.folder / 'report.json',
