@@ -48,6 +48,9 @@ from msg_tools.bagio import STORAGES
 from msg_tools.progress import GracefulInterrupt
 from msg_tools.replay import STOPPING, CompressionConfig, ReplayOptions, TopicNames
 
+#: ``--sync-tolerance`` unless given: the node's ``approximate_sync_tolerance_seconds`` default.
+SYNC_TOLERANCE_S = 0.01
+
 __all__ = ['build_parser', 'main', 'options_from_args']
 
 _DEFAULTS = PipelineConfig.__dataclass_fields__
@@ -118,8 +121,10 @@ def build_parser() -> argparse.ArgumentParser:
                            'share is of the other pixels')
     node.add_argument('--approximate-sync', action='store_true',
                       help='pair messages whose stamps differ by at most --sync-tolerance')
-    node.add_argument('--sync-tolerance', type=float, default=0.0,
-                      help='approximate sync tolerance in seconds')
+    node.add_argument('--sync-tolerance', type=float, default=None, metavar='SECONDS',
+                      help='approximate sync tolerance in seconds (with --approximate-sync; '
+                           f"default {SYNC_TOLERANCE_S:g}, the node's "
+                           'approximate_sync_tolerance_seconds)')
     node.add_argument('--queue-size', type=int, default=10, help='synchroniser queue size')
     node.add_argument('--no-points', action='store_true', help='do not write points2')
     node.add_argument('--points-unorganized', action='store_true',
@@ -259,6 +264,12 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
         except ConfigError as err:
             raise ConfigError(f'{option}: {err}') from None
     compression = CompressionConfig(**{name: getattr(args, name) for name in _COMPRESSION_OPTIONS})
+    # A tolerance exact sync would ignore is refused rather than ignored.
+    if args.sync_tolerance is not None and not args.approximate_sync:
+        raise ConfigError(
+            '--sync-tolerance needs --approximate-sync (exact sync pairs equal stamps only)'
+        )
+    tolerance = SYNC_TOLERANCE_S if args.sync_tolerance is None else args.sync_tolerance
     topics = TopicNames(
         prefix=args.topic_prefix,
         left=args.left_topic,
@@ -277,7 +288,7 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
         mode=args.mode,
         storage=args.storage,
         approximate_sync=args.approximate_sync,
-        sync_tolerance_s=args.sync_tolerance,
+        sync_tolerance_s=tolerance if args.approximate_sync else 0.0,
         queue_size=args.queue_size,
         max_pixels=args.max_pixels,
         seed=args.seed,
