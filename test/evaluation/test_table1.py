@@ -132,6 +132,7 @@ def test_table1_trains_missing_weights_and_writes_outputs(data_root, tmp_path, c
     assert 'KITTI 2012: not scored' in markdown and "paper's Table 1" in markdown
     summary = json.loads((out / 'table1.json').read_text())
     assert summary['protocol'] == 'develop'
+    assert 'mean of the per-scene values' in summary['cells_are']  # as table1.md says
     assert {r['row'] for r in summary['records']} == {'KITTI 2015', 'Middlebury v3'}
     assert {r['method'] for r in summary['records']} == set(methods)
     assert all(0 <= r['auc'] <= 1 and r['n_pixels'] <= 300 for r in summary['records'])
