@@ -133,6 +133,8 @@ def _trace_to_onnx(
             )
     except ModuleNotFoundError as exc:
         raise ModelError(f'ONNX export needs the onnx package ({exc}): pip install onnx') from exc
+    except OSError as exc:  # a full disk, no permission
+        raise ModelError(f'cannot write the ONNX graph to {path}: {reason(exc)}') from exc
     except RuntimeError as exc:  # torch.onnx.OnnxExporterError is one too
         hint = '' if opset == DEFAULT_OPSET else f'; the default opset {DEFAULT_OPSET} works'
         raise ModelError(f'cannot export to ONNX at opset {opset} ({reason(exc)}){hint}') from exc
@@ -153,14 +155,22 @@ def export_onnx(
         example_size: (H, W) of the volume traced through the network (any size works later).
 
     Returns:
-        ``path`` as a :class:`~pathlib.Path`.
+        ``path`` as a :class:`~pathlib.Path` (missing folders made, as :func:`save_weights`
+        makes them).
 
     Raises:
-        ModelError: Another architecture, the ``onnx`` package is missing, or ``opset`` is
-            one the exporter cannot write the network at.
+        ModelError: Another architecture, the ``onnx`` package is missing, ``opset`` is
+            one the exporter cannot write the network at, or ``path`` is a folder or in a
+            place that cannot be written.
     """
     model, _, depth = _deployable(net)
     path = Path(path)
+    if path.is_dir():
+        raise ModelError(f'cannot write the ONNX graph to {path}: it is a folder')
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ModelError(f'cannot write the ONNX graph to {path}: {reason(exc)}') from exc
     _trace_to_onnx(
         model, torch.rand(1, depth, *example_size, dtype=torch.float32), path, opset,
         'cost_volume',

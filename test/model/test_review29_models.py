@@ -179,3 +179,19 @@ def test_cva_export_leaves_no_graph_that_failed_its_check(tmp_path, capsys, monk
     )
     assert out.read_bytes() == good
     assert not list(tmp_path.glob('.*unchecked*'))  # the graph that failed is gone
+
+
+def test_export_onnx_makes_its_folders_and_names_a_place_it_cannot_write(tmp_path):
+    # A missing folder gave FileNotFoundError and a folder IsADirectoryError (save_weights
+    # makes its folders and raises ModelError).
+    from cva_confidence_ros.model import CVANetFast
+    from cva_confidence_ros.model.export import export_onnx
+
+    net = CVANetFast(16).eval()
+    path = export_onnx(net, tmp_path / 'a' / 'b' / 'fast.onnx', example_size=(16, 20))
+    assert path.stat().st_size > 1000
+    with pytest.raises(ModelError, match='/a/b: it is a folder'):
+        export_onnx(net, tmp_path / 'a' / 'b', example_size=(16, 20))
+    (tmp_path / 'file').write_text('x')
+    with pytest.raises(ModelError, match='cannot write the ONNX graph to .*file/x.onnx'):
+        export_onnx(net, tmp_path / 'file' / 'x.onnx', example_size=(16, 20))
