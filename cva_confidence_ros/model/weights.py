@@ -138,7 +138,10 @@ def save_weights(net: nn.Module, path: str | os.PathLike[str], meta: Mapping[str
     # Only plain values load back with torch.load(weights_only=True); a JSON round trip turns
     # tuples into lists, numpy scalars into numbers and anything exotic (versions, paths) into
     # strings.
-    meta = json.loads(json.dumps(meta, default=_plain))
+    try:
+        meta = json.loads(json.dumps(meta, default=_plain))
+    except (TypeError, ValueError) as exc:  # keys that are not text, circular values
+        raise ModelError(f'meta must hold plain values under text keys ({reason(exc)})') from exc
     state = {k: v.detach().cpu() for k, v in model.state_dict().items()}
     if path.is_dir():
         raise ModelError(f'weights file {path} is a directory; expected a .pt file path')
@@ -153,6 +156,24 @@ def save_weights(net: nn.Module, path: str | os.PathLike[str], meta: Mapping[str
         with contextlib.suppress(OSError):
             tmp.unlink(missing_ok=True)  # gone after a successful rename
     return path
+
+
+def _check_stored_dtypes(stored: Any, own: Mapping[str, torch.Tensor]) -> None:
+    """Refuse stored tensors of another kind than the network's: ``load_state_dict`` would
+    cast a complex tensor to real (dropping its imaginary part) or real values to integers
+    (batch-norm counters) without a word.
+
+    Raises:
+        TypeError: Naming the tensor (turned into a ModelError by the caller).
+    """
+    if not isinstance(stored, Mapping):
+        return  # load_state_dict names it
+    for name, tensor in own.items():
+        value = stored.get(name)
+        if not isinstance(value, torch.Tensor):
+            continue
+        if value.is_complex() or value.is_floating_point() != tensor.is_floating_point():
+            raise TypeError(f'{name} is {value.dtype}, the network holds {tensor.dtype}')
 
 
 def load_weights(
@@ -247,6 +268,7 @@ def load_weights(
         )
     try:
         net = ARCHITECTURES.get(stored)(meta)
+        _check_stored_dtypes(blob['state_dict'], net.state_dict())
         net.load_state_dict(blob['state_dict'])
     except (KeyError, TypeError, ValueError, RuntimeError) as exc:
         raise ModelError(

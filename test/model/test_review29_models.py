@@ -195,3 +195,24 @@ def test_export_onnx_makes_its_folders_and_names_a_place_it_cannot_write(tmp_pat
     (tmp_path / 'file').write_text('x')
     with pytest.raises(ModelError, match='cannot write the ONNX graph to .*file/x.onnx'):
         export_onnx(net, tmp_path / 'file' / 'x.onnx', example_size=(16, 20))
+
+
+def test_weights_of_another_kind_of_tensor_or_meta_key_are_refused_by_name(tmp_path):
+    # A complex tensor loaded as its real part and a float counter as an integer, without a
+    # word; a tuple key in meta raised json's TypeError.
+    from cva_confidence_ros.model import CVANetFast, load_weights, save_weights
+
+    net = CVANetFast(16)
+    with pytest.raises(ModelError, match='meta must hold plain values under text keys'):
+        save_weights(net, tmp_path / 'k.pt', {'matcher': 'census_bm', (1, 2): 'x'})
+    path = save_weights(net, tmp_path / 'w.pt', {'matcher': 'census_bm'})
+    blob = torch.load(path, weights_only=True)
+    name = next(k for k, v in blob['state_dict'].items() if v.is_floating_point())
+    counter = next(k for k, v in blob['state_dict'].items() if not v.is_floating_point())
+    for key, value in ((name, blob['state_dict'][name].to(torch.complex64)),
+                       (counter, blob['state_dict'][counter].double())):
+        broken = {**blob, 'state_dict': {**blob['state_dict'], key: value}}
+        torch.save(broken, tmp_path / 'broken.pt')
+        with pytest.raises(ModelError, match=rf'do not fit .*{key} is torch\.'):
+            load_weights(tmp_path / 'broken.pt', arch=None)
+    assert load_weights(path, arch=None)[1]['arch'] == 'cvanet_fast'
