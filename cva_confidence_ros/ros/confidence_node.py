@@ -183,7 +183,10 @@ class _Stats:
     throttled: int = 0
     # stamp of the last set handed to the worker (max_rate_hz)
     last_taken_ns: int | None = None
-    last_error: str = ''
+    # why the last invalid frame was dropped, and how the last failed one failed (apart: the
+    # status of a window with both names each by its own)
+    last_invalid: str = ''
+    last_failure: str = ''
     last_timings_ms: dict[str, float] = field(default_factory=dict)
     mean_timings_ms: dict[str, float] = field(default_factory=dict)
     window_messages: int = 0
@@ -322,6 +325,7 @@ class ConfidenceCore(Node):
             self._pub_overlay_compressed, self._pub_depth_compressed,
         ) = publishers
         self._scan_frame_warned = False
+        self._scan_pitch_warned = False
         self._pub_diagnostics = self.create_publisher(
             DiagnosticArray, '/diagnostics', QoSProfile(depth=10)
         )
@@ -496,6 +500,13 @@ class ConfidenceCore(Node):
         except CVAError as error:
             self.get_logger().warning(f'parameter change refused ({asked}): {error}')
             return SetParametersResult(successful=False, reason=str(error))
+        except Exception as error:  # noqa: BLE001  (raised here, it would end the executor's spin)
+            # Not a refusal the pipeline foresaw (CUDA out of memory loading the weights, a
+            # fault in a library): refused all the same, and the node goes on as it was.
+            why = f'{type(error).__name__}: {error}'
+            self.get_logger().error(f'parameter change refused ({asked}): building the new '
+                                    f'pipeline raised {why}')
+            return SetParametersResult(successful=False, reason=why)
         with self._lock:
             if pipeline is not None:
                 self._pipeline, self._pipeline_config = pipeline, pipeline_config
@@ -679,9 +690,13 @@ class ConfidenceCore(Node):
                 self._process(item, mailbox)
             except CVAError as error:
                 with self._lock:
+                    if self._stopping(mailbox):
+                        # As below: after a new configure, a frame of the old one must not
+                        # count in the new statistics (nor be logged as the new one's).
+                        return
                     self._stats.invalid += 1
                     self._stats.window_invalid += 1
-                    self._stats.last_error = str(error)
+                    self._stats.last_invalid = str(error)
                 self._log_throttle.log(
                     self.get_logger(), str(error), f'dropped frame {item.stamp_ns}: {error}'
                 )
@@ -694,7 +709,7 @@ class ConfidenceCore(Node):
                 with self._lock:
                     self._stats.failed += 1
                     self._stats.window_failed += 1
-                    self._stats.last_error = what
+                    self._stats.last_failure = what
                 self._log_throttle.log(
                     self.get_logger(),
                     what,
@@ -780,6 +795,9 @@ class ConfidenceCore(Node):
         judged_fraction = 1.0 if region is None else float(region.mean())
         expected_error = result.expected_kept_error
         with self._lock:
+            if self._stopping(mailbox):
+                # Stopped while it published (and perhaps configured anew): not the new stats'.
+                return
             self._stats.processed += 1
             self._stats.window_processed += 1
             self._stats.record_timings(timings)
@@ -877,6 +895,15 @@ class ConfidenceCore(Node):
                     'an optical frame (<name>_optical_frame); a LaserScan needs x forward and z '
                     'up: set scan_frame_id to the camera body frame'
                 )
+            pitch = node_config.scan_pitch
+            if pitch and not (node_config.scan_frame_id or self._scan_pitch_warned):
+                self._scan_pitch_warned = True
+                self.get_logger().warning(
+                    f'scan is level (scan_pitch {pitch:g} rad taken out) but published in the '
+                    f'camera frame {frame!r}, which is pitched with the camera: consumers place '
+                    'its returns on a plane tilted by the pitch; set scan_frame_id to a level '
+                    'frame (e.g. base_link)'
+                )
             self._pub_scan.publish(scan_to_message(scan, header, frame))
 
     # Diagnostics --------------------------------------------------------------------------
@@ -915,12 +942,12 @@ class ConfidenceCore(Node):
                 )
             if stats.window_invalid:
                 level = DiagnosticStatus.WARN
-                message = f'{stats.window_invalid} bad frame(s) dropped: {stats.last_error}'
+                message = f'{stats.window_invalid} bad frame(s) dropped: {stats.last_invalid}'
             if stats.window_messages and not stats.window_pairs:
                 level = DiagnosticStatus.WARN
                 message = self._unpaired_reason(stats, elapsed)
             if stats.window_failed and not stats.window_processed:
-                level, message = DiagnosticStatus.ERROR, f'processing fails: {stats.last_error}'
+                level, message = DiagnosticStatus.ERROR, f'processing fails: {stats.last_failure}'
             values = {
                 'messages_received': stats.messages,
                 'frames_received': stats.pairs,
