@@ -22,12 +22,12 @@ obstacle layers; in the camera's body frame, :mod:`cva_confidence_ros.scan`), ``
 :mod:`cva_confidence_ros.ros.transport`) and ``/diagnostics``. Everything is stamped with the
 left image's header and published at the processed resolution (1/``downsample``).
 
-Threads: subscription callbacks only synchronise and drop the newest complete set into a
-one-slot mailbox; a worker thread processes whatever is in the slot. When frames come faster
-than they are processed, older ones are overwritten (counted as dropped) and nothing queues
-without bound. A bad frame is logged (the first of each kind at once, repeats throttled) and
-dropped; the node keeps going. Stamps that jump back in time (a looped bag, a driver restart, a
-simulator reset) are logged and pairing starts over from them.
+Threads: subscription callbacks only synchronise and hand the newest complete set (or the two
+a short jump back completes at once) to a mailbox; a worker thread processes what is in it.
+When frames come faster than they are processed, older ones are overwritten (counted as
+dropped) and nothing queues without bound. A bad frame is logged (the first of each kind at
+once, repeats throttled) and dropped; the node keeps going. Stamps that jump back in time (a
+looped bag, a driver restart, a simulator reset) are logged and pairing starts over from them.
 
 The node itself lives in :mod:`cva_confidence_ros.ros.confidence_node`; this module is the light
 entry point, which imports it inside :func:`main`'s ``try`` (so that an early Ctrl-C ends quietly)

@@ -834,6 +834,26 @@ def test_a_scan_in_a_frame_not_named_optical_is_warned_about(running: _Running) 
     assert "camera frame 'stereo_cam'" in line
 
 
+def test_a_pitched_scan_in_the_camera_body_frame_is_warned_about(running: _Running) -> None:
+    # The scan is level (scan_pitch taken out) but went out in the camera's body frame, which
+    # is pitched with the camera: consumers put its returns on a tilted plane, without a word.
+    from sensor_msgs.msg import LaserScan
+
+    client = running.client
+    client.subscribe('scan', LaserScan)
+    left, right = textured_pair(seed=14)
+    assert running.set(scan_pitch=0.2).successful
+    try:
+        client.send_until_output(left, right, running.next_stamp(), topics=('scan',))
+        assert client.wait_for(lambda: bool(running.logged('pitched with the camera')))
+        (line,) = running.logged('pitched with the camera')
+        assert 'scan_pitch 0.2 rad' in line and 'set scan_frame_id to a level frame' in line
+        client.send_until_output(left, right, running.next_stamp(), topics=('scan',))
+        assert len(running.logged('pitched with the camera')) == 1  # once
+    finally:
+        assert running.set(scan_pitch=0.0).successful
+
+
 def test_dense_cloud(running: _Running) -> None:
     result = running.set(points_organized=False)
     assert result.successful
