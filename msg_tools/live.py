@@ -744,5 +744,6 @@ class _Recorder:
                 ),
                 region=region,
                 geometry=geometry,
+                input_shape=pending.size,
             )
         )

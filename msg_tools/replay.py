@@ -778,6 +778,9 @@ class FrameResult:
         region: (h, w) bool, the pixels the node judges (``PipelineResult.region``: the
             region of interest and the ignore mask); None = all.
         geometry: Stereo geometry at the output resolution (to score ``--scan``).
+        input_shape: (h, w) of the input images: ground truth of another size than this (or
+            the output's) is refused. None = unknown: ground truth whose size shrinks to the
+            output's by the downsample factor is taken as of the input size.
     """
 
     frame: int
@@ -791,6 +794,7 @@ class FrameResult:
     image: Callable[[], np.ndarray | None] | None = None
     region: np.ndarray | None = None
     geometry: StereoGeometry | None = None
+    input_shape: tuple[int, int] | None = None
 
 
 @dataclass
@@ -818,6 +822,13 @@ class ReplaySession:
     (ground truth that lags its images by more is not waited for); it is then reported
     unscored, with the reason. A frame that cannot be scored (no usable ground truth) is
     logged with the reason (the first few times per reason).
+
+    Stamps that go back on either stream (a looped bag, a simulator reset; on the frames,
+    the synchroniser lets a frame go back only where the stamps jumped) start a new ordering
+    epoch of that stream, and the n-th jump of the frames and of the ground truth are taken
+    as the same one: only ground truth of a frame's own epoch tells that its ground truth can
+    no longer come. Frames from before a jump still wait for theirs (it may lag); one that a
+    frame of the same stamp after the jump finds waiting is reported unscored.
 
     The synchroniser records the input messages it lets go without a pair
     (:meth:`report_drops`): each is logged (the first few) and recorded in the report with its
@@ -854,11 +865,17 @@ class ReplaySession:
         self.writer: ReportWriter | None = None
         self.paths: dict[str, Path] = {}
         self.truth_window = GT_WAIT_FRAMES if truth_window == 0 else truth_window
-        self._pending: OrderedDict[int, FrameResult] = OrderedDict()
-        self._truth: OrderedDict[int, Any] = OrderedDict()
-        # Stamps of frames that stopped waiting after GT_WAIT_FRAMES, and of ground truth that
-        # waited longer than truth_window for its frame: to tell why a frame went unscored.
-        self._given_up: OrderedDict[int, None] = OrderedDict()
+        # Stamp → (ordering epoch, frame or ground-truth message), see the class.
+        self._pending: OrderedDict[int, tuple[int, FrameResult]] = OrderedDict()
+        self._truth: OrderedDict[int, tuple[int, Any]] = OrderedDict()
+        # Epochs and last stamps of the frames' and the ground truth's streams.
+        self._frame_epoch = self._truth_epoch = 0
+        self._last_frame: int | None = None
+        self._last_truth: int | None = None
+        # Stamps (→ epoch) of frames that stopped waiting after GT_WAIT_FRAMES, and of ground
+        # truth that waited longer than truth_window for its frame: to tell why a frame went
+        # unscored.
+        self._given_up: OrderedDict[int, int | None] = OrderedDict()
         self._truth_dropped: OrderedDict[int, None] = OrderedDict()
         self._late_truth_logged = False
         self._skip_logs = 0
@@ -986,13 +1003,18 @@ class ReplaySession:
 
     def add_ground_truth(self, stamp_ns: int, msg: Any) -> None:
         """Offer a ground-truth message; scores the frame that waits for it, if any, and
-        gives up on the frames of older stamps that still wait (theirs can no longer come)."""
-        self._give_up_before(stamp_ns)
-        result = self._pending.pop(stamp_ns, None)
-        if result is not None:
-            self._score(result, msg)
+        gives up on the frames of older stamps of its epoch that still wait (theirs can no
+        longer come). A stamp before the last one starts a new epoch (see the class)."""
+        if self._last_truth is not None and stamp_ns < self._last_truth:
+            self._truth_epoch += 1
+        self._last_truth = stamp_ns
+        epoch = self._truth_epoch
+        self._give_up_before(stamp_ns, epoch)
+        waiting = self._pending.pop(stamp_ns, None)
+        if waiting is not None:
+            self._score(waiting[1], msg)
             return
-        if stamp_ns in self._given_up:
+        if stamp_ns in self._given_up and self._given_up[stamp_ns] == epoch:
             if not self._late_truth_logged:
                 self._late_truth_logged = True
                 self.log(
@@ -1001,14 +1023,17 @@ class ReplaySession:
                     f'for it, so frames like it stay unscored'
                 )
             return
-        self._truth[stamp_ns] = msg
+        self._truth.pop(stamp_ns, None)  # one of an earlier pass: the newer goes last
+        self._truth[stamp_ns] = (epoch, msg)
         while self.truth_window is not None and len(self._truth) > self.truth_window:
             dropped, _ = self._truth.popitem(last=False)
             _remember(self._truth_dropped, dropped)
 
     def drop_ground_truth_before(self, stamp_ns: int) -> None:
-        """Forget ground truth older than ``stamp_ns`` (frames that will never come)."""
-        for stamp in [s for s in self._truth if s < stamp_ns]:
+        """Forget ground truth older than ``stamp_ns`` (frames that will never come) of the
+        frames' epoch; that of another epoch (before or after a jump) is kept."""
+        for stamp in [s for s, (e, _) in self._truth.items()
+                      if s < stamp_ns and e == self._frame_epoch]:
             del self._truth[stamp]
 
     def add_result(self, result: FrameResult) -> None:
@@ -1020,25 +1045,48 @@ class ReplaySession:
             self._score(result, None)
             return
         stamp = result.stamp_ns
-        msg = self._truth.pop(stamp, None)
-        if msg is None and not any(s > stamp for s in self._truth):
-            self._pending[stamp] = result
+        epoch = self.frame_epoch(stamp)
+        truth = self._truth.pop(stamp, None)
+        if truth is None and not any(s > stamp and e == epoch
+                                     for s, (e, _) in self._truth.items()):
+            earlier = self._pending.pop(stamp, None)
+            if earlier is not None:
+                # A frame of this stamp (from before a jump back) still waits: which ground
+                # truth is whose can no longer be told.
+                jumped = ' the stamps jumped back and' if earlier[0] != epoch else ''
+                self._score(earlier[1], None, note=(
+                    f'no ground truth with this stamp before{jumped} a later frame came with '
+                    'the same stamp'
+                ))
+            self._pending[stamp] = (epoch, result)
             while len(self._pending) > GT_WAIT_FRAMES:
-                oldest, frame = self._pending.popitem(last=False)
-                _remember(self._given_up, oldest)
+                oldest, (old_epoch, frame) = self._pending.popitem(last=False)
+                _remember(self._given_up, oldest, old_epoch)
                 self._score(
                     frame, None, note=f'no ground truth within {GT_WAIT_FRAMES} frames of it '
                     '(ground truth later than that is not waited for)'
                 )
             return
-        # Ground truth of this or a later stamp was read: older waiting frames get none.
-        self._give_up_before(stamp)
+        # Ground truth of this or a later stamp was read: older waiting frames of its epoch
+        # get none.
+        self._give_up_before(stamp, epoch if truth is None else truth[0])
+        msg = None if truth is None else truth[1]
         self._score(result, msg, note='' if msg is not None else self._no_truth(stamp))
 
-    def _give_up_before(self, stamp_ns: int) -> None:
-        """Score the waiting frames older than ``stamp_ns`` without ground truth."""
-        for stamp in [s for s in self._pending if s < stamp_ns]:
-            self._score(self._pending.pop(stamp), None, note=self._no_truth(stamp))
+    def frame_epoch(self, stamp_ns: int) -> int:
+        """The ordering epoch of a frame of ``stamp_ns``, the next one where it goes back
+        (see the class). :meth:`add_result` calls it; a caller that pairs the inputs itself
+        calls it for the frames it skips too, so that a jump is seen where they lie."""
+        if self._last_frame is not None and stamp_ns < self._last_frame:
+            self._frame_epoch += 1
+        self._last_frame = stamp_ns
+        return self._frame_epoch
+
+    def _give_up_before(self, stamp_ns: int, epoch: int) -> None:
+        """Score the waiting frames of ``epoch`` older than ``stamp_ns`` without ground
+        truth."""
+        for stamp in [s for s, (e, _) in self._pending.items() if s < stamp_ns and e == epoch]:
+            self._score(self._pending.pop(stamp)[1], None, note=self._no_truth(stamp))
 
     def _no_truth(self, stamp_ns: int, stopped: bool = False) -> str:
         """Why the frame of ``stamp_ns`` has no ground truth, in words."""
@@ -1072,14 +1120,24 @@ class ReplaySession:
             return None, f'bad ground truth: {err}'
         if gt.shape == shape:
             return gt, ''
-        if (gt.shape[0] // factor, gt.shape[1] // factor) == shape:
-            # The data sets' NaN-aware block mean, values divided by the factor too.
+        source = result.input_shape
+        if factor > 1 and (
+            gt.shape == tuple(source) if source is not None
+            else (gt.shape[0] // factor, gt.shape[1] // factor) == shape
+        ):
+            # The data sets' NaN-aware block mean, values divided by the factor too; the rest
+            # of an odd size is cropped, as the pipeline crops the input.
             from cva_confidence_ros.datasets import resize_disparity
 
-            return resize_disparity(gt, factor), ''
+            shrunk = resize_disparity(gt, factor)
+            if shrunk.shape == shape:
+                return shrunk, ''
+        size = f'ground truth is {gt.shape[1]}×{gt.shape[0]} but the'
+        if factor == 1 or source is None:
+            return None, f'{size} output is {shape[1]}×{shape[0]} (downsample {factor})'
         return None, (
-            f'ground truth is {gt.shape[1]}×{gt.shape[0]} but the output is '
-            f'{shape[1]}×{shape[0]} (downsample {factor})'
+            f'{size} input is {source[1]}×{source[0]} (the output {shape[1]}×{shape[0]} at '
+            f'downsample {factor})'
         )
 
     def _score(self, result: FrameResult, msg: Any | None, note: str = '') -> None:
@@ -1189,7 +1247,7 @@ class ReplaySession:
         stopped = self.report.interrupted or bool(self.report.error)
         try:
             while self._pending:
-                stamp, result = self._pending.popitem(last=False)
+                stamp, (_, result) = self._pending.popitem(last=False)
                 self._score(result, None, note=self._no_truth(stamp, stopped))
         finally:
             if self.out is not None:
@@ -1305,9 +1363,9 @@ class ReplaySession:
         return ' (' + ', '.join(f'{t}: {n}' for t, n in sorted(by_topic.items())) + ')'
 
 
-def _remember(stamps: OrderedDict[int, None], stamp_ns: int) -> None:
-    """Add a stamp to a bounded record of stamps (the oldest goes)."""
-    stamps[stamp_ns] = None
+def _remember(stamps: OrderedDict[int, Any], stamp_ns: int, value: Any = None) -> None:
+    """Add a stamp (→ ``value``) to a bounded record of stamps (the oldest goes)."""
+    stamps[stamp_ns] = value
     while len(stamps) > _MAX_REMEMBERED:
         stamps.popitem(last=False)
 
@@ -1450,6 +1508,7 @@ def _process_pair(session: ReplaySession, pipeline: Any, matched: Any, frame: in
     options = session.options
     items = {key: value[0] for key, value in matched.items.items()}
     timestamp = int(matched.items['left'][1])
+    session.frame_epoch(matched.stamp_ns)  # a jump back, even where this frame is skipped
     try:
         left, right, geometry = stereo_inputs(items)
         result = pipeline.process(left, right)
@@ -1486,5 +1545,6 @@ def _process_pair(session: ReplaySession, pipeline: Any, matched: Any, frame: in
                 image=lambda: shown,
                 region=result.region,
                 geometry=outputs.geometry,
+                input_shape=(int(left.shape[0]), int(left.shape[1])),
             )
         )
