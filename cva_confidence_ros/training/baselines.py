@@ -468,8 +468,8 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
     split_scenes([label for label, _ in loaders], split)  # refused now, not after preparing
     if config.arch == 'lgcnet':
         crop_side(config, [])  # sparse mode or too small a --crop-size: refused now
-    seen: dict[str, str] = {}
-    scenes = _prepare(loaders, config, False, log, prepare_disparity_scene, seen)
+    pairs: dict[str, str] = {}  # the pairs taken, to take each once
+    scenes = _prepare(loaders, config, False, log, prepare_disparity_scene, pairs)
     index = sample_index(scenes)
     parts_at, fusion_at = split_scenes([s.name for s in scenes], split)
     stage_scenes = {
@@ -486,7 +486,7 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
         log(f'fusion split {split}: parts on {len(parts_at)} scenes '
             f'({len(stage_index["parts"])} labelled px), fusion on {len(fusion_at)} scenes '
             f'({len(stage_index["fusion"])} labelled px)')
-    val_scenes = _prepare(val_loaders, config, True, log, prepare_disparity_scene, seen)
+    val_scenes = _prepare(val_loaders, config, True, log, prepare_disparity_scene, pairs)
     val_subsets = validation_subset(val_scenes, config.val_pixels, config.seed)
     side = crop_side(config, scenes)
     n_samples = config.samples_per_epoch or len(index)

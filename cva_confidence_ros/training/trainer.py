@@ -622,10 +622,10 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
     # Both listed before either is prepared: a missing validation scene costs no matching.
     loaders = _load_samples(config, False)
     val_loaders = _load_samples(config, True) if dist.main else []
-    seen: dict[str, str] = {}
-    scenes = _prepare(loaders, config, False, log, prepare_scene, seen)
+    pairs: dict[str, str] = {}  # the pairs taken, to take each once
+    scenes = _prepare(loaders, config, False, log, prepare_scene, pairs)
     index = sample_index(scenes)
-    val_scenes = _prepare(val_loaders, config, True, log, prepare_scene, seen)
+    val_scenes = _prepare(val_loaders, config, True, log, prepare_scene, pairs)
     val_subsets = validation_subset(val_scenes, config.val_pixels, config.seed)
     n_samples = config.samples_per_epoch or len(index)
     log(
