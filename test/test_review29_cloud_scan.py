@@ -3,11 +3,7 @@ fraction of full scale, and no half-finite points from disparities within a hair
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-import os
-
 import numpy as np
-import pytest
 
 from cva_confidence_ros.pointcloud import (
     StereoGeometry,
@@ -64,53 +60,6 @@ def test_scan_reads_integer_confidence_like_the_filter() -> None:
     finite = np.isfinite(scan.ranges)
     assert finite.any()
     np.testing.assert_allclose(scan.intensities[finite], 128 / 255.0, rtol=1e-6)
-
-
-@pytest.fixture
-def ros_context() -> Iterator[object]:
-    import rclpy
-    from rclpy.context import Context
-
-    previous = os.environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE')
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    context = Context()
-    rclpy.init(context=context, domain_id=221 + os.getpid() % 12)
-    try:
-        yield context
-    finally:
-        rclpy.shutdown(context=context)
-        if previous is None:
-            os.environ.pop('ROS_AUTOMATIC_DISCOVERY_RANGE', None)
-        else:
-            os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = previous
-
-
-@pytest.mark.timeout(60)
-def test_cloud_filter_node_cuts_a_uint8_confidence_field_at_its_threshold(
-    ros_context: object,
-) -> None:
-    from rclpy.parameter import Parameter
-    from std_msgs.msg import Header
-
-    from cva_confidence_ros.ros.cloud_filter_node import CloudFilterNode
-    from cva_confidence_ros.ros.convert import point_cloud_to_records, records_to_point_cloud
-
-    node = CloudFilterNode(
-        context=ros_context, parameter_overrides=[Parameter('threshold', value=0.5)]
-    )
-    try:
-        published: list = []
-        node._publisher = type('Capture', (), {'publish': staticmethod(published.append)})()
-        cloud = _integer_cloud([0, 26, 127, 128, 200, 255], 'u1').reshape(2, 3)
-        node._on_cloud(records_to_point_cloud(cloud, Header(frame_id='cam')))
-        assert len(published) == 1 and node.stats()['clouds_invalid'] == 0
-        out = point_cloud_to_records(published[0])
-        np.testing.assert_array_equal(
-            np.isfinite(out['z']), [[False, False, False], [True, True, True]]
-        )
-        assert node.stats()['points_kept'] == 3
-    finally:
-        node.destroy_node()
 
 
 def test_a_disparity_within_a_hair_of_zero_gives_no_half_finite_point() -> None:
