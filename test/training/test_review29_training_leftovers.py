@@ -55,7 +55,7 @@ def test_a_network_without_its_depth_is_named() -> None:
 
 
 def test_a_pair_two_data_sets_ship_is_trained_on_once_and_not_validated_on(tmp_path) -> None:
-    # ../shared/data's flyingthings3d TEST/A/0000/0006 is sceneflow_extra's 0006, byte for
+    # The shared data's flyingthings3d TEST/A/0000/0006 is sceneflow_extra's 0006, byte for
     # byte: both in the training split, it weighed twice.
     from cva_confidence_ros.datasets.synthetic import synthetic_pair
     from cva_confidence_ros.training.config import TrainConfig
