@@ -128,7 +128,9 @@ def write_stereo_bag(
     ``<image topic>/compressed``, as image_transport's compressed plugin writes them),
     ``compressed_data`` (bytes written as the left image's compressed data instead),
     ``gt_scale`` (the ground truth's ``DisparityImage`` written with the geometry scaled by
-    this factor, as for a ``gt`` array of that resolution: its values are d + Δ·factor).
+    this factor, as for a ``gt`` array of that resolution: its values are d + Δ·factor),
+    ``logged`` (the bag time of the frame's messages, ns; default its stamp: header stamps
+    that jump back in a bag whose times go on).
 
     ``geometry`` is the stereo geometry of the camera infos (default: f = 50 px, cx = 20,
     cy = 15, no Δ: cx_right = cx).
@@ -167,11 +169,12 @@ def write_stereo_bag(
             gt = np.full((height, width), float(shift), np.float32)
             gt[:, :shift] = np.nan
             gt = frame.get('gt', gt)
+            logged = frame.get('logged', stamp)
             messages = [
-                ('left/camera_info', CAMERA_INFO, left_info, stamp),
-                ('right/camera_info', CAMERA_INFO, right_info, stamp),
-                (f'left/{image_topic}', image_type, left_msg, stamp),
-                (f'right/{image_topic}', image_type, right_msg, stamp),
+                ('left/camera_info', CAMERA_INFO, left_info, logged),
+                ('right/camera_info', CAMERA_INFO, right_info, logged),
+                (f'left/{image_topic}', image_type, left_msg, logged),
+                (f'right/{image_topic}', image_type, right_msg, logged),
             ]
             if ground_truth and not frame.get('no_gt', False):
                 gt_geometry = geometry.scaled(frame['gt_scale']) if 'gt_scale' in frame \
@@ -180,7 +183,7 @@ def write_stereo_bag(
                 if 'gt_bytes' in frame:
                     gt_msg.image.data = gt_msg.image.data[: frame['gt_bytes']]
                 messages.append(('ground_truth/disparity', DISPARITY_IMAGE, gt_msg,
-                                 stamp + frame.get('gt_lag', 0)))
+                                 logged + frame.get('gt_lag', 0)))
             for topic, msgtype, message, timestamp in messages:
                 if topic in skip_topics:
                     continue

@@ -14,22 +14,11 @@ import json
 from pathlib import Path
 from typing import Any
 
-from msg_test_utils import MAX_DISPARITY, START_NS, textured_pair
+from msg_test_utils import MAX_DISPARITY, START_NS, write_stereo_bag
 import numpy as np
 import pytest
 
-from cva_confidence_ros.pointcloud import StereoGeometry
 from msg_tools.bag_replay import main
-from msg_tools.bagio import OutputBag
-from msg_tools.convert import (
-    CAMERA_INFO,
-    DISPARITY_IMAGE,
-    IMAGE,
-    camera_info_msgs,
-    disparity_to_msg,
-    image_to_msg,
-    jazzy_typestore,
-)
 
 FRAME_NS = 100_000_000
 JUMP_NS = 10 * 10**9
@@ -37,41 +26,12 @@ NO_GT = 'no ground truth with this stamp in the bag'
 
 
 def _bag(path: Path, frames: Sequence[dict[str, Any]]) -> Path:
-    """A stereo bag whose bag times go on at 10 Hz whatever the header stamps do.
-
-    Each frame dict holds ``stamp`` (header stamp, ns) and may hold ``encoding`` (forced on
-    both images: a frame the replay skips), ``gt_lag`` (the ground truth logged this many ns
-    after its images), ``no_gt`` (no ground truth) and ``gt`` (the ground-truth array).
-    """
-    store = jazzy_typestore()
-    geometry = StereoGeometry(fx=50.0, fy=50.0, cx=20.0, cy=15.0, cx_right=20.0, baseline=0.1)
-    records = []
-    for index, frame in enumerate(frames):
-        stamp, logged = frame['stamp'], START_NS + index * FRAME_NS
-        left, right = textured_pair(30, 40, 4, index)
-        left_info, right_info = camera_info_msgs(geometry, 40, 30, stamp, ('l', 'r'), store)
-        left_msg = image_to_msg(left, stamp, 'l', store)
-        right_msg = image_to_msg(right, stamp, 'r', store)
-        if 'encoding' in frame:
-            left_msg.encoding = right_msg.encoding = frame['encoding']
-        records += [
-            (logged, '/left/camera_info', CAMERA_INFO, left_info),
-            (logged, '/right/camera_info', CAMERA_INFO, right_info),
-            (logged, '/left/image_rect', IMAGE, left_msg),
-            (logged, '/right/image_rect', IMAGE, right_msg),
-        ]
-        if not frame.get('no_gt', False):
-            gt = np.full((30, 40), 4.0, np.float32)
-            gt[:, :4] = np.nan
-            gt = frame.get('gt', gt)
-            records.append((logged + frame.get('gt_lag', 0), '/ground_truth/disparity',
-                            DISPARITY_IMAGE, disparity_to_msg(gt, stamp, 'l', geometry,
-                                                              typestore=store)))
-    records.sort(key=lambda record: record[0])  # stable: a frame's images before its truth
-    with OutputBag(path, 'mcap', store) as bag:
-        for logged, topic, msgtype, msg in records:
-            bag.write(topic, msgtype, msg, logged)
-    return path
+    """A stereo bag (``write_stereo_bag``'s frames) whose bag times go on at 10 Hz whatever
+    the header stamps do."""
+    return write_stereo_bag(
+        path, [{**frame, 'logged': START_NS + index * FRAME_NS}
+               for index, frame in enumerate(frames)]
+    )
 
 
 def _run(bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], *extra: str

@@ -36,6 +36,16 @@ def domain_id(offset: int) -> int:
     return 101 + (os.getpid() % 30) * 4 + offset
 
 
+def wait_until(predicate: Callable[[], object], timeout: float = 20.0, poll: float = 0.02) -> bool:
+    """Poll ``predicate`` (its own threads spinning the nodes) until true or ``timeout`` s."""
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(poll)
+    return True
+
+
 def spare_domain_id() -> int:
     """A ROS domain (221–232) apart from :func:`domain_id`'s and the msg_tools tests' (1–90),
     for a module whose tests each bring up and shut down a context of their own."""

@@ -11,7 +11,6 @@ import os
 from pathlib import Path
 import subprocess
 import sys
-import time
 
 from node_test_utils import (
     Spinner,
@@ -19,6 +18,7 @@ from node_test_utils import (
     first_stamp,
     spare_domain_id,
     textured_pair,
+    wait_until,
 )
 import pytest
 import rclpy
@@ -39,15 +39,6 @@ OVERRIDES = [
 ]
 
 
-def _wait(predicate, timeout: float = 20.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.002)
-    return True
-
-
 def test_rclpy_shutdown_during_a_frame_stops_the_worker_quietly(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -62,7 +53,8 @@ def test_rclpy_shutdown_during_a_frame_stops_the_worker_quietly(
         assert client.wait_connected(), 'the node and the client did not discover'
         left, right = textured_pair(HEIGHT, WIDTH, disparity=9)
         client.publish_frame(left, right, first_stamp())
-        assert _wait(lambda: node.stats()['frames_received'] == 1), 'the frame did not arrive'
+        received = wait_until(lambda: node.stats()['frames_received'] == 1, poll=0.002)
+        assert received, 'the frame did not arrive'
         # The worker has the frame (or is about to take it) and will publish in a moment.
         context.try_shutdown()
         node._worker.join(20.0)

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import os
 import threading
-import time
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -20,6 +19,7 @@ from node_test_utils import (
     localhost_context,
     spare_domain_id,
     textured_pair,
+    wait_until,
 )
 import numpy as np
 import pytest
@@ -46,15 +46,6 @@ def _feed(node: Any, left: np.ndarray, right: np.ndarray, stamp: int) -> None:
     for key, msg in (('left_info', left_info), ('right_info', right_info),
                      ('left', image_msg(left, stamp)), ('right', image_msg(right, stamp))):
         node._on_message(key, msg)
-
-
-def _wait(predicate: Any, timeout: float = 60.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.02)
-    return True
 
 
 @pytest.mark.parametrize('where', ['process', 'publish'])
@@ -135,7 +126,7 @@ def test_a_pipeline_that_raises_unforeseen_refuses_the_change_and_the_node_spins
             future = service.call_async(SetParameters.Request(
                 parameters=[Parameter('max_disparity', value=24).to_parameter_msg()]
             ))
-            assert _wait(future.done), 'the parameter service did not answer'
+            assert wait_until(future.done, 60.0), 'the parameter service did not answer'
             (result,) = future.result().results
             assert not result.successful
             assert 'CUDA out of memory (simulated)' in result.reason
@@ -146,7 +137,8 @@ def test_a_pipeline_that_raises_unforeseen_refuses_the_change_and_the_node_spins
             future = service.call_async(SetParameters.Request(
                 parameters=[Parameter('max_rate_hz', value=5.0).to_parameter_msg()]
             ))
-            assert _wait(future.done), 'the node stopped answering after the refusal'
+            answered = wait_until(future.done, 60.0)
+            assert answered, 'the node stopped answering after the refusal'
             assert future.result().results[0].successful
             assert node.node_config.max_rate_hz == 5.0
         finally:
@@ -181,20 +173,20 @@ def test_a_windows_status_names_the_failure_and_the_bad_frame_each_by_its_own() 
 
             node.diagnostics()  # a fresh window
             _feed(node, left, right, stamp)
-            assert _wait(lambda: counted('frames_failed', 1))
+            assert wait_until(lambda: counted('frames_failed', 1), 60.0)
             _feed(node, left, narrow, stamp + 10**9)
-            assert _wait(lambda: counted('frames_invalid', 1))
+            assert wait_until(lambda: counted('frames_invalid', 1), 60.0)
             status = node.diagnostics()
             assert status.level == DiagnosticStatus.ERROR
             assert 'simulated failure inside the pipeline' in status.message, status.message
 
             _feed(node, left, narrow, stamp + 2 * 10**9)
-            assert _wait(lambda: counted('frames_invalid', 2))
+            assert wait_until(lambda: counted('frames_invalid', 2), 60.0)
             _feed(node, left, right, stamp + 3 * 10**9)
-            assert _wait(lambda: counted('frames_failed', 2))
+            assert wait_until(lambda: counted('frames_failed', 2), 60.0)
             fail[0] = False
             _feed(node, left, right, stamp + 4 * 10**9)
-            assert _wait(lambda: counted('frames_processed', 1))
+            assert wait_until(lambda: counted('frames_processed', 1), 60.0)
             status = node.diagnostics()
             assert status.level == DiagnosticStatus.WARN
             assert 'same size' in status.message, status.message
