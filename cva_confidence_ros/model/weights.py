@@ -158,10 +158,10 @@ def save_weights(net: nn.Module, path: str | os.PathLike[str], meta: Mapping[str
     return path
 
 
-def _check_stored_dtypes(stored: Any, own: Mapping[str, torch.Tensor]) -> None:
-    """Refuse stored tensors of another kind than the network's: ``load_state_dict`` would
-    cast a complex tensor to real (dropping its imaginary part) or real values to integers
-    (batch-norm counters) without a word.
+def _check_stored_tensors(stored: Any, own: Mapping[str, torch.Tensor]) -> None:
+    """Refuse stored tensors of another shape or kind than the network's: ``load_state_dict``
+    would cast a complex tensor to real (dropping its imaginary part) or real values to
+    integers (batch-norm counters) without a word.
 
     Raises:
         TypeError: Naming the tensor (turned into a ModelError by the caller).
@@ -174,6 +174,10 @@ def _check_stored_dtypes(stored: Any, own: Mapping[str, torch.Tensor]) -> None:
             continue
         if value.is_complex() or value.is_floating_point() != tensor.is_floating_point():
             raise TypeError(f'{name} is {value.dtype}, the network holds {tensor.dtype}')
+        if value.shape != tensor.shape:
+            raise ValueError(
+                f'{name} has shape {tuple(value.shape)}, the network holds {tuple(tensor.shape)}'
+            )
 
 
 def load_weights(
@@ -267,8 +271,12 @@ def load_weights(
             f'Train weights for it with: cva-train --max-disparity {max_disparity} ...'
         )
     try:
+        # A shape-only build first: a corrupt depth (D = 10**12) is refused by the stored
+        # tensors' shapes before any memory is allocated for it.
+        with torch.device('meta'):
+            skeleton = ARCHITECTURES.get(stored)(meta)
+        _check_stored_tensors(blob['state_dict'], skeleton.state_dict())
         net = ARCHITECTURES.get(stored)(meta)
-        _check_stored_dtypes(blob['state_dict'], net.state_dict())
         net.load_state_dict(blob['state_dict'])
     except (KeyError, TypeError, ValueError, RuntimeError) as exc:
         raise ModelError(

@@ -757,6 +757,10 @@ class ConfidenceCore(Node):
             left_msg, item.items['right'], item.items['left_info'], item.items['right_info']
         )
         with self._lock:
+            if self._stopping(mailbox):
+                # Left running past a cleanup (and perhaps a new configure): neither the new
+                # configuration's input size nor its pipeline are this frame's.
+                return
             self._input_size = (left.shape[1], left.shape[0])
             pipeline, config, node_config = (
                 self._pipeline,
