@@ -103,9 +103,37 @@ def census_views(
     return codes_right, codes_left, 1
 
 
+def _check_codes(name: str, codes: object) -> np.ndarray:
+    """``codes`` as an array of integers in [0, 2**24) (census codes), or InputError.
+
+    Codes with more bits than a census code would give Hamming costs above
+    :data:`CENSUS_BITS` (worse than a partner outside the image, and past the bound SGM's
+    accumulator is sized for); float or negative ones would be cast to uint32 silently.
+    """
+    array = np.asarray(codes)
+    if array.dtype.kind not in 'iu':
+        raise InputError(f'{name} must hold integer census codes; got dtype {array.dtype}')
+    if array.size and (array.min() < 0 or array.max() >= 1 << CENSUS_BITS):
+        raise InputError(
+            f'{name} must hold census codes in [0, 2**{CENSUS_BITS}); got values in '
+            f'[{array.min()}, {array.max()}]'
+        )
+    return array
+
+
 def hamming_distance(code_a: np.ndarray, code_b: np.ndarray) -> np.ndarray:
-    """Number of differing bits of two census code arrays (same shape), as uint8."""
-    xor = np.bitwise_xor(np.asarray(code_a, np.uint32), np.asarray(code_b, np.uint32))
+    """Number of differing bits of two census code arrays (same shape), as uint8.
+
+    Raises:
+        InputError: Arrays of different shapes, or not census codes (integers in
+            [0, 2**24)).
+    """
+    code_a, code_b = _check_codes('code_a', code_a), _check_codes('code_b', code_b)
+    if code_a.shape != code_b.shape:
+        raise InputError(
+            f'code_a and code_b must have the same shape; got {code_a.shape} and {code_b.shape}'
+        )
+    xor = np.bitwise_xor(code_a.astype(np.uint32), code_b.astype(np.uint32))
     return _popcount_array(xor.ravel()).reshape(xor.shape)
 
 
@@ -175,12 +203,14 @@ def hamming_cost_volume(
         outside the image.
 
     Raises:
-        InputError: Code arrays that are not 2-D or differ in shape, ``depth`` < 1, ``step``
-            not ±1, a bad ``layout`` or ``out``.
+        InputError: Code arrays that are not 2-D, differ in shape or hold other values than
+            census codes (integers in [0, 2**24)), ``depth`` < 1, ``step`` not ±1, a bad
+            ``layout`` or ``out``.
     """
     if layout not in ('dhw', 'hwd'):
         raise InputError(f"layout must be 'dhw' or 'hwd'; got {layout!r}")
-    codes_ref, codes_other = np.asarray(codes_ref), np.asarray(codes_other)
+    codes_ref = _check_codes('codes_ref', codes_ref)
+    codes_other = _check_codes('codes_other', codes_other)
     # The kernel reads the other row at the reference's width: a narrower one would be read
     # past its end (numba does not check bounds) and give costs of whatever lies there.
     if codes_ref.ndim != 2 or codes_ref.shape != codes_other.shape:

@@ -37,6 +37,9 @@ class CensusBMConfig:
             or self.window % 2 == 0
         ):
             raise ConfigError(f'window must be an odd integer in [1, 15]; got {self.window!r}')
+        # An unsigned numpy integer (np.uint8(5) from a parameter file) would reach the kernel
+        # as such: numba types its arithmetic with signed indices as float and cannot compile.
+        object.__setattr__(self, 'window', int(self.window))
 
 
 @njit(cache=True, fastmath=True)

@@ -37,6 +37,10 @@ class CensusSGMConfig:
             raise ConfigError(
                 f'penalties must satisfy 0 ≤ p1 ≤ p2 ≤ {MAX_P2}; got p1={self.p1}, p2={self.p2}'
             )
+        # Python ints: with a narrow numpy integer (np.uint8(200)) the normalisation
+        # 8·(24 + p2) would wrap around in its dtype and scale the volume by inf or a wrong value.
+        object.__setattr__(self, 'p1', int(self.p1))
+        object.__setattr__(self, 'p2', int(self.p2))
 
 
 class CensusSGMMatcher(Matcher):

@@ -12,6 +12,7 @@ import contextlib
 from dataclasses import dataclass
 import hashlib
 from pathlib import Path
+import re
 import threading
 from typing import TYPE_CHECKING
 
@@ -33,6 +34,8 @@ __all__ = [
     'preserved_features',
 ]
 
+_CUDA_INDEX = re.compile(r'cuda:(0|[1-9][0-9]*)')
+
 
 @dataclass(frozen=True)
 class MCCNNFastConfig:
@@ -48,8 +51,10 @@ class MCCNNFastConfig:
     weights: str = ''
 
     def __post_init__(self) -> None:
+        # 'cuda:N' with a plain decimal N, as torch.device parses it ('cuda:x', 'cuda:' or
+        # 'cuda:01' would only fail later, as a RuntimeError from torch on a CUDA machine).
         if not isinstance(self.device, str) or not (
-            self.device in ('cpu', 'cuda', 'auto') or self.device.startswith('cuda:')
+            self.device in ('cpu', 'cuda', 'auto') or _CUDA_INDEX.fullmatch(self.device)
         ):
             raise ConfigError(
                 f"device must be 'cpu', 'cuda', 'cuda:N' or 'auto'; got {self.device!r}"

@@ -91,7 +91,8 @@ def resolve_device(device: str) -> torch.device:
     """torch device for ``'cpu'``, ``'cuda'``, ``'cuda:N'`` or ``'auto'`` (CUDA if available).
 
     Raises:
-        ConfigError: CUDA requested but not available, or an unknown name.
+        ConfigError: CUDA requested but not available, a GPU index this machine does not have,
+            or an unknown name.
     """
     if device == 'auto':
         return torch.device('cuda' if torch.cuda.is_available() else 'cpu')
@@ -100,7 +101,19 @@ def resolve_device(device: str) -> torch.device:
     if device == 'cuda' or device.startswith('cuda:'):
         if not torch.cuda.is_available():
             raise ConfigError(f'device {device!r} requested but CUDA is not available')
-        return torch.device(device)
+        try:
+            resolved = torch.device(device)
+        except RuntimeError:
+            raise ConfigError(
+                f"device must be 'cpu', 'cuda', 'cuda:N' or 'auto'; got {device!r}"
+            ) from None
+        # torch accepts any index here; moving the network there would fail with a CUDA error
+        count = torch.cuda.device_count()
+        if resolved.index is not None and resolved.index >= count:
+            raise ConfigError(
+                f'device {device!r} requested but this machine has {count} CUDA device(s)'
+            )
+        return resolved
     raise ConfigError(f"device must be 'cpu', 'cuda', 'cuda:N' or 'auto'; got {device!r}")
 
 

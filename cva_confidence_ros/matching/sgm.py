@@ -302,7 +302,8 @@ def census_sgm_volume(
     # numpy (not the kernel) allocates the volume: it requests huge pages for large arrays,
     # which makes the first-touch page faults several times cheaper.
     volume = np.empty((depth, height, width), np.float32)
-    scale = 1.0 / (SGM_PATHS * (CENSUS_BITS + p2))
+    # int(): 8·(24 + p2) in a narrow numpy integer type of p2 would wrap around
+    scale = 1.0 / (SGM_PATHS * (CENSUS_BITS + int(p2)))
     return aggregate_hwd(costs, p1, p2, volume, scale, step)
 
 
