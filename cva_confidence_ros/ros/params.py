@@ -22,6 +22,7 @@ from rcl_interfaces.msg import (
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from cva_confidence_ros.checks import is_int, is_real
 from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.pipeline import PipelineConfig
 from cva_confidence_ros.ros.convert import DEPTH_ENCODINGS
@@ -83,7 +84,8 @@ class NodeConfig:
         publish_scan: Publish ``scan``, a ``sensor_msgs/LaserScan`` of the kept pixels
             (:mod:`cva_confidence_ros.scan`), for obstacle layers.
         scan_frame_id: Frame of ``scan`` (x forward); ``''`` = the camera's body frame named
-            after its optical frame (:func:`~cva_confidence_ros.scan.scan_frame_id`).
+            after its optical frame (:func:`~cva_confidence_ros.scan.scan_frame_id`); no
+            leading ``/`` (tf2 refuses such frames).
         scan_min_height: Lowest point in the scan, metres above the camera (negative = below).
         scan_max_height: Highest point in the scan.
         scan_range_min: Nearest range of the scan, metres.
@@ -126,11 +128,22 @@ class NodeConfig:
 
     def __post_init__(self) -> None:
         # A quoted YAML 'false' or a 0/1 would pass for a switch (truthy) or fail later, in
-        # the synchroniser; the switches take booleans only, as PipelineConfig's do.
+        # the synchroniser; the switches take booleans only, as PipelineConfig's do. Likewise a
+        # 2.5 or a True for a count, a '0.1' for a number (a TypeError below), a 5 for a frame.
         for item in fields(self):
             value = getattr(self, item.name)
-            if isinstance(item.default, bool) and not isinstance(value, bool):
-                raise ConfigError(f'{item.name} must be True or False; got {value!r}')
+            if isinstance(item.default, bool):
+                if not isinstance(value, bool):
+                    raise ConfigError(f'{item.name} must be True or False; got {value!r}')
+            elif isinstance(item.default, int):
+                if not is_int(value):
+                    raise ConfigError(f'{item.name} must be an integer; got {value!r}')
+            elif isinstance(item.default, float):
+                # (the scan_* numbers: ScanConfig checks them, below)
+                if not is_real(value) and not item.name.startswith('scan_'):
+                    raise ConfigError(f'{item.name} must be a number; got {value!r}')
+            elif not isinstance(value, str):
+                raise ConfigError(f'{item.name} must be a string; got {value!r}')
         if self.depth_encoding not in DEPTH_ENCODINGS:
             raise ConfigError(
                 f'depth_encoding must be one of {DEPTH_ENCODINGS}; got {self.depth_encoding!r}'
@@ -144,9 +157,13 @@ class NodeConfig:
                 raise ConfigError(
                     f'{name} must be one of {QOS_CHOICES}; got {getattr(self, name)!r}'
                 )
-        if not self.approximate_sync_tolerance_seconds >= 0:
+        if not (
+            math.isfinite(self.approximate_sync_tolerance_seconds)
+            and self.approximate_sync_tolerance_seconds >= 0
+        ):
+            # (inf made tolerance_ns raise OverflowError on the first message)
             raise ConfigError(
-                'approximate_sync_tolerance_seconds must be >= 0; '
+                'approximate_sync_tolerance_seconds must be a finite number >= 0; '
                 f'got {self.approximate_sync_tolerance_seconds}'
             )
         if self.queue_size < 1:
@@ -155,17 +172,34 @@ class NodeConfig:
             raise ConfigError(
                 f'max_rate_hz must be a finite number >= 0 (0 = no limit); got {self.max_rate_hz}'
             )
+        if self.max_rate_hz and not 0.98e9 / self.max_rate_hz < 2**63:
+            # A period beyond int64 nanoseconds (inf for 1e-300 Hz) made min_period_ns raise
+            # OverflowError on the first set of messages.
+            raise ConfigError(
+                f'max_rate_hz must be 0 (no limit) or at least {0.98e9 / 2**63:.3g} Hz (a '
+                f'period that int64 nanoseconds hold); got {self.max_rate_hz}'
+            )
         if not 0.0 <= self.min_kept_fraction <= 1.0:
             raise ConfigError(f'min_kept_fraction must be in [0, 1]; got {self.min_kept_fraction}')
         if not 0.0 <= self.max_expected_kept_error <= 1.0:
             raise ConfigError(
                 f'max_expected_kept_error must be in [0, 1]; got {self.max_expected_kept_error}'
             )
-        if not self.diagnostics_period_seconds > 0:
+        if not (
+            math.isfinite(self.diagnostics_period_seconds) and self.diagnostics_period_seconds > 0
+        ):
             raise ConfigError(
-                f'diagnostics_period_seconds must be > 0; got {self.diagnostics_period_seconds}'
+                'diagnostics_period_seconds must be a finite number > 0; '
+                f'got {self.diagnostics_period_seconds}'
             )
         self.scan_config()  # building it checks the scan_* values
+        if self.scan_frame_id.startswith('/'):
+            # tf2 refuses such a frame ('frame_ids cannot start with a /'): no costmap could
+            # place the scan.
+            raise ConfigError(
+                f"scan_frame_id must not start with '/' (tf2 refuses such frames); got "
+                f'{self.scan_frame_id!r}'
+            )
         if not 1 <= self.overlay_jpeg_quality <= 100:
             raise ConfigError(
                 f'overlay_jpeg_quality must be in [1, 100]; got {self.overlay_jpeg_quality}'
