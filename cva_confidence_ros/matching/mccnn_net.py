@@ -19,7 +19,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from cva_confidence_ros.errors import ConfigError, ModelError, reason
+from cva_confidence_ros.devices import resolve_device
+from cva_confidence_ros.errors import ModelError, reason
 
 __all__ = [
     'FEATURES',
@@ -85,36 +86,6 @@ def default_weights_path() -> Path:
             'it is not installed: pip install mccnn'
         )
     return Path(next(iter(spec.submodule_search_locations))) / 'weights' / _WEIGHTS_FILE
-
-
-def resolve_device(device: str) -> torch.device:
-    """torch device for ``'cpu'``, ``'cuda'``, ``'cuda:N'`` or ``'auto'`` (CUDA if available).
-
-    Raises:
-        ConfigError: CUDA requested but not available, a GPU index this machine does not have,
-            or an unknown name.
-    """
-    if device == 'auto':
-        return torch.device('cuda' if torch.cuda.is_available() else 'cpu')
-    if device == 'cpu':
-        return torch.device('cpu')
-    if device == 'cuda' or device.startswith('cuda:'):
-        if not torch.cuda.is_available():
-            raise ConfigError(f'device {device!r} requested but CUDA is not available')
-        try:
-            resolved = torch.device(device)
-        except RuntimeError:
-            raise ConfigError(
-                f"device must be 'cpu', 'cuda', 'cuda:N' or 'auto'; got {device!r}"
-            ) from None
-        # torch accepts any index here; moving the network there would fail with a CUDA error
-        count = torch.cuda.device_count()
-        if resolved.index is not None and resolved.index >= count:
-            raise ConfigError(
-                f'device {device!r} requested but this machine has {count} CUDA device(s)'
-            )
-        return resolved
-    raise ConfigError(f"device must be 'cpu', 'cuda', 'cuda:N' or 'auto'; got {device!r}")
 
 
 @lru_cache(maxsize=4)

@@ -20,6 +20,7 @@ from torch import nn
 import torch.nn.functional as F
 
 from cva_confidence_ros.checks import is_int, is_real
+from cva_confidence_ros.devices import resolve_device
 from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.model.lite import check_volume_tensor
 from cva_confidence_ros.model.network import (
@@ -48,30 +49,6 @@ PAD = FUSION_LAYERS
 # convolution's work buffer) used to turn a memory budget into a tile size.
 _LIVE_COPIES = 3
 _VALUE_TOLERANCE = 1e-3
-
-
-def resolve_device(device: str | torch.device) -> torch.device:
-    """Turn ``'cpu'``, ``'cuda'``, ``'cuda:1'`` or ``'auto'`` into a :class:`torch.device`.
-
-    Raises:
-        ConfigError: An unknown device string, or CUDA asked for but not available.
-    """
-    if isinstance(device, torch.device):
-        resolved = device
-    elif device == 'auto':
-        resolved = torch.device('cuda' if torch.cuda.is_available() else 'cpu')
-    else:
-        try:
-            resolved = torch.device(device)
-        except (RuntimeError, TypeError) as exc:
-            raise ConfigError(
-                f"device must be 'cpu', 'cuda[:N]' or 'auto'; got {device!r}"
-            ) from exc
-    if resolved.type == 'cuda' and not torch.cuda.is_available():
-        raise ConfigError(f'device {device!r} asked for, but CUDA is not available here')
-    if resolved.type not in ('cpu', 'cuda'):
-        raise ConfigError(f"device must be 'cpu', 'cuda[:N]' or 'auto'; got {device!r}")
-    return resolved
 
 
 class FoldedCVANet(nn.Module):

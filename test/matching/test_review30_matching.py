@@ -117,3 +117,22 @@ def test_mccnn_device_index_beyond_the_gpus_is_a_config_error(
         mccnn_net.resolve_device('cuda:x')
     assert mccnn_net.resolve_device('cuda:0') == torch.device('cuda:0')
     assert mccnn_net.resolve_device('cuda') == torch.device('cuda')
+
+
+def test_one_reading_of_the_device_for_the_network_and_mccnn(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The network's resolve_device passed 'cuda:3' on a one-GPU machine on to torch (MC-CNN's
+    # own copy checked it): one function serves both now.
+    from cva_confidence_ros.model import inference
+
+    assert inference.resolve_device is mccnn_net.resolve_device
+    monkeypatch.setattr(torch.cuda, 'is_available', lambda: True)
+    monkeypatch.setattr(torch.cuda, 'device_count', lambda: 1)
+    with pytest.raises(ConfigError, match=r"'cuda:3'.* 1 CUDA device"):
+        inference.resolve_device('cuda:3')
+    with pytest.raises(ConfigError, match=r"'cuda:3'.* 1 CUDA device"):
+        inference.resolve_device(torch.device('cuda', 3))
+    for bad in ('gpu', 'cuda:x', 'cuda:-1', 'meta', 3):
+        with pytest.raises(ConfigError, match='cuda:N'):
+            inference.resolve_device(bad)  # type: ignore[arg-type]
