@@ -16,7 +16,7 @@ import re
 import cv2
 import numpy as np
 
-from cva_confidence_ros.errors import DataError
+from cva_confidence_ros.errors import ConfigError, DataError
 
 __all__ = [
     'Calibration',
@@ -81,7 +81,7 @@ def read_pfm(path: str | Path) -> np.ndarray:
         as stored (``inf`` included).
 
     Raises:
-        DataError: The file is missing, has a bad header or too little data.
+        DataError: The file is missing, has a bad header, or too little or too much data.
     """
     path = Path(path)
     try:
@@ -119,6 +119,13 @@ def read_pfm(path: str | Path) -> np.ndarray:
         raise DataError(
             f'{path}: expected {width}×{height}×{channels} float32 values and a finite, '
             f'non-zero scale; got {len(data) // 4} values, scale {scale}'
+        )
+    if len(data) >= 4 * (count + 1):
+        # A whole value or more past the end: the header does not describe the data (a colour
+        # map labelled 'Pf', a wrong size), which would otherwise be read as a scrambled map.
+        raise DataError(
+            f'{path}: header {magic.decode()} {width}×{height} declares {count} float32 values; '
+            f'the file holds {len(data) // 4} (a wrong size or channel count)'
         )
     dtype = np.dtype('<f4' if scale < 0 else '>f4')
     array = np.frombuffer(data, dtype=dtype, count=count)
@@ -218,9 +225,19 @@ def read_disparity_png(path: str | Path, scale: float, bits: int | None = None) 
         (H, W) float32 disparity, NaN where the stored value is 0.
 
     Raises:
+        ConfigError: ``scale`` is not finite and > 0, or ``bits`` is not 8, 16 or None.
         DataError: The file is missing, not a single-channel integer image, or not of
             ``bits`` bits.
     """
+    # A scale of 0 gave inf, a negative one negative disparities, NaN no ground truth at all.
+    if (
+        isinstance(scale, bool)
+        or not isinstance(scale, (int, float, np.integer, np.floating))
+        or not (math.isfinite(scale) and scale > 0)
+    ):
+        raise ConfigError(f'disparity PNG scale must be finite and > 0; got {scale!r}')
+    if bits not in (None, 8, 16):
+        raise ConfigError(f'disparity PNG bits must be 8, 16 or None; got {bits!r}')
     raw = _imread(path)
     if raw is None:
         raise DataError(f'cannot read disparity image {path}')

@@ -33,6 +33,9 @@ __all__ = [
 #: Smallest image side :func:`fit_disparity_range` shrinks a pair to.
 _MIN_FITTED_SIDE = 1
 
+#: Dtypes OpenCV's INTER_AREA resize takes.
+_RESIZABLE = tuple(np.dtype(t) for t in (np.uint8, np.uint16, np.int16, np.float32, np.float64))
+
 
 def check_factor(factor: int) -> int:
     """``factor`` as an int, or :class:`ConfigError` unless it is an integer ≥ 1."""
@@ -61,11 +64,15 @@ def resize_disparity(disparity: np.ndarray, factor: int) -> np.ndarray:
 
     Raises:
         ConfigError: ``factor`` is not an integer ≥ 1.
+        InputError: ``disparity`` is not 2-D.
     """
     factor = check_factor(factor)
     disparity = np.asarray(disparity, dtype=np.float32)
+    if disparity.ndim != 2:
+        raise InputError(f'disparity must be (H, W); got shape {disparity.shape}')
     if factor == 1:
-        return disparity.copy()
+        # ±inf is unknown too (Middlebury, ETH3D), as the blocks of a larger factor have it.
+        return np.where(np.isfinite(disparity), disparity, np.float32(np.nan))
     blocks = _blocks(disparity, factor)
     valid = np.isfinite(blocks)
     count = valid.sum(axis=2)
@@ -82,7 +89,8 @@ def resize_image(image: np.ndarray, factor: int) -> np.ndarray:
     """Shrink an image by an integer factor: crop to a multiple of it, then block-average.
 
     Args:
-        image: (H, W) or (H, W, C) uint8 or float.
+        image: (H, W) or (H, W, C) uint8, uint16, int16, float32 or float64 (what OpenCV's
+            area resize takes).
         factor: Integer ≥ 1; 1 returns ``image`` unchanged.
 
     Returns:
@@ -91,11 +99,19 @@ def resize_image(image: np.ndarray, factor: int) -> np.ndarray:
 
     Raises:
         ConfigError: ``factor`` is not an integer ≥ 1.
-        InputError: The image is smaller than one ``factor × factor`` block.
+        InputError: Another rank or dtype (an OpenCV assertion otherwise), or the image is
+            smaller than one ``factor × factor`` block.
     """
     factor = check_factor(factor)
     if factor == 1:
         return image
+    if image.ndim not in (2, 3):
+        raise InputError(f'image must be (H, W) or (H, W, C); got shape {image.shape}')
+    if image.dtype not in _RESIZABLE:
+        raise InputError(
+            f'cannot shrink an image of dtype {image.dtype}; expected uint8, uint16, int16, '
+            'float32 or float64'
+        )
     height, width = image.shape[0] // factor, image.shape[1] // factor
     if height == 0 or width == 0:
         raise InputError(
@@ -104,7 +120,9 @@ def resize_image(image: np.ndarray, factor: int) -> np.ndarray:
         )
     cropped = np.ascontiguousarray(image[: height * factor, : width * factor])
     # On an exact multiple INTER_AREA is the plain f × f block mean, like the disparity.
-    return cv2.resize(cropped, (width, height), interpolation=cv2.INTER_AREA)
+    small = cv2.resize(cropped, (width, height), interpolation=cv2.INTER_AREA)
+    # OpenCV drops the channel axis of an (H, W, 1) image.
+    return small.reshape((height, width) + image.shape[2:])
 
 
 def _resize_calibration(calib: Calibration, factor: int) -> Calibration:
