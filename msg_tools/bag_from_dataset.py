@@ -64,6 +64,8 @@ MAX_STAMP_S = 2**31 - 1
 _STAMP_LIMIT_NS = (MAX_STAMP_S + 1) * 1_000_000_000
 #: One frame per nanosecond, the resolution of the stamps.
 MAX_RATE_HZ = 1e9
+# Topics of the images and camera infos, relative to the prefix.
+_CAMERA_TOPICS = ('left/image_rect', 'right/image_rect', 'left/camera_info', 'right/camera_info')
 
 
 def _log_stderr(message: str) -> None:
@@ -137,7 +139,12 @@ class BagSpec:
             raise ConfigError(
                 f'ground-truth topic must be a non-empty name; got {self.gt_topic!r}'
             )
-        check_topic_name(self.topic(self.gt_topic.strip('/')), 'ground-truth topic')
+        gt = check_topic_name(self.topic(self.gt_topic.strip('/')), 'ground-truth topic')
+        if gt in {self.topic(name) for name in _CAMERA_TOPICS}:
+            raise ConfigError(
+                f'ground-truth topic {gt} is one of the image or camera-info topics; pick '
+                f'another'
+            )
 
     def topic(self, name: str) -> str:
         """Absolute topic of a relative ``name`` under :attr:`topic_prefix`."""
@@ -214,6 +221,16 @@ def sample_geometry(sample: Any, spec: BagSpec) -> tuple[StereoGeometry, bool]:
     )
 
 
+def _assumed(spec: BagSpec) -> str:
+    """What is made up for a sample without calibration, and the option that sets it."""
+    parts = [] if spec.focal is not None else ['f = image width']
+    options = [] if spec.focal is not None else ['--focal']
+    if spec.baseline is None:
+        parts.append(f'B = {DEFAULT_BASELINE_M} m')
+        options.append('--baseline')
+    return f'{", ".join(parts)} (set {"/".join(options)})'
+
+
 def write_dataset_bag(
     samples: Iterable[Any],
     out: str | Path,
@@ -230,7 +247,8 @@ def write_dataset_bag(
         spec: Layout (storage, rate, stamps, topics, frames); defaults if None.
         log: Receives one line per frame.
         overwrite: Replace an existing bag at ``out``; the new bag is written aside and takes
-            the old one's place only once it holds a frame (``bagio.OutputBag``).
+            the old one's place only once it holds a frame and the run did not fail
+            (``bagio.OutputBag``).
 
     Returns:
         A :class:`DatasetBagSummary`. A Ctrl-C stops between frames; the bag is still
@@ -239,8 +257,9 @@ def write_dataset_bag(
     Raises:
         BagError: ``out`` exists (without ``overwrite``, or it is not a bag) or cannot be
             written.
-        DataError, InputError: A sample that cannot be read or converted; when an old bag
-            was kept because no frame was written, the message says so.
+        DataError, InputError: A sample that cannot be read or converted. The run failed: an
+            old bag is left as it was, a new bag keeps the frames written before (none: no
+            bag is left), and the message says which.
     """
     spec = spec or BagSpec()
     store = jazzy_typestore()
@@ -262,7 +281,7 @@ def write_dataset_bag(
                 geometry, assumed = sample_geometry(sample, spec)
                 if assumed and not summary.assumed_calibration:
                     log(f'{sample.dataset}/{sample.scene} has no calibration: assuming '
-                        f'f = image width, B = {DEFAULT_BASELINE_M} m (set --focal/--baseline)')
+                        f'{_assumed(spec)}')
                 summary.assumed_calibration |= assumed
                 messages = _frame_messages(sample, geometry, spec, index, store)
                 stamp = spec.stamp_ns(index)
@@ -277,10 +296,14 @@ def write_dataset_bag(
                 interrupts.check()  # before the next scene is loaded, which takes a while
         except KeyboardInterrupt:
             summary.interrupted = True
-        except CVAError as err:
-            bag.close()
-            if bag.kept_old:
-                raise type(err)(f'{err}; the existing bag {out} was left as it was') from None
+        except Exception as err:
+            # A failed run replaces no old bag and leaves no empty one that a retry would have
+            # to --overwrite; a new bag keeps the frames written, and the message says which.
+            interrupts.closing()
+            bag.close(failed=True)
+            state = _failed_state(bag, out, summary.frames)
+            if isinstance(err, CVAError) and state:
+                raise type(err)(f'{err}; {state}') from None
             raise
         finally:
             interrupts.closing()
@@ -288,6 +311,18 @@ def write_dataset_bag(
     summary.counts = dict(bag.counts)
     summary.kept_old = bag.kept_old
     return summary
+
+
+def _failed_state(bag: OutputBag, out: str | Path, frames: int) -> str:
+    """What a failed run left at ``out``, for its error message ('' when the error says it)."""
+    if bag.kept_old:
+        dropped = f' (the {frames} frames written were dropped)' if frames else ''
+        return f'the existing bag {out} was left as it was{dropped}'
+    if bag.dropped_empty:
+        return f'no bag was written at {out}'
+    if bag.replacing:
+        return ''  # the new bag could not be written: the error says the old one was kept
+    return f'{out} holds the {frames} frames written before it'
 
 
 def _frame_messages(

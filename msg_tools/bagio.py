@@ -412,9 +412,10 @@ class OutputBag:
 
     With ``overwrite`` and an existing bag at ``path``, the new bag is written in a hidden
     sibling folder (:func:`staging_folder`) and replaces the old one when it is closed, only
-    if at least one message was written (also after a Ctrl-C or a fault part-way); a run that
-    writes nothing leaves the old bag as it was (:attr:`kept_old`), and so does a new bag that
-    cannot be written or finalised (a full disk), which is dropped with a :class:`BagError`.
+    if at least one message was written (also after a Ctrl-C, or a fault part-way that the
+    caller does not report as ``close(failed=True)``); a run that writes nothing leaves the old
+    bag as it was (:attr:`kept_old`), and so does a new bag that cannot be written or finalised
+    (a full disk), which is dropped with a :class:`BagError`.
 
     Args:
         path: Bag folder to create; must not exist unless ``overwrite``.
@@ -426,11 +427,15 @@ class OutputBag:
             removes it on :meth:`close` (:attr:`dropped_empty`), so that a run that wrote
             nothing leaves no bag that a retry would have to be told to overwrite.
 
+    A run that fails part-way (an error, not a Ctrl-C) closes with ``close(failed=True)``: then
+    a staged bag never replaces the old one, and a new bag that holds nothing is removed.
+
     Attributes:
-        kept_old: After :meth:`close`: an old bag was to be replaced, but nothing was written,
-            so it is still there, untouched.
+        kept_old: After :meth:`close`: an old bag was to be replaced, but nothing was written
+            (or the run failed), so it is still there, untouched.
         dropped_empty: After :meth:`close`: the new bag held nothing and ``keep_empty`` was
-            off, so it was removed (there is no bag at ``path``).
+            off (or the run failed), so it was removed (there is no bag at ``path``).
+        replacing: After :meth:`open`: the bag is written aside, to replace an old one.
 
     Raises:
         BagError: Unknown storage or compression.
@@ -458,6 +463,7 @@ class OutputBag:
         self.keep_empty = keep_empty
         self.kept_old = False
         self.dropped_empty = False
+        self.replacing = False
         self._created = False
         self._writer: Any = None
         self._staging: Path | None = None
@@ -525,6 +531,7 @@ class OutputBag:
             raise BagError(f'cannot create output bag {self.path}: {err}') from None
         self._writer = writer
         self._created = created and self._staging is None
+        self.replacing = self._staging is not None
 
     def write(self, topic: str, msgtype: str, message: Any, timestamp_ns: int) -> None:
         """Append one message (a ``rosbags`` message object or CDR bytes)."""
@@ -559,9 +566,15 @@ class OutputBag:
             ) from None
         self.counts[topic] = self.counts.get(topic, 0) + 1
 
-    def close(self) -> None:
+    def close(self, failed: bool = False) -> None:
         """Finalise the bag; put a staged bag in place of the old one if it holds anything,
         else drop it and keep the old one (idempotent).
+
+        Args:
+            failed: The run that wrote the bag failed part-way: a staged bag is dropped and
+                the old one kept (:attr:`kept_old`), as if nothing had been written, and a
+                new bag that holds nothing is removed (:attr:`dropped_empty`) whatever
+                ``keep_empty`` says; a new bag that holds messages stays, readable.
 
         Raises:
             BagError: The bag cannot be finalised (a full disk: a staged bag is dropped and
@@ -583,12 +596,12 @@ class OutputBag:
                 ) from None
         staging, self._staging = self._staging, None
         if staging is None:
-            if self._created and self.written == 0 and not self.keep_empty:
+            if self._created and self.written == 0 and (failed or not self.keep_empty):
                 self._created = False
                 remove_bag(self.path)
                 self.dropped_empty = True
             return
-        if self.written == 0:
+        if self.written == 0 or failed:
             self.kept_old = True
             self._discard_staging(staging)
             return
