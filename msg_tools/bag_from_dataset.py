@@ -252,7 +252,8 @@ def write_dataset_bag(
 
     Returns:
         A :class:`DatasetBagSummary`. A Ctrl-C stops between frames; the bag is still
-        finalised with the frames written so far (``interrupted`` is True).
+        finalised with the frames written so far (``interrupted`` is True). A run that wrote
+        no frame leaves no bag of its own (an old one stays as it was).
 
     Raises:
         BagError: ``out`` exists (without ``overwrite``, or it is not a bag) or cannot be
@@ -272,7 +273,10 @@ def write_dataset_bag(
         'gt': spec.topic(spec.gt_topic.strip('/')),
     }
     interrupts = GracefulInterrupt()
-    bag = OutputBag(out, spec.storage, store, spec.compression, overwrite=overwrite)
+    # A run that writes no frame (Ctrl-C before the first, no samples) leaves no empty bag.
+    bag = OutputBag(
+        out, spec.storage, store, spec.compression, overwrite=overwrite, keep_empty=False
+    )
     with interrupts:
         bag.open()
         try:
@@ -427,7 +431,7 @@ def main(argv: list[str] | None = None) -> int:
     if summary.frames == 0:
         state = (
             f'the existing bag {args.out} was left as it was' if summary.kept_old
-            else f'{args.out} is an empty bag'
+            else f'no bag was written at {args.out}'
         )
         if summary.interrupted:
             print(f'cva-bag-from-dataset: interrupted before the first frame was written; '

@@ -165,7 +165,8 @@ def test_ctrl_c_before_the_first_frame_exits_130(
     # Before: exit 2 and 'error: data set ... yielded no frames'.
     assert code == 130
     assert 'yielded no frames' not in err
-    assert f'interrupted before the first frame was written; {out} is an empty bag' in err
+    assert f'interrupted before the first frame was written; no bag was written at {out}' in err
+    assert not out.exists()  # review 30: an empty bag blocked the retry (it needed --overwrite)
 
 
 def test_ctrl_c_during_a_frame_loads_no_further_scene(tmp_path: Path) -> None:
