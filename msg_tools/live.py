@@ -141,8 +141,11 @@ def node_arguments(
     included) onto the replay's resolved names; with
     ``image_transport='compressed'`` the node's ``left/image_rect/compressed`` (and right) go
     onto the bag's image topics.
+
+    Raises:
+        ConfigError: An option outside the range the node declares (its start-up would end).
     """
-    from cva_confidence_ros.ros.params import NodeConfig, scan_parameters
+    from cva_confidence_ros.ros.params import NodeConfig, check_declared_ranges, scan_parameters
     from cva_confidence_ros.scan import ScanConfig
 
     node_config = NodeConfig(
@@ -163,6 +166,7 @@ def node_arguments(
         image_transport=image_transport,
     )
     params = {**asdict(options.pipeline), **asdict(node_config)}
+    check_declared_ranges(params)
     args = ['--ros-args', '-r', f'__node:={node_name}']
     for name, value in params.items():
         if value == '':
@@ -399,13 +403,18 @@ def run_live(
 
     Raises:
         BagError: The bag cannot be opened or lacks an input topic.
-        ConfigError: The node exits or does not connect within ``startup_timeout_s``.
+        ConfigError: An option outside the range the node declares (checked before anything
+            is written), or the node exits or does not connect within ``startup_timeout_s``.
     """
     interrupts = interrupts or GracefulInterrupt(notice=STOPPING)
     with interrupts, InputBag(options.bag) as bag:
         preload()
         plan = plan_topics(bag, options, log)
         interrupts.check()
+        if options.start_node:
+            # Values the node would refuse at start-up (a sync tolerance of a minute, a queue
+            # of 5000) are refused here, before the old report goes.
+            node_arguments(options, 'cva_confidence_replay', plan.image_transport)
         check_output_bag_folder(options.out)  # before the old report goes
         if options.overwrite:
             clear_report(options.report)  # the files of an earlier report, node.log too

@@ -36,6 +36,7 @@ __all__ = [
     'NodeConfig',
     'ParamSpec',
     'build_configs',
+    'check_declared_ranges',
     'scan_parameters',
     'declare_parameters',
     'double_value',
@@ -646,6 +647,24 @@ def scan_parameters(config: ScanConfig) -> dict[str, Any]:
     """The ``scan_*`` fields of :class:`NodeConfig` for ``config`` (the inverse of
     :meth:`NodeConfig.scan_config`)."""
     return {f'scan_{f.name}': getattr(config, f.name) for f in fields(config)}
+
+
+def check_declared_ranges(values: Mapping[str, Any]) -> None:
+    """Refuse values outside the ranges the node declares, before a node is started with
+    them (``-p`` overrides outside its range end the node's start-up).
+
+    Raises:
+        ConfigError: The first value outside its range, named with the range.
+    """
+    for spec in PARAMETERS:
+        value = values.get(spec.name)
+        if spec.low is None or spec.high is None or isinstance(value, bool):
+            continue
+        if isinstance(value, (int, float)) and not spec.low <= value <= spec.high:
+            raise ConfigError(
+                f'{spec.name} must be in [{spec.low:g}, {spec.high:g}] (the range the node '
+                f'declares); got {value!r}'
+            )
 
 
 def declare_parameters(node: Node) -> None:
