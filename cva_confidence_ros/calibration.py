@@ -254,7 +254,7 @@ class ReliabilityTable:
             InputError: Missing keys, bins of different lengths, or a value that
                 :meth:`as_dict` cannot have written: a count that is not a whole number ≥ 0,
                 a mean or Brier score that is not a number in [0, 1], a non-empty bin
-                without a mean.
+                without a mean, a mean confidence outside its bin.
         """
         try:
             bins = item['bins']
@@ -285,6 +285,14 @@ class ReliabilityTable:
                 raise InputError(
                     f'not a reliability table: bins {key}[{i}] of {count} pixels must be a '
                     f'number in [0, 1]; got {values[i]!r}'
+                )
+            # The mean of confidences in [i / B, (i + 1) / B) lies in that bin (up to rounding);
+            # one outside is no table of these bins (a shifted or hand-edited list).
+            low, high = i / len(counts), (i + 1) / len(counts)
+            if count and not low - 1e-9 <= float(conf[i]) <= high + 1e-9:
+                raise InputError(
+                    f'not a reliability table: bins mean_confidence[{i}] must lie in its bin '
+                    f'[{low:g}, {high:g}]; got {conf[i]!r}'
                 )
         if not _unit(brier):
             raise InputError(

@@ -10,13 +10,16 @@ matplotlib state and needs no display.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+import errno
+import math
 import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from cva_confidence_ros.checks import is_int, is_real
 from cva_confidence_ros.errors import InputError
 
 if TYPE_CHECKING:
@@ -49,31 +52,65 @@ def _check_map(name: str, array: np.ndarray) -> np.ndarray:
     array = np.asarray(array)
     if array.ndim != 2 or array.size == 0:
         raise InputError(f'{name} must be a non-empty (H, W) array; got shape {array.shape}')
-    if not np.issubdtype(array.dtype, np.number) and array.dtype != np.bool_:
-        raise InputError(f'{name} must be numeric; got dtype {array.dtype}')
+    # Complex is a number too, but casting it drops the imaginary part (with only a warning).
+    if array.dtype.kind not in 'biuf':
+        raise InputError(f'{name} must be real numbers or bool; got dtype {array.dtype}')
     return array
 
 
-def _prepare_path(path: PathLike) -> Path:
+def _save(path: PathLike, write: Callable[[Path], object]) -> Path:
+    """Make the parent folders of ``path`` and ``write(path)``.
+
+    Raises:
+        OSError: The file cannot be written. A folder at ``path`` and a file where a parent
+            folder belongs are named as such (mkdir said ``File exists``, naming the file in
+            the way and not the PNG). Still OSErrors, as a full disk's: the callers handle
+            those (the replay's report stops its PNGs, ``cva-evaluate`` exits with the reason).
+    """
     out = Path(path)
+    if out.is_dir():
+        raise IsADirectoryError(
+            errno.EISDIR, f'cannot write PNG {out}: it is a folder; expected a file path'
+        )
+    for folder in out.parents:
+        if folder.exists():
+            if not folder.is_dir():
+                raise NotADirectoryError(
+                    errno.ENOTDIR, f'cannot write PNG {out}: {folder} is a file, not a folder'
+                )
+            break
     out.parent.mkdir(parents=True, exist_ok=True)
+    write(out)
     return out
 
 
 def _write_rgb(rgb: np.ndarray, path: PathLike) -> Path:
     from matplotlib.image import imsave
 
-    out = _prepare_path(path)
-    imsave(out, np.ascontiguousarray(rgb, dtype=np.uint8), format='png')
-    return out
+    rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
+    return _save(path, lambda out: imsave(out, rgb, format='png'))
+
+
+def _bound(name: str, value: float | None) -> float | None:
+    """A colour-scale bound given by the caller: a finite real number (NaN drew all grey)."""
+    if value is None:
+        return None
+    if not is_real(value) or not math.isfinite(value):
+        raise InputError(f'{name} must be a finite number or None; got {value!r}')
+    return float(value)
 
 
 def _colorize(
     values: np.ndarray, cmap: str, vmin: float | None, vmax: float | None
 ) -> np.ndarray:
-    """Map values through ``cmap`` onto (H, W, 3) uint8; NaN becomes UNKNOWN_RGB."""
+    """Map values through ``cmap`` onto (H, W, 3) uint8; NaN becomes UNKNOWN_RGB.
+
+    ``vmin`` is drawn at the colormap's start, ``vmax`` at its end (``vmin > vmax`` inverts
+    the scale); values beyond are clipped.
+    """
     from matplotlib import colormaps
 
+    vmin, vmax = _bound('vmin', vmin), _bound('vmax', vmax)
     values = values.astype(np.float64)
     finite = np.isfinite(values)
     known = ~np.isnan(values)
@@ -81,9 +118,15 @@ def _colorize(
         vmin = float(values[finite].min()) if finite.any() else 0.0
     if vmax is None:
         vmax = float(values[finite].max()) if finite.any() else 1.0
-    span = vmax - vmin
-    # A constant map would divide by zero; draw it mid-grey rather than fail.
-    scaled = (values - vmin) / span if span > 0 else np.full(values.shape, 0.5)
+    # Halves: vmax − vmin of two finite extremes can overflow to inf (and x / inf is 0).
+    half_span = vmax / 2 - vmin / 2
+    with np.errstate(invalid='ignore', over='ignore'):
+        if half_span != 0:
+            scaled = (values / 2 - vmin / 2) / half_span
+        else:
+            # A constant map would divide by zero: mid-grey, with what lies above and below
+            # (±inf among equal finite values) still saturating.
+            scaled = np.where(values > vmin, 1.0, np.where(values < vmin, 0.0, 0.5))
     # ±inf is a legitimate extreme (e.g. a ratio over a zero cost); it saturates the map.
     scaled = np.clip(np.where(known, scaled, 0.0), 0.0, 1.0)
     rgb = (colormaps[cmap](scaled)[..., :3] * 255.0 + 0.5).astype(np.uint8)
@@ -106,13 +149,16 @@ def save_confidence_map(
         path: Output PNG file; parent folders are created.
         vmin: Value drawn black; default the finite minimum (use 0 for learned confidence).
         vmax: Value drawn white; default the finite maximum (use 1 for learned confidence).
+            ``vmin > vmax`` inverts the scale. A constant map is drawn mid-grey.
         cmap: Any matplotlib colormap name.
 
     Returns:
         The path written, an (H, W) RGB PNG.
 
     Raises:
-        InputError: ``confidence`` is not a non-empty numeric 2-D array.
+        InputError: ``confidence`` is not a non-empty real 2-D array, or ``vmin`` / ``vmax``
+            is not a finite number.
+        OSError: ``path`` cannot be written (a folder, under a file, no permission).
     """
     confidence = _check_map('confidence', confidence)
     return _write_rgb(_colorize(confidence, cmap, vmin, vmax), path)
@@ -130,17 +176,27 @@ def save_disparity_map(
         disparity: (H, W) float array, ≥ 0 pixels; NaN = unknown (drawn ``UNKNOWN_RGB``).
             Callers with ``inf`` = unknown (PFM ground truth) convert it to NaN first.
         path: Output PNG file; parent folders are created.
-        max_disparity: Disparity drawn brightest; default the finite maximum.
+        max_disparity: Disparity drawn brightest, > 0; default the finite maximum (1 where
+            that is 0, so that a map of zeros is drawn dark, as far away).
         cmap: Any matplotlib colormap name.
 
     Returns:
         The path written, an (H, W) RGB PNG.
 
     Raises:
-        InputError: ``disparity`` is not a non-empty numeric 2-D array.
+        InputError: ``disparity`` is not a non-empty real 2-D array, or ``max_disparity`` is
+            not a finite number > 0.
+        OSError: ``path`` cannot be written (a folder, under a file, no permission).
     """
     disparity = _check_map('disparity', disparity)
-    return _write_rgb(_colorize(disparity, cmap, 0.0, max_disparity), path)
+    if max_disparity is None:
+        finite = disparity[np.isfinite(disparity)]
+        peak = float(finite.max()) if finite.size else 0.0
+        # 0 (or below) would make the range [0, 0], drawn as a mid-range colour.
+        max_disparity = peak if peak > 0 else 1.0
+    elif not is_real(max_disparity) or not 0 < max_disparity < math.inf:
+        raise InputError(f'max_disparity must be a finite number > 0; got {max_disparity!r}')
+    return _write_rgb(_colorize(disparity, cmap, 0.0, float(max_disparity)), path)
 
 
 def _confidence_tint() -> np.ndarray:
@@ -177,9 +233,16 @@ def confidence_overlay(
         (H, W, 3) uint8 RGB.
 
     Raises:
-        InputError: Shapes that disagree, or an image that is not uint8.
+        InputError: Shapes that disagree, an image that is not uint8, or a confidence that is
+            not float (an integer map, e.g. 0–255, would be clipped to green almost
+            everywhere).
     """
     confidence = _check_map('confidence', confidence)
+    if confidence.dtype.kind != 'f':
+        raise InputError(
+            f'confidence must be a float array in [0, 1]; got dtype {confidence.dtype} '
+            '(scale an integer map to [0, 1] first)'
+        )
     shape = confidence.shape
     image = np.asarray(image)
     if (
@@ -221,17 +284,29 @@ def correctness_classes(
     Args:
         confidence: (...) float array.
         error: Same shape, bool; True = the disparity is wrong.
-        tau: Threshold on the confidence.
+        tau: Threshold on the confidence, a real number (not NaN: every pixel would be red).
 
     Returns:
         Bool array of the same shape, True where the confidence classifies correctly.
         NaN confidence compares False both ways, so it yields False; callers mask it out.
 
     Raises:
-        InputError: The shapes differ.
+        InputError: The shapes differ, ``tau`` is not a number or NaN, ``confidence`` is not
+            real, or a float ``error`` holds NaN (cast to bool it would count as wrong;
+            :func:`save_correctness_overlay` takes NaN as not judged).
     """
+    if not is_real(tau) or math.isnan(tau):
+        raise InputError(f'tau must be a real number (not NaN); got {tau!r}')
     confidence = np.asarray(confidence)
-    error = np.asarray(error, dtype=bool)
+    if confidence.dtype.kind not in 'biuf':
+        raise InputError(f'confidence must be real numbers; got dtype {confidence.dtype}')
+    error = np.asarray(error)
+    if error.dtype.kind in 'fc' and np.isnan(error).any():
+        raise InputError(
+            'error must be a bool array (True = wrong); got '
+            f'{int(np.isnan(error).sum())} NaN values in a float error map'
+        )
+    error = error.astype(bool)
     if confidence.shape != error.shape:
         raise InputError(
             f'confidence and error must have the same shape; got {confidence.shape} '
@@ -253,6 +328,8 @@ def _gray_background(image: np.ndarray | None, shape: tuple[int, int]) -> np.nda
         raise InputError(
             f'image must be (H, W) or (H, W, 1|3|4) with (H, W) = {shape}; got {image.shape}'
         )
+    if image.dtype.kind not in 'biuf':
+        raise InputError(f'image must be real numbers; got dtype {image.dtype}')
     gray = image.astype(np.float64)
     if gray.ndim == 3:
         gray = gray[..., :3].mean(axis=2)
@@ -279,6 +356,7 @@ def save_confidence_overlay(
 
     Raises:
         InputError: As :func:`confidence_overlay`.
+        OSError: ``path`` cannot be written (a folder, under a file, no permission).
     """
     return _write_rgb(confidence_overlay(image, confidence, kept), path)
 
@@ -313,7 +391,9 @@ def save_correctness_overlay(
         The path written, an (H, W) RGB PNG.
 
     Raises:
-        InputError: Shapes disagree.
+        InputError: Shapes disagree, a dtype that is not real, NaN in a float ``mask``, or a
+            ``tau`` that is not a number or NaN.
+        OSError: ``path`` cannot be written (a folder, under a file, no permission).
     """
     confidence = _check_map('confidence', confidence).astype(np.float64)
     error_in = _check_map('error', error)
@@ -327,7 +407,11 @@ def save_correctness_overlay(
     if mask is None:
         mask = np.ones(shape, dtype=bool)
     else:
-        mask = _check_map('mask', mask).astype(bool)
+        mask = _check_map('mask', mask)
+        if mask.dtype.kind == 'f' and np.isnan(mask).any():
+            # NaN cast to bool is True: the pixel would be drawn as evaluated.
+            raise InputError('mask must be a bool array; got NaN in a float mask')
+        mask = mask.astype(bool)
         if mask.shape != shape:
             raise InputError(f'mask must have shape {shape} like confidence; got {mask.shape}')
     rgb = _gray_background(image, shape)
@@ -356,16 +440,30 @@ def optimal_roc_curve(error_rate: float, samples: int = 201) -> tuple[np.ndarray
         ascending, including the kink.
 
     Raises:
-        InputError: ``error_rate`` outside [0, 1] or ``samples`` < 2.
+        InputError: ``error_rate`` is not a number in [0, 1], or ``samples`` is not an
+            integer ≥ 2.
     """
-    if not 0.0 <= error_rate <= 1.0:
-        raise InputError(f'error_rate must be in [0, 1]; got {error_rate}')
-    if samples < 2:
-        raise InputError(f'samples must be ≥ 2; got {samples}')
+    if not is_real(error_rate) or not 0.0 <= error_rate <= 1.0:
+        raise InputError(f'error_rate must be in [0, 1]; got {error_rate!r}')
+    if not is_int(samples) or samples < 2:
+        raise InputError(f'samples must be an integer ≥ 2; got {samples!r}')
     density = np.unique(np.append(np.linspace(1.0 / samples, 1.0, samples), 1.0 - error_rate))
     density = density[density > 0]
     rate = np.maximum(0.0, density - (1.0 - error_rate)) / density
     return density, rate
+
+
+def _curve_problem(density: np.ndarray, rate: np.ndarray) -> str:
+    """What is wrong with an ROC curve's values, or '' if nothing."""
+    for label, values in (('density', density), ('error rate', rate)):
+        if np.isnan(values).any():
+            return f'{int(np.isnan(values).sum())} NaN {label} values'
+        if values.size and (values.min() < 0.0 or values.max() > 1.0):
+            return f'{label} in [{values.min():g}, {values.max():g}]'
+    if np.any(np.diff(density) < 0.0):
+        at = int(np.flatnonzero(np.diff(density) < 0.0)[0])
+        return f'density {density[at]:g} before {density[at + 1]:g} (not ascending)'
+    return ''
 
 
 def save_roc_curves(
@@ -378,7 +476,7 @@ def save_roc_curves(
 
     Args:
         curves: Method name → ``(density, error_rate)``, 1-D arrays of equal length, density
-            in (0, 1] ascending, as returned by ``metrics.roc_curve``.
+            in (0, 1] ascending, error rate in [0, 1], as returned by ``metrics.roc_curve``.
         path: Output PNG file; parent folders are created.
         error_rate: Overall error ε of the disparity map; when given, the optimal curve is
             drawn as a dashed black line labelled ``optimal``.
@@ -388,7 +486,9 @@ def save_roc_curves(
         The path written.
 
     Raises:
-        InputError: A curve's two arrays differ in length or are not 1-D.
+        InputError: A curve's two arrays differ in length or are not 1-D, or hold NaN, a
+            density outside [0, 1] or not ascending, or an error rate outside [0, 1].
+        OSError: ``path`` cannot be written (a folder, under a file, no permission).
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -404,6 +504,11 @@ def save_roc_curves(
                 f'curve {name!r} needs two 1-D arrays of equal length; got {density.shape} '
                 f'and {rate.shape}'
             )
+        # NaN or an unsorted density would be drawn as a gap or a zigzag, without a word.
+        problem = _curve_problem(density, rate)
+        if problem:
+            raise InputError(f'curve {name!r} needs density in [0, 1] ascending and error rate '
+                             f'in [0, 1]; got {problem}')
         axes.plot(density, rate, label=name, linewidth=1.5)
     if error_rate is not None:
         density, rate = optimal_roc_curve(float(error_rate))
@@ -418,9 +523,7 @@ def save_roc_curves(
     if axes.get_legend_handles_labels()[0]:  # no curves: an empty legend only warns
         axes.legend(fontsize=8, loc='upper left')
     figure.tight_layout()
-    out = _prepare_path(path)
-    figure.savefig(out, format='png')
-    return out
+    return _save(path, lambda out: figure.savefig(out, format='png'))
 
 
 def save_reliability_diagram(
@@ -444,6 +547,7 @@ def save_reliability_diagram(
 
     Raises:
         InputError: No tables, or a table holds no pixels.
+        OSError: ``path`` cannot be written (a folder, under a file, no permission).
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -477,6 +581,4 @@ def save_reliability_diagram(
     bottom.set_xlabel('confidence')
     bottom.set_ylabel('share of pixels')
     bottom.grid(True, alpha=0.3)
-    out = _prepare_path(path)
-    figure.savefig(out, format='png')
-    return out
+    return _save(path, lambda out: figure.savefig(out, format='png'))
