@@ -38,7 +38,12 @@ from cva_confidence_ros.ros.common import (
     warn_unknown_parameters,
 )
 from cva_confidence_ros.ros.convert import point_cloud_to_records, records_to_point_cloud
-from cva_confidence_ros.ros.params import QOS_CHOICES, double_value
+from cva_confidence_ros.ros.params import (
+    QOS_CHOICES,
+    double_value,
+    keep_doubles,
+    restore_types,
+)
 
 __all__ = [
     'NODE_NAME',
@@ -176,6 +181,9 @@ class CloudFilterNode(Node):
                     FloatingPointRange(from_value=0.0, to_value=1.0, step=0.0)
                 ]
             self.declare_parameter(spec.name, spec.default, descriptor)
+        keep_doubles(
+            self, [f.name for f in fields(CloudFilterConfig) if isinstance(f.default, float)]
+        )
         warn_unknown_parameters(self)
         names = [spec.name for spec in fields(CloudFilterConfig)]
         self._config = CloudFilterConfig(
@@ -225,6 +233,7 @@ class CloudFilterNode(Node):
             try:
                 self._config = replace(self._config, **_values(changes))
             except (ConfigError, TypeError) as error:
+                restore_types(self, params)
                 return SetParametersResult(successful=False, reason=str(error))
         self.get_logger().info(
             'parameters set: ' + ', '.join(f'{name}={value!r}' for name, value in changes.items())

@@ -63,6 +63,7 @@ from cva_confidence_ros.ros.params import (
     build_configs,
     declare_parameters,
     parameter_values,
+    restore_types,
 )
 from cva_confidence_ros.ros.transport import depth_image_to_compressed_depth, rgb_to_compressed
 from cva_confidence_ros.scan import disparity_to_scan, scan_frame_id
@@ -471,6 +472,12 @@ class ConfidenceCore(Node):
             )
 
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        result = self._set_parameters(params)
+        if not result.successful:
+            restore_types(self, params)
+        return result
+
+    def _set_parameters(self, params: list[Parameter]) -> SetParametersResult:
         # rclpy's own parameters (use_sim_time, …) are for rclpy to accept or refuse.
         params = [param for param in params if param.name in _OWN_PARAMETERS]
         if not params:

@@ -39,6 +39,8 @@ __all__ = [
     'check_declared_ranges',
     'scan_parameters',
     'declare_parameters',
+    'keep_doubles',
+    'restore_types',
     'double_value',
     'parameter_values',
 ]
@@ -668,11 +670,52 @@ def check_declared_ranges(values: Mapping[str, Any]) -> None:
 
 
 def declare_parameters(node: Node) -> None:
-    """Declare every parameter of :data:`PARAMETERS` on ``node`` with its descriptor."""
+    """Declare every parameter of :data:`PARAMETERS` on ``node`` with its descriptor, and keep
+    the double ones doubles (:func:`keep_doubles`)."""
     node.declare_parameters(
         namespace='',
         parameters=[(spec.name, spec.default, spec.descriptor()) for spec in PARAMETERS],
     )
+    keep_doubles(node, [spec.name for spec in PARAMETERS if isinstance(spec.default, float)])
+
+
+def keep_doubles(node: Node, names: Iterable[str]) -> None:
+    """Keep the double parameters ``names`` (declared with dynamic typing, see
+    :meth:`ParamSpec.descriptor`) doubles in what ``ros2 param describe`` and ``get`` say.
+
+    A whole number given at start-up (``-p max_rate_hz:=2``) or later is stored as the double
+    it stands for (a pre-set callback; read-only ones stay as given at start-up, which rclpy
+    lets nothing change). Call :func:`restore_types` when the on-set callback refuses a
+    change: rclpy retypes a dynamically typed parameter to the value offered before the
+    callback runs, refused or not (a refused ``max_rate_hz abc`` left it a string parameter).
+    """
+    doubles = frozenset(names)
+
+    def as_doubles(params: list[Parameter]) -> list[Parameter]:
+        return [
+            Parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
+            if p.name in doubles and p.type_ == Parameter.Type.INTEGER else p
+            for p in params
+        ]
+
+    node.add_pre_set_parameters_callback(as_doubles)
+    whole = [
+        node.get_parameter(name) for name in sorted(doubles)
+        if node.get_parameter(name).type_ == Parameter.Type.INTEGER
+        and not node.describe_parameter(name).read_only
+    ]
+    if whole:
+        node.set_parameters(whole)  # before any on-set callback: converted by as_doubles
+
+
+def restore_types(node: Node, params: Iterable[Parameter]) -> None:
+    """Type the descriptors of ``params`` by the values kept, after a refused change (see
+    :func:`keep_doubles`)."""
+    for param in params:
+        if node.has_parameter(param.name):
+            descriptor = node.describe_parameter(param.name)
+            if descriptor.dynamic_typing:
+                descriptor.type = node.get_parameter(param.name).type_.value
 
 
 def parameter_values(node: Node) -> dict[str, Any]:

@@ -16,10 +16,12 @@ from node_test_utils import (
     textured_pair,
 )
 import pytest
+from rcl_interfaces.msg import ParameterType
 from rclpy.parameter import Parameter
 
-from cva_confidence_ros.node import ManagedConfidenceNode
+from cva_confidence_ros.node import ConfidenceNode, ManagedConfidenceNode
 from cva_confidence_ros.ros import confidence_node
+from cva_confidence_ros.ros.cloud_filter_node import CloudFilterNode
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -77,4 +79,39 @@ def test_a_frame_left_running_past_cleanup_leaves_the_new_configuration_alone(
             assert ran == []
         finally:
             release.set()
+            node.destroy_node()
+
+
+@pytest.mark.parametrize('kind', ['confidence', 'cloud_filter'])
+def test_double_parameters_stay_doubles_whatever_is_offered(kind: str) -> None:
+    # rclpy types a dynamically typed parameter by the value offered: -p max_rate_hz:=2 made
+    # it an integer parameter (ros2 param describe/get said so), and a refused set of 'abc'
+    # left it a string parameter holding 2.
+    name, given = ('max_rate_hz', 2) if kind == 'confidence' else ('threshold', 1)
+    with localhost_context(spare_domain_id()) as context:
+        if kind == 'confidence':
+            node = ConfidenceNode(
+                context=context, namespace=NAMESPACE,
+                parameter_overrides=[*OVERRIDES[:3], Parameter(name, value=given)],
+            )
+        else:
+            node = CloudFilterNode(
+                context=context, namespace=NAMESPACE,
+                parameter_overrides=[Parameter(name, value=given)],
+            )
+        try:
+
+            def declared() -> tuple[int, int, object]:
+                value = node.get_parameter(name)
+                return node.describe_parameter(name).type, value.type_.value, value.value
+
+            double = ParameterType.PARAMETER_DOUBLE
+            assert declared() == (double, double, float(given))
+            [refused] = node.set_parameters([Parameter(name, value='abc')])
+            assert not refused.successful
+            assert declared() == (double, double, float(given))
+            [accepted] = node.set_parameters([Parameter(name, value=0)])
+            assert accepted.successful, accepted.reason
+            assert declared() == (double, double, 0.0)
+        finally:
             node.destroy_node()
