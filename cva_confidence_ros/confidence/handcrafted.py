@@ -63,46 +63,68 @@ def _map_rows(volume: np.ndarray, fn: Callable[[np.ndarray], np.ndarray]) -> np.
 
 
 @numba.njit(cache=True, parallel=True, fastmath=False)
-def _two_smallest_kernel(volume: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _two_smallest_kernel(
+    volume: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     # One pass over the disparities per row, in memory order (d outer, x inner): a strided
-    # np.partition along axis 0 was ~20× slower on a 128×480×640 volume.
+    # np.partition along axis 0 was ~20× slower on a 128×480×640 volume. NaN fails every '<'
+    # and would be skipped (or, at d = 0, kept as c1) without a word: counted per row instead.
     depth, height, width = volume.shape
     c1 = np.empty((height, width), dtype=np.float32)
     c2 = np.empty((height, width), dtype=np.float32)
     d1 = np.zeros((height, width), dtype=np.int64)
+    nans = np.zeros(height, dtype=np.int64)
     for y in numba.prange(height):
+        count = 0
         for x in range(width):
-            c1[y, x] = volume[0, y, x]
+            value = volume[0, y, x]
+            count += value != value
+            c1[y, x] = value
             c2[y, x] = np.inf
         for d in range(1, depth):
             for x in range(width):
                 value = volume[d, y, x]
+                count += value != value
                 if value < c1[y, x]:
                     c2[y, x] = c1[y, x]
                     c1[y, x] = value
                     d1[y, x] = d
                 elif value < c2[y, x]:
                     c2[y, x] = value
-    return c1, d1, c2
+        nans[y] = count
+    return c1, d1, c2, nans
+
+
+def _check_real_array(name: str, value: object) -> None:
+    # A list has no .ndim (bare AttributeError); complex would lose its imaginary part and a
+    # str array fail inside numpy.
+    if not isinstance(value, np.ndarray):
+        raise InputError(f'{name} must be a numpy array; got {type(value).__name__}')
+    if value.dtype.kind not in 'fiu':
+        raise InputError(f'{name} must hold real numbers (float or int); got dtype {value.dtype}')
 
 
 def two_smallest(volume: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Smallest cost, its disparity and the second-smallest cost of every pixel.
 
     Args:
-        volume: (D, H, W) float32 cost volume, D ≥ 2.
+        volume: (D, H, W) float32 cost volume, D ≥ 2, no NaN.
 
     Returns:
         ``(c1, d1, c2)``: (H, W) float32 minimum, (H, W) int64 arg-minimum (the first one on
         ties) and (H, W) float32 second-smallest value (naive: any disparity but ``d1``).
 
     Raises:
-        InputError: D < 2.
+        InputError: Not a numpy array of real numbers, not 3-D, D < 2, or NaN costs.
     """
+    _check_real_array('volume', volume)
     if volume.ndim != 3 or volume.shape[0] < 2:
         raise InputError(f'expected a (D, H, W) cost volume with D ≥ 2; got shape {volume.shape}')
     volume = np.ascontiguousarray(volume, dtype=np.float32)
-    c1, d1, c2 = _two_smallest_kernel(volume)
+    c1, d1, c2, nans = _two_smallest_kernel(volume)
+    count = int(nans.sum())
+    if count:
+        raise InputError(f'volume must not contain NaN costs; got {count} NaN entries')
     return c1, d1, c2
 
 
@@ -164,7 +186,8 @@ class PeakRatioNaive(ConfidenceMethod):
         # eps below that cannot make c1 + eps zero or negative (an inf or a negative PKRN).
         zero = np.float32(0.0)
         c1, c2 = np.maximum(c1, zero), np.maximum(c2, zero)
-        return ((c2 + eps) / (c1 + eps)).astype(np.float32)
+        with np.errstate(over='ignore'):  # a tiny eps: +inf at perfect matches, the top
+            return ((c2 + eps) / (c1 + eps)).astype(np.float32)
 
     def to_unit_interval(self, confidence: np.ndarray) -> np.ndarray:
         """``1 - 1 / PKRN`` in [0, 1): 0 for two equal minima."""
@@ -225,12 +248,17 @@ def left_right_difference_map(
         eps: > 0, keeps the ratio finite when both minima are equal.
 
     Returns:
-        (H, W) float32 ≥ 0. Where ``x - d1 < 0`` the right pixel lies outside the image and the
-        nearest column (0) is used.
+        (H, W) float32 ≥ 0 (+inf where an eps below about 1e-38 overflows the ratio). Where
+        ``x - d1 < 0`` the right pixel lies outside the image and the nearest column (0) is
+        used.
 
     Raises:
-        InputError: ``volume_right`` not of the shape of ``volume``.
+        InputError: Either volume not a real array, ``volume_right`` not of the shape of
+            ``volume``, or NaN costs.
+        ConfigError: ``eps`` not a number > 0 that stays finite and > 0 in float32.
     """
+    _check_eps(eps)
+    _check_real_array('volume_right', volume_right)
     if np.shape(volume_right) != np.shape(volume):
         raise InputError(
             f'volume_right must have the shape of volume {np.shape(volume)} (D, H, W); '
@@ -238,11 +266,16 @@ def left_right_difference_map(
         )
     c1, d1, c2 = two_smallest(volume)
     right_min = volume_right.min(axis=0)
+    # min propagates NaN: one look at the (H, W) minima finds a NaN anywhere in the volume.
+    if np.isnan(right_min).any():
+        count = int(np.count_nonzero(np.isnan(volume_right)))
+        raise InputError(f'volume_right must not contain NaN costs; got {count} NaN entries')
     height, width = c1.shape
     cols = np.clip(np.arange(width)[None, :] - d1, 0, width - 1)
     rows = np.arange(height)[:, None]
     denom = np.abs(c1 - right_min[rows, cols]) + np.float32(eps)
-    return ((c2 - c1) / denom).astype(np.float32)
+    with np.errstate(over='ignore'):  # a tiny eps: +inf, above every finite LRD
+        return ((c2 - c1) / denom).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -266,9 +299,12 @@ class LeftRightDifference(ConfidenceMethod):
         return left_right_difference_map(inputs.cost_volume, volume_right, self.eps)
 
     def to_unit_interval(self, confidence: np.ndarray) -> np.ndarray:
-        """``LRD / (1 + LRD)`` in [0, 1)."""
+        """``LRD / (1 + LRD)`` in [0, 1]: 1 for +inf (a tiny eps), the most confident."""
         positive = np.maximum(confidence, 0.0)
-        return super().to_unit_interval(positive / (1.0 + positive))
+        # inf / (1 + inf) is NaN, which the clip below would turn into 0, the least confident.
+        with np.errstate(invalid='ignore'):
+            unit = np.where(np.isposinf(positive), 1.0, positive / (1.0 + positive))
+        return super().to_unit_interval(unit)
 
 
 @dataclass(frozen=True)
@@ -291,10 +327,14 @@ class LeftRightConsistency(ConfidenceMethod):
         height, width = disparity.shape
         worst = np.float32(-inputs.max_disparity)
         finite = np.isfinite(disparity)
-        cols = np.arange(width)[None, :] - np.rint(np.where(finite, disparity, 0)).astype(np.int64)
+        # Columns in float64, cast only once clipped: a disparity beyond int64 (1e20) cast
+        # first was an undefined integer (a RuntimeWarning) that only wraparound kept outside.
+        cols = np.arange(width, dtype=np.float64)[None, :] - np.rint(
+            np.where(finite, disparity, 0.0)
+        )
         inside = finite & (cols >= 0) & (cols < width)
         rows = np.broadcast_to(np.arange(height)[:, None], cols.shape)
-        matched = disparity_right[rows, np.clip(cols, 0, width - 1)]
+        matched = disparity_right[rows, np.clip(cols, 0, width - 1).astype(np.intp)]
         diff = -np.abs(disparity - matched)
         return np.where(inside & np.isfinite(diff), diff, worst).astype(np.float32)
 
