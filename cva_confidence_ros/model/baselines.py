@@ -39,6 +39,7 @@ the CPU budget asks for one (also written on every model card):
 from __future__ import annotations
 
 from collections.abc import Mapping
+import math
 from typing import Any, cast
 
 import numpy as np
@@ -46,7 +47,10 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
-from cva_confidence_ros.errors import InputError, ModelError
+from cva_confidence_ros.checks import is_real
+from cva_confidence_ros.devices import resolve_device
+from cva_confidence_ros.errors import ConfigError, InputError, ModelError
+from cva_confidence_ros.model.inference import same_device
 from cva_confidence_ros.model.weights import ARCHITECTURES
 
 __all__ = [
@@ -378,18 +382,26 @@ def network_inputs(
         grey image (ITU-R 601 luma for colour) / 255.
 
     Raises:
-        InputError: Shapes that do not fit, or D < 1.
+        InputError: Shapes that do not fit, an image that is not uint8, or D not a finite
+            number >= 1.
     """
     disparity = np.asarray(disparity, dtype=np.float32)
     image = np.asarray(image)
     if disparity.ndim != 2:
         raise InputError(f'disparity must be (H, W); got shape {disparity.shape}')
-    if image.shape[:2] != disparity.shape or image.ndim not in (2, 3):
+    if image.shape[:2] != disparity.shape or not (
+        image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)
+    ):
         raise InputError(
             f'image must be {disparity.shape} or {disparity.shape + (3,)}; got {image.shape}'
         )
-    if max_disparity < 1:
-        raise InputError(f'max_disparity must be >= 1; got {max_disparity}')
+    if image.dtype != np.uint8:
+        # Divided by 255 below: a [0, 1] float or a 16-bit image would be silently rescaled.
+        raise InputError(f'image must be uint8 (intensities 0..255); got dtype {image.dtype}')
+    if not is_real(max_disparity) or not (
+        math.isfinite(max_disparity) and max_disparity >= 1
+    ):
+        raise InputError(f'max_disparity must be a finite number >= 1; got {max_disparity!r}')
     filled = np.where(np.isfinite(disparity), disparity, np.float32(0.0))
     grey = image.astype(np.float32)
     if grey.ndim == 3:
@@ -409,14 +421,16 @@ def predict_disparity_confidence(
         net: A :class:`CCNN`, :class:`LFN` or :class:`LGCNet`.
         disparity: (H, W) float disparity in pixels (NaN = invalid).
         image: (H, W) or (H, W, 3) uint8 left image.
-        device: Where to run.
+        device: Where to run (``'cpu'``, ``'cuda'``, ``'cuda:N'`` or ``'auto'``): the device
+            ``net`` lies on (it is run where it is, not moved).
 
     Returns:
         (H, W) float32 confidence in (0, 1).
 
     Raises:
         ModelError: ``net`` is not a baseline network.
-        InputError: Bad shapes.
+        ConfigError: An unknown device, or ``net`` lying on another device.
+        InputError: Bad shapes or image dtype.
     """
     if getattr(type(net), 'arch', None) not in BASELINE_ARCHS:
         raise ModelError(
@@ -424,14 +438,21 @@ def predict_disparity_confidence(
         )
     net = cast('CCNN | LGCNet', net)  # a baseline by the arch check above (LFN is a CCNN)
     disparity_n, image_n = network_inputs(disparity, image, net.max_disparity)
-    device = torch.device(device)
+    device = resolve_device(device)
+    parameter = next(net.parameters())
+    if not same_device(parameter.device, device):
+        raise ConfigError(
+            f'{type(net).__name__} lies on {parameter.device}; got device {device} '
+            f'(move the network there first, or pass device={str(parameter.device)!r})'
+        )
     was_training = net.training
     net.eval()
     try:
         with torch.no_grad():
-            d = torch.from_numpy(disparity_n)[None, None].to(device)
-            i = torch.from_numpy(image_n)[None, None].to(device)
+            # Inputs in the network's own dtype (float32 unless it was converted).
+            d = torch.from_numpy(disparity_n)[None, None].to(device, parameter.dtype)
+            i = torch.from_numpy(image_n)[None, None].to(device, parameter.dtype)
             out = net.dense_confidence(d, i)
     finally:
         net.train(was_training)
-    return out[0, 0].cpu().numpy().astype(np.float32)
+    return out[0, 0].float().cpu().numpy()

@@ -555,14 +555,16 @@ def sparse_confidence(
         A :class:`SparseResult`; with stride 1 and no cascade it is the exact network.
 
     Raises:
-        InputError: Shapes that do not fit, or a cascade without ``cheap``.
+        InputError: Shapes that do not fit, an image that is not uint8, or a cascade without
+            ``cheap``.
     """
+    if not isinstance(cost_volume, np.ndarray) or cost_volume.ndim != 3:
+        array = isinstance(cost_volume, np.ndarray)
+        got = cost_volume.shape if array else type(cost_volume).__name__
+        raise InputError(f'cost_volume must be a (D, H, W) numpy array; got {got}')
     _, height, width = cost_volume.shape
     shape = (height, width)
-    if image.shape[:2] != shape or disparity.shape != shape:
-        raise InputError(
-            f'image and disparity must be {shape}; got {image.shape}, {disparity.shape}'
-        )
+    _check_guides(image, disparity, shape)
     grid = np.zeros(shape, dtype=bool)
     rows_g, cols_g = _grid_axis(height, config.stride), _grid_axis(width, config.stride)
     grid[np.ix_(rows_g, cols_g)] = True
@@ -572,8 +574,8 @@ def sparse_confidence(
         evaluated = grid
         decided = np.zeros(shape, dtype=bool)
     else:
-        if cheap is None or cheap.shape != shape:
-            got = None if cheap is None else cheap.shape
+        if cheap is None or np.shape(cheap) != shape:
+            got = None if cheap is None else np.shape(cheap)
             raise InputError(f'cascade {config.cascade!r} needs a {shape} cheap map; got {got}')
         rank = _ranks(cheap)
         undecided, calibration = cascade_selection(rank, grid, config.cascade_fraction)
@@ -596,6 +598,24 @@ def sparse_confidence(
         out[todo] = _sigmoid(base[todo] + filled[todo])
     out[evaluated] = probability[evaluated]
     return SparseResult(out, evaluated, decided)
+
+
+def _check_guides(image: object, disparity: object, shape: tuple[int, int]) -> None:
+    """InputError unless ``image`` is an (H, W) or (H, W, 3) uint8 array and ``disparity``
+    an (H, W) array, (H, W) = ``shape``."""
+    if not isinstance(image, np.ndarray) or not (
+        image.shape[:2] == shape
+        and (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3))
+    ):
+        got = image.shape if isinstance(image, np.ndarray) else type(image).__name__
+        raise InputError(f'image must be {shape} or {shape + (3,)}; got {got}')
+    if image.dtype != np.uint8:
+        # The colour weight's σ is in 8-bit grey levels: a [0, 1] float image would make every
+        # neighbour look alike, a 16-bit one make none of them.
+        raise InputError(f'image must be uint8 (intensities 0..255); got dtype {image.dtype}')
+    if not isinstance(disparity, np.ndarray) or disparity.shape != shape:
+        got = disparity.shape if isinstance(disparity, np.ndarray) else type(disparity).__name__
+        raise InputError(f'disparity must be {shape}; got {got}')
 
 
 def _ranks(values: np.ndarray) -> np.ndarray:
@@ -795,17 +815,27 @@ def joint_bilateral_fill(
         (H, W) float64 map.
 
     Raises:
-        InputError: Grid shape that does not fit the image and stride.
+        InputError: Grid shape that does not fit the image and stride, ``known`` not bool,
+            a stride below 1, or a guide that is not an (H, W) / (H, W, 3) uint8 image with an
+            (H, W) disparity.
     """
+    if not is_int(stride) or stride < 1:
+        raise InputError(f'stride must be an integer >= 1; got {type(stride).__name__} {stride!r}')
+    if not isinstance(image, np.ndarray) or image.ndim not in (2, 3):
+        got = image.shape if isinstance(image, np.ndarray) else type(image).__name__
+        raise InputError(f'image must be (H, W) or (H, W, 3); got {got}')
     height, width = image.shape[:2]
+    _check_guides(image, disparity, (height, width))
+    values, known = np.asarray(values), np.asarray(known)
     rows_g, cols_g = _grid_axis(height, stride), _grid_axis(width, stride)
     if values.shape != (rows_g.size, cols_g.size) or known.shape != values.shape:
         raise InputError(
             f'grid samples for a {height}×{width} image at stride {stride} must be '
             f'{(rows_g.size, cols_g.size)}; got values {values.shape}, known {known.shape}'
         )
-    if disparity.shape != (height, width):
-        raise InputError(f'disparity must be {(height, width)}; got {disparity.shape}')
+    if known.dtype != np.bool_:
+        # An integer 0/1 array would index rows below instead of masking.
+        raise InputError(f'known must be a bool array; got dtype {known.dtype}')
     guide = image.astype(np.float32)
     if guide.ndim == 2:
         guide = guide[:, :, None]
