@@ -188,6 +188,31 @@ def _mean(values: Sequence[float]) -> float:
     return math.fsum(values) / len(values)
 
 
+def _cell(text: str) -> str:
+    """``text`` for a Markdown table cell: a ``|`` in a name would start a new column."""
+    return text.replace('|', '\\|')
+
+
+def _unique(items: Sequence[EvalRecord]) -> list[EvalRecord]:
+    """``items`` with each (data set, scene, matcher, method) once: a scene listed twice was
+    counted twice in its method's mean.
+
+    Raises:
+        InputError: Two records of one scene, matcher and method differ.
+    """
+    seen: dict[tuple[str, str, str, str], EvalRecord] = {}
+    for r in items:
+        key = (r.dataset, r.scene, r.matcher, r.method)
+        first = seen.setdefault(key, r)
+        if first != r:
+            raise InputError(
+                f'two different evaluation records of {r.dataset}/{r.scene} {r.matcher} '
+                f'{r.method}: auc {first.auc} and {r.auc} (n_pixels {first.n_pixels} and '
+                f'{r.n_pixels}); keep one of them'
+            )
+    return list(seen.values())
+
+
 def format_table(
     records: Iterable[RecordLike],
     methods: Sequence[str] | None = None,
@@ -197,9 +222,10 @@ def format_table(
 
     One row per (data set, matcher), in order of first appearance; the columns are ``Opt.``
     (the mean optimal AUC) and one per method. Each cell is the AUC × 10² averaged over the
-    scenes of that data set (the mean of per-scene AUCs, as in the paper). In every row the
-    smallest method value, compared after rounding to ``decimals``, is bold (ties: all of
-    them); ``Opt.`` is never bold. A method without records for a row shows ``–``.
+    scenes of that data set (the mean of per-scene AUCs, as in the paper; a record given twice
+    counts once). In every row the smallest method value, compared after rounding to
+    ``decimals``, is bold (ties: all of them); ``Opt.`` is never bold. A method without
+    records for a row shows ``–``.
 
     Args:
         records: :class:`EvalRecord` objects or dicts with :data:`RECORD_KEYS`.
@@ -209,17 +235,24 @@ def format_table(
 
     Returns:
         The Markdown table, lines joined with ``\\n``, ending in a newline. An empty input
-        gives a header-only table.
+        gives a header-only table. A ``|`` in a name is written ``\\|``.
 
     Raises:
-        InputError: ``methods`` is one string or holds a non-string.
+        InputError: ``methods`` is one string, holds a non-string or a name twice;
+            ``decimals`` is not an integer ≥ 0; two records of one scene, matcher and method
+            differ.
     """
-    items = _as_records(records)
+    if isinstance(decimals, bool) or not isinstance(decimals, Integral) or decimals < 0:
+        # -1 or 2.5 failed in the format as 'ValueError: Format specifier missing precision'.
+        raise InputError(f'decimals must be an integer ≥ 0; got {decimals!r}')
+    items = _unique(_as_records(records))
     if methods is None:
         methods = list(dict.fromkeys(r.method for r in items))
     elif isinstance(methods, str) or not all(isinstance(m, str) for m in methods):
         # One string is a sequence of one-letter columns ('mlm' gave m, l, m).
         raise InputError(f'methods must be a sequence of method names; got {methods!r}')
+    elif len(set(methods)) != len(methods):
+        raise InputError(f'methods must name each method once; got {list(methods)!r}')
     rows = list(dict.fromkeys((r.dataset, r.matcher) for r in items))
 
     aucs: dict[tuple[str, str, str], list[float]] = {}
@@ -229,7 +262,7 @@ def format_table(
         # AUC_opt belongs to the scene and matcher, not the method: count each scene once.
         optimal.setdefault((r.dataset, r.matcher), {}).setdefault(r.scene, r.auc_opt)
 
-    header = ['data set', 'matcher', 'Opt.', *methods]
+    header = ['data set', 'matcher', 'Opt.', *(_cell(m) for m in methods)]
     lines = [
         '| ' + ' | '.join(header) + ' |',
         '|' + '|'.join([':---', ':---'] + ['---:'] * (len(header) - 2)) + '|',
@@ -242,7 +275,7 @@ def format_table(
             if values:
                 cells[method] = f'{_mean(values) * 100.0:.{decimals}f}'
         best = min((float(text) for text in cells.values()), default=None)
-        row = [dataset, matcher, f'{opt:.{decimals}f}']
+        row = [_cell(dataset), _cell(matcher), f'{opt:.{decimals}f}']
         for method in methods:
             text = cells.get(method)
             if text is None:

@@ -8,6 +8,7 @@ sending it to a worker process).
 
 from __future__ import annotations
 
+import inspect
 from typing import Any
 
 __all__ = ['HubPredict']
@@ -34,7 +35,9 @@ class HubPredict:
         from cva_confidence_ros.model.baselines import predict_disparity_confidence
 
         net = self._net[0]
-        options.setdefault('device', next(net.parameters()).device)
-        if self._baseline:
-            return predict_disparity_confidence(net, *args, **options)
-        return predict_confidence(net, *args, **options)
+        run = predict_disparity_confidence if self._baseline else predict_confidence
+        # A device given by position (predict(volume, 'cpu')) is one too: a default added as a
+        # keyword beside it was a TypeError ('got multiple values for argument device').
+        if 'device' not in inspect.signature(run).bind_partial(net, *args, **options).arguments:
+            options['device'] = next(net.parameters()).device
+        return run(net, *args, **options)

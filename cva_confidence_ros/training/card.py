@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
+import contextlib
 import json
+import math
 import os
 from pathlib import Path
 import platform
 from typing import Any
 
 import torch
+
+from cva_confidence_ros.errors import DataError, reason
 
 __all__ = ['card_paths', 'hardware_facts', 'write_model_card']
 
@@ -46,14 +50,60 @@ def hardware_facts(device: torch.device, world_size: int = 1) -> dict[str, Any]:
     return facts
 
 
-def _fmt(value: Any) -> str:
+def _fmt(value: Any, digits: int = 4) -> str:
+    """A fact for the card: ``digits`` significant digits of a measured float; 12 for a
+    setting (``--lr 0.00012345`` is 0.00012345, not 0.0001234; lr × 0.1 shows no float
+    noise)."""
     if value is None:
         return '—'
     if isinstance(value, float):
-        return f'{value:.4g}'
+        return f'{value:.{digits}g}'
     if isinstance(value, (list, tuple)):
-        return ', '.join(_fmt(v) for v in value) or '—'
+        return ', '.join(_fmt(v, digits) for v in value) or '—'
     return str(value)
+
+
+def _code(text: Any) -> str:
+    """``text`` as a Markdown code span: a backtick in it (``--out 'a`b'``) ended a span in
+    single backticks, so the fence is one backtick longer than the longest run inside."""
+    text = str(text)
+    longest = run = 0
+    for char in text:
+        run = run + 1 if char == '`' else 0
+        longest = max(longest, run)
+    fence = '`' * (longest + 1)
+    pad = ' ' if text.startswith('`') or text.endswith('`') else ''
+    return f'{fence}{pad}{text}{pad}{fence}'
+
+
+def _json_ready(value: Any) -> Any:
+    """``value`` with every NaN or infinity (a diverged loss) as None: ``json.dumps`` writes
+    them as ``NaN`` / ``Infinity``, which is not JSON."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, Mapping):
+        return {key: _json_ready(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_ready(item) for item in value]
+    return value
+
+
+def _write_text(path: Path, text: str) -> None:
+    """Write ``text`` beside ``path`` and move it in place: a crash or a full disk half-way
+    left a truncated card over the good one of an earlier run.
+
+    Raises:
+        DataError: The file cannot be written; an older one at ``path`` is left as it was.
+    """
+    tmp = path.with_name(path.name + '.tmp')
+    try:
+        tmp.write_text(text, encoding='utf-8')
+        os.replace(tmp, path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        state = '; the file there was left as it was' if path.exists() else ''
+        raise DataError(f'cannot write model card {path}: {reason(exc)}{state}') from None
 
 
 _CVANET_TEXT = (
@@ -95,7 +145,7 @@ def _loss_line(facts: Mapping[str, Any]) -> str:
     teacher = facts.get('teacher_meta') or {}
     return (
         f'- loss: (1 − A)·BCE(label) + A·BCE(teacher probability) on labelled pixels, '
-        f'A = {_fmt(weight)}; teacher `{Path(str(facts["teacher"])).name}` '
+        f'A = {_fmt(weight, 12)}; teacher {_code(Path(str(facts["teacher"])).name)} '
         f'(arch {teacher.get("arch")}, matcher {teacher.get("matcher")}, '
         f'{_fmt(teacher.get("samples_seen"))} training samples); {optimiser}'
     )
@@ -114,7 +164,7 @@ def _init_lines(facts: Mapping[str, Any]) -> list[str]:
         return []
     source = facts.get('init_meta') or {}
     return [
-        f'- initialised from `{Path(str(facts["init_weights"])).name}` '
+        f'- initialised from {_code(Path(str(facts["init_weights"])).name)} '
         f'({_fmt(source.get("samples_seen"))} training samples)'
     ]
 
@@ -132,21 +182,23 @@ def write_model_card(
 
     Returns:
         The two written paths.
+
+    Raises:
+        DataError: A file cannot be written (an older one there is left as it was).
     """
     md_path, json_path = card_paths(weights_path)
-    json_path.write_text(
-        json.dumps(dict(facts), indent=2, sort_keys=True) + '\n', encoding='utf-8'
-    )
+    # A NaN or infinite number (a diverged loss) is null in the JSON, 'nan' / 'inf' in the text.
+    json_text = json.dumps(_json_ready(dict(facts)), indent=2, sort_keys=True, allow_nan=False)
     hardware = facts.get('hardware', {})
     title, about = _ARCH_TEXT.get(str(facts.get('arch', 'cvanet')), _ARCH_TEXT['cvanet'])
     lines = [
-        f'# {facts.get("network") or title} weights `{Path(weights_path).name}`',
+        f'# {facts.get("network") or title} weights {_code(Path(weights_path).name)}',
         '',
         facts.get('network_description') or about,
         '',
         '## Use',
         '',
-        f'- matcher: `{facts.get("matcher")}`',
+        f'- matcher: {_code(facts.get("matcher"))}',
         f'- cost-volume depth D: {facts.get("max_disparity")} (images are halved until the '
         'disparity range fits D)',
         '',
@@ -166,8 +218,8 @@ def write_model_card(
         f'- mode: {facts.get("mode")}'
         + (f' (crops of {_crop_side(facts)}² outputs)' if facts.get('mode') == 'dense' else '')
         + ('; half of them turned upside down (--vflip)' if facts.get('vflip') else ''),
-        f'- epochs: {facts.get("epochs")} at lr {_fmt(facts.get("lr"))} + '
-        f'{facts.get("epochs_low_lr")} at lr {_fmt(facts.get("lr_low"))}',
+        f'- epochs: {facts.get("epochs")} at lr {_fmt(facts.get("lr"), 12)} + '
+        f'{facts.get("epochs_low_lr")} at lr {_fmt(facts.get("lr_low"), 12)}',
         f'- batch size: {facts.get("batch_size")}, samples per epoch: '
         f'{_fmt(facts.get("samples_per_epoch"))}, samples seen: {_fmt(facts.get("samples_seen"))}'
         + (', arithmetic: bf16 autocast' if facts.get('precision') == 'bf16' else ''),
@@ -184,7 +236,7 @@ def write_model_card(
         f'{_fmt(hardware.get("torch_threads"))} torch threads)',
         f'- GPU: {_fmt(hardware.get("gpu"))}; processes: {_fmt(hardware.get("processes"))}',
         f'- wall time: {_fmt(facts.get("wall_time_s"))} s',
-        f'- command: `{facts.get("command")}`',
+        f'- command: {_code(facts.get("command"))}',
         '',
         '## Results',
         '',
@@ -199,9 +251,10 @@ def write_model_card(
     ]
     for record in facts.get('history', []):
         lines.append(
-            f'| {record["epoch"]} | {_fmt(record["lr"])} | {_fmt(record["train_loss"])} | '
+            f'| {record["epoch"]} | {_fmt(record["lr"], 12)} | {_fmt(record["train_loss"])} | '
             f'{_fmt(record["samples_per_s"])} | {_fmt(record.get("val_auc"))} |'
         )
     lines += ['', '## Evaluation on the develop split', '', '(to be added)', '']
-    md_path.write_text('\n'.join(lines), encoding='utf-8')
+    _write_text(json_path, json_text + '\n')
+    _write_text(md_path, '\n'.join(lines))
     return md_path, json_path
