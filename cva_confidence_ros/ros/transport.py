@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 from sensor_msgs.msg import CompressedImage, Image
 
-from cva_confidence_ros.checks import is_real
+from cva_confidence_ros.checks import is_int, is_real
 from cva_confidence_ros.errors import InputError
 
 __all__ = [
@@ -67,7 +67,7 @@ def rgb_to_compressed(
 
     Raises:
         InputError: Not an (H, W, 3) uint8 array (or an empty one), another format, or a level
-            out of range.
+            out of range or not an integer.
     """
     import cv2
 
@@ -76,12 +76,13 @@ def rgb_to_compressed(
             f'an rgb8 image must be (H, W, 3) uint8, H and W > 0; got {rgb.dtype} {rgb.shape}'
         )
     if image_format == 'jpeg':
-        if not 1 <= jpeg_quality <= 100:
-            raise InputError(f'jpeg_quality must be in [1, 100]; got {jpeg_quality}')
+        # True passed as 1 (the worst quality) and 50.7 as 50 before.
+        if not (is_int(jpeg_quality) and 1 <= jpeg_quality <= 100):
+            raise InputError(f'jpeg_quality must be in [1, 100], an integer; got {jpeg_quality!r}')
         params = [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)]
     elif image_format == 'png':
-        if not 0 <= png_level <= 9:
-            raise InputError(f'png_level must be in [0, 9]; got {png_level}')
+        if not (is_int(png_level) and 0 <= png_level <= 9):
+            raise InputError(f'png_level must be in [0, 9], an integer; got {png_level!r}')
         params = [cv2.IMWRITE_PNG_COMPRESSION, int(png_level)]
     else:
         raise InputError(f"image_format must be 'jpeg' or 'png'; got {image_format!r}")
@@ -141,7 +142,8 @@ def depth_image_to_compressed_depth(
     """A REP 118 depth ``Image`` (32FC1 metres or 16UC1 millimetres) as ``compressedDepth``.
 
     Raises:
-        InputError: Another encoding, a buffer that does not fit the size, a bad parameter.
+        InputError: Another encoding, a buffer that does not fit the size, a bad parameter
+            (``png_level`` not an integer in [0, 9] included).
     """
     import cv2
 
@@ -151,8 +153,8 @@ def depth_image_to_compressed_depth(
         raise InputError(
             f'compressedDepth takes 32FC1 or 16UC1 depth images; got {msg.encoding!r}'
         )
-    if not 0 <= png_level <= 9:
-        raise InputError(f'png_level must be in [0, 9]; got {png_level}')
+    if not (is_int(png_level) and 0 <= png_level <= 9):
+        raise InputError(f'png_level must be in [0, 9], an integer; got {png_level!r}')
     metres = depth_image_to_array(msg)
     if msg.encoding == '32FC1':
         codes, a, b = compressed_depth_values(metres, depth_max, depth_quantization)
@@ -183,8 +185,9 @@ def compressed_depth_to_array(msg: Any, name: str = 'depth') -> np.ndarray:
 
     Raises:
         InputError: Not a compressedDepth format, an RVL payload, data that is too short or
-            does not decode as a 16-bit PNG, or a 32FC1 header whose ``A`` and ``B`` give no
-            positive depths (``A`` ≤ 0, ``B`` ≥ 1 or either not finite).
+            does not decode as a 16-bit PNG (one larger than OpenCV reads included), or a 32FC1
+            header whose ``A`` and ``B`` give no positive depths (``A`` ≤ 0, ``B`` ≥ 1 or either
+            not finite) or depths beyond float32 (``A / (1 − B)``, the depth of code 1).
     """
     import cv2
 
@@ -206,10 +209,17 @@ def compressed_depth_to_array(msg: Any, name: str = 'depth') -> np.ndarray:
             f'{COMPRESSED_DEPTH_HEADER.size}-byte header and an image'
         )
     _, a, b = COMPRESSED_DEPTH_HEADER.unpack_from(data)
-    codes = cv2.imdecode(
-        np.frombuffer(data, dtype=np.uint8, offset=COMPRESSED_DEPTH_HEADER.size),
-        cv2.IMREAD_UNCHANGED,
-    )
+    try:
+        codes = cv2.imdecode(
+            np.frombuffer(data, dtype=np.uint8, offset=COMPRESSED_DEPTH_HEADER.size),
+            cv2.IMREAD_UNCHANGED,
+        )
+    except cv2.error as error:
+        # A PNG header naming more pixels than OpenCV reads (2**30) raises instead of None.
+        raise InputError(
+            f'{name}: the compressedDepth payload does not decode as a 16-bit PNG '
+            f'(OpenCV: {getattr(error, "err", None) or error})'
+        ) from error
     if codes is None or codes.dtype != np.uint16 or codes.ndim != 2:
         raise InputError(f'{name}: the compressedDepth payload is not a one-channel 16-bit PNG')
     # Every valid encoder writes A = Q·(Q + 1) > 0 and B = 1 − A / depth_max < 1, so that each
@@ -220,6 +230,16 @@ def compressed_depth_to_array(msg: Any, name: str = 'depth') -> np.ndarray:
             f'{name}: the compressedDepth header holds A = {a:g}, B = {b:g}; a 32FC1 one needs '
             'a finite A > 0 and B < 1'
         )
+    if encoding == '32FC1':
+        # The farthest depth, that of code 1: A / (1 − B) = depth_max for every valid encoder;
+        # a corrupt header (A = 3e38, B = 0.9999999) gave inf for every pixel, with a warning.
+        with np.errstate(over='ignore'):
+            farthest = np.float32(a) / (np.float32(1.0) - np.float32(b))
+        if not np.isfinite(farthest):
+            raise InputError(
+                f'{name}: the compressedDepth header holds A = {a:g}, B = {b:.9g}, whose depths '
+                f'A / (q − B) reach {float(farthest):g}, beyond float32'
+            )
     depth = np.full(codes.shape, np.nan, dtype=np.float32)
     sent = codes > 0
     if encoding == '32FC1':
