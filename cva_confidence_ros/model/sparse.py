@@ -68,6 +68,7 @@ from torch import nn
 from cva_confidence_ros.checks import is_int, is_real
 from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.model.inference import (
+    _LIVE_COPIES,
     PAD,
     CVANet,
     _check_pixels,
@@ -123,6 +124,7 @@ SIGMA_COLOR = 12.0
 SIGMA_DISPARITY = 2.0
 # Probabilities are clipped to [ε, 1 − ε] before a logit.
 _LOGIT_EPS = 1e-6
+#: Most 13×13×D extracts run at once (fewer where ``tile_budget_mb`` asks for it).
 _EXTRACT_BATCH = 512
 
 
@@ -497,6 +499,17 @@ class SparseEvaluator:
         logits = self.net.head_logits(curves)  # type: ignore[operator]
         return torch.sigmoid(logits.float()).cpu().numpy()
 
+    @property
+    def extract_batch(self) -> int:
+        """Extracts run at once on the extracts path: as many 13×13 tiles as
+        ``tile_budget_mb`` holds by the same count as the dense tiles' (at most 512; at
+        D = 128 and 64 MB, 512 extracts took 0.8 GB). On a 2-core CPU, batches of 16–32
+        extracts run as fast as 512 or faster (D = 64: 234 against 116 extracts/s)."""
+        per_extract = 4 * _LIVE_COPIES * PATCH_SIZE**2 * activations_per_pixel(
+            self.net, self.max_disparity
+        )
+        return max(1, min(_EXTRACT_BATCH, int(self.tile_budget_mb * 1e6 / per_extract)))
+
     def _extracts(
         self,
         windows: np.ndarray,
@@ -508,8 +521,9 @@ class SparseEvaluator:
         call, pixels of the whole call), reported on after each batch."""
         out = np.empty(ys.size, dtype=np.float32)
         done_before, total = progress
-        for start in range(0, ys.size, _EXTRACT_BATCH):
-            stop = min(ys.size, start + _EXTRACT_BATCH)
+        batch_size = self.extract_batch
+        for start in range(0, ys.size, batch_size):
+            stop = min(ys.size, start + batch_size)
             # (D, n, 13, 13) → (n, 1, D, 13, 13)
             batch = np.ascontiguousarray(windows[:, ys[start:stop], xs[start:stop]].swapaxes(0, 1))
             extracts = torch.from_numpy(batch)[:, None].to(self.device, self._dtype)
@@ -575,8 +589,8 @@ def sparse_confidence(
         decided = np.zeros(shape, dtype=bool)
     else:
         if cheap is None or np.shape(cheap) != shape:
-            got = None if cheap is None else np.shape(cheap)
-            raise InputError(f'cascade {config.cascade!r} needs a {shape} cheap map; got {got}')
+            given = None if cheap is None else np.shape(cheap)
+            raise InputError(f'cascade {config.cascade!r} needs a {shape} cheap map; got {given}')
         rank = _ranks(cheap)
         undecided, calibration = cascade_selection(rank, grid, config.cascade_fraction)
         decided = ~undecided
