@@ -25,7 +25,7 @@ from typing import NoReturn
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
 import rclpy
-from rclpy.exceptions import ParameterException
+from rclpy.exceptions import InvalidParameterTypeException, ParameterException
 from rclpy.executors import (
     Executor,
     ExternalShutdownException,
@@ -103,7 +103,13 @@ def publish_status(node: Node, publisher: Publisher, status: DiagnosticStatus) -
 def qos_profile(name: str) -> QoSProfile:
     """The QoS of a preset name: ``sensor_data`` (best effort, keep last 5) or ``reliable``
     (keep last 10). A new profile on every call: rclpy writes a topic's QoS overrides into
-    the profile it is given, which must not reach the next topic."""
+    the profile it is given, which must not reach the next topic.
+
+    Raises:
+        ConfigError: For any other name (a misspelt preset must not become ``reliable``).
+    """
+    if name not in ('sensor_data', 'reliable'):
+        raise ConfigError(f'QoS preset must be sensor_data or reliable; got {name!r}')
     if name == 'sensor_data':
         return QoSProfile(
             history=HistoryPolicy.KEEP_LAST,
@@ -114,7 +120,18 @@ def qos_profile(name: str) -> QoSProfile:
     return QoSProfile(depth=10)
 
 
+#: The values a QoS override may take, for the messages about one that it may not.
+_QOS_OVERRIDE_VALUES = (
+    'expected reliability reliable | best_effort, history keep_last | keep_all, depth >= 1'
+)
+
+
 def _check_overridden_qos(qos: QoSProfile) -> SetParametersResult:
+    # ``unknown`` is a name rclpy's enums have but rmw refuses, with a bare "invalid allocator".
+    for policy, value in (('reliability', qos.reliability), ('history', qos.history)):
+        if value.name == 'UNKNOWN':
+            reason = f'{policy} unknown is not one rmw takes; {_QOS_OVERRIDE_VALUES}'
+            return SetParametersResult(successful=False, reason=reason)
     if qos.history == HistoryPolicy.KEEP_LAST and qos.depth < 1:
         return SetParametersResult(
             successful=False, reason=f'depth must be >= 1 with history keep_last; got {qos.depth}'
@@ -131,18 +148,20 @@ QOS_OVERRIDES = QoSOverridingOptions.with_default_policies(callback=_check_overr
 @contextmanager
 def qos_override_errors(topic: str) -> Iterator[None]:
     """Turn rclpy's errors for a bad ``qos_overrides.<topic>.*`` value into :class:`ConfigError`
-    (rclpy raises a bare ``RuntimeError`` for an unknown policy name)."""
+    (rclpy raises a bare ``RuntimeError`` for an unknown policy name, and its
+    ``InvalidParameterTypeException`` for a value of the wrong type: ``depth:=five``)."""
     try:
         yield
     except InvalidQosOverridesError as error:
         raise ConfigError(f'QoS override of {topic}: {error}') from None
+    except InvalidParameterTypeException as error:
+        if not str(error).startswith("Trying to set parameter 'qos_overrides."):
+            raise
+        raise ConfigError(f'QoS override of {topic}: {error}; {_QOS_OVERRIDE_VALUES}') from None
     except RuntimeError as error:
         if 'QoS override' not in str(error):
             raise
-        raise ConfigError(
-            f'QoS override of {topic}: {error}; expected reliability reliable | best_effort, '
-            'history keep_last | keep_all, depth >= 1'
-        ) from None
+        raise ConfigError(f'QoS override of {topic}: {error}; {_QOS_OVERRIDE_VALUES}') from None
 
 
 def warn_unknown_parameters(node: Node) -> list[str]:
@@ -267,6 +286,10 @@ def spin_until_shutdown(executor: Executor, stop: threading.Event | None = None)
     """
     context = executor.context
     while context.ok() and not (stop is not None and stop.is_set()):
+        # rclpy's spin_once returns at once, quietly, once the executor is shut down (it
+        # swallows its own ShutdownException): without this check the loop would spin hot.
+        if getattr(executor, '_is_shutdown', False):
+            return
         try:
             executor.spin_once(timeout_sec=0.05)
         except ShutdownException:

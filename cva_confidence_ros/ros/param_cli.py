@@ -9,11 +9,13 @@
 
 It calls the node's standard ``rcl_interfaces`` parameter services, as ``ros2 param`` does, so
 it works with any node. A value is read as YAML, as ``ros2 param set`` reads it (``0.8`` a
-double, ``true`` a bool, ``[1, 2]`` an integer array, anything else a string), with one
-courtesy: a whole number given for a parameter the node declares as a double is sent as that
-double (``confidence_threshold 1``). Exit status: 0 on success, 1 when the node refused the
-value or has no such parameter, 2 for bad arguments or a node that does not answer in
-``--timeout``.
+double, ``true`` a bool, ``[1, 2]`` an integer array, anything else a string), with
+courtesies for a parameter whose type the node declares: a whole number given for a double is
+sent as that double (``confidence_threshold 1``), so is a number in exponent form (``1e-3``,
+which YAML 1.1 reads as a string but ``--params-file`` and ``-p`` read as a double), and ``[]``
+is an empty array of the declared array type. Exit status: 0 on success, 1 when the node refused
+the value or has no such parameter, 2 for bad arguments (a node name that is none, an integer
+outside 64 bits) or a node that does not answer in ``--timeout``.
 """
 
 from __future__ import annotations
@@ -25,7 +27,8 @@ import sys
 import time
 from typing import Any
 
-from cva_confidence_ros.ros.lifecycle_cli import call, node_name
+from cva_confidence_ros.errors import ConfigError
+from cva_confidence_ros.ros.lifecycle_cli import ask, call, node_name
 
 __all__ = ['main', 'parse_value', 'yaml_scalar']
 
@@ -44,6 +47,10 @@ TYPE_NAMES = {
     8: 'Double values',
     9: 'String values',
 }
+#: A number in exponent form without a dot (``1e-3``, ``5E+2``): a string to YAML 1.1 (PyYAML),
+#: a double to YAML 1.2 and to rcl's parameter files.
+_EXPONENT_FLOAT = r'^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$'
+_INT64 = (-(2**63), 2**63 - 1)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -78,22 +85,35 @@ def parse_value(text: str, declared_type: int = 0) -> Any:
     Args:
         text: The value as typed on the command line.
         declared_type: The ``ParameterType`` the node declares for the parameter (0 = unknown);
-            a whole number for a double (or a list of them for a double array) becomes that.
+            a whole number or one in exponent form for a double (or a list of them for a double
+            array) becomes that, and ``[]`` an empty array of the declared array type.
+
+    Raises:
+        ConfigError: For an integer outside 64 bits (a parameter's integers are int64).
     """
     from rcl_interfaces.msg import ParameterType, ParameterValue
     import yaml
 
+    doubles = declared_type in (ParameterType.PARAMETER_DOUBLE,
+                                ParameterType.PARAMETER_DOUBLE_ARRAY)
     try:
-        loaded = yaml.safe_load(text)
+        loaded = yaml.load(text, Loader=_double_loader() if doubles else yaml.SafeLoader)
     except yaml.YAMLError:
         loaded = text
     value = ParameterValue()
-    if isinstance(loaded, bool):
+    if loaded == [] and declared_type in (
+        ParameterType.PARAMETER_BOOL_ARRAY, ParameterType.PARAMETER_STRING_ARRAY,
+        ParameterType.PARAMETER_DOUBLE_ARRAY, ParameterType.PARAMETER_INTEGER_ARRAY,
+    ):
+        # An empty list has no type of its own: the declared one (else an integer array).
+        value.type = declared_type
+    elif isinstance(loaded, bool):
         value.type, value.bool_value = ParameterType.PARAMETER_BOOL, loaded
     elif isinstance(loaded, int) and declared_type == ParameterType.PARAMETER_DOUBLE:
         value.type, value.double_value = ParameterType.PARAMETER_DOUBLE, float(loaded)
     elif isinstance(loaded, int):
-        value.type, value.integer_value = ParameterType.PARAMETER_INTEGER, loaded
+        (whole,) = _int64([loaded], text)
+        value.type, value.integer_value = ParameterType.PARAMETER_INTEGER, whole
     elif isinstance(loaded, float):
         value.type, value.double_value = ParameterType.PARAMETER_DOUBLE, loaded
     elif isinstance(loaded, list) and loaded and all(isinstance(v, bool) for v in loaded):
@@ -109,7 +129,8 @@ def parse_value(text: str, declared_type: int = 0) -> Any:
     elif isinstance(loaded, list) and all(
         isinstance(v, int) and not isinstance(v, bool) for v in loaded
     ):
-        value.type, value.integer_array_value = ParameterType.PARAMETER_INTEGER_ARRAY, loaded
+        value.type = ParameterType.PARAMETER_INTEGER_ARRAY
+        value.integer_array_value = _int64(loaded, text)
     elif isinstance(loaded, list) and all(isinstance(v, str) for v in loaded):
         value.type, value.string_array_value = ParameterType.PARAMETER_STRING_ARRAY, loaded
     else:
@@ -117,6 +138,28 @@ def parse_value(text: str, declared_type: int = 0) -> Any:
         value.type = ParameterType.PARAMETER_STRING
         value.string_value = loaded if isinstance(loaded, str) else text
     return value
+
+
+def _int64(values: list[int], text: str) -> list[int]:
+    """``values``, each checked to fit a parameter's integers (int64)."""
+    if any(not _INT64[0] <= v <= _INT64[1] for v in values):
+        raise ConfigError(f'integer out of the 64-bit range of a parameter: {text}')
+    return values
+
+
+def _double_loader() -> type:
+    """PyYAML's safe loader that also reads a number in exponent form as a double."""
+    import re
+
+    import yaml
+
+    class DoubleLoader(yaml.SafeLoader):
+        pass
+
+    DoubleLoader.add_implicit_resolver(
+        'tag:yaml.org,2002:float', re.compile(_EXPONENT_FLOAT), list('-+0123456789.')
+    )
+    return DoubleLoader
 
 
 def yaml_scalar(value: Any) -> str:
@@ -133,6 +176,49 @@ def _describe(node: Any, target: str, names: list[str], deadline: float) -> list
     answer = call(node, DescribeParameters, f'{target}/describe_parameters',
                    DescribeParameters.Request(names=names), deadline)
     return None if answer is None else list(answer.descriptors)
+
+
+def _values(node: Any, target: str, names: list[str], deadline: float) -> list[Any] | None:
+    """The values of ``names`` (type "not set" for one without a value), or None: no answer.
+
+    rclpy answers a request with no value at all when one of its names has none (a parameter
+    declared by its type only, or one undeclared since it was listed): then one by one.
+    """
+    from rcl_interfaces.msg import ParameterValue
+    from rcl_interfaces.srv import GetParameters
+
+    got = call(node, GetParameters, f'{target}/get_parameters',
+               GetParameters.Request(names=names), deadline)
+    if got is None or len(got.values) == len(names):
+        return None if got is None else list(got.values)
+    client = node.create_client(GetParameters, f'{target}/get_parameters')
+    try:
+        values = []
+        for name in names:
+            one = ask(node, client, GetParameters.Request(names=[name]), deadline)
+            if one is None:
+                return None
+            values.append(one.values[0] if one.values else ParameterValue())
+        return values
+    finally:
+        node.destroy_client(client)
+
+
+def _place(tree: dict[str, Any], name: str, value: Any) -> None:
+    """Put ``value`` into ``tree`` under the parts of the dotted ``name``; where a part is
+    already a value (``a`` and ``a.b`` both parameters), the rest of the name stays one key
+    (rcl reads ``a.b: 1`` in a parameter file as ``a.b`` too)."""
+    *path, leaf = name.split('.')
+    for index, part in enumerate(path):
+        if not isinstance(tree.setdefault(part, {}), dict):
+            tree['.'.join(path[index:] + [leaf])] = value
+            return
+        tree = tree[part]
+    if isinstance(tree.get(leaf), dict):
+        # ``a.b`` placed before ``a`` (names out of sorted order): that branch goes flat.
+        for key, nested in tree.pop(leaf).items():
+            tree[f'{leaf}.{key}'] = nested
+    tree[leaf] = value
 
 
 def _limits(descriptor: Any) -> str:
@@ -159,32 +245,39 @@ def _run(node: Any, args: argparse.Namespace, target: str, deadline: float) -> t
         names = sorted(listed.result.names)
         if args.command == 'list':
             return 0, ''.join(f'  {name}\n' for name in names)
-        got = call(node, GetParameters, f'{target}/get_parameters',
-                    GetParameters.Request(names=names), deadline)
-        if got is None:
+        values = _values(node, target, names, deadline)
+        if values is None:
             return no_answer
         lines = [f'{target}:', '  ros__parameters:']
         tree: dict[str, Any] = {}
-        for name, value in zip(names, got.values, strict=True):
+        left_out = []
+        for name, value in zip(names, values, strict=True):
             if value.type == ParameterType.PARAMETER_NOT_SET:
                 continue
-            branch = tree
-            *path, leaf = name.split('.')
-            for part in path:
-                branch = branch.setdefault(part, {})
-            branch[leaf] = parameter_value_to_python(value)
+            python = parameter_value_to_python(value)
+            if value.type == ParameterType.PARAMETER_BYTE_ARRAY or python == []:
+                # rcl reads ``[]`` back as "not set" (the parameter then has no value at all)
+                # and has no byte arrays: such values cannot go into a parameter file.
+                left_out.append(name)
+                continue
+            _place(tree, name, python)
         _dump_tree(tree, 4, lines)
+        if left_out:
+            lines.append(f'    # left out (empty or byte arrays, which a parameter file cannot '
+                         f'hold): {", ".join(left_out)}')
         return 0, '\n'.join(lines) + '\n'
     descriptors = _describe(node, target, [args.name], deadline)
     if descriptors is None:
         return no_answer
-    declared = descriptors[0].type if descriptors else ParameterType.PARAMETER_NOT_SET
-    if declared == ParameterType.PARAMETER_NOT_SET:
+    if not descriptors:
+        # rclpy and rclcpp answer an undeclared name with no descriptor at all; a declared
+        # parameter without a value (dynamic typing) has one of type "not set".
         return EXIT_REFUSED, f'{target} has no parameter {args.name!r}'
+    declared = descriptors[0].type
     if args.command == 'describe':
         descriptor = descriptors[0]
-        lines = [f'Parameter name: {args.name}',
-                 f'  Type: {TYPE_NAMES.get(descriptor.type, descriptor.type)}']
+        kind = TYPE_NAMES.get(descriptor.type, 'not set (any type)')
+        lines = [f'Parameter name: {args.name}', f'  Type: {kind}']
         if descriptor.description:
             lines.append(f'  Description: {descriptor.description}')
         if descriptor.additional_constraints:
@@ -198,9 +291,15 @@ def _run(node: Any, args: argparse.Namespace, target: str, deadline: float) -> t
                     GetParameters.Request(names=[args.name]), deadline)
         if got is None:
             return no_answer
+        # rclpy answers a declared parameter without a value with no value at all.
+        if not got.values or got.values[0].type == ParameterType.PARAMETER_NOT_SET:
+            return 0, 'Parameter not set.\n'
         (value,) = got.values
         python = parameter_value_to_python(value)
-        return 0, f'{TYPE_NAMES.get(value.type, value.type)} value is: {python}\n'
+        # ros2 param get's words: "Double value is: 0.5", "Integer values are: [1, 2]".
+        label = TYPE_NAMES.get(value.type, str(value.type))
+        label += ' are:' if value.type >= ParameterType.PARAMETER_BYTE_ARRAY else ' value is:'
+        return 0, f'{label} {python}\n'
     parameter = Parameter(name=args.name, value=parse_value(args.value, declared))
     done = call(node, SetParameters, f'{target}/set_parameters',
                  SetParameters.Request(parameters=[parameter]), deadline)
@@ -224,12 +323,24 @@ def _dump_tree(tree: dict[str, Any], indent: int, lines: list[str]) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status."""
     args = _parser().parse_args(list(sys.argv[1:] if argv is None else argv))
-    if args.timeout <= 0:
+    if not args.timeout > 0:  # nan too
         print(f'cva-param: --timeout must be > 0 s; got {args.timeout:g}', file=sys.stderr)
         return EXIT_NO_ANSWER
     import rclpy
+    from rclpy.exceptions import NameValidationException
+    from rclpy.validate_namespace import validate_namespace
+    from rclpy.validate_node_name import validate_node_name
 
     target = node_name(args.node)
+    namespace, _, base = target.rpartition('/')
+    try:
+        validate_namespace(namespace or '/')
+        validate_node_name(base)
+    except NameValidationException as error:
+        # rclpy's own message goes on over lines, with a caret under the offending character.
+        why = str(error).splitlines()[0].removesuffix(':')
+        print(f'cva-param: {args.node!r} is not a node name ({why})', file=sys.stderr)
+        return EXIT_NO_ANSWER
     deadline = time.monotonic() + args.timeout
     rclpy.init(args=['cva-param'])  # the command line is argparse's, not rclpy's
     try:
@@ -237,11 +348,15 @@ def main(argv: Sequence[str] | None = None) -> int:
                                  start_parameter_services=False)
         try:
             code, text = _run(node, args, target, deadline)
+        except ConfigError as error:  # a value no parameter can take
+            code, text = EXIT_NO_ANSWER, f'cva-param: {error}'
         finally:
             node.destroy_node()
     finally:
         rclpy.try_shutdown()
-    if code == EXIT_NO_ANSWER:
+    if code == EXIT_NO_ANSWER and text:
+        print(text, file=sys.stderr)
+    elif code == EXIT_NO_ANSWER:
         print(f"cva-param: no answer from {target}'s parameter services within "
               f'{args.timeout:g} s (is it running and in this ROS_DOMAIN_ID?)', file=sys.stderr)
     elif code:
