@@ -40,6 +40,7 @@ from cva_confidence_ros.ros.common import (
 from cva_confidence_ros.ros.convert import point_cloud_to_records, records_to_point_cloud
 from cva_confidence_ros.ros.params import (
     QOS_CHOICES,
+    double_overrides,
     double_value,
     keep_doubles,
     restore_types,
@@ -169,6 +170,8 @@ class CloudFilterNode(Node):
         super().__init__(
             NODE_NAME, context=context, parameter_overrides=parameter_overrides, **kwargs
         )
+        doubles = [f.name for f in fields(CloudFilterConfig) if isinstance(f.default, float)]
+        double_overrides(self, doubles)
         for spec in fields(CloudFilterConfig):
             descriptor = ParameterDescriptor(
                 description=PARAMETER_DESCRIPTIONS[spec.name],
@@ -181,9 +184,7 @@ class CloudFilterNode(Node):
                     FloatingPointRange(from_value=0.0, to_value=1.0, step=0.0)
                 ]
             self.declare_parameter(spec.name, spec.default, descriptor)
-        keep_doubles(
-            self, [f.name for f in fields(CloudFilterConfig) if isinstance(f.default, float)]
-        )
+        keep_doubles(self, doubles)
         warn_unknown_parameters(self)
         names = [spec.name for spec in fields(CloudFilterConfig)]
         self._config = CloudFilterConfig(

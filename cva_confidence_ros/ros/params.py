@@ -39,6 +39,7 @@ __all__ = [
     'check_declared_ranges',
     'scan_parameters',
     'declare_parameters',
+    'double_overrides',
     'keep_doubles',
     'restore_types',
     'double_value',
@@ -672,11 +673,32 @@ def check_declared_ranges(values: Mapping[str, Any]) -> None:
 def declare_parameters(node: Node) -> None:
     """Declare every parameter of :data:`PARAMETERS` on ``node`` with its descriptor, and keep
     the double ones doubles (:func:`keep_doubles`)."""
+    doubles = [spec.name for spec in PARAMETERS if isinstance(spec.default, float)]
+    double_overrides(node, doubles)
     node.declare_parameters(
         namespace='',
         parameters=[(spec.name, spec.default, spec.descriptor()) for spec in PARAMETERS],
     )
-    keep_doubles(node, [spec.name for spec in PARAMETERS if isinstance(spec.default, float)])
+    keep_doubles(node, doubles)
+
+
+def double_overrides(node: Node, names: Iterable[str]) -> None:
+    """Turn start-up values of the double parameters ``names`` given as whole numbers
+    (``-p diagnostics_period_seconds:=2``, an integer to rcl) into doubles; call it before
+    declaring them. Read-only ones would otherwise stay integers for good (nothing may set
+    them after the declaration), and ``ros2 param describe`` would say so.
+
+    rclpy keeps the start-up values in ``Node._parameter_overrides`` and offers no public
+    way to them; without that attribute this does nothing (:func:`keep_doubles` still
+    converts the settable ones).
+    """
+    overrides = getattr(node, '_parameter_overrides', None)
+    if not isinstance(overrides, dict):
+        return
+    for name in names:
+        given = overrides.get(name)
+        if isinstance(given, Parameter) and given.type_ == Parameter.Type.INTEGER:
+            overrides[name] = Parameter(name, Parameter.Type.DOUBLE, float(given.value))
 
 
 def keep_doubles(node: Node, names: Iterable[str]) -> None:
@@ -684,10 +706,11 @@ def keep_doubles(node: Node, names: Iterable[str]) -> None:
     :meth:`ParamSpec.descriptor`) doubles in what ``ros2 param describe`` and ``get`` say.
 
     A whole number given at start-up (``-p max_rate_hz:=2``) or later is stored as the double
-    it stands for (a pre-set callback; read-only ones stay as given at start-up, which rclpy
-    lets nothing change). Call :func:`restore_types` when the on-set callback refuses a
-    change: rclpy retypes a dynamically typed parameter to the value offered before the
-    callback runs, refused or not (a refused ``max_rate_hz abc`` left it a string parameter).
+    it stands for (a pre-set callback; read-only ones by :func:`double_overrides` before
+    the declaration, since rclpy lets nothing change them after it). Call
+    :func:`restore_types` when the on-set callback refuses a change: rclpy retypes a
+    dynamically typed parameter to the value offered before the callback runs, refused or
+    not (a refused ``max_rate_hz abc`` left it a string parameter).
     """
     doubles = frozenset(names)
 
