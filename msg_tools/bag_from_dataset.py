@@ -68,6 +68,10 @@ MAX_RATE_HZ = 1e9
 _CAMERA_TOPICS = ('left/image_rect', 'right/image_rect', 'left/camera_info', 'right/camera_info')
 
 
+#: Written on the first Ctrl-C: a loading scene can take a while, the run is not stuck.
+STOPPING = '[cva-bag-from-dataset] Ctrl-C: stopping after this frame; the bag keeps it'
+
+
 def _log_stderr(message: str) -> None:
     print(f'[cva-bag-from-dataset] {message}', file=sys.stderr, flush=True)
 
@@ -272,7 +276,8 @@ def write_dataset_bag(
         'right_info': spec.topic('right/camera_info'),
         'gt': spec.topic(spec.gt_topic.strip('/')),
     }
-    interrupts = GracefulInterrupt()
+    # The notice goes to stderr whatever ``log`` is: it answers the person who pressed Ctrl-C.
+    interrupts = GracefulInterrupt(notice=STOPPING)
     # A run that writes no frame (Ctrl-C before the first, no samples) leaves no empty bag.
     bag = OutputBag(
         out, spec.storage, store, spec.compression, overwrite=overwrite, keep_empty=False
