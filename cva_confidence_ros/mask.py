@@ -37,7 +37,8 @@ def load_mask(path: str | Path, option: str = 'mask_path') -> np.ndarray:
         (H, W) bool, True where pixels are judged.
 
     Raises:
-        ConfigError: The file is missing, empty or not an image, or it ignores every pixel.
+        ConfigError: The file is missing, empty or not an image, holds NaN (a float image),
+            or it ignores every pixel.
     """
     path = Path(path)
     if not path.is_file():
@@ -47,11 +48,15 @@ def load_mask(path: str | Path, option: str = 'mask_path') -> np.ndarray:
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None or image.size == 0:
         raise ConfigError(f'{option} {str(path)!r} cannot be read as an image')
-    if image.ndim == 3:
-        # Colour: a pixel is ignored where every colour channel is 0 (alpha is not looked at).
-        keep = np.any(image[..., :3] != 0, axis=2)
-    else:
-        keep = image != 0
+    # Colour: a pixel is ignored where every colour channel is 0 (alpha is not looked at).
+    values = image[..., :3] if image.ndim == 3 else image
+    if values.dtype.kind == 'f' and np.isnan(values).any():
+        # NaN is not 0, so it would be judged: in a float image it rather marks "no value".
+        raise ConfigError(
+            f'{option} {str(path)!r} holds {int(np.isnan(values).sum())} NaN values; a mask '
+            f'is 0 (ignore) or another number (judge) at every pixel'
+        )
+    keep = np.any(values != 0, axis=2) if values.ndim == 3 else values != 0
     if not keep.any():
         raise ConfigError(
             f'{option} {str(path)!r} ignores every pixel (black everywhere); black = ignore, '

@@ -37,8 +37,10 @@ def _probe(folder: Path, option: str, path: Path) -> None:
         raise _unusable(option, path, error) from None
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=folder, prefix='.write-probe-'):
-            pass
+        # A byte written, not only a file made: a full disk or quota still makes empty files.
+        with tempfile.TemporaryFile(dir=folder, prefix='.write-probe-') as probe:
+            probe.write(b'\0')
+            probe.flush()
     except OSError as error:
         reason = error.strerror or type(error).__name__
         raise ConfigError(f'{option} {path}: cannot write in {folder} ({reason})') from None

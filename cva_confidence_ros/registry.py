@@ -42,7 +42,7 @@ class Registry(Generic[T]):
         """Return the object registered as ``name``; raise :class:`ConfigError` if unknown."""
         try:
             return self._items[name]
-        except KeyError:
+        except (KeyError, TypeError):  # TypeError: an unhashable name, e.g. a list
             raise ConfigError(
                 f'unknown {self.kind} {name!r}; expected one of {sorted(self._items)}'
             ) from None
@@ -52,7 +52,10 @@ class Registry(Generic[T]):
         return sorted(self._items)
 
     def __contains__(self, name: object) -> bool:
-        return name in self._items
+        try:
+            return name in self._items
+        except TypeError:  # an unhashable name is no registered one
+            return False
 
     def __iter__(self) -> Iterator[str]:
         return iter(self.names())

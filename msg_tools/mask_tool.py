@@ -55,8 +55,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help='an existing mask to add to (gives the size without the others)')
     parser.add_argument('--topic', help='image topic of --bag (default: its one image topic '
                                         "with 'left' in the name, raw or compressed)")
-    parser.add_argument('--frame', type=int, default=0,
-                        help='which message of the topic to show (default %(default)s = first)')
+    parser.add_argument('--frame', type=int,
+                        help='which message of the topic to show (default 0 = first)')
     parser.add_argument('--rect', type=int, nargs=4, action='append', default=[],
                         metavar=('X0', 'Y0', 'X1', 'Y1'),
                         help='ignore the pixels with X0 <= x < X1 and Y0 <= y < Y1 (repeatable)')
@@ -120,11 +120,13 @@ def draw_mask(
         start: A mask to add to (True or nonzero = judged), or None for all judged.
         rects: ``[x0, y0, x1, y1]``, each ignoring ``x0 ≤ x < x1``, ``y0 ≤ y < y1`` (clipped
             to the image; one that leaves no pixel of the image is refused).
-        polygons: (N, 2) int corners (x, y), N ≥ 3, each ignoring its inside and edges.
+        polygons: (N, 2) int corners (x, y), N ≥ 3, each ignoring its inside and edges (one
+            that leaves no pixel of the image is refused).
         below: Ignore rows ``y ≥ below``. above: Ignore rows ``y < above``.
 
     Raises:
-        ConfigError: A rectangle or row outside the image, or the wrong size of ``start``.
+        ConfigError: A rectangle, polygon or row outside the image, or the wrong size of
+            ``start``.
     """
     # A copy as bool: a 0/255 start mask would otherwise come back as 0/1 uint8 after &=
     keep = np.ones((height, width), dtype=bool) if start is None else np.array(start, bool)
@@ -141,9 +143,16 @@ def draw_mask(
                 f'(X0 < X1 and Y0 < Y1, inside it)'
             )
         keep[cy0:cy1, cx0:cx1] = False
-    if polygons:
+    for polygon in polygons:
+        # One at a time: a polygon off the image (a typo, x and y swapped) is refused, as a
+        # rectangle is, instead of silently ignoring nothing.
         canvas = np.zeros((height, width), dtype=np.uint8)
-        cv2.fillPoly(canvas, list(polygons), 255)
+        cv2.fillPoly(canvas, [polygon], 255)
+        if not canvas.any():
+            corners = ' '.join(f'{x},{y}' for x, y in np.asarray(polygon).reshape(-1, 2))
+            raise ConfigError(
+                f'--polygon {corners} covers no pixel of the {width}×{height} image'
+            )
         keep &= canvas == 0
     for name, row in (('--below', below), ('--above', above)):
         if row is not None and not 0 <= row <= height:
@@ -195,8 +204,8 @@ def frame_from_bag(bag_path: Path, topic: str | None, index: int) -> np.ndarray:
 
 
 def preview(image: np.ndarray, keep: np.ndarray) -> np.ndarray:
-    """The frame (RGB) with the ignored pixels shaded red and the first and last processed
-    rows marked by a yellow line where rows are skipped."""
+    """The frame (RGB) with the ignored pixels shaded red and a yellow line on the skipped
+    rows next to the processed ones (the row above the first, the row below the last)."""
     from cva_confidence_ros.ros.convert import pair_to_uint8
 
     gray_or_rgb = pair_to_uint8(image, image)[0]  # 16-bit frames scaled as the node scales them
@@ -250,6 +259,12 @@ def main(argv: list[str] | None = None) -> int:
                 f'--preview {args.preview} is the mask {args.out} itself: the preview would '
                 'replace the mask; give the preview another name'
             )
+        if args.bag is None:
+            # They pick the frame of a bag: without one they would be silently ignored.
+            for name, value in (('--topic', args.topic), ('--frame', args.frame)):
+                if value is not None:
+                    raise ConfigError(f'{name} {value} picks a message of --bag; there is no '
+                                      f'--bag to pick it from')
         frame = None
         start = None if args.start is None else load_mask(args.start, '--start')
         if args.size is not None:
@@ -271,7 +286,8 @@ def main(argv: list[str] | None = None) -> int:
                 if frame.ndim == 3:
                     frame = cv2.cvtColor(frame[..., :3], cv2.COLOR_BGR2RGB)
             else:
-                frame = frame_from_bag(args.bag, args.topic, args.frame)
+                index = 0 if args.frame is None else args.frame
+                frame = frame_from_bag(args.bag, args.topic, index)
             height, width = frame.shape[:2]
         keep = draw_mask(
             width, height,

@@ -49,9 +49,13 @@ class Progress:
 
     def line(self) -> str:
         """The current progress text."""
-        elapsed = max(self.clock() - self._start, 1e-9)
+        text = f'{self.prefix}{self.done}/{self.total or "?"} frames'
+        elapsed = self.clock() - self._start
+        if elapsed <= 0:
+            # No time measured yet (a coarse clock): no rate to tell, nor a time left from it.
+            return f'{text}, ? fps'
         rate = self.done / elapsed
-        text = f'{self.prefix}{self.done}/{self.total or "?"} frames, {rate:.2f} fps'
+        text += f', {rate:.2f} fps'
         if self.total and self.done and self.done < self.total:
             text += f', ~{(self.total - self.done) / rate:.0f} s left'
         return text
