@@ -249,8 +249,8 @@ def left_right_difference_map(
 
     Returns:
         (H, W) float32 ≥ 0 (+inf where an eps below about 1e-38 overflows the ratio). Where
-        ``x - d1 < 0`` the right pixel lies outside the image and the nearest column (0) is
-        used.
+        ``x - d1 < 0`` the right pixel lies outside the image, so the match cannot be checked:
+        0, the lowest confidence (as LRC gives its lowest value there).
 
     Raises:
         InputError: Either volume not a real array, ``volume_right`` not of the shape of
@@ -271,11 +271,14 @@ def left_right_difference_map(
         count = int(np.count_nonzero(np.isnan(volume_right)))
         raise InputError(f'volume_right must not contain NaN costs; got {count} NaN entries')
     height, width = c1.shape
-    cols = np.clip(np.arange(width)[None, :] - d1, 0, width - 1)
+    cols = np.arange(width)[None, :] - d1
+    # d1 ≥ 0, so only the left edge can be passed; a clipped column there (0) belonged to
+    # another pixel and could make an unverifiable match the most confident one.
+    inside = cols >= 0
     rows = np.arange(height)[:, None]
-    denom = np.abs(c1 - right_min[rows, cols]) + np.float32(eps)
+    denom = np.abs(c1 - right_min[rows, np.maximum(cols, 0)]) + np.float32(eps)
     with np.errstate(over='ignore'):  # a tiny eps: +inf, above every finite LRD
-        return ((c2 - c1) / denom).astype(np.float32)
+        return np.where(inside, (c2 - c1) / denom, np.float32(0.0)).astype(np.float32)
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,7 @@ import torch
 from torch import nn
 
 from cva_confidence_ros.devices import resolve_device
-from cva_confidence_ros.errors import ModelError, reason
+from cva_confidence_ros.errors import InputError, ModelError, reason
 
 __all__ = [
     'FEATURES',
@@ -67,8 +67,12 @@ class McCnnFastFeatures(nn.Module):
         Returns:
             (B, 64, H, W) float tensor, L2-normalised over the channel axis.
         """
-        if images.ndim != 4 or images.shape[1] != 1:
-            raise ModelError(f'expected (B, 1, H, W) images; got {tuple(images.shape)}')
+        # Smaller than the 11×11 receptive field, torch's own error spoke of kernels.
+        if images.ndim != 4 or images.shape[1] != 1 or min(images.shape[2:]) <= 2 * PADDING:
+            raise ModelError(
+                f'expected (B, 1, H + {2 * PADDING}, W + {2 * PADDING}) padded images with H, '
+                f'W ≥ 1; got {tuple(images.shape)}'
+            )
         return nn.functional.normalize(self.conv_blocks(images), p=2.0, dim=1)
 
 
@@ -137,7 +141,20 @@ def normalise_image(image: np.ndarray) -> np.ndarray:
 
     Returns:
         (H, W) float32, (gray − mean) / std (std 1 for a constant image).
+
+    Raises:
+        InputError: Not a non-empty (H, W) or (H, W, 3) numpy array.
     """
+    # An (H, W, 4) RGBA or (H, W, 1) image failed in the matrix product with the 3 luma
+    # weights (a bare ValueError), an empty one gave NaN statistics.
+    if (
+        not isinstance(image, np.ndarray)
+        or image.ndim not in (2, 3)
+        or (image.ndim == 3 and image.shape[2] != 3)
+        or image.size == 0
+    ):
+        got = image.shape if isinstance(image, np.ndarray) else type(image).__name__
+        raise InputError(f'image must be a non-empty H×W or H×W×3 numpy array; got {got}')
     gray = image.astype(np.float32) @ _LUMA if image.ndim == 3 else image.astype(np.float32)
     std = float(gray.std())
     return ((gray - gray.mean()) / (std if std > 0.0 else 1.0)).astype(np.float32)
@@ -155,7 +172,17 @@ def extract_features(
 
     Returns:
         (B, 64, H, W) float32 tensor on ``device``.
+
+    Raises:
+        InputError: No images, images of different shapes, or one that
+            :func:`normalise_image` refuses.
     """
+    shapes = {np.shape(image) for image in images}
+    if len(shapes) != 1:
+        raise InputError(
+            f'extract_features needs at least one image, all of one shape; got shapes '
+            f'{sorted(shapes)}'
+        )
     # Reflection padding rather than zeros: the border features then see image-like texture.
     batch = np.stack(
         [np.pad(normalise_image(image), PADDING, mode='reflect') for image in images]

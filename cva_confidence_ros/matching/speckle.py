@@ -127,5 +127,8 @@ def remove_speckles(
     # C order: the kernel works on flat views, and ravel() of a Fortran-ordered array (a
     # transposed disparity map gives one) is a copy, whose updates would be lost.
     flags = mask.astype(np.uint8, order='C')
-    _remove_speckles(np.ascontiguousarray(values), flags, int(max_size), float(max_range))
+    # No region is larger than the image: a larger max_size (10**20 for 'no limit') means the
+    # same, and one beyond int64 stopped numba's typing with a TypingError.
+    size = min(int(max_size), values.size)
+    _remove_speckles(np.ascontiguousarray(values), flags, size, float(max_range))
     return flags != 0

@@ -122,10 +122,14 @@ def refine_subpixel(
     code = _KERNEL_CODES.get(method, -1)
     bad = _refine(volume, values, code, view == 'right', out)
     if bad:
+        # The range of the offending values alone: that of every finite one mixed the good
+        # integers in (2.5 among 0 … 3 read 'finite ones in [0, 3]').
+        top = volume.shape[0] - 1
         finite = values[np.isfinite(values)]
+        finite = finite[(finite < 0) | (finite > top) | (finite != np.floor(finite))]
         raise InputError(
-            f'disparity must hold integers in [0, {volume.shape[0] - 1}] (the disparities of '
-            f'the cost volume) or NaN; got {bad} other values'
+            f'disparity must hold integers in [0, {top}] (the disparities of the cost volume) '
+            f'or NaN; got {bad} other values'
             + (f' (finite ones in [{finite.min():g}, {finite.max():g}])' if finite.size else '')
         )
     return out

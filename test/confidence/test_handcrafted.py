@@ -84,10 +84,10 @@ def test_lrd_hand_values() -> None:
     eps = 1e-3
     inputs = inputs_for(row_volume(LEFT), cost_volume_right=row_volume(RIGHT))
     result = compute_confidence('lrd', inputs, eps=eps)
-    # right minima per column: 0.15, 0.5, 0.5, 0.45; right column = x - d1 (clipped at 0).
+    # right minima per column: 0.15, 0.5, 0.5, 0.45; right column = x - d1.
     expected = [
         (1.0 - 0.2) / (abs(0.2 - 0.15) + eps),  # d1 = 0 → column 0
-        (0.5 - 0.05) / (abs(0.05 - 0.15) + eps),  # d1 = 2 → column -1, clipped to 0
+        0.0,  # d1 = 2 → column -1: outside the right image, lowest confidence
         (0.3 - 0.2) / (abs(0.2 - 0.15) + eps),  # d1 = 2 → column 0
         (0.4 - 0.3) / (abs(0.3 - 0.5) + eps),  # d1 = 1 → column 2
     ]
