@@ -26,6 +26,14 @@ from cva_confidence_ros.pointcloud import FX_TOLERANCE
 CY_TOLERANCE_PX = 0.1
 
 
+def _projection(values: Any, name: str) -> np.ndarray:
+    """``values`` as a 3×4 float64 projection matrix; ``name`` says whose in the error."""
+    array = np.array(values, dtype=np.float64)
+    if array.size != 12:
+        raise InputError(f'{name} must be a 3×4 projection matrix (12 values); got {array.size}')
+    return array.reshape(3, 4)
+
+
 def fold(matrix: np.ndarray, info: Any) -> np.ndarray:
     """K (3×3) or P (3×4) of ``info`` with its ROI offset moved out of the principal point and
     rows 0 and 1 divided by its binning (``image_geometry``'s rule), in place."""
@@ -48,11 +56,12 @@ def image_projection(
     their points by the ROI offset). Any other size must be the one binning and ROI describe.
 
     Raises:
-        InputError: The ROI does not lie within the calibration size, or (``image_size``
-            given) the images are not the size the info describes; ``name`` says whose info.
+        InputError: A P that is not 12 values, an ROI that does not lie within the calibration
+            size, a binning that leaves no pixels of it, or (``image_size`` given) images that
+            are not the size the info describes; ``name`` says whose info.
     """
     full_w, full_h = int(info.width), int(info.height)
-    projection = np.array(info.p, dtype=np.float64).reshape(3, 4)
+    projection = _projection(info.p, f'{name} p')
     if image_size is not None and tuple(image_size) == (full_w, full_h):
         return (full_w, full_h), projection
     binning_x, binning_y = max(int(info.binning_x), 1), max(int(info.binning_y), 1)
@@ -70,6 +79,11 @@ def image_projection(
             f'its calibration size {full_w}×{full_h} (REP 104)'
         )
     size = (crop_w // binning_x, crop_h // binning_y)
+    if 0 in size:
+        raise InputError(
+            f'{name}: binning {binning_x}×{binning_y} leaves no pixels of its {crop_w}×{crop_h} '
+            f'region of interest (images of {size[0]}×{size[1]})'
+        )
     if image_size is not None and size != tuple(image_size):
         width, height = image_size
         raise InputError(
@@ -82,9 +96,19 @@ def image_projection(
 
 def check_rows(p_left: Any, p_right: Any) -> None:
     """Refuse projection matrices (3×4 or 12 values) whose rows do not correspond: a
-    rectified pair shares fy and cy, or the matcher compares the wrong rows."""
-    left = np.asarray(p_left, dtype=np.float64).reshape(3, 4)
-    right = np.asarray(p_right, dtype=np.float64).reshape(3, 4)
+    rectified pair shares fy and cy and has no vertical baseline (``P[1, 3]``, Ty, the same
+    on both: 0 for a horizontal pair), or the matcher compares the wrong rows.
+
+    Raises:
+        InputError: Not 12 values, values that are not finite, or rows that do not correspond.
+    """
+    left = _projection(p_left, 'P_left')
+    right = _projection(p_right, 'P_right')
+    if not (np.all(np.isfinite(left)) and np.all(np.isfinite(right))):
+        raise InputError(
+            f'projection matrices must be finite; got P_left = {left.tolist()} and '
+            f'P_right = {right.tolist()}'
+        )
     fy_left, fy_right = float(left[1, 1]), float(right[1, 1])
     if fy_left > 0 and abs(fy_right - fy_left) > FX_TOLERANCE * fy_left:
         raise InputError(
@@ -97,4 +121,14 @@ def check_rows(p_left: Any, p_right: Any) -> None:
             'left and right projection matrices must share cy (a rectified pair: row v of '
             f'one image is row v of the other); got P_left[1, 2] = {cy_left:g} and '
             f'P_right[1, 2] = {cy_right:g}'
+        )
+    # A point at depth Z is (Ty_right − Ty_left) / Z rows lower in the right image, at the
+    # disparity (Tx_left − Tx_right) / Z: refuse a row shift over 0.1 px per 100 px of it.
+    ty_left, ty_right = float(left[1, 3]), float(right[1, 3])
+    tx_span = abs(float(left[0, 3]) - float(right[0, 3]))
+    if abs(ty_right - ty_left) > FX_TOLERANCE * tx_span:
+        raise InputError(
+            'left and right projection matrices must share Ty (a horizontal rectified pair: '
+            'no vertical baseline, P[1, 3] = 0); got P_left[1, 3] = '
+            f'{ty_left:g} and P_right[1, 3] = {ty_right:g}'
         )

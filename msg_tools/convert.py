@@ -257,8 +257,9 @@ def camera_geometry(
     Raises:
         InputError: Sizes that differ (from each other or from ``image_size``), a region of
             interest outside the calibration size, a focal length ≤ 0, fx, fy or cy that
-            differ between left and right (not a rectified pair), or a right projection
-            without a positive baseline (P_right[0, 3] must be −fx·B < 0).
+            differ between left and right (not a rectified pair), a vertical baseline (Ty
+            of the two projections differing), or a right projection without a positive
+            baseline (P_right[0, 3] must be −fx·B < 0).
     """
     size_left, p_left = image_projection(left_info, 'left camera info', image_size)
     size_right, p_right = image_projection(right_info, 'right camera info', image_size)

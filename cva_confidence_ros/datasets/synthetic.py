@@ -383,11 +383,23 @@ def synthetic_pair(
 def synthetic_pairs(
     count: int, first_seed: int = 0, height: int = 128, width: int = 160, max_disparity: int = 64
 ) -> list[StereoSample]:
-    """``count`` pairs of :func:`synthetic_pair` with seeds ``first_seed … first_seed+count−1``."""
+    """``count`` pairs of :func:`synthetic_pair` with seeds ``first_seed … first_seed+count−1``.
+
+    Raises:
+        ConfigError: A count that is not a whole number ≥ 0, or a first seed or size that
+            :func:`synthetic_pair` refuses (checked even when ``count`` is 0).
+    """
     # A whole float (2.0, as synthetic_pair takes its sizes) is a count; range() refused it.
     whole = is_real(count) and float(count).is_integer()
     if not (is_int(count) or whole) or count < 0:
         raise ConfigError(f'count must be a whole number >= 0; got {count!r}')
+    if not _integral(first_seed) or first_seed < 0:
+        raise ConfigError(f'first_seed must be an integer >= 0; got {first_seed!r}')
+    # As Python ints: a numpy first_seed wrapped around (np.uint8(255) + 1 = 0, a pair twice),
+    # and the sizes are checked even for count 0.
+    first_seed, height, width, max_disparity = _check_arguments(
+        first_seed, height, width, max_disparity
+    )
     return [
         synthetic_pair(first_seed + i, height, width, max_disparity) for i in range(int(count))
     ]

@@ -415,7 +415,8 @@ def camera_info_to_geometry(
     Raises:
         InputError: A camera info whose size (after binning and region of interest) is not
             the images', a region of interest outside its calibration size, a degenerate
-            projection matrix, fx, fy or cy that differ between left and right, or a
+            projection matrix, fx, fy or cy that differ between left and right, a vertical
+            baseline (Ty of the two projections differing: rows that do not line up), or a
             baseline ≤ 0.
     """
     _, left = image_projection(left_info, 'left camera info', (width, height))
