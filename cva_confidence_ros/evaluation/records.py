@@ -141,7 +141,8 @@ def write_records(records: Iterable[RecordLike], path: str | os.PathLike[str]) -
     Raises:
         InputError: A record is not valid (checked before the file is touched).
         DataError: The file cannot be written (a full disk, no permission); an older file at
-            ``path`` is left as it was (the new one is written beside it, then moved in place).
+            ``path`` is left as it was (the new one is written beside it, synced to the disk,
+            then moved in place).
     """
     items = [r.as_dict() for r in _as_records(records)]
     text = json.dumps(items, indent=2, allow_nan=False) + '\n'
@@ -149,14 +150,33 @@ def write_records(records: Iterable[RecordLike], path: str | os.PathLike[str]) -
     tmp = out.with_name(out.name + '.tmp')
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(text, encoding='utf-8')
+        with open(tmp, 'w', encoding='utf-8') as handle:
+            handle.write(text)
+            # On the disk before the rename: else a crash soon after it can leave an empty
+            # file at ``path`` (ext4, XFS with delayed allocation), the old one gone.
+            handle.flush()
+            os.fsync(handle.fileno())
         os.replace(tmp, out)
+        _sync_folder(out.parent)
     except OSError as exc:
         with contextlib.suppress(OSError):
             tmp.unlink(missing_ok=True)
         state = '; the file there was left as it was' if out.exists() else ''
         raise DataError(f'cannot write records {out}: {reason(exc)}{state}') from None
     return out
+
+
+def _sync_folder(folder: Path) -> None:
+    """Put a rename in ``folder`` on the disk, where the system can (not on Windows)."""
+    try:
+        handle = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        with contextlib.suppress(OSError):  # the file is in place; only durability is left
+            os.fsync(handle)
+    finally:
+        os.close(handle)
 
 
 def read_records(path: str | os.PathLike[str]) -> list[EvalRecord]:
@@ -213,6 +233,36 @@ def _unique(items: Sequence[EvalRecord]) -> list[EvalRecord]:
     return list(seen.values())
 
 
+def _check_same_pixels(items: Sequence[EvalRecord]) -> None:
+    """Refuse records of one scene and matcher that were not scored on the same pixels.
+
+    ``auc_opt``, ``error_rate`` and ``n_pixels`` belong to the disparity map and the scored
+    pixels, not to the method: records of one run agree on them. Records of other runs (other
+    D, ``--max-pixels`` or ``--seed``) need not; the ``Opt.`` cell took the value of whichever
+    came first, and the methods of a row were compared on different pixels.
+
+    Raises:
+        InputError: Two such records differ; the message names the scene and the values.
+    """
+    first: dict[tuple[str, str, str], EvalRecord] = {}
+    for r in items:
+        held = first.setdefault((r.dataset, r.scene, r.matcher), r)
+        same = (
+            held.n_pixels == r.n_pixels
+            # 1e-9: the same pixels give equal values, up to the last digit of a logarithm.
+            and abs(held.auc_opt - r.auc_opt) <= 1e-9
+            and abs(held.error_rate - r.error_rate) <= 1e-9
+        )
+        if not same:
+            raise InputError(
+                f'evaluation records of {r.dataset}/{r.scene} {r.matcher} were scored on '
+                f'different pixels: {held.method} has auc_opt {held.auc_opt}, error_rate '
+                f'{held.error_rate}, n_pixels {held.n_pixels}; {r.method} has auc_opt '
+                f'{r.auc_opt}, error_rate {r.error_rate}, n_pixels {r.n_pixels}; tabulate '
+                'the records of one run (same D, --max-pixels and --seed)'
+            )
+
+
 def format_table(
     records: Iterable[RecordLike],
     methods: Sequence[str] | None = None,
@@ -240,12 +290,14 @@ def format_table(
     Raises:
         InputError: ``methods`` is one string, holds a non-string or a name twice;
             ``decimals`` is not an integer ≥ 0; two records of one scene, matcher and method
-            differ.
+            differ; two records of one scene and matcher differ in ``auc_opt``,
+            ``error_rate`` or ``n_pixels`` (scored on other pixels, e.g. in another run).
     """
     if isinstance(decimals, bool) or not isinstance(decimals, Integral) or decimals < 0:
         # -1 or 2.5 failed in the format as 'ValueError: Format specifier missing precision'.
         raise InputError(f'decimals must be an integer ≥ 0; got {decimals!r}')
     items = _unique(_as_records(records))
+    _check_same_pixels(items)
     if methods is None:
         methods = list(dict.fromkeys(r.method for r in items))
     elif isinstance(methods, str) or not all(isinstance(m, str) for m in methods):

@@ -4,8 +4,8 @@
 of every probabilistic method per data set and matcher over all its scenes, and writes
 
 * ``DIR/calibration.json``: a list of ``{dataset, matcher, method, n_pixels, ece, max_gap,
-  brier, mean_confidence, accuracy, bins}``, one per data set, matcher and method, and one
-  with ``dataset: "all"`` over every scored pixel;
+  brier, mean_confidence, accuracy, bins}``, one per data set, matcher and method, and (with
+  more than one data set) one with ``dataset: "all"`` over every scored pixel;
 * ``DIR/calibration.md``: the same as a Markdown table (percentages), with what is kept at
   the thresholds 0.5 and 0.8: the share, its error rate and the error rate the confidence
   predicts for it;
@@ -21,6 +21,7 @@ from typing import Any
 
 from cva_confidence_ros.calibration import ReliabilityTable
 from cva_confidence_ros.errors import InputError
+from cva_confidence_ros.evaluation.records import _cell
 
 __all__ = [
     'ALL_DATASETS',
@@ -42,7 +43,8 @@ def pooled(tables: Mapping[Key, ReliabilityTable]) -> dict[Key, ReliabilityTable
 
     Raises:
         InputError: A data set is named :data:`ALL_DATASETS` beside others (its row and the
-            pooled one would be one key), or tables to pool differ in their bins.
+            pooled one would be one key), or tables to pool differ in their bins (the message
+            names the matcher, method and the bins of each data set).
     """
     rows: dict[Key, ReliabilityTable] = dict(sorted(tables.items()))
     datasets = {key[0] for key in tables}
@@ -54,8 +56,14 @@ def pooled(tables: Mapping[Key, ReliabilityTable]) -> dict[Key, ReliabilityTable
                 'that name'
             )
         for matcher, method in sorted({(key[1], key[2]) for key in tables}):
-            parts = [t for key, t in tables.items() if key[1:] == (matcher, method)]
-            rows[(ALL_DATASETS, matcher, method)] = ReliabilityTable.combine(parts)
+            parts = {key[0]: t for key, t in tables.items() if key[1:] == (matcher, method)}
+            if len({t.bins for t in parts.values()}) > 1:  # merge named neither row
+                bins = ', '.join(f'{name} {t.bins}' for name, t in sorted(parts.items()))
+                raise InputError(
+                    f'cannot pool the reliability tables of {matcher} {method} over the data '
+                    f'sets: their bins differ ({bins})'
+                )
+            rows[(ALL_DATASETS, matcher, method)] = ReliabilityTable.combine(parts.values())
     return rows
 
 
@@ -75,7 +83,12 @@ def format_calibration_table(
     Columns: pixels; ECE, the largest gap of a bin and the Brier score; then per threshold τ
     (bin edges) the share of pixels with confidence ≥ τ, their error rate (ground truth) and
     the error rate their confidence predicts, mean(1 − confidence) — what the node reports in
-    ``/diagnostics`` as ``expected_kept_error``. All in percent.
+    ``/diagnostics`` as ``expected_kept_error``. All in percent. A ``|`` in a name is
+    written ``\\|``.
+
+    Raises:
+        InputError: As :func:`pooled`; a table holds no pixels, or a threshold is no bin edge
+            below 1 of its bins (the message names the row).
     """
     head = '| data set | matcher | method | pixels | ECE % | max bin gap % | Brier % |'
     rule = '|:---|:---|:---|---:|---:|---:|---:|'
@@ -84,13 +97,19 @@ def format_calibration_table(
         rule += '---:|---:|---:|'
     lines = [head, rule]
     for (dataset, matcher, method), table in pooled(tables).items():
-        row = (
-            f'| {dataset} | {matcher} | {method} | {table.n_pixels} | {100 * table.ece:.2f} '
-            f'| {100 * table.max_gap:.1f} | {100 * table.brier:.2f} |'
-        )
-        for tau in thresholds:
-            kept, measured, predicted = table.kept_at(tau)
-            row += f' {_percent(kept)} | {_percent(measured, 2)} | {_percent(predicted, 2)} |'
+        names = ' | '.join(_cell(name) for name in (dataset, matcher, method))
+        try:
+            row = (
+                f'| {names} | {table.n_pixels} | {100 * table.ece:.2f} '
+                f'| {100 * table.max_gap:.1f} | {100 * table.brier:.2f} |'
+            )
+            for tau in thresholds:
+                kept, measured, predicted = table.kept_at(tau)
+                row += (
+                    f' {_percent(kept)} | {_percent(measured, 2)} | {_percent(predicted, 2)} |'
+                )
+        except InputError as exc:  # 'the reliability table holds no pixels' named no row
+            raise InputError(f'calibration of {dataset} {matcher} {method}: {exc}') from None
         lines.append(row)
     return '\n'.join(lines) + '\n'
 
@@ -111,12 +130,14 @@ def write_calibration(tables: Mapping[Key, ReliabilityTable], out_dir: str | Pat
     if not tables:
         return []
     rows = pooled(tables)
+    # The table first: its errors name the row (as_dict's do not).
+    table_text = format_calibration_table(tables)
     records: list[dict[str, Any]] = [
         {'dataset': dataset, 'matcher': matcher, 'method': method, **table.as_dict()}
         for (dataset, matcher, method), table in rows.items()
     ]
     # Both texts first: an error in the table must not leave a new JSON beside an old table.
-    texts = (json.dumps(records, indent=1) + '\n', format_calibration_table(tables))
+    texts = (json.dumps(records, indent=1) + '\n', table_text)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = [out / 'calibration.json', out / 'calibration.md']

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from cva_confidence_ros.checks import is_int
 from cva_confidence_ros.errors import InputError
 from cva_confidence_ros.evaluation.records import EvalRecord
 
@@ -76,13 +77,19 @@ def select_pixels(
         ``(ys, xs)``, two (M,) int64 arrays in row-major order, M = min(N, known pixels).
 
     Raises:
-        InputError: ``known`` is not 2-D, ``max_pixels`` < 1 or ``seed`` < 0.
+        InputError: ``known`` is not 2-D, ``max_pixels`` is not an integer ≥ 1 (or None) or
+            ``seed`` not an integer ≥ 0.
     """
     known = np.asarray(known, dtype=bool)
     if known.ndim != 2:
         raise InputError(f'known must be an (H, W) bool mask; got shape {known.shape}')
+    # NaN passed every comparison and scored all pixels; 2.5 or True failed in numpy's choice.
+    if max_pixels is not None and not is_int(max_pixels):
+        raise InputError(f'max_pixels must be an integer ≥ 1 or None; got {max_pixels!r}')
     if max_pixels is not None and max_pixels < 1:
         raise InputError(f'max_pixels must be ≥ 1 or None; got {max_pixels}')
+    if not is_int(seed):
+        raise InputError(f'seed must be an integer ≥ 0; got {seed!r}')
     if seed < 0:  # numpy's generator says only 'expected non-negative integer'
         raise InputError(f'seed must be ≥ 0; got {seed}')
     flat = np.flatnonzero(known)
@@ -317,7 +324,9 @@ def evaluate_scene(
         One :class:`EvalRecord` per method, in ``method_order``.
 
     Raises:
-        InputError: The scene has no ground-truth pixels or a method returns a bad map.
+        InputError: The scene has no ground-truth pixels, ``method_order`` names a method
+            not in ``methods``, or a method returns a bad map (or, in patch mode, not one
+            value per scored pixel).
         ConfigError: Unknown matcher.
     """
     from cva_confidence_ros.confidence import ConfidenceInputs
@@ -326,6 +335,11 @@ def evaluate_scene(
     from cva_confidence_ros.metrics import kitti_error
 
     names = list(method_order) if method_order is not None else list(methods)
+    unknown = [name for name in names if name not in methods]
+    if unknown:  # a bare KeyError before
+        raise InputError(
+            f'method_order names methods that are not given: {unknown}; given: {list(methods)}'
+        )
     emit = log if log is not None else (lambda _message: None)
     sample, factor = fit_disparity_range(sample, max_disparity)
     if factor > 1:
@@ -380,6 +394,12 @@ def evaluate_scene(
         if values is None:
             assert dense is not None  # values is None only where the method was run densely
             values = dense[ys, xs]
+        elif values.shape != ys.shape:
+            # A bare numpy broadcast ValueError before (or, for one value, a filled map).
+            raise InputError(
+                f'confidence method {name!r} must return one value per scored pixel, '
+                f'{ys.size}; got {values.size}'
+            )
         if dense is None:
             dense = np.full(disparity.shape, np.nan, dtype=np.float32)
             dense[ys, xs] = values

@@ -41,7 +41,7 @@ import sys
 import time
 from typing import Any, cast
 
-from cva_confidence_ros.errors import ConfigError, DataError, ModelError, reason
+from cva_confidence_ros.errors import ConfigError, DataError, InputError, ModelError, reason
 from cva_confidence_ros.outputs import check_output_dir
 
 __all__ = [
@@ -465,7 +465,14 @@ def _load_reusable(
     path: Path, methods: Sequence[str]
 ) -> dict[tuple[str, str, str], dict[str, dict[str, Any]]]:
     """(dataset, scene, matcher) → method → record, from a records JSON (a list, or the
-    ``records`` of a ``table1.json``)."""
+    ``records`` of a ``table1.json``).
+
+    Raises:
+        DataError: The file cannot be read, is not JSON, or holds neither a list nor an object
+            with ``records``.
+        InputError: A record is not valid, or two records of one scene, matcher and method
+            differ (which to take?); the message names the file and the record's index.
+    """
     from cva_confidence_ros.evaluation.records import EvalRecord
 
     try:
@@ -474,18 +481,33 @@ def _load_reusable(
         # ValueError: not UTF-8, not JSON, or an integer of more digits than Python converts;
         # RecursionError: nested deeper than the parser goes.
         raise DataError(f'cannot read --reuse records {path}: {reason(exc)}') from None
-    items = data.get('records', []) if isinstance(data, dict) else data
+    if isinstance(data, dict) and 'records' not in data:
+        # It was read as no records at all: every scene recomputed, no word said.
+        raise DataError(
+            f'--reuse {path}: a JSON object without "records" (keys {sorted(data)[:8]}); '
+            'expected a list of records or a table1.json'
+        )
+    items = data['records'] if isinstance(data, dict) else data
     if not isinstance(items, list):
         raise DataError(
             f'--reuse {path}: expected a list of records (or a table1.json with "records"); '
             f'got {type(items).__name__}'
         )
     found: dict[tuple[str, str, str], dict[str, dict[str, Any]]] = {}
-    for item in items:
-        record = EvalRecord.from_mapping(item).as_dict()
+    for index, item in enumerate(items):
+        try:
+            record = EvalRecord.from_mapping(item).as_dict()
+        except InputError as exc:
+            raise InputError(f'--reuse {path}: record {index}: {exc}') from None
         if record['method'] in methods:
             key = (str(record['dataset']), str(record['scene']), str(record['matcher']))
-            found.setdefault(key, {})[str(record['method'])] = record
+            held = found.setdefault(key, {}).setdefault(str(record['method']), record)
+            if held != record:  # the later one silently replaced the earlier one
+                raise InputError(
+                    f'--reuse {path}: record {index}: a second, different record of '
+                    f'{"/".join(key[:2])} {key[2]} {record["method"]}: auc {held["auc"]} and '
+                    f'{record["auc"]}; keep one of them'
+                )
     return found
 
 
