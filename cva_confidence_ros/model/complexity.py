@@ -11,7 +11,8 @@ inference) and ReLUs are not counted.
 * :func:`macs_per_pixel` — its limit per output pixel for a large image (the border overhead
   of the unpadded fusion vanishes), the figure to compare networks by.
 
-Checked against a hook-based count of the folded networks in ``test/model/test_complexity.py``.
+Checked against a hook-based count of the (unfolded) networks in
+``test/model/test_complexity.py``.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from cva_confidence_ros.model.fast import (
     CVANetFast,
     FoldedCVANetFast,
 )
-from cva_confidence_ros.model.inference import FoldedCVANet
+from cva_confidence_ros.model.inference import FoldedCVANet, _unwrap
 from cva_confidence_ros.model.lite import (
     LITE_DEPTH_KERNELS,
     LITE_FC_NODES,
@@ -123,6 +124,8 @@ _MIN_DISPARITY = {
 
 
 def _resolve(net_or_arch: nn.Module | str, max_disparity: int | None) -> tuple[str, int]:
+    if isinstance(net_or_arch, nn.Module):  # a (Distributed)DataParallel wrapper: its network
+        net_or_arch = _unwrap(net_or_arch)
     if isinstance(net_or_arch, str):
         arch = net_or_arch
         if max_disparity is None:
@@ -163,7 +166,8 @@ def macs_per_pixel(net_or_arch: nn.Module | str, max_disparity: int | None = Non
 
     Args:
         net_or_arch: :class:`CVANet`, :class:`CVANetLite`, :class:`CVANetFast` (or their
-            folded forms), or ``'cvanet'`` / ``'cvanet_lite'`` / ``'cvanet_fast'``.
+            folded forms, or one in a ``DataParallel`` wrapper), or ``'cvanet'`` /
+            ``'cvanet_lite'`` / ``'cvanet_fast'``.
         max_disparity: D; defaults to the network's own (required with an arch name).
 
     Returns:

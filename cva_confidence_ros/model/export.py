@@ -17,12 +17,14 @@ exported graph against PyTorch on a random volume.
 from __future__ import annotations
 
 import argparse
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+import contextlib
 import copy
 import json
 import os
 from pathlib import Path
 import sys
+import tempfile
 import time
 from typing import Any
 import warnings
@@ -33,9 +35,10 @@ from torch import nn
 import torch.nn.functional as F
 
 from cva_confidence_ros.checks import is_int
-from cva_confidence_ros.errors import ModelError, reason
-from cva_confidence_ros.model.inference import PAD, _unwrap, fold_batchnorm
-from cva_confidence_ros.model.lite import check_volume_tensor
+from cva_confidence_ros.errors import ConfigError, ModelError, reason
+from cva_confidence_ros.model.fast import FoldedCVANetFast
+from cva_confidence_ros.model.inference import PAD, FoldedCVANet, _unwrap, fold_batchnorm
+from cva_confidence_ros.model.lite import FoldedCVANetLite, check_volume_tensor
 from cva_confidence_ros.model.weights import architecture_of, default_weights_path, load_weights
 
 __all__ = ['EXPORTABLE', 'CostVolumeModel', 'OnnxRuntimeNet', 'check_onnx', 'export_onnx', 'main']
@@ -44,6 +47,12 @@ PROG = 'cva-export'
 #: Architectures whose input is the cost volume alone (the baselines need an image too).
 EXPORTABLE = ('cvanet', 'cvanet_lite', 'cvanet_fast')
 DEFAULT_OPSET = 17
+# The folded (inference) forms of the three, exported as they are.
+_FOLDED = {
+    FoldedCVANet: 'cvanet',
+    FoldedCVANetLite: 'cvanet_lite',
+    FoldedCVANetFast: 'cvanet_fast',
+}
 
 
 class CostVolumeModel(nn.Module):
@@ -65,7 +74,8 @@ class CostVolumeModel(nn.Module):
 def _deployable(net: nn.Module) -> tuple[CostVolumeModel, str, int]:
     """The folded, float32 CPU copy of ``net`` behind the padding; ``net`` itself (its
     train/eval mode, device and dtype) is left as it was."""
-    arch = architecture_of(net)
+    folded_arch = _FOLDED.get(type(_unwrap(net)))
+    arch = folded_arch or architecture_of(net)
     if arch not in EXPORTABLE:
         raise ModelError(
             f'ONNX export covers the cost-volume networks {EXPORTABLE}; got {arch!r} (its '
@@ -75,11 +85,26 @@ def _deployable(net: nn.Module) -> tuple[CostVolumeModel, str, int]:
     # fold_batchnorm and no max_disparity. Folding reads the BN running statistics whatever
     # the mode, so the caller's network need not be switched to eval mode.
     typed: Any = _unwrap(net)  # each of the three has max_disparity; Lite and Fast fold themselves
-    folded = fold_batchnorm(typed) if arch == 'cvanet' else typed.fold_batchnorm()
+    if folded_arch:  # already folded (fold_batchnorm): a copy, the caller's is left as it is
+        folded = copy.deepcopy(typed)
+    else:
+        folded = fold_batchnorm(typed) if arch == 'cvanet' else typed.fold_batchnorm()
     # The graph is float32 on the CPU as documented, whatever the network's device, its dtype
     # or torch's default dtype (the folded layers are built in the default dtype).
     folded = folded.to('cpu', torch.float32)
     return CostVolumeModel(folded).eval(), arch, int(typed.max_disparity)
+
+
+def _check_size(size: object, name: str) -> tuple[int, int]:
+    """``size`` as (H, W); ConfigError unless it is a pair of integers >= 1 (the volume's image
+    size, before the padding the graph adds)."""
+    pair = tuple(size) if isinstance(size, (tuple, list)) else None
+    if pair is None or len(pair) != 2 or not all(is_int(v) and v >= 1 for v in pair):
+        raise ConfigError(
+            f"{name} must be (H, W), two integers >= 1 (the cost volume's image size); "
+            f'got {size!r}'
+        )
+    return int(pair[0]), int(pair[1])
 
 
 def _opset_range() -> tuple[int, int]:
@@ -90,6 +115,35 @@ def _opset_range() -> tuple[int, int]:
         return int(_constants.ONNX_MIN_OPSET), int(_constants.ONNX_MAX_OPSET)
     except (ImportError, AttributeError):  # a private module: fall back to a safe range
         return 9, DEFAULT_OPSET
+
+
+@contextlib.contextmanager
+def _ir_dump_hidden() -> Iterator[None]:
+    """Keep torch's exporter from printing the whole TorchScript graph on stdout when it fails
+    (an operator the opset lacks: ~100 lines from C++, before the one-line ModelError that says
+    why). File descriptor 1 goes to a file meanwhile; what else came there is passed on."""
+    marker = b'Torch IR graph at exception:'
+    flush = getattr(sys.stdout, 'flush', lambda: None)  # sys.stdout may be None (no console)
+    flush()
+    try:
+        saved = os.dup(1)
+    except OSError:  # no standard output to keep clean
+        saved = -1
+    if saved < 0:
+        yield
+        return
+    with tempfile.TemporaryFile() as capture:
+        os.dup2(capture.fileno(), 1)
+        try:
+            yield
+        finally:
+            flush()
+            os.dup2(saved, 1)
+            os.close(saved)
+            capture.seek(0)
+            passed_on = capture.read().split(marker, 1)[0]
+            if passed_on:
+                os.write(1, passed_on)
 
 
 def _trace_to_onnx(
@@ -115,7 +169,7 @@ def _trace_to_onnx(
             f'got {opset!r}'
         )
     try:
-        with warnings.catch_warnings(), torch.no_grad():
+        with warnings.catch_warnings(), torch.no_grad(), _ir_dump_hidden():
             # The traced shape checks and ONNX's constant folding notes are expected.
             warnings.simplefilter('ignore')
             torch.onnx.export(
@@ -149,7 +203,8 @@ def export_onnx(
     """Write ``net`` as an ONNX graph with dynamic batch, height and width.
 
     Args:
-        net: A CVA-Net, CVA-Net-Lite or CVA-Net-Fast (e.g. from :func:`load_weights`).
+        net: A CVA-Net, CVA-Net-Lite or CVA-Net-Fast (e.g. from :func:`load_weights`), or
+            its folded form (``fold_batchnorm``).
         path: The ``.onnx`` file to write.
         opset: ONNX opset version.
         example_size: (H, W) of the volume traced through the network (any size works later).
@@ -162,7 +217,9 @@ def export_onnx(
         ModelError: Another architecture, the ``onnx`` package is missing, ``opset`` is
             one the exporter cannot write the network at, or ``path`` is a folder or in a
             place that cannot be written.
+        ConfigError: ``example_size`` not two integers >= 1.
     """
+    example_size = _check_size(example_size, 'example_size')
     model, _, depth = _deployable(net)
     path = Path(path)
     if path.is_dir():
@@ -205,7 +262,9 @@ def check_onnx(
     Raises:
         ModelError: ONNX Runtime is not installed, or the graph does not load, does not run
             on a (1, D, H, W) volume of ``net``'s depth, or gives another shape than ``net``.
+        ConfigError: ``size`` not two integers >= 1.
     """
+    size = _check_size(size, 'size')
     try:
         import onnxruntime
     except ImportError as exc:
@@ -256,15 +315,19 @@ class OnnxRuntimeNet:
     Args:
         net: A folded CVA-Net, CVA-Net-Lite or CVA-Net-Fast (``fold_batchnorm``); a float32
             CPU copy of it is exported (``net`` itself is left as it is).
-        threads: ONNX Runtime's intra-op threads; None = torch's current thread count.
+        threads: ONNX Runtime's intra-op threads; None (or 0) = torch's current thread count.
 
     Raises:
         ModelError: ``onnx`` or ``onnxruntime`` is not installed, or the export fails.
+        ConfigError: ``threads`` neither None nor an integer >= 0.
     """
 
     def __init__(self, net: nn.Module, threads: int | None = None) -> None:
-        import tempfile
-
+        if threads is not None and not (is_int(threads) and threads >= 0):
+            raise ConfigError(
+                "threads must be None or an integer >= 0 (ONNX Runtime's intra-op threads; "
+                f"None or 0: torch's thread count); got {type(threads).__name__} {threads!r}"
+            )
         try:
             import onnxruntime
         except ImportError as exc:

@@ -203,6 +203,8 @@ class CVANetLite(nn.Module):
         self.check_input(volume)
         fused = self.fusion(volume)
         batch, _, _, height, width = fused.shape
+        if batch == 0:  # no curves: the depth convolutions cannot run on an empty layout
+            return fused.new_zeros((0, height, width))
         logits = self.classification(self.depth(to_curves(fused)))
         return logits.reshape(batch, height, width)
 
@@ -323,7 +325,7 @@ class FoldedCVANetLite(nn.Module):
     def head_logits(self, curves: torch.Tensor) -> torch.Tensor:
         """Depth processing and classification of fused curves: (N, 16, D'') → (N,) logits."""
         # (N, C·D'') with feature index c·D'' + d, as the banded matrices expect.
-        x = curves.reshape(curves.shape[0], -1)
+        x = curves.reshape(curves.shape[0], curves.shape[1] * curves.shape[2])  # N may be 0
         for index in range(len(LITE_DEPTH_KERNELS)):
             matrix = getattr(self, f'depth_matrix{index}')
             x = F.relu(torch.addmm(getattr(self, f'depth_bias{index}'), x, matrix))
