@@ -40,6 +40,7 @@ from cva_confidence_ros.pointcloud import (
     CLOUD_DTYPE,
     StereoGeometry,
 )
+from cva_confidence_ros.ros.transport import MAX_PNG_PIXELS, png_header
 from cva_confidence_ros.scan import Scan
 
 __all__ = [
@@ -50,6 +51,7 @@ __all__ = [
     'cloud_to_array',
     'cloud_to_message',
     'compressed_image_to_array',
+    'compressed_size',
     'depth_image_to_array',
     'depth_to_image',
     'disparity_from_message',
@@ -146,8 +148,10 @@ def compressed_image_to_array(msg: Any, name: str = 'image') -> np.ndarray:
     uint16 (see :func:`pair_to_uint8`).
 
     Raises:
-        InputError: A ``compressedDepth`` format (depth, not intensity), empty data, or data
-            that OpenCV cannot decode.
+        InputError: A ``compressedDepth`` format (depth, not intensity), empty data, data
+            that is no JPEG or PNG or whose header names more than
+            :data:`~cva_confidence_ros.ros.transport.MAX_PNG_PIXELS` pixels (checked before
+            decoding), or data that OpenCV cannot decode.
     """
     import cv2
 
@@ -157,9 +161,18 @@ def compressed_image_to_array(msg: Any, name: str = 'image') -> np.ndarray:
             f'{name} is a compressedDepth image (format {text!r}): a depth map, not an '
             'intensity image; expected image_transport compressed (jpeg or png)'
         )
-    data = np.frombuffer(bytes(msg.data), dtype=np.uint8)
-    if data.size == 0:
+    raw = bytes(msg.data)
+    if not raw:
         raise InputError(f'{name} is a compressed image with no data (format {text!r})')
+    # The size from the header before OpenCV allocates anything: a message of some ten
+    # kilobytes can name gigabytes (a palette PNG of 20000×20000 took 2.3 GB and 15 s).
+    width, height = compressed_size(raw, f'{name} (format {text!r})')
+    if width * height > MAX_PNG_PIXELS:
+        raise InputError(
+            f'{name}: the compressed image names {width}×{height} = {width * height} pixels; '
+            f'at most {MAX_PNG_PIXELS} are decoded'
+        )
+    data = np.frombuffer(raw, dtype=np.uint8)
     pixels = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
     if pixels is None or pixels.size == 0:
         raise InputError(
@@ -177,6 +190,49 @@ def compressed_image_to_array(msg: Any, name: str = 'image') -> np.ndarray:
         # 16-bit colour: the core takes 16-bit gray only (pair_to_uint8 scales it).
         return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
     return rgb
+
+
+# JPEG start-of-frame markers (baseline, progressive, lossless, arithmetic): they hold the size.
+_JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+# Markers without a length field: TEM and the restart markers RST0–7 (SOI/EOI too).
+_JPEG_STANDALONE = frozenset({0x01, *range(0xD0, 0xDA)})
+
+
+def compressed_size(data: bytes, name: str = 'image') -> tuple[int, int]:
+    """``(width, height)`` that a JPEG or PNG names in its header, read without decoding.
+
+    Raises:
+        InputError: ``data`` is neither a JPEG nor a PNG, or its header is cut short or
+            names an empty image.
+    """
+    if data[:8] == b'\x89PNG\r\n\x1a\n':
+        width, height, _, _ = png_header(data, name)
+        return width, height
+    if data[:2] != b'\xff\xd8':
+        raise InputError(f'{name} is neither a JPEG nor a PNG (it starts {data[:8]!r})')
+    at = 2
+    while at + 4 <= len(data):
+        if data[at] != 0xFF:
+            raise InputError(f'{name}: a broken JPEG header (no marker at byte {at})')
+        marker = data[at + 1]
+        if marker == 0xFF:  # fill byte before a marker
+            at += 1
+            continue
+        if marker in _JPEG_STANDALONE:
+            at += 2
+            continue
+        if marker == 0xDA:  # start of scan before any frame header
+            break
+        length = int.from_bytes(data[at + 2:at + 4], 'big')
+        if marker in _JPEG_SOF and at + 9 <= len(data):
+            height = int.from_bytes(data[at + 5:at + 7], 'big')
+            width = int.from_bytes(data[at + 7:at + 9], 'big')
+            if width == 0 or height == 0:
+                # (a height of 0 defers it to a DNL marker, which OpenCV does not read)
+                raise InputError(f'{name}: the JPEG header names an empty {width}×{height} image')
+            return width, height
+        at += 2 + length
+    raise InputError(f'{name}: a JPEG without a frame header (cut short or broken)')
 
 
 def pair_to_uint8(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -20,7 +20,7 @@ import sys
 import time
 from typing import Any
 
-__all__ = ['ask', 'call', 'main', 'node_name']
+__all__ = ['ask', 'bad_node_name', 'call', 'main', 'node_name']
 
 EXIT_REFUSED = 1
 EXIT_NO_ANSWER = 2
@@ -58,6 +58,26 @@ def _parser() -> argparse.ArgumentParser:
 def node_name(name: str) -> str:
     """``name`` as a fully qualified node name (a leading ``/``)."""
     return name if name.startswith('/') else f'/{name}'
+
+
+def bad_node_name(target: str) -> str | None:
+    """Why the fully qualified ``target`` is no node name (the first line of rclpy's message,
+    which goes on with a caret under the offending character), or None where it is one.
+
+    Checked before any client is made: rclpy's ``InvalidServiceNameException`` would come as
+    a traceback with exit status 1, which the tools use for a refusal by the node.
+    """
+    from rclpy.exceptions import NameValidationException
+    from rclpy.validate_namespace import validate_namespace
+    from rclpy.validate_node_name import validate_node_name
+
+    namespace, _, base = target.rpartition('/')
+    try:
+        validate_namespace(namespace or '/')
+        validate_node_name(base)
+    except NameValidationException as error:
+        return str(error).splitlines()[0].removesuffix(':')
+    return None
 
 
 def ask(node: Any, client: Any, request: Any, deadline: float) -> Any:
@@ -151,7 +171,7 @@ def _change_state(
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status."""
     args = _parser().parse_args(list(sys.argv[1:] if argv is None else argv))
-    if args.timeout <= 0:
+    if not args.timeout > 0:  # nan too (it waited no time and said "within nan s")
         print(f'cva-lifecycle: --timeout must be > 0 s; got {args.timeout:g}', file=sys.stderr)
         return EXIT_NO_ANSWER
     from lifecycle_msgs.msg import Transition
@@ -159,6 +179,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     import rclpy
 
     target = node_name(args.node)
+    why = bad_node_name(target)
+    if why is not None:
+        print(f'cva-lifecycle: {args.node!r} is not a node name ({why})', file=sys.stderr)
+        return EXIT_NO_ANSWER
     deadline = time.monotonic() + args.timeout
     rclpy.init(args=['cva-lifecycle'])  # the command line is argparse's, not rclpy's
     try:

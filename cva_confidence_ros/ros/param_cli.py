@@ -28,7 +28,7 @@ import time
 from typing import Any
 
 from cva_confidence_ros.errors import ConfigError
-from cva_confidence_ros.ros.lifecycle_cli import ask, call, node_name
+from cva_confidence_ros.ros.lifecycle_cli import ask, bad_node_name, call, node_name
 
 __all__ = ['main', 'parse_value', 'yaml_scalar']
 
@@ -327,18 +327,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f'cva-param: --timeout must be > 0 s; got {args.timeout:g}', file=sys.stderr)
         return EXIT_NO_ANSWER
     import rclpy
-    from rclpy.exceptions import NameValidationException
-    from rclpy.validate_namespace import validate_namespace
-    from rclpy.validate_node_name import validate_node_name
 
     target = node_name(args.node)
-    namespace, _, base = target.rpartition('/')
-    try:
-        validate_namespace(namespace or '/')
-        validate_node_name(base)
-    except NameValidationException as error:
-        # rclpy's own message goes on over lines, with a caret under the offending character.
-        why = str(error).splitlines()[0].removesuffix(':')
+    why = bad_node_name(target)
+    if why is not None:
         print(f'cva-param: {args.node!r} is not a node name ({why})', file=sys.stderr)
         return EXIT_NO_ANSWER
     deadline = time.monotonic() + args.timeout

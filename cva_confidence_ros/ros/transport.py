@@ -22,7 +22,9 @@ worth sending over a thin link:
   sent as that nearest depth rather than wrapped around.
 
 :func:`compressed_depth_to_array` decodes the format back (for tests, tools and subscribers
-without ``image_transport``).
+without ``image_transport``). It reads the PNG's header first (:func:`png_header`) and refuses
+one that names more than :data:`MAX_PNG_PIXELS` pixels or anything but one 16-bit channel
+before OpenCV allocates the image: a message of some ten kilobytes can name gigabytes.
 """
 
 from __future__ import annotations
@@ -39,9 +41,11 @@ from cva_confidence_ros.errors import InputError
 
 __all__ = [
     'COMPRESSED_DEPTH_HEADER',
+    'MAX_PNG_PIXELS',
     'compressed_depth_to_array',
     'compressed_depth_values',
     'depth_image_to_compressed_depth',
+    'png_header',
     'rgb_to_compressed',
 ]
 
@@ -50,6 +54,38 @@ __all__ = [
 COMPRESSED_DEPTH_HEADER = struct.Struct('<iff')
 _INV_DEPTH = 0
 _CODE_MAX = np.iinfo(np.uint16).max
+#: The most pixels :func:`compressed_depth_to_array` decodes by default: 2**25, an 8K UHD
+#: frame (7680×4320) fits. A PNG names its size in its first bytes, and zlib packs a
+#: uniform image about 1000:1, so without a bound a message of under a megabyte made OpenCV
+#: allocate and fill gigabytes.
+MAX_PNG_PIXELS = 1 << 25
+_PNG_SIGNATURE = b'\x89PNG\r\n\x1a\n'
+#: The first chunk of every PNG: length 13, type IHDR, width, height, bit depth, colour type.
+_PNG_IHDR = struct.Struct('>I4sIIBB')
+_PNG_COLOUR_TYPES = {0: 'gray', 2: 'RGB', 3: 'palette', 4: 'gray + alpha', 6: 'RGBA'}
+
+
+def png_header(data: bytes, name: str = 'image') -> tuple[int, int, int, int]:
+    """``(width, height, bit_depth, colour_type)`` from a PNG's IHDR, without decoding it.
+
+    Raises:
+        InputError: ``data`` does not start with the PNG signature and an IHDR chunk, or that
+            names a zero width or height.
+    """
+    if data[:len(_PNG_SIGNATURE)] != _PNG_SIGNATURE:
+        raise InputError(f'{name} does not start with the PNG signature (starts {data[:8]!r})')
+    if len(data) < len(_PNG_SIGNATURE) + _PNG_IHDR.size:
+        raise InputError(f'{name}: {len(data)} bytes, too short for a PNG header')
+    length, kind, width, height, bit_depth, colour_type = _PNG_IHDR.unpack_from(
+        data, len(_PNG_SIGNATURE)
+    )
+    if kind != b'IHDR' or length != 13:
+        raise InputError(
+            f'{name}: the PNG does not begin with a 13-byte IHDR chunk (got {kind!r}, {length})'
+        )
+    if width == 0 or height == 0:
+        raise InputError(f'{name}: the PNG header names an empty {width}×{height} image')
+    return width, height, bit_depth, colour_type
 
 
 def rgb_to_compressed(
@@ -177,17 +213,28 @@ def depth_image_to_compressed_depth(
     )
 
 
-def compressed_depth_to_array(msg: Any, name: str = 'depth') -> np.ndarray:
+def compressed_depth_to_array(
+    msg: Any, name: str = 'depth', max_pixels: int = MAX_PNG_PIXELS
+) -> np.ndarray:
     """Decode a ``compressedDepth`` message into metres: (H, W) float32, NaN = no depth.
 
     Both encodings are read (32FC1 inverse-depth codes, 16UC1 millimetres, 0 = none); so are
     the older messages whose format names no compression (PNG).
 
+    Args:
+        msg: The ``sensor_msgs/CompressedImage``.
+        name: What the error messages call it.
+        max_pixels: The largest image decoded (width × height in the PNG header, read
+            before anything is allocated).
+
     Raises:
         InputError: Not a compressedDepth format, an RVL payload, data that is too short or
-            does not decode as a 16-bit PNG (one larger than OpenCV reads included), or a 32FC1
-            header whose ``A`` and ``B`` give no positive depths (``A`` ≤ 0, ``B`` ≥ 1 or either
-            not finite) or depths beyond float32 (``A / (1 − B)``, the depth of code 1).
+            is not a one-channel 16-bit PNG (checked in its header before decoding: another
+            image format, bit depth or colour type), a PNG of more than ``max_pixels`` pixels
+            or that does not decode (one larger than OpenCV reads included), ``max_pixels`` not
+            a positive integer, or a 32FC1 header whose ``A`` and ``B`` give no positive
+            depths (``A`` ≤ 0, ``B`` ≥ 1 or either not finite) or depths beyond float32
+            (``A / (1 − B)``, the depth of code 1).
     """
     import cv2
 
@@ -202,6 +249,8 @@ def compressed_depth_to_array(msg: Any, name: str = 'depth') -> np.ndarray:
         raise InputError(
             f'{name}: compressedDepth of {encoding!r}; expected 32FC1 or 16UC1 (format {text!r})'
         )
+    if not (is_int(max_pixels) and max_pixels > 0):
+        raise InputError(f'max_pixels must be a positive integer; got {max_pixels!r}')
     data = bytes(msg.data)
     if len(data) <= COMPRESSED_DEPTH_HEADER.size:
         raise InputError(
@@ -209,6 +258,25 @@ def compressed_depth_to_array(msg: Any, name: str = 'depth') -> np.ndarray:
             f'{COMPRESSED_DEPTH_HEADER.size}-byte header and an image'
         )
     _, a, b = COMPRESSED_DEPTH_HEADER.unpack_from(data)
+    # The size, depth and colour type from the PNG's header before OpenCV allocates anything
+    # (and only a PNG: OpenCV decodes PGM, TIFF and more by their own signatures).
+    try:
+        width, height, bit_depth, colour_type = png_header(
+            data[COMPRESSED_DEPTH_HEADER.size:], f'{name}: the compressedDepth payload'
+        )
+    except InputError as error:
+        raise InputError(f'{error}; it is not a one-channel 16-bit PNG') from None
+    if bit_depth != 16 or colour_type != 0:
+        kind = _PNG_COLOUR_TYPES.get(colour_type, f'colour type {colour_type}')
+        raise InputError(
+            f'{name}: the compressedDepth payload is not a one-channel 16-bit PNG '
+            f'({bit_depth}-bit {kind}, {width}×{height})'
+        )
+    if width * height > max_pixels:
+        raise InputError(
+            f'{name}: the compressedDepth payload does not decode as a 16-bit PNG of at most '
+            f'{max_pixels} pixels: its header names {width}×{height} = {width * height}'
+        )
     try:
         codes = cv2.imdecode(
             np.frombuffer(data, dtype=np.uint8, offset=COMPRESSED_DEPTH_HEADER.size),

@@ -401,7 +401,7 @@ def test_a_compressed_image_that_does_not_decode_is_skipped(
     summary = report['summary']
     assert (summary['pairs'], summary['processed'], summary['skipped']) == (3, 2, 1)
     err = capsys.readouterr().err
-    assert 'skipped frame 1' in err and 'do not decode as an image' in err
+    assert 'skipped frame 1' in err and 'is neither a JPEG nor a PNG' in err
 
 
 def test_a_network_reports_the_error_it_predicts_for_the_kept_pixels(tmp_path: Path) -> None:

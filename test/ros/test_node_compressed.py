@@ -95,7 +95,7 @@ def test_compressed_images_are_matched_and_a_broken_one_is_skipped(running: _Com
     broken = stamp + 10**9
     running.publish(left, right, broken, broken=True)
     assert running.client.wait_for(lambda: any(
-        'do not decode as an image' in msg.msg and 'left image' in msg.msg
+        'is neither a JPEG nor a PNG' in msg.msg and 'left image' in msg.msg
         for msg in list(running.client.received['/rosout'])
     ), 10.0)  # fmt: skip
     assert running.client.by_stamp('disparity', broken) is None

@@ -526,7 +526,11 @@ def test_a_compressed_pair_decodes_like_the_raw_pair() -> None:
     [
         ('16UC1; compressedDepth png', b'\x00' * 20, 'compressedDepth'),
         ('mono8; png compressed', b'', 'no data'),
-        ('mono8; jpeg compressed', b'definitely not a jpeg', 'do not decode as an image'),
+        ('mono8; jpeg compressed', b'definitely not a jpeg', 'is neither a JPEG nor a PNG'),
+        # A PNG header whose image data is cut off: the size is read, OpenCV cannot decode.
+        ('mono8; png compressed',
+         cv2.imencode('.png', np.eye(9, dtype=np.uint8))[1].tobytes()[:40],
+         'do not decode as an image'),
     ],
 )
 def test_compressed_images_that_cannot_be_intensity_images_are_refused(
