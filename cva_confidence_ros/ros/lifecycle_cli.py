@@ -135,7 +135,8 @@ def _change_state(
     :data:`ATTEMPT_S`: a configure that loads a network does). The request itself reaches the
     node (``wait_for_service`` saw its reader); only the reply can be lost, so while none has
     come the state is asked every :data:`ATTEMPT_S` seconds, and the transition's goal state
-    there counts as success.
+    there counts as success: unless the node was in that state already before the transition
+    was sent (``configure`` of an inactive node, which it refuses), when only its reply tells.
 
     Returns:
         The ``ChangeState`` answer (or one with ``success`` set from the state), or None.
@@ -143,6 +144,11 @@ def _change_state(
     from lifecycle_msgs.srv import ChangeState, GetState
     from rclpy.executors import SingleThreadedExecutor
 
+    if goal is not None:
+        before = ask(node, state_client, GetState.Request(),
+                     min(deadline, time.monotonic() + ATTEMPT_S))
+        if before is not None and before.current_state.label == goal:
+            goal = None  # the goal state tells nothing: a lost refusal read as success
     executor = SingleThreadedExecutor(context=node.context)
     executor.add_node(node)
     change = client.call_async(request)
