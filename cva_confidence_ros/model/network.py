@@ -227,6 +227,8 @@ class CVANet(nn.Module):
         self.check_input(volume)
         fused = self.fusion(volume)
         batch, _, _, height, width = fused.shape
+        if batch == 0:  # no curves: the depth convolutions cannot run on an empty layout
+            return fused.new_zeros((0, height, width))
         logits = self.classification(self.depth(to_curves(fused)))
         return logits.reshape(batch, height, width)
 
