@@ -332,8 +332,25 @@ def pack_rgb(image: np.ndarray) -> np.ndarray:
 
 
 def unpack_rgb(packed: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`pack_rgb`: (...) float32 → (..., 3) uint8 RGB."""
-    bits = np.ascontiguousarray(packed, dtype='<f4').view('<u4')
+    """Inverse of :func:`pack_rgb`: (...) float32 → (..., 3) uint8 RGB.
+
+    An integer array holds the packed ``0x00RRGGBB`` (or PCL's ``0xAARRGGBB``) as a number,
+    as a ``PointCloud2`` field ``rgb`` / ``rgba`` of datatype UINT32 decodes; its bits are read
+    as they are, not converted to float32 first.
+
+    Raises:
+        InputError: Neither a float nor an integer array.
+    """
+    packed = np.asarray(packed)
+    if packed.dtype.kind in 'iu':
+        bits = packed.astype('<u4')
+    elif packed.dtype.kind == 'f':
+        bits = np.ascontiguousarray(packed, dtype='<f4').view('<u4')
+    else:
+        raise InputError(
+            f'packed colours must be float32 (pack_rgb) or integer 0x00RRGGBB; '
+            f'got dtype {packed.dtype}'
+        )
     return np.stack([(bits >> 16) & 0xFF, (bits >> 8) & 0xFF, bits & 0xFF], axis=-1).astype(
         np.uint8
     )
@@ -364,8 +381,9 @@ def make_cloud(
         :data:`CLOUD_CONFIDENCE_DTYPE` when ``confidence`` is given.
 
     Raises:
-        InputError: Not numpy arrays, points not float, colours not float32, confidence not
-            real or outside [0, 1] at a kept point, or shapes that do not fit together.
+        InputError: Not numpy arrays, points not float or a finite point beyond float32,
+            colours not float32, confidence not real or outside [0, 1] at a kept point, or
+            shapes that do not fit together.
         ConfigError: ``organized`` is not a bool.
     """
     if not isinstance(organized, (bool, np.bool_)):
@@ -390,6 +408,14 @@ def make_cloud(
     if colours.shape != points.shape[:2]:
         raise InputError(f'colours must be {points.shape[:2]}; got {colours.shape}')
     finite = np.isfinite(points).all(axis=2)
+    if points.dtype.itemsize > 4:  # the fields are float32: a wider point could become ±inf
+        with np.errstate(over='ignore', invalid='ignore'):
+            too_far = finite & ~np.isfinite(points.astype(np.float32)).all(axis=2)
+        if too_far.any():
+            raise InputError(
+                f'points must fit float32 (the x, y, z fields); {int(too_far.sum())} do not '
+                f'(e.g. {points[too_far][0].tolist()})'
+            )
     if confidence is not None:
         confidence = _check_confidence(confidence, points.shape[:2], finite)
     cloud = np.empty(
@@ -481,7 +507,8 @@ def filter_cloud(
 
     Args:
         cloud: (H, W) organised or (N,) structured point array.
-        threshold: In [0, 1]; 0 keeps every finite point.
+        threshold: In [0, 1], compared in the precision of the field (a float32 0.7 is
+            ≥ 0.7); 0 keeps every finite point whose confidence is not NaN or negative.
         organized: Keep the input's shape and set x, y, z of the dropped points to NaN
             (``stereo_image_proc`` style); if False, return only the kept points as (N,).
         field: Name of the confidence field.
@@ -521,8 +548,13 @@ def filter_cloud(
             f'confidence field {field!r} must be one real number a point; '
             f'got {cloud.dtype[field]}'
         )
+    values = _confidence_fraction(cloud[field])
+    # Compare in the field's own precision, whatever type the threshold has: a float32 0.7
+    # is the closest float32 to 0.7 and counts as equal to a threshold of 0.7 (np.float64 or
+    # Python float alike), as in the node's own confidence ≥ threshold test.
+    limit = values.dtype.type(threshold)
     with np.errstate(invalid='ignore'):
-        keep = _confidence_fraction(cloud[field]) >= threshold
+        keep = values >= limit
     for name in ('x', 'y', 'z'):
         keep &= np.isfinite(cloud[name])
     if not organized:

@@ -30,7 +30,8 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
-from cva_confidence_ros.errors import ConfigError, ModelError
+from cva_confidence_ros.checks import is_real
+from cva_confidence_ros.errors import ConfigError, InputError, ModelError
 from cva_confidence_ros.model import CVANet, fold_batchnorm, load_weights
 
 __all__ = [
@@ -93,16 +94,28 @@ def distillation_loss(
 
     Args:
         logits: (N,) student logits of the labelled outputs.
-        targets: (N,) labels, 1 = correct disparity.
+        targets: (N,) labels, 1 = correct disparity (float, or bool / integer 0 and 1).
         teacher: (N,) teacher logits of the same outputs, or None (then A must be 0).
         weight: A in [0, 1].
 
     Returns:
         The scalar loss; 0 (still tied to ``logits``, so backward and DDP's gradient
         exchange run) when there are no outputs, where a mean would be NaN.
+
+    Raises:
+        ConfigError: ``weight`` is not a real number in [0, 1], or is > 0 without a teacher.
+        InputError: ``targets`` or ``teacher`` not shaped like ``logits``.
     """
-    if not 0.0 <= weight <= 1.0:
-        raise ConfigError(f'distill weight must be in [0, 1]; got {weight}')
+    if not is_real(weight) or not 0.0 <= weight <= 1.0:
+        raise ConfigError(f'distill weight must be in [0, 1]; got {weight!r}')
+    for name, tensor in (('targets', targets), ('teacher logits', teacher)):
+        if tensor is not None and tensor.shape != logits.shape:
+            raise InputError(
+                f'{name} must have the shape of the student logits {tuple(logits.shape)}; '
+                f'got {tuple(tensor.shape)}'
+            )
+    if not targets.is_floating_point():  # bool or integer labels, 1 = correct
+        targets = targets.to(logits.dtype)
     if logits.numel() == 0:
         if teacher is None and weight != 0.0:
             raise ConfigError('a distill weight > 0 needs teacher logits')
