@@ -330,6 +330,28 @@ def _load_checkpoint(
     return state
 
 
+def _file_digest(path: Path) -> str:
+    """The SHA-256 of a file's bytes, hex."""
+    digest = hashlib.sha256()
+    with open(path, 'rb') as handle:
+        for block in iter(lambda: handle.read(1 << 20), b''):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _check_teacher(path: Path, state: dict[str, Any], teacher: str, digest: str) -> None:
+    """Refuse a resume whose teacher file is not the one the run started with: the path
+    alone is the same, its weights (SHA-256) are not (checkpoints from before the digest was
+    kept are taken as they are)."""
+    saved = state.get('teacher_sha256')
+    if saved is not None and saved != digest:
+        raise ConfigError(
+            f'cannot resume from {path}: the teacher {teacher} is not the file the run started '
+            f'with (SHA-256 {digest[:12]}…, was {saved[:12]}…); the finished epochs distilled '
+            'from the other one: restore it, or start over in another --out folder'
+        )
+
+
 def _check_schedule(
     path: Path,
     saved: dict[str, Any],
@@ -605,19 +627,25 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
     log(f'cva-train: {command or config.to_dict()}')
     started = time.perf_counter()
 
-    # Weight files named on the command line are checked before the data are prepared (minutes
-    # on the full recipe), on throwaway copies: the run's own loads below are left as they were.
-    if config.init_weights:
-        spare = ARCHITECTURES.get(config.arch)({'max_disparity': config.max_disparity})
-        load_init_weights(spare, config.init_weights, config.arch)
-    if config.teacher:
-        load_teacher(config.teacher, config.matcher, config.max_disparity, torch.device('cpu'))
-    # The checkpoint too: a resume with other settings is refused before the data are prepared.
+    # The checkpoint, and the weight files named on the command line, are checked before the
+    # data are prepared (minutes on the full recipe): a resume with other settings is refused
+    # first. The weight files are read into throwaway copies (the run's own loads below are
+    # left as they were); --init-weights not on a resume, whose weights are the checkpoint's
+    # (the file may have gone since the run started).
     checkpoint = out / CHECKPOINT_NAME
     state: dict[str, Any] | None = None
     if config.resume and checkpoint.is_file():
         state = _load_checkpoint(checkpoint, config)
         _check_processes(checkpoint, state, dist.world)
+    if config.init_weights and state is None:
+        spare = ARCHITECTURES.get(config.arch)({'max_disparity': config.max_disparity})
+        load_init_weights(spare, config.init_weights, config.arch)
+    teacher_digest = None
+    if config.teacher:
+        load_teacher(config.teacher, config.matcher, config.max_disparity, torch.device('cpu'))
+        teacher_digest = _file_digest(Path(config.teacher))
+        if state is not None:
+            _check_teacher(checkpoint, state, config.teacher, teacher_digest)
 
     # Both listed before either is prepared: a missing validation scene costs no matching.
     loaders = _load_samples(config, False)
@@ -636,8 +664,8 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
 
     torch.manual_seed(config.seed)
     net = ARCHITECTURES.get(config.arch)({'max_disparity': config.max_disparity}).to(dist.device)
-    init_meta = None
-    if config.init_weights:
+    init_meta = None if state is None else state.get('init_meta')
+    if config.init_weights and state is None:
         init_meta = load_init_weights(net, config.init_weights, config.arch)
         log(f'initialised from {config.init_weights} ({_weights_facts(init_meta)})')
         if init_meta.get('matcher') != config.matcher:
@@ -668,6 +696,8 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         start_epoch = int(state['epoch'])
         previous_wall = float(state.get('wall_time_s', 0.0))
         log(f'resumed from {checkpoint} after epoch {start_epoch}')
+        if config.init_weights:
+            log(f'note: {config.init_weights} not read again: the checkpoint holds the weights')
         started_with = state['config'].get('data_root')
         if started_with != config.data_root:
             log(f'note: the run was started with --data-root {started_with}, now '
@@ -717,6 +747,8 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
                     'config': config.to_dict(),
                     'processes': dist.world,
                     'wall_time_s': wall,
+                    'init_meta': _weights_facts(init_meta) if init_meta else None,
+                    'teacher_sha256': teacher_digest,
                 },
             )
             (out / 'history.json').write_text(json.dumps(history, indent=2) + '\n', 'utf-8')
