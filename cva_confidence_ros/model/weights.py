@@ -327,7 +327,8 @@ def default_weights_path(matcher: str, max_disparity: int, arch: str = ARCH) -> 
 
     Raises:
         ModelError: No such file in any of :func:`weights_search_dirs`; the message lists the
-            folders and says how to train the weights.
+            folders and says how to train the weights (or, for a D the architecture cannot
+            take, says so instead of naming a training command that would fail).
     """
     name = weights_file_name(matcher, max_disparity, arch)
     dirs = weights_search_dirs()
@@ -336,6 +337,12 @@ def default_weights_path(matcher: str, max_disparity: int, arch: str = ARCH) -> 
         if candidate.is_file():
             return candidate
     looked = ', '.join(str(d) for d in dirs)
+    if arch in ARCHITECTURES:
+        try:  # a D the architecture cannot take: no command would train such weights
+            with torch.device('meta'):
+                ARCHITECTURES.get(arch)({'max_disparity': max_disparity})
+        except ConfigError as error:
+            raise ModelError(f'no {arch} network for D = {max_disparity}: {error}') from None
     raise ModelError(
         f'no shipped {arch} weights {name} for matcher {matcher!r} and D = {max_disparity}; '
         f'looked in: {looked}. Train them with: cva-train --arch {arch} --matcher {matcher} '
