@@ -480,7 +480,17 @@ def stereo_cloud(
 
     Returns:
         The structured point array.
+
+    Raises:
+        InputError: ``left`` of another size than ``disparity`` (or arrays that the functions
+            called refuse).
     """
+    shape, image = np.shape(disparity), np.shape(left)
+    if len(shape) != 2 or tuple(image) not in (tuple(shape), (*shape, 3)):
+        raise InputError(
+            f"the left image must have the disparity map's size {shape} (+ 3 colours); "
+            f'got {image}'
+        )
     if with_confidence:
         points = disparity_to_points(disparity, geometry)
         return make_cloud(points, pack_rgb(left), organized, confidence=confidence)
