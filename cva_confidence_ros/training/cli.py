@@ -53,13 +53,25 @@ def _names(text: str) -> tuple[str, ...]:
     return tuple(dict.fromkeys(item.strip() for item in text.split(',') if item.strip()))
 
 
+class _DefaultsFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Appends ``(default: X)`` to every option with a value, also to those without help text
+    (argparse's formatter skips them), but not where the help names its default itself or
+    there is none (None, an empty list): there the help says what happens then."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ''
+        if 'default' in text or action.default in (None, (), argparse.SUPPRESS):
+            return action.help
+        return f'{text} (default: %(default)s)'.lstrip()
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``cva-train``."""
     defaults = TrainConfig.__dataclass_fields__
     parser = argparse.ArgumentParser(
         prog=PROG,
         description='Train CVA-Net (confidence from cost volumes) for one matcher and depth D.',
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=_DefaultsFormatter,
     )
     data = parser.add_argument_group('data')
     data.add_argument(
@@ -83,7 +95,9 @@ def build_parser() -> argparse.ArgumentParser:
         default=(),
         help="training data sets, comma-separated, each 'name' or 'name:split'",
     )
-    data.add_argument('--max-scenes', type=int, default=None, help='scenes per data set')
+    data.add_argument(
+        '--max-scenes', type=int, default=None, help='at most N scenes per data set (default: all)'
+    )
     data.add_argument('--synthetic', type=int, default=0, help='synthetic training pairs')
     data.add_argument(
         '--synthetic-size',
@@ -113,10 +127,24 @@ def build_parser() -> argparse.ArgumentParser:
         action='store_true',
         help='turn half of the training samples upside down (augmentation, not in the paper)',
     )
-    run.add_argument('--epochs', type=int, default=defaults['epochs'].default)
-    run.add_argument('--epochs-low-lr', type=int, default=defaults['epochs_low_lr'].default)
-    run.add_argument('--batch-size', type=int, default=defaults['batch_size'].default)
-    run.add_argument('--lr', type=float, default=defaults['lr'].default)
+    run.add_argument(
+        '--epochs', type=int, default=defaults['epochs'].default, help='epochs at --lr'
+    )
+    run.add_argument(
+        '--epochs-low-lr',
+        type=int,
+        default=defaults['epochs_low_lr'].default,
+        help='further epochs at --lr × --low-lr-factor',
+    )
+    run.add_argument(
+        '--batch-size',
+        type=int,
+        default=defaults['batch_size'].default,
+        help='samples per step (dense mode: ceil(batch / crop²) crops)',
+    )
+    run.add_argument(
+        '--lr', type=float, default=defaults['lr'].default, help='learning rate of Adam'
+    )
     run.add_argument(
         '--low-lr-factor',
         type=float,
@@ -155,7 +183,9 @@ def build_parser() -> argparse.ArgumentParser:
         help='lgcnet: alternate = parts on half of the scenes (sorted by name, even positions), '
         'fusion on the other half; none = both stages on all scenes',
     )
-    run.add_argument('--seed', type=int, default=0)
+    run.add_argument(
+        '--seed', type=int, default=0, help='seed of initialisation, sampling and dropout'
+    )
     run.add_argument('--device', default='cpu', help="'cpu', 'cuda', 'cuda:N' or 'auto'")
     run.add_argument(
         '--precision',
@@ -163,7 +193,9 @@ def build_parser() -> argparse.ArgumentParser:
         default='fp32',
         help='bf16: mixed precision (bfloat16 autocast, float32 weights); for CUDA GPUs',
     )
-    run.add_argument('--threads', type=int, default=None, help='torch and numba CPU threads')
+    run.add_argument(
+        '--threads', type=int, default=None, help="torch and numba CPU threads (default: torch's)"
+    )
     output = parser.add_argument_group('output')
     output.add_argument('--out', default=defaults['out'].default, help='checkpoints and log')
     output.add_argument(

@@ -8,6 +8,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from cva_confidence_ros.checks import is_int, is_real
 from cva_confidence_ros.errors import ConfigError
 
 __all__ = [
@@ -177,7 +178,7 @@ class TrainConfig:
         device: ``cpu``, ``cuda`` or ``auto``.
         precision: ``fp32``, or ``bf16``: forward and backward under bfloat16 autocast (CUDA;
             weights, optimiser and batch-norm statistics stay float32).
-        threads: torch CPU threads; None = torch's default.
+        threads: torch and numba CPU threads; None = their defaults.
         out: Folder for checkpoints, the log and the history.
         weights_out: Final weights file (+ model card beside it); None = only checkpoints.
         resume: Continue from ``out/checkpoint.pt`` if it exists.
@@ -234,10 +235,36 @@ class TrainConfig:
         from cva_confidence_ros.model.baselines import BASELINE_ARCHS
         from cva_confidence_ros.training.card import card_paths
 
-        object.__setattr__(self, 'datasets', tuple(self.datasets))
-        object.__setattr__(self, 'val_datasets', tuple(self.val_datasets))
+        for name in ('datasets', 'val_datasets'):
+            specs = getattr(self, name)
+            if isinstance(specs, str):
+                # tuple('kitti2012') would be nine one-letter data sets.
+                raise ConfigError(
+                    f'{name} must be a sequence of data set specs; got the string {specs!r} '
+                    f'(write ({specs!r},))'
+                )
+            object.__setattr__(self, name, tuple(specs))
+        for field in fields(self):
+            # Numpy integers are integers (and plain ints keep the checkpoints and cards JSON).
+            if is_int(getattr(self, field.name)):
+                object.__setattr__(self, field.name, int(getattr(self, field.name)))
+        for name in ('lr', 'low_lr_factor', 'distill_weight'):
+            value = getattr(self, name)
+            if not is_real(value):
+                raise ConfigError(
+                    f'{name} must be a real number; got {type(value).__name__} {value!r}'
+                )
+            object.__setattr__(self, name, float(value))
         if self.synthetic_size is not None:
-            object.__setattr__(self, 'synthetic_size', tuple(int(v) for v in self.synthetic_size))
+            size = self.synthetic_size
+            if (
+                isinstance(size, str)
+                or not isinstance(size, (tuple, list))
+                or len(size) != 2
+                or not all(is_int(v) for v in size)
+            ):
+                raise ConfigError(f'synthetic_size must be two integers (H, W); got {size!r}')
+            object.__setattr__(self, 'synthetic_size', (int(size[0]), int(size[1])))
         _at_least('max_disparity', self.max_disparity, 13)
         _at_least('synthetic', self.synthetic, 0)
         _at_least('val_synthetic', self.val_synthetic, 0)
@@ -268,7 +295,8 @@ class TrainConfig:
             )
         if self.mode not in MODES:
             raise ConfigError(f'mode must be one of {MODES}; got {self.mode!r}')
-        if self.device not in _DEVICES and not str(self.device).startswith('cuda:'):
+        device = str(self.device)
+        if device not in _DEVICES and not (device.startswith('cuda:') and device[5:].isdecimal()):
             raise ConfigError(f'device must be one of {_DEVICES} or cuda:N; got {self.device!r}')
         if self.precision not in TRAIN_PRECISIONS:
             raise ConfigError(

@@ -218,10 +218,13 @@ def epoch_order(n_total: int, n_samples: int, seed: int, epoch: int) -> np.ndarr
         epoch: 0-based epoch (each epoch gets its own order).
 
     Returns:
-        (n_samples,) int64 indices into [0, n_total).
+        (n_samples,) int64 indices into [0, n_total); empty if ``n_samples`` < 1 (as
+        :func:`dense_crops`).
     """
     if n_total < 1:
         raise DataError('no labelled training samples')
+    if n_samples < 1:
+        return np.zeros(0, np.int64)  # no round to concatenate
     rng = np.random.default_rng([seed, epoch, 1])
     rounds = math.ceil(n_samples / n_total)
     order = np.concatenate([rng.permutation(n_total) for _ in range(rounds)])
@@ -399,11 +402,12 @@ def validation_subset(
     Pixels are drawn uniformly over all labelled pixels of all scenes (so larger scenes get more).
 
     Returns:
-        Per scene, (ys, xs) int arrays (possibly empty).
+        Per scene, (ys, xs) int arrays (possibly empty; all empty if ``n_pixels`` < 1).
     """
     index = sample_index(scenes)
     rng = np.random.default_rng([seed, 7])
-    take = rng.permutation(len(index))[: min(n_pixels, len(index))]
+    # A negative slice end would take all but that many pixels.
+    take = rng.permutation(len(index))[: max(0, min(n_pixels, len(index)))]
     take.sort()
     return [
         (index.ys[take][index.scene[take] == n], index.xs[take][index.scene[take] == n])
