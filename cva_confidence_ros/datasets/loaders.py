@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
+from numbers import Integral
 from pathlib import Path
 import re
 from typing import Any
@@ -87,6 +88,15 @@ class StereoSample:
             raise DataError(
                 f'{where}: disparity must be float32 of shape {shape}; '
                 f'got {self.disparity.dtype} {self.disparity.shape}'
+            )
+        with np.errstate(invalid='ignore'):
+            negative = self.disparity < 0
+        if negative.any():
+            # Another sign convention (right-to-left) was scored as all wrong pixels.
+            y, x = np.argwhere(negative)[0]
+            raise DataError(
+                f'{where}: disparity must be ≥ 0 (NaN = unknown); got '
+                f'{self.disparity[y, x]:g} at (y, x) = ({y}, {x})'
             )
         if self.nonocc is not None and (
             self.nonocc.dtype != np.bool_ or self.nonocc.shape != shape
@@ -206,10 +216,16 @@ class StereoDataset:
         """Load one scene; raise :class:`DataError` if its files are missing or unreadable."""
         raise NotImplementedError
 
-    def no_pairs(self, folder: Path) -> DataError:
-        """The error for a root without a single pair in this layout."""
+    def no_pairs(self, folder: Path, split: str | None = None) -> DataError:
+        """The error for a root without a single pair in this layout (for ``split``, named
+        with the splits that do hold pairs: a default split the root lacks gave no hint)."""
+        where = ''
+        if split is not None:
+            others = [s for s in self.splits if s != split and self.list_scenes(folder, s)]
+            held = f'; split(s) {others} hold pairs there' if others else ''
+            where = f' for split {split!r}{held}'
         return DataError(
-            f'no {self.name} stereo pairs found under {folder}; expected {self.layout}'
+            f'no {self.name} stereo pairs found under {folder}{where}; expected {self.layout}'
         )
 
     def missing(self, root: Path, scene: str) -> DataError:
@@ -558,7 +574,8 @@ class Middlebury2006(Middlebury2005):
 class Eth3d(StereoDataset):
     """ETH3D low-res two-view: ``two_view_training/<scene>/{im0,im1}.png``, ``calib.txt`` and
     ``disp0GT.pfm`` + ``mask0nocc.png`` (from ``two_view_training_gt``, in the same folder or a
-    sibling one) or ``disp0.pfm``; inf = unknown."""
+    sibling one, also beside a root that is ``two_view_training`` itself) or ``disp0.pfm``;
+    inf = unknown."""
 
     name = 'eth3d'
     layout = (
@@ -573,14 +590,17 @@ class Eth3d(StereoDataset):
         return base if base.is_dir() else root
 
     def _files(self, root: Path, split: str | None, scene: str) -> tuple[Path, Path | None]:
-        folder = self._base(root, split) / scene
-        gt_folder = root / f'{split}_gt' / scene
-        gt = _first_existing(folder, ('disp0GT.pfm', 'disp0.pfm')) or _first_existing(
-            gt_folder, ('disp0GT.pfm',)
+        base = self._base(root, split)
+        folder = base / scene
+        gt, mask = (
+            _first_existing(folder, ('disp0GT.pfm', 'disp0.pfm')),
+            _first_existing(folder, ('mask0nocc.png',)),
         )
-        mask = _first_existing(folder, ('mask0nocc.png',)) or _first_existing(
-            gt_folder, ('mask0nocc.png',)
-        )
+        # The sibling of the training folder: under the root, or beside the root where the
+        # root is the training folder itself (its GT was not found there).
+        for gt_folder in dict.fromkeys((root / f'{split}_gt', base.parent / f'{split}_gt')):
+            gt = gt or _first_existing(gt_folder / scene, ('disp0GT.pfm',))
+            mask = mask or _first_existing(gt_folder / scene, ('mask0nocc.png',))
         if gt is None or not ((folder / 'im0.png').is_file() and (folder / 'im1.png').is_file()):
             raise self.missing(root, scene)
         return gt, mask
@@ -640,6 +660,11 @@ class FlyingThings3D(StereoDataset):
 
     def load_scene(self, root: Path, scene: str, split: str | None) -> StereoSample:
         parts = scene.split('/')
+        if split is not None and len(parts) == 4 and parts[0] != split:
+            # A TEST frame loaded under split TRAIN leaked test data into training.
+            raise DataError(
+                f'{self.name} scene {scene!r} is in split {parts[0]!r}, not in split {split!r}'
+            )
         found = self._images(root, scene) if len(parts) == 4 else None
         gt = root.joinpath('disparity', *parts[:3], 'left', f'{parts[-1]}.pfm')
         if found is None or not gt.is_file():
@@ -899,7 +924,7 @@ def list_scenes(name: str, root: PathLike | None, split: str | None = None) -> l
     resolved = dataset.resolve_split(split)
     scenes = dataset.list_scenes(path, resolved)
     if not scenes:
-        raise dataset.no_pairs(path)
+        raise dataset.no_pairs(path, resolved)
     return scenes
 
 
@@ -943,11 +968,14 @@ def load_dataset(
         max_scenes: Stop after this many scenes (None = all).
 
     Raises:
-        ConfigError: Unknown name or split, missing root, ``max_scenes`` < 0.
+        ConfigError: Unknown name or split, missing root, ``max_scenes`` not an integer ≥ 0.
         DataError: No pairs, or (while iterating) unreadable files.
     """
-    if max_scenes is not None and max_scenes < 0:
-        raise ConfigError(f'max_scenes must be ≥ 0 or None; got {max_scenes}')
+    if max_scenes is not None and (
+        isinstance(max_scenes, bool) or not isinstance(max_scenes, Integral) or max_scenes < 0
+    ):
+        # 2.5 failed in the slice with a TypeError, True read as 1.
+        raise ConfigError(f'max_scenes must be an integer ≥ 0 or None; got {max_scenes!r}')
     scenes = list_scenes(name, root, split)
     if max_scenes is not None:
         scenes = scenes[:max_scenes]

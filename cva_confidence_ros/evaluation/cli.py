@@ -250,6 +250,10 @@ def run_scenes(
     return result
 
 
+#: Text files written into ``--out`` besides the per-scene PNGs.
+_OUT_TEXTS = ('table.md', 'calibration.md', 'calibration.json')
+
+
 def _check_args(args: argparse.Namespace) -> None:
     if not 1 <= args.max_disparity <= 1024:
         raise ConfigError(f'--max-disparity must be in [1, 1024]; got {args.max_disparity}')
@@ -266,6 +270,13 @@ def _check_args(args: argparse.Namespace) -> None:
     check_output_file(args.json, '--json')
     if args.out is not None:
         check_output_dir(args.out, '--out')
+        # The records were written first, then silently overwritten by the table.
+        for name in _OUT_TEXTS:
+            if args.json.resolve() == (args.out / name).resolve():
+                raise ConfigError(
+                    f'--json {args.json} is the {name} that --out {args.out} writes; '
+                    'expected another file'
+                )
 
 
 def _build_methods(
@@ -308,8 +319,13 @@ def _scene_lists(
 def run(args: argparse.Namespace) -> int:
     """Run the evaluation for parsed arguments; raises ``CVAError`` on bad input."""
     from cva_confidence_ros.calibration import add_table
+    from cva_confidence_ros.confidence import CONFIDENCE_METHODS
     from cva_confidence_ros.datasets import load_scene, resize_sample
-    from cva_confidence_ros.evaluation.records import format_table, write_records
+    from cva_confidence_ros.evaluation.records import (
+        format_table,
+        write_records,
+        write_text_atomic,
+    )
     from cva_confidence_ros.evaluation.scene import evaluate_scene
     from cva_confidence_ros.matching import MATCHERS
 
@@ -319,6 +335,10 @@ def run(args: argparse.Namespace) -> int:
     for matcher in matchers:
         MATCHERS.get(matcher)
     methods = _split_names(args.methods, 'confidence methods')
+    # Every name before any weights are loaded: a bad name after cva_net was reported as
+    # cva_net's missing weights.
+    for method in methods:
+        CONFIDENCE_METHODS.get(method)
     built = _build_methods(args, matchers, methods)
     jobs = _scene_lists(datasets, args.data_root, args.split, args.max_scenes)
     calibration: dict[tuple[str, str, str], Any] = {}
@@ -368,8 +388,7 @@ def run(args: argparse.Namespace) -> int:
     if outcome.partial:
         table += f'\n{outcome.note()}\n'
     if args.out is not None:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / 'table.md').write_text(table, encoding='utf-8')
+        write_text_atomic(args.out / 'table.md', table)
         _write_calibration(calibration, args.out)
     sys.stdout.write(table)
     sys.stdout.flush()
@@ -397,8 +416,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``cva-evaluate`` (and ``ros2 run cva_confidence_ros evaluate``).
 
     Returns:
-        0 on success, 2 on bad input (after one line on stderr), 1 if an output file cannot
-        be written.
+        0 on success, 2 on bad input (after one line on stderr) or when the records or
+        ``table.md`` cannot be written (an older file there is kept), 1 if another output
+        file cannot be written.
     """
     args = _build_parser().parse_args(argv)
     return exit_code(PROG, lambda: run(args))

@@ -19,6 +19,7 @@ __all__ = [
     'format_table',
     'read_records',
     'write_records',
+    'write_text_atomic',
 ]
 
 RECORD_KEYS = (
@@ -145,15 +146,34 @@ def write_records(records: Iterable[RecordLike], path: str | os.PathLike[str]) -
             then moved in place).
     """
     items = [r.as_dict() for r in _as_records(records)]
-    text = json.dumps(items, indent=2, allow_nan=False) + '\n'
+    return write_text_atomic(path, json.dumps(items, indent=2, allow_nan=False) + '\n',
+                             'records ')
+
+
+def write_text_atomic(path: str | os.PathLike[str], text: str, what: str = '') -> Path:
+    """Write ``text`` (UTF-8) beside ``path``, sync it to the disk and move it in place.
+
+    Written directly, a full disk or a crash half-way left a truncated file over the one of
+    an earlier run; synced only after the rename, a crash soon after it can leave an empty
+    file (ext4, XFS with delayed allocation), the old one gone.
+
+    Args:
+        path: Output file; parent folders are created.
+        text: The whole content.
+        what: Words before the path in the error message (``'records '``).
+
+    Returns:
+        The path written.
+
+    Raises:
+        DataError: The file cannot be written; an older file at ``path`` is left as it was.
+    """
     out = Path(path)
     tmp = out.with_name(out.name + '.tmp')
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         with open(tmp, 'w', encoding='utf-8') as handle:
             handle.write(text)
-            # On the disk before the rename: else a crash soon after it can leave an empty
-            # file at ``path`` (ext4, XFS with delayed allocation), the old one gone.
             handle.flush()
             os.fsync(handle.fileno())
         os.replace(tmp, out)
@@ -162,7 +182,7 @@ def write_records(records: Iterable[RecordLike], path: str | os.PathLike[str]) -
         with contextlib.suppress(OSError):
             tmp.unlink(missing_ok=True)
         state = '; the file there was left as it was' if out.exists() else ''
-        raise DataError(f'cannot write records {out}: {reason(exc)}{state}') from None
+        raise DataError(f'cannot write {what}{out}: {reason(exc)}{state}') from None
     return out
 
 

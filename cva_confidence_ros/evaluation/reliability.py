@@ -124,7 +124,10 @@ def write_calibration(tables: Mapping[Key, ReliabilityTable], out_dir: str | Pat
         InputError: As :func:`pooled` and :func:`format_calibration_table` (e.g. tables whose
             bins do not have 0.5 and 0.8 as edges, or that hold no pixels); raised before any
             file is written.
+        DataError: ``calibration.json`` or ``.md`` cannot be written (an old one is left as
+            it was: each is written beside, synced, then moved in place).
     """
+    from cva_confidence_ros.evaluation.records import write_text_atomic
     from cva_confidence_ros.plots import save_reliability_diagram
 
     if not tables:
@@ -142,7 +145,7 @@ def write_calibration(tables: Mapping[Key, ReliabilityTable], out_dir: str | Pat
     out.mkdir(parents=True, exist_ok=True)
     written = [out / 'calibration.json', out / 'calibration.md']
     for path, text in zip(written, texts, strict=True):
-        path.write_text(text, encoding='utf-8')
+        write_text_atomic(path, text)  # whole or not at all: an old file stays as it was
     for dataset, matcher in sorted({(key[0], key[1]) for key in rows}):
         per_method = {key[2]: t for key, t in rows.items() if key[:2] == (dataset, matcher)}
         written.append(

@@ -516,6 +516,7 @@ def run(args: argparse.Namespace) -> int:
     from cva_confidence_ros.confidence import CONFIDENCE_METHODS
     from cva_confidence_ros.datasets import list_scenes, load_scene
     from cva_confidence_ros.evaluation.cli import run_scenes
+    from cva_confidence_ros.evaluation.records import write_text_atomic
     from cva_confidence_ros.evaluation.scene import evaluate_scene
     from cva_confidence_ros.matching import MATCHERS
 
@@ -673,7 +674,7 @@ def run(args: argparse.Namespace) -> int:
         format_paper_table1(),
     ])
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / 'table1.md').write_text(markdown, encoding='utf-8')
+    write_text_atomic(args.out / 'table1.md', markdown)
     cells = _cells(records)
     summary = {
         'protocol': protocol,
@@ -695,7 +696,7 @@ def run(args: argparse.Namespace) -> int:
                                       strict=True)) for m, v in block.items()}
                   for label, block in PAPER_TABLE1.items()},
     }
-    (args.out / 'table1.json').write_text(json.dumps(summary, indent=2) + '\n', 'utf-8')
+    write_text_atomic(args.out / 'table1.json', json.dumps(summary, indent=2) + '\n')
     save_table_png(records, rows, matchers, args.out / 'table1.png',
                    f'Table 1 reproduction ({protocol}, D = {args.max_disparity}): AUC × 10², '
                    'mean over scenes',
