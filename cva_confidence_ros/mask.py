@@ -94,11 +94,20 @@ def mask_rows(mask: np.ndarray) -> tuple[int, int]:
     return int(rows[0]), int(rows[-1]) + 1
 
 
-def check_mask_size(mask: np.ndarray, width: int, height: int) -> None:
-    """Raise :class:`InputError` unless the mask has the input images' size."""
+def check_mask_size(
+    mask: np.ndarray, width: int, height: int, option: str = 'mask_path'
+) -> None:
+    """Raise :class:`InputError` unless the mask has the input images' size.
+
+    Args:
+        mask: (H, W) mask at the input resolution.
+        width, height: The input images' size.
+        option: The parameter or option that named the mask, for the message (e.g.
+            ``'--mask'`` of the bag tools, or ``"mask_path 'robot.png'"``).
+    """
     if mask.shape != (height, width):
         raise InputError(
-            f'the mask (mask_path) is {mask.shape[1]}×{mask.shape[0]} px but the images are '
+            f'the mask ({option}) is {mask.shape[1]}×{mask.shape[0]} px but the images are '
             f'{width}×{height} px; draw the mask on a frame of this camera at the resolution '
             f'it publishes'
         )

@@ -192,14 +192,21 @@ class PipelineConfig:
                 f'roi_top to roi_bottom of the image height); got roi_top = {self.roi_top!r}, '
                 f'roi_bottom = {self.roi_bottom!r}'
             )
+        # Numpy integers are taken but kept as Python ints: np.uint8(250) + 16 wraps to 10
+        # (the warm-up pair's width), and 1 / np.int64(2) makes a numpy scale.
+        for name in ('max_disparity', 'downsample', 'speckle_size', 'cva_stride'):
+            object.__setattr__(self, name, int(getattr(self, name)))
+        object.__setattr__(self, 'lr_check', bool(self.lr_check))
 
     def roi_rows(self, height: int) -> tuple[int, int]:
         """Rows ``[y0, y1)`` of the region of interest in an image of ``height`` rows (the
         processed resolution); at least one row, the whole image by default."""
         if height <= 0:
             return 0, 0
-        y0 = min(height - 1, math.floor(self.roi_top * height))
-        y1 = max(y0 + 1, min(height, math.ceil(self.roi_bottom * height)))
+        # Rounded first: 0.58 × 50 is 28.999999999999996 in floats (floor 28, not 29) and
+        # 0.28 × 25 is 7.000000000000001 (ceil 8, not 7).
+        y0 = min(height - 1, math.floor(round(self.roi_top * height, 9)))
+        y1 = max(y0 + 1, min(height, math.ceil(round(self.roi_bottom * height, 9))))
         return y0, y1
 
     @property
@@ -304,6 +311,8 @@ class StereoPipeline:
 
     Args:
         config: What to compute. Learned weights are loaded once here, not per frame.
+        mask_option: What the caller calls ``config.mask_path``, for the messages about the
+            mask (``'--mask'`` of the bag tools).
 
     Raises:
         ConfigError: The device is not available here, the method's options do not fit, or
@@ -311,7 +320,7 @@ class StereoPipeline:
         ModelError: Weights that cannot be loaded or do not fit the matcher and depth.
     """
 
-    def __init__(self, config: PipelineConfig) -> None:
+    def __init__(self, config: PipelineConfig, mask_option: str = 'mask_path') -> None:
         from cva_confidence_ros.confidence import CONFIDENCE_METHODS
         from cva_confidence_ros.model import resolve_device
 
@@ -341,7 +350,8 @@ class StereoPipeline:
             )
         from cva_confidence_ros.mask import load_mask
 
-        self._mask = load_mask(config.mask_path) if config.mask_path else None
+        self._mask_option = mask_option
+        self._mask = load_mask(config.mask_path, mask_option) if config.mask_path else None
         self._reduced: tuple[tuple[int, int], np.ndarray] | None = None
 
     @property
@@ -544,7 +554,9 @@ class StereoPipeline:
                 for values, fill in ((disparity, np.nan), (confidence, 0.0),
                                      (raw_confidence, np.nan))
             )
-        valid = np.isfinite(disparity) & (confidence >= cfg.confidence_threshold)
+        # In float32, the confidence's own type, as a cloud filter downstream compares: a
+        # float64 threshold 0.7 dropped the stored confidence float32(0.7).
+        valid = np.isfinite(disparity) & (confidence >= np.float32(cfg.confidence_threshold))
         speckle_fraction = 0.0
         if cfg.speckle_size > 0:
             tic = time.perf_counter()
@@ -604,13 +616,17 @@ class StereoPipeline:
         if self._reduced is None or self._reduced[0] != shape:
             from cva_confidence_ros.mask import check_mask_size, reduce_mask
 
-            check_mask_size(self._mask, shape[1], shape[0])
+            check_mask_size(self._mask, shape[1], shape[0],
+                            f'{self._mask_option} {self.config.mask_path!r}')
             self._reduced = (shape, reduce_mask(self._mask, self.config.downsample))
         return self._reduced[1]
 
 
 def output_region(
-    config: PipelineConfig, shape: tuple[int, int], mask: np.ndarray | None = None
+    config: PipelineConfig,
+    shape: tuple[int, int],
+    mask: np.ndarray | None = None,
+    option: str = 'mask_path',
 ) -> np.ndarray | None:
     """The pixels a pipeline of ``config`` judges in its outputs of ``shape`` (the processed
     resolution), from the outside: what :attr:`PipelineResult.region` is for a frame.
@@ -620,6 +636,7 @@ def output_region(
         shape: (h, w) of the outputs.
         mask: The ignore mask at the input resolution (``mask.load_mask`` of
             ``config.mask_path``), or None.
+        option: What the caller calls ``config.mask_path``, for the message (``'--mask'``).
 
     Raises:
         InputError: The mask, shrunk by ``downsample``, is not of ``shape`` (drawn for another
@@ -638,8 +655,9 @@ def output_region(
             if config.downsample > 1:
                 at = (f' ({reduced.shape[1]}×{reduced.shape[0]} px at downsample = '
                       f'{config.downsample})')
+            name = option + (f' {config.mask_path!r}' if config.mask_path else '')
             raise InputError(
-                f'the mask (mask_path) is {mask.shape[1]}×{mask.shape[0]} px{at} but the '
+                f'the mask ({name}) is {mask.shape[1]}×{mask.shape[0]} px{at} but the '
                 f'outputs are {shape[1]}×{shape[0]} px; draw the mask on a frame of this camera '
                 f'at the resolution it publishes'
             )
@@ -662,17 +680,23 @@ def judged_region(
 
 
 def _judged_rows(rows: tuple[int, int], mask: np.ndarray) -> tuple[int, int]:
-    """The region of interest's rows less those the mask ignores from edge to edge."""
+    """The region of interest's rows less those at its top and bottom that the mask ignores
+    from edge to edge."""
     from cva_confidence_ros.mask import mask_rows
 
-    m0, m1 = mask_rows(mask)
-    y0, y1 = max(rows[0], m0), min(rows[1], m1)
+    # The mask's rows inside the region: a mask that judges rows above and below the region
+    # but none in it used to pass, and every frame was processed with nothing judged.
+    y0, y1 = mask_rows(mask[rows[0] : rows[1]])
     if y0 >= y1:
+        m0, m1 = mask_rows(mask)
+        judged = (f'judged pixels in rows {m0} to {m1} at the processed resolution' if m0 < m1
+                  else 'no judged pixel at the processed resolution, where a pixel is judged '
+                       'only when its whole downsample block is')
         raise InputError(
-            f'the region of interest (rows {rows[0]} to {rows[1]}) and the mask (judged pixels '
-            f'in rows {m0} to {m1} at the processed resolution) have no pixel in common'
+            f'the region of interest (rows {rows[0]} to {rows[1]}) and the mask ({judged}) '
+            f'have no pixel in common'
         )
-    return y0, y1
+    return rows[0] + y0, rows[0] + y1
 
 
 def _place(
