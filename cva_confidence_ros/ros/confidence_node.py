@@ -290,11 +290,14 @@ class ConfidenceCore(Node):
         """The outputs' publishers, in :data:`_OUTPUTS` order, each with its own profile of
         the preset and its ``qos_overrides``; none is left behind when an override is bad."""
         made: list[Any] = []
+        outputs = {topic for _, topic in _OUTPUTS}
         try:
             for msg_type, topic in _OUTPUTS:
+                base, _, transport = topic.rpartition('/')
+                name = self._transport_topic(base, transport) if base in outputs else topic
                 with qos_override_errors(topic):
                     made.append(
-                        self._create_output_publisher(msg_type, topic, qos_profile(output_qos))
+                        self._create_output_publisher(msg_type, name, qos_profile(output_qos))
                     )
         except ConfigError:
             for publisher in made:
@@ -341,6 +344,13 @@ class ConfidenceCore(Node):
         self._worker.start()
         self._warn_if_slow(pipeline)
 
+    def _transport_topic(self, base: str, transport: str) -> str:
+        """The topic of an ``image_transport`` transport of ``base``: under ``base`` as remapped,
+        as image_transport and ``stereo_image_proc`` name it (``-r left/image_rect:=/cam/left``
+        moves ``left/image_rect/compressed`` to ``/cam/left/compressed``); a remapping of the
+        transport's own topic still applies while ``base`` is not remapped."""
+        return f'{self.resolve_topic_name(base)}/{transport}'
+
     def _input_topics(self) -> dict[str, tuple[str, type]]:
         """Synchroniser key → (topic, message type) of the four inputs (no lock taken: called
         with it held too; ``image_transport`` is start-up only)."""
@@ -359,9 +369,14 @@ class ConfidenceCore(Node):
         preset = self.node_config.input_qos
         try:
             for key, (topic, msg_type) in self._input_topics().items():
+                name = (
+                    self._transport_topic(_TOPICS[key], 'compressed')
+                    if msg_type is CompressedImage
+                    else topic
+                )
                 with qos_override_errors(topic):
                     self._subscriptions_in.append(self.create_subscription(
-                        msg_type, topic, partial(self._on_message, key), qos_profile(preset),
+                        msg_type, name, partial(self._on_message, key), qos_profile(preset),
                         qos_overriding_options=QOS_OVERRIDES,
                     ))
         except ConfigError:
@@ -954,6 +969,11 @@ class ConfidenceCore(Node):
             if stats.window_invalid:
                 level = DiagnosticStatus.WARN
                 message = f'{stats.window_invalid} bad frame(s) dropped: {stats.last_invalid}'
+            if stats.window_failed:
+                # Some frames came out (none: the ERROR below); the others failed all the same.
+                level = DiagnosticStatus.WARN
+                failed = f'{stats.window_failed} frame(s) failed: {stats.last_failure}'
+                message = f'{message}; {failed}' if stats.window_invalid else failed
             if stats.window_messages and not stats.window_pairs:
                 level = DiagnosticStatus.WARN
                 message = self._unpaired_reason(stats, elapsed)
@@ -1002,8 +1022,9 @@ class ConfidenceCore(Node):
         # Bad frames are logged where they are dropped; input that never pairs is logged here.
         line = (
             f'{status.message}; received {summary["frames_received"]}, processed '
-            f'{summary["frames_processed"]}, dropped {summary["frames_dropped"]}, invalid '
-            f'{summary["frames_invalid"]}, frame {summary.get("mean_frame_ms", "-")} ms'
+            f'{summary["frames_processed"]}, dropped {summary["frames_dropped"]}, throttled '
+            f'{summary["frames_throttled"]}, invalid {summary["frames_invalid"]}, failed '
+            f'{summary["frames_failed"]}, frame {summary.get("mean_frame_ms", "-")} ms'
         )
         # rclpy throttles per call site and allows one severity per site: two sites.
         if status.message.startswith('messages arrive but none pair up'):
