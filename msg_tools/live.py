@@ -20,7 +20,7 @@ from __future__ import annotations
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 import os
 from pathlib import Path
 import queue
@@ -297,6 +297,7 @@ class _PendingFrame:
     geometry: Any = None
     size: tuple[int, int] = (0, 0)
     items: dict[str, Any] | None = None
+    error: str = ''  # why its camera infos give no geometry
 
 
 class _Player:
@@ -558,7 +559,7 @@ def _play(
                 if start_bag is None:
                     start_bag, start_wall = timestamp, time.monotonic()
                 due = start_wall + (timestamp - start_bag) / 1e9 / options.rate_scale
-                recorder.drain(until=due, progress=progress)
+                recorder.drain(until=due, progress=progress, node=node)
                 try:
                     msg = store.deserialize_cdr(raw, msgtype)
                 except SerdeError as err:
@@ -568,22 +569,40 @@ def _play(
                 if topic == plan.ground_truth:
                     session.add_ground_truth(stamp, msg)
                     continue
-                player.publishers[topic].publish(raw)
                 recorder.published(stamp)
-                for matched in sync.add(key_of[topic], stamp, msg):
-                    recorder.expect(matched, session.counts['pairs'], timestamp)
+                player.publishers[topic].publish(raw)
+                for matched in sync.add(key_of[topic], stamp, (msg, timestamp)):
+                    # Its outputs go at the left image's bag time, as offline.
+                    logged = int(matched.items['left'][1])
+                    items = {key: value[0] for key, value in matched.items.items()}
+                    recorder.expect(
+                        replace(matched, items=items), session.counts['pairs'], logged
+                    )
                     session.counts['pairs'] += 1
                 session.report_drops(sync)
             sync.drain()
             session.report_drops(sync)
             recorder.finish(node, progress)
         finally:
-            session.counts['unpaired'] = sync.dropped + sum(sync.pending().values())
-            session.counts['dropped'] = recorder.unanswered()
-            if interrupts.requested:
-                session.read_ahead_ground_truth(bag, position, store)
+            try:
+                if interrupts.requested:
+                    # The outputs already received (frames the node answered) are recorded
+                    # too; a second Ctrl-C does not cut this short.
+                    with interrupts.critical():
+                        recorder.take_received(progress)
+            finally:
+                session.counts['unpaired'] = sync.dropped + sum(sync.pending().values())
+                session.counts['dropped'] = recorder.unanswered()
+                if interrupts.requested:
+                    session.read_ahead_ground_truth(bag, position, store)
     progress.finish()
     return session.outcome()
+
+
+def _check_running(node: NodeProcess | None) -> None:
+    """Raise :class:`BagError` if the node the replay started has exited."""
+    if node is not None and node.exit_code is not None:
+        raise BagError(f'cva-node exited with code {node.exit_code}: {node.last_lines()}')
 
 
 class _Recorder:
@@ -609,17 +628,25 @@ class _Recorder:
         self.last_output = time.monotonic()
         self.answered = 0
         # The node's ignore mask, for the share of the judged pixels it keeps.
-        self.mask = load_mask(options.pipeline.mask_path) if options.pipeline.mask_path else None
+        path = options.pipeline.mask_path
+        self.mask = load_mask(path, '--mask') if path else None
 
     def published(self, stamp_ns: int) -> None:
         """Note when the latest input message of a stamp went out."""
         self.publish_times[stamp_ns] = time.monotonic()
 
     def expect(self, matched: Any, frame: int, timestamp_ns: int) -> None:
-        """Register a pair the node should answer."""
+        """Register a pair the node should answer (``timestamp_ns``: the bag time of its
+        outputs)."""
+        stamps = {matched.stamp_ns, *getattr(matched, 'stamps_ns', {}).values()}
+        # The latency runs from the last of its inputs (of other stamps in approximate mode).
+        times = [self.publish_times.pop(s) for s in stamps if s in self.publish_times]
+        # Older stamps can no longer pair (the synchroniser let them go): forget them.
+        for stale in [s for s in self.publish_times if s < min(stamps)]:
+            del self.publish_times[stale]
         pending = _PendingFrame(
             frame=frame, timestamp_ns=timestamp_ns,
-            published=self.publish_times.pop(matched.stamp_ns, time.monotonic()),
+            published=max(times, default=time.monotonic()),
             items=dict(matched.items),
         )
         try:
@@ -630,24 +657,36 @@ class _Recorder:
                 matched.items['left_info'], matched.items['right_info'], size
             )
             pending.geometry, pending.size = geometry, (height, width)
-        except InputError:
-            pass  # the node drops this pair too; it will count as not answered
+        except InputError as err:
+            # The node drops this pair too (it counts as not answered); a node that answers
+            # it all the same gets the frame skipped with this reason.
+            pending.error = str(err)
         self.frames[matched.stamp_ns] = pending
 
     def unanswered(self) -> int:
         """Pairs published whose outputs never (all) came."""
         return self.session.counts['pairs'] - self.answered
 
-    def drain(self, until: float, progress: Progress) -> None:
-        """Handle outputs until the wall-clock time ``until`` (monotonic seconds)."""
+    def drain(self, until: float, progress: Progress, node: NodeProcess | None = None) -> None:
+        """Handle outputs until the wall-clock time ``until`` (monotonic seconds), and those
+        received already when that time has passed (a replay behind its schedule must not
+        leave them queued: they hold memory, and the ground truth for them would not wait).
+
+        Raises:
+            BagError: ``node`` (the one the replay started) has exited.
+        """
+        _check_running(node)
         while True:
             self.session.interrupts.check()
             left = until - time.monotonic()
-            if left <= 0:
-                return
             try:
-                item = self.received.get(timeout=min(left, 0.05))
+                if left > 0:
+                    item = self.received.get(timeout=min(left, 0.05))
+                else:
+                    item = self.received.get_nowait()
             except queue.Empty:
+                if left <= 0:
+                    return
                 continue
             self._handle(*item, progress=progress)
 
@@ -656,8 +695,7 @@ class _Recorder:
         self.last_output = time.monotonic()
         while self.frames and time.monotonic() - self.last_output < self.options.drain_timeout_s:
             self.session.interrupts.check()
-            if node is not None and node.exit_code is not None:
-                raise BagError(f'cva-node exited with code {node.exit_code}: {node.last_lines()}')
+            _check_running(node)
             try:
                 item = self.received.get(timeout=0.1)
             except queue.Empty:
@@ -665,6 +703,10 @@ class _Recorder:
             self._handle(*item, progress=progress)
         # Late points2, depth, overlay, scan or camera_info of the last frame may still be queued:
         # record them too.
+        self.take_received(progress)
+
+    def take_received(self, progress: Progress) -> None:
+        """Handle the outputs received so far, without waiting for more."""
         while True:
             try:
                 item = self.received.get_nowait()
@@ -699,8 +741,9 @@ class _Recorder:
         self.answered += 1
         progress.update()
         self._score(pending, stamp, parts, received)
-        # Outputs come in stamp order per topic: older pairs still incomplete were dropped.
-        for older in [s for s in self.frames if s < stamp]:
+        # Outputs come in the order the pairs went out: earlier pairs still incomplete were
+        # dropped (by publish order, not stamp: after a jump back the stamps start over).
+        for older in [s for s, p in self.frames.items() if p.frame < pending.frame]:
             self._done(older)
             self.parts.pop(older, None)
         self.session.drop_ground_truth_before(stamp)
@@ -719,6 +762,7 @@ class _Recorder:
         from cva_confidence_ros.ros.convert import float_image_to_array
 
         if pending.geometry is None:
+            self.session.skip(f'outputs of frame {pending.frame}', pending.error)
             return
         disparity_msg = parts['disparity']
         height, width = int(disparity_msg.image.height), int(disparity_msg.image.width)
@@ -734,7 +778,7 @@ class _Recorder:
             )
             confidence = float_image_to_array(parts['confidence'])
             # An ignore mask of another resolution than the outputs: this frame is skipped.
-            region = output_region(self.options.pipeline, confidence.shape, self.mask)
+            region = output_region(self.options.pipeline, confidence.shape, self.mask, '--mask')
         except InputError as err:
             self.session.skip(f'outputs of frame {pending.frame}', err)
             return

@@ -1467,7 +1467,7 @@ def run_offline(
         store = jazzy_typestore()
         preload()
         plan = plan_topics(bag, options, log)
-        pipeline = StereoPipeline(options.pipeline)
+        pipeline = StereoPipeline(options.pipeline, mask_option='--mask')
         interrupts.check()
         sync = make_synchronizer(options)
         key_of = plan.key_of

@@ -578,4 +578,6 @@ def test_ignore_mask_as_the_node(tmp_path: Path, capsys: pytest.CaptureFixture[s
     assert cv2.imwrite(str(path), mask[:, :32])
     code, report = _replay(bag, tmp_path, '--mask', str(path), name='other')
     assert report['summary']['processed'] == 0
-    assert 'is 32×30 px but the images are 40×30 px' in capsys.readouterr().err
+    # Review 31: named by the tool's own option and the file (it said 'mask_path').
+    assert f'the mask (--mask {str(path)!r}) is 32×30 px but the images are 40×30 px' in (
+        capsys.readouterr().err)
