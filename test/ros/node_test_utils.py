@@ -321,3 +321,12 @@ class NodeProcess(BenchNodeProcess):
             OMP_NUM_THREADS='1',
         )
         super().__init__([str(executable), '--ros-args', *ros_args], env)
+
+
+def feed_frame(node: Any, left: np.ndarray, right: np.ndarray, stamp: int) -> None:
+    """Hand one stereo frame (images and camera infos of ``stamp``) to the node's subscription
+    callback, as the executor would, without DDS."""
+    left_info, right_info = info_msgs(stamp, *left.shape[:2])
+    for key, msg in (('left_info', left_info), ('right_info', right_info),
+                     ('left', image_msg(left, stamp)), ('right', image_msg(right, stamp))):
+        node._on_message(key, msg)

@@ -13,9 +13,8 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from node_test_utils import (
     Spinner,
     StereoClient,
+    feed_frame,
     first_stamp,
-    image_msg,
-    info_msgs,
     localhost_context,
     spare_domain_id,
     textured_pair,
@@ -38,14 +37,6 @@ OVERRIDES = [
     Parameter('max_disparity', value=16),
     Parameter('confidence_method', value='mlm'),
 ]
-
-
-def _feed(node: Any, left: np.ndarray, right: np.ndarray, stamp: int) -> None:
-    """Hand one stereo frame to the node's subscription callback, as the executor would."""
-    left_info, right_info = info_msgs(stamp, *left.shape[:2])
-    for key, msg in (('left_info', left_info), ('right_info', right_info),
-                     ('left', image_msg(left, stamp)), ('right', image_msg(right, stamp))):
-        node._on_message(key, msg)
 
 
 @pytest.mark.parametrize('where', ['process', 'publish'])
@@ -81,7 +72,7 @@ def test_a_frame_of_the_old_configuration_is_not_counted_in_the_new_one(
 
                 monkeypatch.setattr(node, '_publish', slow_publish)
             left, right = textured_pair()
-            _feed(node, left, right, first_stamp())
+            feed_frame(node, left, right, first_stamp())
             assert started.wait(30.0), 'the frame did not start'
             old_worker = node._worker
             node.trigger_deactivate()
@@ -172,20 +163,20 @@ def test_a_windows_status_names_the_failure_and_the_bad_frame_each_by_its_own() 
                 return node.stats()[name] == value
 
             node.diagnostics()  # a fresh window
-            _feed(node, left, right, stamp)
+            feed_frame(node, left, right, stamp)
             assert wait_until(lambda: counted('frames_failed', 1), 60.0)
-            _feed(node, left, narrow, stamp + 10**9)
+            feed_frame(node, left, narrow, stamp + 10**9)
             assert wait_until(lambda: counted('frames_invalid', 1), 60.0)
             status = node.diagnostics()
             assert status.level == DiagnosticStatus.ERROR
             assert 'simulated failure inside the pipeline' in status.message, status.message
 
-            _feed(node, left, narrow, stamp + 2 * 10**9)
+            feed_frame(node, left, narrow, stamp + 2 * 10**9)
             assert wait_until(lambda: counted('frames_invalid', 2), 60.0)
-            _feed(node, left, right, stamp + 3 * 10**9)
+            feed_frame(node, left, right, stamp + 3 * 10**9)
             assert wait_until(lambda: counted('frames_failed', 2), 60.0)
             fail[0] = False
-            _feed(node, left, right, stamp + 4 * 10**9)
+            feed_frame(node, left, right, stamp + 4 * 10**9)
             assert wait_until(lambda: counted('frames_processed', 1), 60.0)
             status = node.diagnostics()
             assert status.level == DiagnosticStatus.WARN

@@ -10,9 +10,8 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from node_test_utils import (
+    feed_frame,
     first_stamp,
-    image_msg,
-    info_msgs,
     localhost_context,
     spare_domain_id,
     textured_pair,
@@ -32,14 +31,6 @@ OVERRIDES = [
     Parameter('max_disparity', value=16),
     Parameter('confidence_method', value='mlm'),
 ]
-
-
-def _feed(node: Any, left: np.ndarray, right: np.ndarray, stamp: int) -> None:
-    """Hand one stereo frame to the node's subscription callback, as the executor would."""
-    left_info, right_info = info_msgs(stamp, *left.shape[:2])
-    for key, msg in (('left_info', left_info), ('right_info', right_info),
-                     ('left', image_msg(left, stamp)), ('right', image_msg(right, stamp))):
-        node._on_message(key, msg)
 
 
 class _Logger:
@@ -112,7 +103,7 @@ def test_a_window_in_which_frames_failed_besides_processed_ones_warns() -> None:
             stamp = first_stamp()
             node.diagnostics()  # a fresh window
             for i in range(4):
-                _feed(node, left, right, stamp + i * 10**9)
+                feed_frame(node, left, right, stamp + i * 10**9)
                 assert wait_until(
                     lambda i=i: sum(node.stats()[k] for k in ('frames_processed', 'frames_failed'))
                     > i,
@@ -125,7 +116,7 @@ def test_a_window_in_which_frames_failed_besides_processed_ones_warns() -> None:
             assert 'simulated fault on every other frame' in status.message
             # A window with none failed is OK again.
             pipeline.process = process
-            _feed(node, left, right, stamp + 4 * 10**9)
+            feed_frame(node, left, right, stamp + 4 * 10**9)
             assert wait_until(lambda: node.stats()['frames_processed'] == 3, 30.0)
             assert node.diagnostics().level == DiagnosticStatus.OK
         finally:
@@ -156,11 +147,11 @@ def test_the_status_line_counts_every_frame_received() -> None:
             pipeline.process = fail_first
             left, right = textured_pair()
             stamp = first_stamp()
-            _feed(node, left, right, stamp)
+            feed_frame(node, left, right, stamp)
             assert wait_until(lambda: node.stats()['frames_failed'] == 1, 30.0)
             for i in (1, 2):  # 0.1 s and 0.2 s after it: within 1 / max_rate_hz
-                _feed(node, left, right, stamp + i * 10**8)
-            _feed(node, left, right, stamp + 2 * 10**9)
+                feed_frame(node, left, right, stamp + i * 10**8)
+            feed_frame(node, left, right, stamp + 2 * 10**9)
             assert wait_until(lambda: node.stats()['frames_processed'] == 1, 30.0)
             logger = _Logger()
             node.get_logger = lambda: logger
