@@ -16,7 +16,12 @@ pixels (for a level camera the last and first column's centres; pitched, the cor
 the ground see wider), ``1 / fx`` radians or a little more apart: one per column at the image
 centre, where columns are farthest apart in bearing, so no beam there falls between two columns (an
 increment of the mean column spacing would leave some centre beams empty on a wide lens: every
-fifth or so at 90° of view); each beam takes its nearest point.
+fifth or so at 90° of view); each beam takes its nearest point. That holds for a level camera:
+pitched, the rows whose rays point most steeply (the bottom ones of a camera looking down) see
+their columns farther apart in bearing, ``1 / (fx · f)`` at the centre (``f`` the ray's forward
+part, :func:`bearing_range`), so a thin height band that only such rows reach can leave some
+beams between two columns NaN (a 1 cm band 1 m below a camera pitched down 0.4 rad, fx 300: 9
+of the 523 beams across a wall).
 
 Beams follow REP 117: a range where the nearest point lies in ``[range_min, range_max]``;
 ``+inf`` where the kept points in the band all lie beyond ``range_max`` (nothing within range);
@@ -268,9 +273,18 @@ def score_scan(
         config: The config both scans were made with (pitch and band); None = defaults.
 
     Raises:
-        InputError: Scans with different beams.
+        InputError: Scans with different beams, a scan that is not a :class:`Scan`, or a
+            ``geometry`` that is not a :class:`StereoGeometry`.
+        ConfigError: ``config`` is not a :class:`ScanConfig`.
     """
+    for name, scan in (('estimate', estimate), ('truth', truth)):
+        if not isinstance(scan, Scan):
+            raise InputError(f'{name} must be a Scan; got {type(scan).__name__}')
+    if not isinstance(geometry, StereoGeometry):
+        raise InputError(f'geometry must be a StereoGeometry; got {type(geometry).__name__}')
     config = ScanConfig() if config is None else config
+    if not isinstance(config, ScanConfig):
+        raise ConfigError(f'config must be a ScanConfig; got {type(config).__name__}')
     if (estimate.ranges.shape != truth.ranges.shape
             or not math.isclose(estimate.angle_min, truth.angle_min, abs_tol=1e-9)
             or not math.isclose(estimate.angle_increment, truth.angle_increment, abs_tol=1e-9)):

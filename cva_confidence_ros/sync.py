@@ -152,9 +152,9 @@ class StampSynchronizer:
         jumps: Times the stamps jumped back and the synchroniser started over.
 
     Raises:
-        ConfigError: Empty or repeated keys, or one string as ``keys``; ``queue_size`` < 1,
-            ``tolerance_ns`` < 0 or ``min_jump_ns`` < 1 (integers, numpy ones included);
-            ``approximate`` or ``record_drops`` not a bool.
+        ConfigError: Empty, repeated or unhashable keys, or one string as ``keys``;
+            ``queue_size`` < 1, ``tolerance_ns`` < 0 or ``min_jump_ns`` < 1 (integers, numpy
+            ones included); ``approximate`` or ``record_drops`` not a bool.
 
     Thread-safe: :meth:`add` may be called from several threads.
     """
@@ -173,10 +173,18 @@ class StampSynchronizer:
             raise ConfigError(
                 f'keys must be a sequence of stream names, not one string; got {keys!r}'
             )
-        keys = tuple(keys)
+        try:
+            keys = tuple(keys)
+            distinct = set(keys)
+        except TypeError:
+            # None, a number, or a name that cannot be a dict key (a list): a TypeError deep
+            # inside the constructor otherwise.
+            raise ConfigError(
+                f'keys must be a sequence of hashable stream names; got {keys!r}'
+            ) from None
         if not keys:
             raise ConfigError('keys must name at least one stream; got an empty sequence')
-        if len(set(keys)) != len(keys):
+        if len(distinct) != len(keys):
             raise ConfigError(f'keys must be distinct; got {keys}')
         if not is_int(queue_size) or queue_size < 1:
             raise ConfigError(f'queue_size must be an integer >= 1; got {queue_size!r}')
@@ -278,7 +286,11 @@ class StampSynchronizer:
             ConfigError: ``key`` is not one of :attr:`keys`.
             InputError: ``stamp_ns`` is not an integer (Python or numpy).
         """
-        if key not in self._queues:
+        try:
+            known = key in self._queues
+        except TypeError:  # an unhashable key (a list) cannot be one of the keys
+            known = False
+        if not known:
             raise ConfigError(f'unknown key {key!r}; expected one of {self.keys}')
         if not is_int(stamp_ns):
             raise InputError(
