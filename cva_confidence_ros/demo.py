@@ -125,7 +125,7 @@ def _check_args(args: argparse.Namespace) -> tuple[list[str], list[str]]:
     for name in methods:
         CONFIDENCE_METHODS.get(name)
     _check_weights(matchers, methods, args.max_disparity)
-    check_output_dir(args.out, '--out')
+    args.out = check_output_dir(args.out, '--out')  # a str: Path('') would be '.'
     _check_in_the_way(args.out, matchers, methods)
     return matchers, methods
 
@@ -181,7 +181,7 @@ def main(argv: list[str] | None = None) -> int:
 
     keep_freed_memory()
     parser = argparse.ArgumentParser(prog='cva-demo', description=__doc__.split('\n\n')[0])
-    parser.add_argument('--out', type=Path, default=Path('out/demo'), help='output folder')
+    parser.add_argument('--out', default='out/demo', help='output folder (default: %(default)s)')
     parser.add_argument(
         '--downsample', type=int, default=4,
         help='processing downsample (4 keeps CVA-Net on a 2-core CPU to about 16 s a matcher)'

@@ -83,9 +83,13 @@ def check_output_dir(path: str | os.PathLike[str], option: str) -> Path:
         ``path`` as a :class:`~pathlib.Path`.
 
     Raises:
-        ConfigError: ``path`` is a file, lies under a file, sits where one cannot write, or
-            cannot be looked at (a name too long, a folder above it without search permission).
+        ConfigError: ``path`` is empty (an unset variable, not the current folder), is a
+            file, lies under a file, sits where one cannot write, or cannot be looked at (a
+            name too long, a folder above it without search permission).
     """
+    if os.fspath(path) == '':
+        # Path('') is '.': outputs would land among whatever the current folder holds.
+        raise ConfigError(f"{option} is empty; give a folder ('.' for the current one)")
     path = Path(path)
     try:
         if path.exists() and not path.is_dir():
