@@ -170,47 +170,54 @@ class CloudFilterNode(Node):
         super().__init__(
             NODE_NAME, context=context, parameter_overrides=parameter_overrides, **kwargs
         )
-        doubles = [f.name for f in fields(CloudFilterConfig) if isinstance(f.default, float)]
-        double_overrides(self, doubles)
-        for spec in fields(CloudFilterConfig):
-            descriptor = ParameterDescriptor(
-                description=PARAMETER_DESCRIPTIONS[spec.name],
-                read_only=spec.name in READ_ONLY_PARAMETERS,
-                # threshold:=1 (an integer to ROS 2) is a number too; _values converts it.
-                dynamic_typing=isinstance(spec.default, float),
+        try:
+            doubles = [f.name for f in fields(CloudFilterConfig) if isinstance(f.default, float)]
+            double_overrides(self, doubles)
+            for spec in fields(CloudFilterConfig):
+                descriptor = ParameterDescriptor(
+                    description=PARAMETER_DESCRIPTIONS[spec.name],
+                    read_only=spec.name in READ_ONLY_PARAMETERS,
+                    # threshold:=1 (an integer to ROS 2) is a number too; _values converts it.
+                    dynamic_typing=isinstance(spec.default, float),
+                )
+                if spec.name == 'threshold':
+                    descriptor.floating_point_range = [
+                        FloatingPointRange(from_value=0.0, to_value=1.0, step=0.0)
+                    ]
+                self.declare_parameter(spec.name, spec.default, descriptor)
+            keep_doubles(self, doubles)
+            warn_unknown_parameters(self)
+            names = [spec.name for spec in fields(CloudFilterConfig)]
+            self._config = CloudFilterConfig(
+                **_values({name: self.get_parameter(name).value for name in names})
             )
-            if spec.name == 'threshold':
-                descriptor.floating_point_range = [
-                    FloatingPointRange(from_value=0.0, to_value=1.0, step=0.0)
-                ]
-            self.declare_parameter(spec.name, spec.default, descriptor)
-        keep_doubles(self, doubles)
-        warn_unknown_parameters(self)
-        names = [spec.name for spec in fields(CloudFilterConfig)]
-        self._config = CloudFilterConfig(
-            **_values({name: self.get_parameter(name).value for name in names})
-        )
-        self._lock = threading.Lock()
-        self._counts = _Counts()
-        self._window_invalid = 0  # since the last /diagnostics message
-        self._throttle = ReasonThrottle()
-        self.add_on_set_parameters_callback(self._on_set_parameters)
-        # ROS 2's per-topic QoS overrides refine the presets (``qos_overrides./points2.
-        # subscription.depth``, …); a bad value stops the start with the topic named.
-        with qos_override_errors('points2_filtered'):
-            self._publisher = self.create_publisher(
-                PointCloud2, 'points2_filtered', qos_profile(self._config.output_qos),
-                qos_overriding_options=QOS_OVERRIDES,
+            self._lock = threading.Lock()
+            self._counts = _Counts()
+            self._window_invalid = 0  # since the last /diagnostics message
+            self._throttle = ReasonThrottle()
+            self.add_on_set_parameters_callback(self._on_set_parameters)
+            # ROS 2's per-topic QoS overrides refine the presets (``qos_overrides./points2.
+            # subscription.depth``, …); a bad value stops the start with the topic named.
+            with qos_override_errors('points2_filtered'):
+                self._publisher = self.create_publisher(
+                    PointCloud2, 'points2_filtered', qos_profile(self._config.output_qos),
+                    qos_overriding_options=QOS_OVERRIDES,
+                )
+            with qos_override_errors('points2'):
+                self.create_subscription(
+                    PointCloud2, 'points2', self._on_cloud, qos_profile(self._config.input_qos),
+                    qos_overriding_options=QOS_OVERRIDES,
+                )
+            self._diagnostics = self.create_publisher(
+                DiagnosticArray, '/diagnostics', QoSProfile(depth=10)
             )
-        with qos_override_errors('points2'):
-            self.create_subscription(
-                PointCloud2, 'points2', self._on_cloud, qos_profile(self._config.input_qos),
-                qos_overriding_options=QOS_OVERRIDES,
-            )
-        self._diagnostics = self.create_publisher(
-            DiagnosticArray, '/diagnostics', QoSProfile(depth=10)
-        )
-        self.create_timer(self._config.diagnostics_period_seconds, self._publish_diagnostics)
+            self.create_timer(self._config.diagnostics_period_seconds, self._publish_diagnostics)
+        except BaseException:
+            # Refused (a bad value, a bad qos_overrides one): destroyed here, as the confidence
+            # node is, not left to the garbage collector, which would unregister the /rosout
+            # publisher of its name, by then perhaps a later node's (whose log lines are lost).
+            self.destroy_node()
+            raise
 
     def summary(self) -> str:
         """One line on the filter's settings, for its ready line."""

@@ -485,18 +485,28 @@ def camera_info_to_geometry(
 def image_camera_info(info: Any, width: int, height: int) -> CameraInfo:
     """A camera info for the ``width`` × ``height`` images as they arrive: binning and region
     of interest folded into the size, K and P (:func:`camera_info_to_geometry`'s rule), binning
-    1 and no ROI, no header (:func:`scale_camera_info` gives the output's); the message
-    itself when the images have its calibration size. For consumers of the outputs, which
-    have the images' size. Reads rclpy and ``rosbags`` messages alike.
+    1 and no ROI, no header (:func:`scale_camera_info` gives the output's). When the images
+    have its calibration size, K and P as they are (that rule again) and binning and ROI
+    cleared all the same, or ``image_geometry`` would read the published info as images of
+    another size or principal point; the message itself when it has neither. For consumers of
+    the outputs, which have the images' size. Reads rclpy and ``rosbags`` messages alike.
 
     Raises:
         InputError: An info that does not describe images of that size (as
             :func:`camera_info_to_geometry`).
     """
     _, projection = image_projection(info, 'camera info', (width, height))
+    k = np.array(info.k, dtype=np.float64).reshape(3, 3)
     if (int(info.width), int(info.height)) == (width, height):
-        return info  # P as it is (image_projection's rule)
-    k = fold(np.array(info.k, dtype=np.float64).reshape(3, 3), info)
+        # K and P as they are (image_projection's rule); binning and ROI must not say more.
+        roi = info.roi
+        whole = (int(roi.width), int(roi.height)) in ((0, 0), (width, height))
+        if max(int(info.binning_x), int(info.binning_y)) <= 1 and whole and not (
+            int(roi.x_offset) or int(roi.y_offset)
+        ):
+            return info
+    else:
+        k = fold(k, info)
     return CameraInfo(
         width=width,
         height=height,
@@ -714,8 +724,8 @@ def point_cloud_to_records(msg: PointCloud2) -> np.ndarray:
 
     Raises:
         InputError: Big-endian data, a ``point_step`` of 0, an unknown datatype, duplicate or
-            overlapping-the-end fields, a ``row_step`` shorter than a row, or fewer data bytes
-            than the header says.
+            overlapping-the-end fields, a ``row_step`` shorter than a row, or another number
+            of data bytes than the header says (``row_step`` × ``height``).
     """
     if msg.is_bigendian:
         raise InputError('big-endian PointCloud2 data is not supported')
@@ -754,7 +764,9 @@ def point_cloud_to_records(msg: PointCloud2) -> np.ndarray:
     if row_step < step * width:
         raise InputError(f'row_step {row_step} is shorter than width × point_step {step * width}')
     data = np.frombuffer(msg.data, dtype=np.uint8)
-    if data.size < row_step * height:
+    if data.size != row_step * height:
+        # More is as wrong as less: a width, height or row_step that does not fit the data
+        # (the rest would be dropped unseen).
         raise InputError(
             f'cloud data holds {data.size} bytes; {height} rows of row_step {row_step} need '
             f'{row_step * height}'

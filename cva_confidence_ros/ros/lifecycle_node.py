@@ -29,6 +29,7 @@ lifecycle manager.
 from __future__ import annotations
 
 from collections.abc import Sequence
+import threading
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
@@ -88,6 +89,11 @@ class ManagedConfidenceNode(ConfidenceCore, LifecycleNode):
         super().__init__(
             NODE_NAME, context=context, parameter_overrides=parameter_overrides, **kwargs
         )
+        # Deactivations so far, and on the worker the count when its frame was taken: a frame
+        # in progress at a deactivate finishes unpublished, even if activate follows before it
+        # ends (it would go out then, an old frame, after pairing started afresh).
+        self._deactivations = 0
+        self._frame = threading.local()
         try:
             self._init_core()
             self._stats = _Stats()  # stats() and diagnostics() answer before the first configure
@@ -223,6 +229,7 @@ class ManagedConfidenceNode(ConfidenceCore, LifecycleNode):
         return result
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._deactivations += 1  # the frame in progress, if any, is not published
         self._deactivate()
         self.get_logger().info('inactive: unsubscribed from the stereo inputs')
         return super().on_deactivate(state)
@@ -242,6 +249,35 @@ class ManagedConfidenceNode(ConfidenceCore, LifecycleNode):
         if self.configured:
             self._cleanup()
         return TransitionCallbackReturn.SUCCESS
+
+    # Worker side ---------------------------------------------------------------------------
+
+    def _warm_up_new_pipeline(self, mailbox: Any) -> None:
+        # Called by the worker right after it takes a frame from the mailbox (before a warm-up
+        # that may take seconds): the frame belongs to the activation of that moment.
+        self._frame.taken = self._deactivations
+        super()._warm_up_new_pipeline(mailbox)
+
+    def _process(self, item: Any, mailbox: Any) -> None:
+        self._frame.current = getattr(self._frame, 'taken', self._deactivations)
+        try:
+            super()._process(item, mailbox)
+        finally:
+            self._frame.current = None
+
+    def _publish(self, *args: Any) -> None:
+        super()._publish(*args)
+        # Published: from here on the frame counts as any other, deactivated or not.
+        self._frame.current = None
+
+    def _stopping(self, mailbox: Any) -> bool:
+        """As the core's, and, inside a frame not yet published, whether the node was
+        deactivated since the frame was taken (no lock taken: the core calls it with the lock
+        held)."""
+        current = getattr(self._frame, 'current', None)
+        if current is not None and current != self._deactivations:
+            return True
+        return super()._stopping(mailbox)
 
     def _abandon_configure(self, before: list[Any]) -> None:
         """Release what a configure that raised had made: the pipeline and the worker once

@@ -68,7 +68,12 @@ def test_images_of_the_calibration_size_take_p_as_it_is(change: dict[str, int]) 
         for name, value in change.items():
             setattr(info if name.startswith('binning') else info.roi, name, value)
         assert stereo_pair_from_messages(*_pair(), *infos)[2] == plain
-        assert image_camera_info(info, 96, 64) is info
+        # Published as it is read (review 31): the same K and P, no binning or ROI left.
+        published = image_camera_info(info, 96, 64)
+        assert list(published.p) == list(info.p) and list(published.k) == list(info.k)
+        assert (published.binning_x, published.binning_y) == (0, 0)
+        assert (published.roi.x_offset, published.roi.y_offset, published.roi.width,
+                published.roi.height) == (0, 0, 0, 0)
         assert camera_geometry(*infos, image_size=(96, 64)) == (plain, 96, 64)
 
 

@@ -265,7 +265,10 @@ def test_binning_and_region_of_interest_are_folded_in_as_image_geometry_does() -
     # that fill the ROI with the valid rectified area).
     whole = camera_info_to_geometry(left_info, right_info, 192, 128)
     assert (whole.cx, whole.cy) == (96.0, 64.0)
-    assert image_camera_info(left_info, 192, 128) is left_info
+    # ... and publish it so (review 31): the same K and P, no ROI left to misread them by.
+    published = image_camera_info(left_info, 192, 128)
+    assert list(published.p) == list(left_info.p) and list(published.k) == list(left_info.k)
+    assert (published.roi.width, published.roi.height, published.roi.x_offset) == (0, 0, 0)
     with pytest.raises(InputError, match=r'got 96×64 \(binning 0×0 and region of interest '
                                          r'96×64 at \(50, 20\) of its 192×128\)'):
         camera_info_to_geometry(left_info, right_info, 48, 32)
