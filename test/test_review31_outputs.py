@@ -21,11 +21,16 @@ def test_an_empty_output_folder_is_refused(tmp_path: Path,
     assert list(tmp_path.iterdir()) == []
 
 
-def test_cva_demo_refuses_an_empty_out(capsys: pytest.CaptureFixture[str]) -> None:
+def test_cva_demo_refuses_an_empty_out(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
     from cva_confidence_ros.demo import main
+
+    monkeypatch.chdir(tmp_path)
 
     # Before: the demo wrote its bags, reports and PNGs into the current folder.
     with pytest.raises(SystemExit) as stopped:
         main(['--out', ''])
     assert stopped.value.code == 2
     assert "cva-demo: error: --out is empty; give a folder ('.' for" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
