@@ -858,7 +858,8 @@ class ReplaySession:
         self.log = log
         self.report = ReplayReport(config=options.config_record())
         self.report.counts.update(
-            total=plan.pairs_expected, pairs=0, processed=0, skipped=0, unpaired=0, dropped=0
+            total=plan.pairs_expected, pairs=0, processed=0, skipped=0, unpaired=0, dropped=0,
+            unreadable=0,
         )
         self.interrupts = interrupts or GracefulInterrupt()
         self.out: OutputBag | None = None
@@ -879,6 +880,8 @@ class ReplaySession:
         self._truth_dropped: OrderedDict[int, None] = OrderedDict()
         self._late_truth_logged = False
         self._skip_logs = 0
+        # Ground-truth messages that could not be read (their stamps are unknown).
+        self._unreadable_truth = 0
         self._unpaired_logs = 0
         self._unscored_logs: Counter[str] = Counter()
 
@@ -933,19 +936,40 @@ class ReplaySession:
         return self.report.counts
 
     def skip(self, what: str, reason: object) -> None:
-        """Count a bad frame and log it (the first few times)."""
+        """Count a bad frame (a stereo pair that was not processed) and log it (the first few
+        times)."""
         self.counts['skipped'] += 1
+        self._log_skip(what, reason)
+
+    def unreadable(self, topic: str, timestamp_ns: int, reason: object) -> None:
+        """Count an input message that cannot be deserialised, and log it (the first few
+        times). It is no stereo pair: ``skipped`` counts pairs (``pairs`` = ``processed`` +
+        ``skipped`` offline); its partners are reported unpaired."""
+        self.counts['unreadable'] = self.counts.get('unreadable', 0) + 1
+        if topic == self.plan.ground_truth:
+            self._unreadable_truth += 1
+        self._log_skip(f'a message on {topic} at {timestamp_ns} ns', reason)
+
+    def _log_skip(self, what: str, reason: object) -> None:
         self._skip_logs += 1
         if self._skip_logs <= _MAX_SKIP_LOGS:
             self.log(f'skipped {what}: {reason}')
         elif self._skip_logs == _MAX_SKIP_LOGS + 1:
             self.log('more frames skipped; only counting them from now on')
 
-    def report_drops(self, sync: Any) -> None:
+    def report_drops(self, sync: Any, stopped: bool = False) -> None:
         """Log and record the input messages the synchroniser let go without a pair
-        (``record_drops=True``; call after each message and after ``sync.drain()``)."""
+        (``record_drops=True``; call after each message and after ``sync.drain()``).
+
+        ``stopped``: the run stopped before the end of the bag (Ctrl-C, a bag fault) and
+        ``sync.drain()`` let go the messages still waiting; those say so (their partners may
+        lie further on in the bag).
+        """
         for drop in sync.take_drops():
-            self._unpaired(drop.key, drop.stamp_ns, self._why(drop))
+            why = self._why(drop)
+            if stopped and drop.kind == 'unmatched':
+                why = 'still waiting for its partners when the run stopped'
+            self._unpaired(drop.key, drop.stamp_ns, why)
 
     def _why(self, drop: Any) -> str:
         """A drop's reason in words, naming the inputs that lacked its stamp."""
@@ -1096,8 +1120,15 @@ class ReplaySession:
                 'before it and was not kept'
             )
         if stopped:
-            return 'no ground truth with this stamp read before the run stopped'
-        return 'no ground truth with this stamp in the bag'
+            note = 'no ground truth with this stamp read before the run stopped'
+        else:
+            note = 'no ground truth with this stamp in the bag'
+        if self._unreadable_truth:
+            # Its own may be one of them: their stamps cannot be read.
+            count = self._unreadable_truth
+            note += (f' ({count} ground-truth message{"s" if count > 1 else ""} could not be '
+                     'read)')
+        return note
 
     def _ground_truth(self, result: FrameResult, msg: Any) -> tuple[np.ndarray | None, str]:
         """The frame's ground truth at the processed resolution, or None and why.
@@ -1241,14 +1272,22 @@ class ReplaySession:
         """Score what still waits, close the output bag, write the report.
 
         The bag is closed even if scoring fails, so that what was written stays readable. A
-        bag that cannot be finished (a full disk) is recorded as the run's error, and the
-        report of the frames done is written all the same.
+        bag that cannot be finished, or a frame's PNGs that cannot be written (a full disk), is
+        recorded as the run's error, and the report of the frames done is written all the same
+        (a PNG error is raised after it).
         """
         stopped = self.report.interrupted or bool(self.report.error)
+        failure: ConfigError | None = None
         try:
             while self._pending:
                 stamp, (_, result) = self._pending.popitem(last=False)
-                self._score(result, None, note=self._no_truth(stamp, stopped))
+                try:
+                    self._score(result, None, note=self._no_truth(stamp, stopped))
+                except ConfigError as err:
+                    # A PNG that cannot be written (a full disk; no more are tried): the frame
+                    # is in the report, and the report is written with the error all the same.
+                    failure = failure or err
+                    self.report.error = '; '.join(filter(None, (self.report.error, str(err))))
         finally:
             if self.out is not None:
                 try:
@@ -1260,6 +1299,8 @@ class ReplaySession:
                         self.paths['bag'] = Path(self.options.out)
         if self.writer is not None:
             self.paths.update(self.writer.write(self.report))
+        if failure is not None:
+            raise failure
 
     def outcome(self) -> ReplayOutcome:
         """Exit code and closing message of the run (call after leaving the context)."""
@@ -1300,6 +1341,11 @@ class ReplaySession:
                     f'--sync-tolerance); {counts["unpaired"]} messages stayed unpaired'
                     f'{self._unpaired_text()}'
                 )
+                if counts.get('unreadable'):
+                    reason += (
+                        f'; {counts["unreadable"]} input messages could not be read (see the '
+                        'messages above)'
+                    )
             elif counts['skipped']:
                 reason = (
                     f'none of the {counts["pairs"]} stereo pairs could be processed '
@@ -1321,6 +1367,8 @@ class ReplaySession:
             f'{counts["dropped"]} dropped, {counts["unpaired"]} unpaired messages'
             f'{self._unpaired_text()}'
         )
+        if counts.get('unreadable'):
+            text += f', {counts["unreadable"]} unreadable messages'
         if summary['kept_fraction'] is not None:
             text += (
                 f"; kept {100 * summary['kept_fraction']:.1f} % of the pixels (least "
@@ -1482,7 +1530,7 @@ def run_offline(
                     try:
                         msg = store.deserialize_cdr(raw, msgtype)
                     except SerdeError as err:
-                        session.skip(f'a message on {topic} at {timestamp} ns', err)
+                        session.unreadable(topic, timestamp, err)
                         continue
                     stamp = stamp_to_ns(msg.header.stamp)
                     if topic == plan.ground_truth:
@@ -1497,7 +1545,13 @@ def run_offline(
                 sync.drain()
                 session.report_drops(sync)
             finally:
-                session.counts['unpaired'] = sync.dropped + sum(sync.pending().values())
+                # Stopped early (Ctrl-C, a bag fault): the messages still waiting for partners
+                # are let go and listed too, so that the count and the list agree (after the
+                # end of the bag there are none left).
+                with interrupts.critical():
+                    sync.drain()
+                    session.report_drops(sync, stopped=True)
+                session.counts['unpaired'] = sync.dropped
                 if interrupts.requested:
                     session.read_ahead_ground_truth(bag, position, store)
         progress.finish()

@@ -352,9 +352,10 @@ class ReplayReport:
         frames: Per-frame scores, sorted by frame index when written.
         config: Replay settings (bag, mode, pipeline options, topics).
         counts: Counters: ``total`` (left images in the bag), ``pairs`` (stereo pairs matched
-            by stamp), ``processed``, ``skipped`` (bad frames or messages), ``unpaired``
-            (input messages that matched no pair), ``dropped`` (live mode: pairs the node
-            did not answer).
+            by stamp), ``processed``, ``skipped`` (pairs not processed: bad frames; offline
+            ``pairs`` = ``processed`` + ``skipped``), ``unpaired`` (input messages that
+            matched no pair), ``unreadable`` (messages that cannot be deserialised),
+            ``dropped`` (live mode: pairs the node did not answer).
         interrupted: The run was stopped (Ctrl-C) before the end of the bag.
         error: The fault that ended the run early, if any.
         unpaired: The first :data:`MAX_LISTED_UNPAIRED` input messages that matched no pair:
@@ -766,6 +767,9 @@ def format_summary(document: dict[str, Any], max_rows: int = 200) -> str:
             f"| {_fmt(summary.get('mean_confidence'), digits=3)} |",
             '',
         ]
+    if summary.get('unreadable'):
+        lines += [f"Unreadable messages (cannot be deserialised, skipped): "
+                  f"{summary['unreadable']}", '']
     if summary.get('interrupted'):
         lines += ['**Interrupted**: the report holds the frames done before the stop.', '']
     if summary.get('error'):
