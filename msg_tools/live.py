@@ -563,7 +563,7 @@ def _play(
                 try:
                     msg = store.deserialize_cdr(raw, msgtype)
                 except SerdeError as err:
-                    session.skip(f'a message on {topic} at {timestamp} ns', err)
+                    session.unreadable(topic, timestamp, err)  # no pair: not a skipped one
                     continue
                 stamp = stamp_to_ns(msg.header.stamp)
                 if topic == plan.ground_truth:
@@ -591,7 +591,12 @@ def _play(
                     with interrupts.critical():
                         recorder.take_received(progress)
             finally:
-                session.counts['unpaired'] = sync.dropped + sum(sync.pending().values())
+                # Stopped early: the messages still waiting for partners are let go and listed
+                # too, so that the count and the list agree (as offline).
+                with interrupts.critical():
+                    sync.drain()
+                    session.report_drops(sync, stopped=True)
+                session.counts['unpaired'] = sync.dropped
                 session.counts['dropped'] = recorder.unanswered()
                 if interrupts.requested:
                     session.read_ahead_ground_truth(bag, position, store)

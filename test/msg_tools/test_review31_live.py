@@ -318,3 +318,45 @@ def test_a_replay_behind_its_schedule_handles_the_outputs_as_they_come(tmp_path:
     assert waiting == [6] * 5
     assert [score.auc is not None for score in outcome.report.frames] == [True] * 5
 
+
+
+def test_messages_waiting_at_ctrl_c_are_listed_with_the_count(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # As offline: frame 1 never pairs (its right side is 1 µs off) and waits when the signal
+    # comes. Live counted its four messages unpaired but listed none.
+    step = 100 * MS
+    bag = write_stereo_bag(tmp_path / 'in', [
+        {'gt_lag': step + step // 2},
+        {'stamp_right': START_NS + step + 1000, 'no_gt': True},
+        {},
+    ])
+    add_ground_truth = ReplaySession.add_ground_truth
+
+    def signal_on_truth(session: ReplaySession, stamp: int, msg: Any) -> None:
+        if stamp == START_NS:
+            os.kill(os.getpid(), signal.SIGINT)
+        add_ground_truth(session, stamp, msg)
+
+    monkeypatch.setattr(ReplaySession, 'add_ground_truth', signal_on_truth)
+    outcome, _ = _play(tmp_path, bag)
+    assert outcome.exit_code == 130
+    report = outcome.report
+    assert report.counts['unpaired'] == sum(report.unpaired_by_topic.values()) == 4
+    assert {m['reason'] for m in report.unpaired} == {
+        'still waiting for its partners when the run stopped'
+    }
+
+
+def test_an_unreadable_input_message_is_no_skipped_pair(tmp_path: Path) -> None:
+    # A left image cut short: counted 'unreadable', not 'skipped' (skipped counts pairs).
+    source = write_stereo_bag(tmp_path / 'raw', [{}, {}, {}])
+    bag = tmp_path / 'in'
+    with InputBag(source) as src, OutputBag(bag, 'mcap', jazzy_typestore()) as dst:
+        for topic, msgtype, timestamp, raw in src.messages(list(src.topics)):
+            cut = topic == '/left/image_rect' and timestamp == START_NS + 100 * MS
+            dst.write(topic, msgtype, bytes(raw)[:10] if cut else bytes(raw), timestamp)
+    outcome, _ = _play(tmp_path, bag)
+    counts = outcome.report.counts
+    assert counts['unreadable'] == 1 and counts['skipped'] == 0
+    assert (counts['pairs'], counts['processed']) == (2, 2)
