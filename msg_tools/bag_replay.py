@@ -276,7 +276,9 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
         right=args.right_topic,
         left_info=args.left_info_topic,
         right_info=args.right_info_topic,
-        ground_truth=args.gt_topic or 'ground_truth/disparity',
+        # An empty --gt-topic is refused by name like the other topics, not taken as the
+        # default (which it would then require).
+        ground_truth='ground_truth/disparity' if args.gt_topic is None else args.gt_topic,
     )
     return ReplayOptions(
         bag=args.bag,

@@ -214,8 +214,16 @@ class InputBag:
 
     @property
     def topics(self) -> dict[str, str]:
-        """Topic name → message type (``pkg/msg/Type``) of every connection."""
-        return {conn.topic: conn.msgtype for conn in self.reader.connections}
+        """Topic name → message type (``pkg/msg/Type``) of every connection.
+
+        A topic recorded with messages of several types (one connection per type) maps to
+        them all, joined by `` | ``: no single type, so that no reader takes its messages
+        for one type (:meth:`require` refuses it by name).
+        """
+        types: dict[str, set[str]] = {}
+        for conn in self.reader.connections:
+            types.setdefault(conn.topic, set()).add(conn.msgtype)
+        return {topic: ' | '.join(sorted(kinds)) for topic, kinds in types.items()}
 
     @property
     def message_counts(self) -> dict[str, int]:
@@ -238,6 +246,11 @@ class InputBag:
                 f'bag {self.path} has no {what} topic {topic!r}; it has: {listing or "nothing"} '
                 f'(set the topic options or --topic-prefix)'
             )
+        if ' | ' in topics[topic]:
+            raise BagError(
+                f'{what} topic {topic!r} of bag {self.path} holds messages of several types '
+                f'({topics[topic]}); expected all of one type, one of {list(msgtypes)}'
+            )
         if topics[topic] not in msgtypes:
             raise BagError(
                 f'{what} topic {topic!r} has type {topics[topic]}; expected one of '
@@ -254,8 +267,10 @@ class InputBag:
             (topic, message type, bag timestamp in ns, CDR bytes).
 
         Raises:
-            BagError: The storage fails part-way (truncated or corrupt data), or holds no
-                message of a topic that the bag's metadata lists messages of.
+            BagError: The storage fails part-way (truncated or corrupt data), holds no
+                message of a topic that the bag's metadata lists messages of, or, read to
+                its end from the start, fewer messages of a topic than the metadata lists
+                (records lost to damage: raised after the messages it holds).
         """
         from rosbags.rosbag2 import ReaderError
 
@@ -264,11 +279,14 @@ class InputBag:
             return
         self._check_storage(wanted)
         count = 0
+        counts: dict[int, int] = {}  # connection id → messages read
         iterator = self.reader.messages(connections=wanted, start=start)
         while True:
             try:
                 item = next(iterator)
             except StopIteration:
+                if start is None:
+                    self._check_counts(wanted, counts)
                 return
             except (ReaderError, *_STORAGE_FAULTS) as err:
                 raise BagError(
@@ -277,7 +295,24 @@ class InputBag:
                 ) from None
             conn, timestamp, data = item
             count += 1
+            counts[conn.id] = counts.get(conn.id, 0) + 1
             yield conn.topic, conn.msgtype, int(timestamp), bytes(data)
+
+    def _check_counts(self, connections: Sequence[Any], counts: dict[int, int]) -> None:
+        """Check that a full read found as many messages per connection as the metadata lists.
+
+        The readers skip what they cannot place (a damaged MCAP record header, a message of
+        an unknown channel) without an error; only the count tells that messages were lost.
+        """
+        for conn in connections:
+            found = counts.get(conn.id, 0)
+            if found < conn.msgcount:
+                raise BagError(
+                    f'bag {self.path}: its metadata.yaml lists {conn.msgcount} messages on '
+                    f'{conn.topic} [{conn.msgtype}], but its storage file holds only {found} '
+                    f'of them (corrupt or truncated storage, or metadata.yaml edited or of '
+                    f'another bag?)'
+                )
 
     def _check_storage(self, connections: Sequence[Any]) -> None:
         """Check that the storage holds messages of each connection the metadata says has some.

@@ -47,6 +47,8 @@ LASER_SCAN = 'sensor_msgs/msg/LaserScan'
 _FLOAT_ENCODINGS: dict[str, tuple[str, int]] = {'32FC1': ('f4', 1), '64FC1': ('f8', 1)}
 
 _NS = 1_000_000_000
+#: First stamp a header cannot hold: ``builtin_interfaces/Time.sec`` is an int32.
+_STAMP_LIMIT_NS = 2**31 * _NS
 
 
 @lru_cache(maxsize=1)
@@ -63,9 +65,17 @@ def stamp_to_ns(stamp: Any) -> int:
 
 
 def make_header(stamp_ns: int, frame_id: str, typestore: Any | None = None) -> Any:
-    """A ``std_msgs/Header`` with the given stamp (integer ns, ≥ 0) and frame id."""
-    if stamp_ns < 0:
-        raise InputError(f'stamps must be >= 0 ns; got {stamp_ns}')
+    """A ``std_msgs/Header`` with the given stamp (integer ns, ≥ 0) and frame id.
+
+    Raises:
+        InputError: A stamp below 0, not a number, or past the int32 seconds of a header
+            (2038).
+    """
+    if not 0 <= stamp_ns < _STAMP_LIMIT_NS:  # NaN fails too
+        raise InputError(
+            f'stamps must be >= 0 ns and below {_STAMP_LIMIT_NS} ns (header stamps hold int32 '
+            f'seconds); got {stamp_ns}'
+        )
     types = (typestore or jazzy_typestore()).types
     sec, nanosec = divmod(int(stamp_ns), _NS)
     return types['std_msgs/msg/Header'](
@@ -80,7 +90,7 @@ def image_to_msg(
 
     Args:
         image: (H, W) uint8 (``mono8``), (H, W) uint16 (``mono16``) or (H, W, 3) uint8 in RGB
-            order (``rgb8``).
+            order (``rgb8``); a uint16 image of either byte order.
         stamp_ns: Header stamp in nanoseconds.
         frame_id: Header frame id.
         typestore: ``rosbags`` typestore; the Jazzy one by default.
@@ -89,14 +99,16 @@ def image_to_msg(
         The message, little-endian, rows packed (``step`` = width × bytes per pixel).
 
     Raises:
-        InputError: Any other shape or dtype.
+        InputError: Any other shape or dtype, or an empty image (height or width 0).
     """
     array = np.asarray(image)
-    if array.dtype == np.uint8 and array.ndim == 2:
+    # Either byte order (a 16-bit PGM or PNG read as big-endian '>u2'): written little-endian.
+    kind = array.dtype.newbyteorder('=')
+    if kind == np.uint8 and array.ndim == 2:
         encoding = 'mono8'
-    elif array.dtype == np.uint16 and array.ndim == 2:
+    elif kind == np.uint16 and array.ndim == 2:
         encoding = 'mono16'
-    elif array.dtype == np.uint8 and array.ndim == 3 and array.shape[2] == 3:
+    elif kind == np.uint8 and array.ndim == 3 and array.shape[2] == 3:
         encoding = 'rgb8'
     else:
         raise InputError(
@@ -109,7 +121,11 @@ def image_to_msg(
 def float_image_to_msg(
     array: np.ndarray, stamp_ns: int, frame_id: str, typestore: Any | None = None
 ) -> Any:
-    """A ``32FC1`` ``sensor_msgs/Image`` of a (H, W) float array (NaN kept as NaN)."""
+    """A ``32FC1`` ``sensor_msgs/Image`` of a (H, W) float array (NaN kept as NaN).
+
+    Raises:
+        InputError: Any other shape or dtype, or an empty array (height or width 0).
+    """
     values = np.asarray(array)
     if values.ndim != 2 or not np.issubdtype(values.dtype, np.floating):
         raise InputError(f'expected a (H, W) float array; got {values.shape} {values.dtype}')
@@ -121,6 +137,9 @@ def _raw_image(
 ) -> Any:
     store = typestore or jazzy_typestore()
     height, width = array.shape[:2]
+    if height == 0 or width == 0:
+        # Such a message is refused by every reader (the node's and disparity_from_msg).
+        raise InputError(f'cannot write an empty {encoding} image ({height}×{width})')
     little = np.ascontiguousarray(array.astype(array.dtype.newbyteorder('<'), copy=False))
     data = little.reshape(-1).view(np.uint8)
     return store.types[IMAGE](
@@ -153,9 +172,9 @@ def _pixels(msg: Any, layouts: dict[str, tuple[str, int]], what: str) -> np.ndar
             f'{what}: {encoding} image of {height}×{width} needs step ≥ {row_bytes} and '
             f'{step * (height - 1) + row_bytes} bytes; got step {step} and {data.size} bytes'
         )
-    if data.size < step * height:
-        data = np.concatenate([data, np.zeros(step * height - data.size, np.uint8)])
-    rows = data[: step * height].reshape(height, step)[:, :row_bytes]
+    # The rows in place, by their stride: the last one may come without its padding, and a
+    # step far beyond the data (one row, a damaged step) costs nothing.
+    rows = np.lib.stride_tricks.as_strided(data, (height, row_bytes), (step, 1), writeable=False)
     pixels = np.ascontiguousarray(rows).view(dtype).astype(dtype.newbyteorder('='))
     shape = (height, width) if channels == 1 else (height, width, channels)
     return pixels.reshape(shape)
