@@ -10,6 +10,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass, fields, is_dataclass
+import inspect
 from typing import Any, ClassVar
 
 import numpy as np
@@ -203,10 +204,16 @@ class ConfidenceMethod(ABC):
     def from_options(cls, **options: Any) -> ConfidenceMethod:
         """Factory for the registry: build from options, dropping :data:`GENERIC_OPTIONS`.
 
+        The method's own options are its dataclass fields, or for a method that is no
+        dataclass (``cva_net``) the named parameters of its ``__init__``, which may be generic
+        options too (``max_disparity``, ``weights``): those are passed, not dropped.
+
         Raises:
             ConfigError: An option that is neither generic nor a field of the method.
         """
-        own: set[str] = {f.name for f in fields(cls)} if is_dataclass(cls) else set()
+        own: set[str] = (
+            {f.name for f in fields(cls)} if is_dataclass(cls) else _init_parameters(cls)
+        )
         unknown = set(options) - own - GENERIC_OPTIONS
         if unknown:
             raise ConfigError(
@@ -222,6 +229,13 @@ class ConfidenceMethod(ABC):
                 'got cost_volume_right=None'
             )
         return inputs.cost_volume_right
+
+
+def _init_parameters(cls: type) -> set[str]:
+    """Names of the keyword parameters of ``cls.__init__`` (no ``*args`` / ``**kwargs``)."""
+    kinds = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+    parameters = inspect.signature(cls).parameters.values()
+    return {p.name for p in parameters if p.kind in kinds}
 
 
 ConfidenceFactory = Callable[..., ConfidenceMethod]

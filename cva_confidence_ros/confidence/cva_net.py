@@ -165,6 +165,12 @@ class CVANetConfidence(ConfidenceMethod):
         return self._evaluator
 
     def _check(self, inputs: ConfidenceInputs) -> None:
+        if not isinstance(inputs, ConfidenceInputs):
+            # A bare cost volume failed with "'numpy.ndarray' object has no attribute".
+            raise InputError(
+                f'{type(self).__name__} takes a ConfidenceInputs (cost volume, disparity, '
+                f'image); got {type(inputs).__name__}'
+            )
         if inputs.max_disparity != self.max_disparity:
             raise InputError(
                 f'{self.arch} weights {self.weights_path.name} take cost volumes of depth '

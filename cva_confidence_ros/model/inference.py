@@ -102,7 +102,23 @@ class FoldedCVANet(nn.Module):
         return x
 
     def head_logits(self, curves: torch.Tensor) -> torch.Tensor:
-        """Depth processing and classification of fused curves: (N, 32, D − 12) → (N,) logits."""
+        """Depth processing and classification of fused curves: (N, 32, D − 12) → (N,) logits.
+
+        The depth convolutions zero-pad each curve by up to 63 values (kernel 64), which at
+        D = 64 more than doubles it: the pixels go through in chunks whose padded curves are
+        no larger than ``curves``, so the head keeps to the memory the fusion needed (all N
+        at once, it took 1.6 times the tile budget).
+        """
+        count, _, depth = curves.shape
+        chunk = max(1, count * depth // (depth + max(DEPTH_KERNELS) - 1))
+        if count <= chunk or torch.jit.is_tracing():
+            # (a traced graph, e.g. the ONNX export, must keep N dynamic)
+            return self._head_chunk(curves)
+        return torch.cat(
+            [self._head_chunk(curves[start : start + chunk]) for start in range(0, count, chunk)]
+        )
+
+    def _head_chunk(self, curves: torch.Tensor) -> torch.Tensor:
         x = curves
         for conv, k in zip(self.depth, DEPTH_KERNELS, strict=True):
             x = F.relu(conv(F.pad(x, ((k - 1) // 2, k // 2))))
@@ -266,13 +282,20 @@ def tile_shape(
     their own figure by :func:`activations_per_pixel`.
 
     Raises:
-        ConfigError: ``tile_budget_mb`` not a finite number > 0, or ``activations_per_pixel``
-            below 1.
+        ConfigError: ``tile_budget_mb`` not a finite number > 0, or ``height``, ``width``,
+            ``max_disparity`` or ``activations_per_pixel`` not an integer >= 1.
     """
     tile_budget_mb = _check_tile_budget(tile_budget_mb)
+    sizes = {'height': height, 'width': width, 'max_disparity': max_disparity}
+    if activations_per_pixel is not None:
+        sizes['activations_per_pixel'] = activations_per_pixel
+    for name, size in sizes.items():
+        # A height of 0 or -3 gave a (0, 1) or (-3, 1) tile; 2.5 values per pixel passed.
+        if not is_int(size) or size < 1:
+            raise ConfigError(
+                f'{name} must be an integer >= 1; got {type(size).__name__} {size!r}'
+            )
     values = 32 * max_disparity if activations_per_pixel is None else activations_per_pixel
-    if values < 1:
-        raise ConfigError(f'activations_per_pixel must be >= 1; got {values}')
     per_pixel = 4 * values * _LIVE_COPIES
     padded_pixels = max(1, int(tile_budget_mb * 1e6 / per_pixel))
     side = max(1, int(math.sqrt(padded_pixels)) - 2 * PAD)
