@@ -330,3 +330,43 @@ def feed_frame(node: Any, left: np.ndarray, right: np.ndarray, stamp: int) -> No
     for key, msg in (('left_info', left_info), ('right_info', right_info),
                      ('left', image_msg(left, stamp)), ('right', image_msg(right, stamp))):
         node._on_message(key, msg)
+
+
+def held_pipeline(node: Any) -> tuple[threading.Event, threading.Event]:
+    """Make ``node``'s pipeline hold each frame until released: ``(started, release)``, set
+    when a frame reaches the pipeline and to let it (and every later one) go on."""
+    started, release = threading.Event(), threading.Event()
+    process = node._pipeline.process
+
+    def held(left: np.ndarray, right: np.ndarray) -> Any:
+        started.set()
+        release.wait(20.0)
+        return process(left, right)
+
+    node._pipeline.process = held
+    return started, release
+
+
+def rosout_reaches(context: Context, node: Node, timeout: float) -> bool:
+    """Whether a line ``node`` logs arrives on ``/rosout`` within ``timeout`` s (after a
+    garbage collection: a refused node of the same name, collected late, unregistered the
+    ``/rosout`` publisher of its name)."""
+    import gc
+
+    from rcl_interfaces.msg import Log
+
+    client = StereoClient(context)
+    client.subscribe('/rosout', Log, QoSProfile(depth=100))
+    spinner = Spinner(context, node, client.node)
+    try:
+        gc.collect()
+        marker = f'rosout marker {time.monotonic()}'
+
+        def marked() -> bool:
+            node.get_logger().warning(marker)
+            return any(msg.msg == marker for msg in list(client.received['/rosout']))
+
+        return client.wait_for(marked, timeout=timeout, poll=0.1)
+    finally:
+        spinner.stop()
+        client.node.destroy_node()

@@ -10,7 +10,6 @@ from pathlib import Path
 import signal
 import subprocess
 import sys
-import threading
 import time
 from typing import Any
 
@@ -21,6 +20,7 @@ from node_test_utils import (
     Spinner,
     StereoClient,
     first_stamp,
+    held_pipeline,
     image_msg,
     info_msgs,
     localhost_context,
@@ -383,16 +383,8 @@ def test_a_frame_that_outlasts_the_cleanup_is_not_published_after_a_new_configur
     ]
     with localhost_context(spare_domain_id()) as context:
         node = ManagedConfidenceNode(context=context, parameter_overrides=overrides)
-        started, release = threading.Event(), threading.Event()
+        started, release = held_pipeline(node)
         try:
-            process = node._pipeline.process
-
-            def slow(left: np.ndarray, right: np.ndarray) -> Any:
-                started.set()
-                release.wait(20.0)
-                return process(left, right)
-
-            node._pipeline.process = slow
             published: list[Any] = []
             monkeypatch.setattr(node, '_publish', lambda *args: published.append(args))
             left, right = textured_pair()

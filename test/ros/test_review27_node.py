@@ -16,6 +16,7 @@ from node_test_utils import (
     StereoClient,
     first_stamp,
     localhost_context,
+    rosout_reaches,
     running_nodes,
     spare_domain_id,
     textured_pair,
@@ -198,19 +199,7 @@ def test_a_managed_node_refused_at_start_leaves_rosout_to_the_next_of_its_name(
         assert _refused(context, [bad]) == 'InvalidParameterTypeException'
     with localhost_context(spare_domain_id()) as context:
         node = ManagedConfidenceNode(context=context, parameter_overrides=list(OVERRIDES))
-        client = StereoClient(context)
-        client.subscribe('/rosout', Log, QoSProfile(depth=100))
-        spinner = Spinner(context, node, client.node)
         try:
-            gc.collect()
-            marker = f'rosout marker {time.monotonic()}'
-
-            def marked() -> bool:
-                node.get_logger().warning(marker)
-                return any(msg.msg == marker for msg in list(client.received['/rosout']))
-
-            assert client.wait_for(marked, timeout=15, poll=0.2)
+            assert rosout_reaches(context, node, timeout=15)
         finally:
-            spinner.stop()
             node.destroy_node()
-            client.node.destroy_node()

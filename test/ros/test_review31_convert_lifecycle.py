@@ -4,26 +4,22 @@ a frame in progress at a deactivate (each a regression test of a fault found in 
 
 from __future__ import annotations
 
-import gc
-import threading
 import time
 from typing import Any
 
 from node_test_utils import (
-    Spinner,
-    StereoClient,
     feed_frame,
     first_stamp,
+    held_pipeline,
     info_msgs,
     localhost_context,
+    rosout_reaches,
     spare_domain_id,
     textured_pair,
 )
 import numpy as np
 import pytest
-from rcl_interfaces.msg import Log
 from rclpy.parameter import Parameter
-from rclpy.qos import QoSProfile
 from std_msgs.msg import Header
 
 from cva_confidence_ros.camera_info import image_projection
@@ -106,22 +102,10 @@ def test_a_cloud_filter_refused_at_start_leaves_rosout_to_the_next_of_its_name()
         assert _refused_filter(context) == 'ConfigError'
     with localhost_context(spare_domain_id()) as context:
         node = CloudFilterNode(context=context)
-        client = StereoClient(context)
-        client.subscribe('/rosout', Log, QoSProfile(depth=100))
-        spinner = Spinner(context, node, client.node)
         try:
-            gc.collect()
-            marker = f'rosout marker {time.monotonic()}'
-
-            def marked() -> bool:
-                node.get_logger().warning(marker)
-                return any(msg.msg == marker for msg in list(client.received['/rosout']))
-
-            assert client.wait_for(marked, timeout=5, poll=0.1)
+            assert rosout_reaches(context, node, timeout=5)
         finally:
-            spinner.stop()
             node.destroy_node()
-            client.node.destroy_node()
 
 
 def test_a_frame_in_progress_at_deactivate_is_not_published_after_a_quick_activate() -> None:
@@ -135,16 +119,8 @@ def test_a_frame_in_progress_at_deactivate_is_not_published_after_a_quick_activa
     ]
     with localhost_context(spare_domain_id()) as context:
         node = ManagedConfidenceNode(context=context, parameter_overrides=overrides)
-        started, release = threading.Event(), threading.Event()
+        started, release = held_pipeline(node)
         try:
-            process = node._pipeline.process
-
-            def slow(left: np.ndarray, right: np.ndarray) -> Any:
-                started.set()
-                release.wait(20.0)
-                return process(left, right)
-
-            node._pipeline.process = slow
             published: list[int] = []
             publish = node._publish
 
@@ -161,7 +137,6 @@ def test_a_frame_in_progress_at_deactivate_is_not_published_after_a_quick_activa
             node.trigger_activate()
             release.set()
             # A frame of the new activation is published: the one before is not.
-            node._pipeline.process = process
             feed_frame(node, left, right, stamp + 10**9)
             deadline = time.monotonic() + 20.0
             while not published and time.monotonic() < deadline:
