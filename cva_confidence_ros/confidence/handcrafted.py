@@ -133,7 +133,13 @@ def _check_positive(name: str, value: float) -> None:
     # np.isfinite and come back as a bare TypeError.
     if not is_real(value):
         raise ConfigError(f'{name} must be a real number; got {type(value).__name__} {value!r}')
-    if not (np.isfinite(value) and value > 0):
+    # np.isfinite takes no Fraction and no int beyond float64 (a bare TypeError): read as float,
+    # where such an int is too large to be finite.
+    try:
+        number = float(value)
+    except OverflowError:
+        number = float('inf')
+    if not (np.isfinite(number) and number > 0):
         raise ConfigError(f'{name} must be a finite number > 0; got {value}')
 
 
@@ -316,13 +322,14 @@ class LeftRightConsistency(ConfidenceMethod):
 
     Uses ``inputs.disparity_right``, or the arg-minimum of ``inputs.cost_volume_right`` when
     only the volume is given. Pixels whose right correspondence lies outside the image or whose
-    disparity is NaN get ``-D`` (D = volume depth), below every checkable value (≥ ``-(D-1)``).
+    disparity is NaN get ``-D`` (D = volume depth), below every checkable value (≥ ``-(D-1)``
+    for disparities in [0, D - 1]; given disparities outside that range can differ by more).
     """
 
     needs_right = True
 
     def __call__(self, inputs: ConfidenceInputs) -> np.ndarray:
-        """Return (H, W) float32 in [-D, 0]."""
+        """Return (H, W) float32 ≤ 0; in [-D, 0] for disparities in [0, D - 1]."""
         disparity_right = inputs.disparity_right
         if disparity_right is None:
             disparity_right = np.argmin(self._require_right(inputs), axis=0).astype(np.float32)

@@ -7,6 +7,7 @@ import math
 from numba import njit
 import numpy as np
 
+from cva_confidence_ros.checks import is_real
 from cva_confidence_ros.errors import ConfigError, InputError
 
 __all__ = ['check_cost_volume', 'check_disparity', 'left_right_check', 'wta_disparity']
@@ -125,9 +126,14 @@ def left_right_check(
             f'disp_left and disp_right must have the same shape; got {left.shape} and '
             f'{right.shape}'
         )
-    if isinstance(max_diff, bool) or not isinstance(max_diff, (int, float, np.number)):
-        raise ConfigError(f'max_diff must be a number; got {type(max_diff).__name__}')
-    if not math.isfinite(float(max_diff)) or max_diff < 0:
+    # A numpy complex is an np.number: its imaginary part was dropped with a ComplexWarning.
+    if not is_real(max_diff):
+        raise ConfigError(f'max_diff must be a real number; got {type(max_diff).__name__}')
+    try:
+        tolerance = float(max_diff)
+    except OverflowError:  # an int beyond float64: no finite tolerance
+        tolerance = math.inf
+    if not math.isfinite(tolerance) or tolerance < 0:
         raise ConfigError(f'max_diff must be finite and ≥ 0; got {max_diff}')
     height, width = left.shape
     finite = np.isfinite(left)
@@ -137,5 +143,5 @@ def left_right_check(
     rows = np.arange(height)[:, None]
     matched = right[rows, partner]
     with np.errstate(invalid='ignore'):
-        close = np.abs(left - matched) <= float(max_diff)
+        close = np.abs(left - matched) <= tolerance
     return inside & np.isfinite(matched) & close
