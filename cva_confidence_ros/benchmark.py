@@ -23,7 +23,7 @@ JIT code, weights): it is what a frame needs, work buffers that a matcher keeps 
 frames included. After the warm-up, freed heap is returned to the OS (``malloc_trim``) and
 the peak mark reset, so that one-off costs do not count; the peak is VmHWM from
 ``/proc/self/status`` (``ru_maxrss`` where the mark cannot be reset, which then includes
-the warm-up).
+the warm-up; None, a dash in the table, where the resident memory before cannot be read).
 
 Configurations are entries of :data:`CASES`; the matchers of
 :data:`cva_confidence_ros.matching.MATCHERS` and ``opencv_sgbm`` are registered here. A later
@@ -332,7 +332,7 @@ def run_case(name: str, settings: BenchSettings) -> dict[str, Any]:
         if runner is not None:
             left, right = pairs['synthetic']
             runner.frame(np.ascontiguousarray(left[small]), np.ascontiguousarray(right[small]))
-    rss_before = memory_kb('VmRSS') or 0
+    rss_before = memory_kb('VmRSS')  # None without /proc: no peak of the frames' own
     for left, right in pairs.values():
         case.frame(left, right)
         if baseline is not None:
@@ -363,7 +363,11 @@ def run_case(name: str, settings: BenchSettings) -> dict[str, Any]:
         'height': settings.height,
         'max_disparity': settings.max_disparity,
         'ms_per_frame': statistics.median([t for pair in times.values() for t in pair]),
-        'peak_mem_mb': max((peak or 0) - rss_before, 0) / 1024.0,
+        'peak_mem_mb': (
+            max(peak - rss_before, 0) / 1024.0
+            if peak is not None and rss_before is not None
+            else None
+        ),
         'network_gflops': case.extras.get('network_gflops'),
         'gemm_gflops': case.extras.get('gemm_gflops'),
         'auc_rel': case.extras.get('auc_rel'),
@@ -420,7 +424,8 @@ def run_network(
 
     The matcher's volume is computed on a band of ``crop`` full-width rows in the middle of
     the Motorcycle pair (so that every crop column has all its disparities) and cut to the
-    middle ``crop`` columns. After an untimed run on a 4×4 corner, ``min(repeat, 3)`` calls
+    middle ``crop`` columns. After an untimed run on a 4×4 corner, freed heap is handed back
+    to the OS and the peak mark reset, then ``min(repeat, 3)`` calls
     of ``predict_confidence`` on the crop are timed; the median gives the crop's rate, and
     the frame's time is that median × FLOPs(frame) / FLOPs(crop), both counted by
     :func:`cva_confidence_ros.node_benchmark.network_flops` with the same tiling.
@@ -462,6 +467,9 @@ def run_network(
     # Folded once, as the confidence method does for a stream of frames.
     model = fold_batchnorm(net)
     predict_confidence(model, np.ascontiguousarray(volume[:, :4, :4]), device=device)
+    # Freed heap (the band's matching, the warm-up) back to the OS first, as in run_case: a
+    # crop that reuses it would otherwise not show it in its peak.
+    _release_free_heap()
     rss_before = memory_kb('VmRSS')
     have_hwm = _reset_peak()
     times = []
@@ -739,6 +747,19 @@ def host_summary() -> str:
     return f'{model}, {os.cpu_count() or 1} CPU cores, torch CPU kernels {isa}'
 
 
+def _strict(value: Any) -> Any:
+    """``value`` with every NaN or infinite float (an AUC ratio over a zero, a rate over no
+    time) turned into None, inside lists and dicts too: JSON has no NaN, and a file with one
+    is refused by strict readers (``NaN`` is no JSON token)."""
+    if isinstance(value, float | np.floating):
+        return float(value) if np.isfinite(value) else None
+    if isinstance(value, dict):
+        return {key: _strict(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [_strict(item) for item in value]
+    return value
+
+
 def write_records(
     path: Path,
     records: Sequence[dict[str, Any]],
@@ -748,16 +769,17 @@ def write_records(
     """Write the records as a JSON list: :data:`RECORD_KEYS`, ``extra_keys`` where set, ``host``.
 
     ``host`` is the same in every row: the machine they were taken on (None =
-    :func:`host_summary`).
+    :func:`host_summary`). The file is strict JSON: a NaN or infinite number is written as
+    null.
     """
     keys = (*RECORD_KEYS, *extra_keys)
     host = host_summary() if host is None else host
     rows = [
-        {**{key: record[key] for key in keys if key in record}, 'host': host}
+        {**{key: _strict(record[key]) for key in keys if key in record}, 'host': host}
         for record in records
     ]
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(rows, indent=2) + '\n', encoding='utf-8')
+    path.write_text(json.dumps(rows, indent=2, allow_nan=False) + '\n', encoding='utf-8')
     print(f'wrote {path}', file=sys.stderr)
 
 

@@ -11,7 +11,8 @@ combinations, plus whole-pipeline rows, for CVA-Net and, in the ``lite*`` rows, 
   the frame that gives ``peak_mem_mb``). The ``exact`` and ``bf16`` rows would take minutes a
   frame on a CPU: they are timed the same way on a ``--crop`` square (``bf16``: a quarter of
   it), after a warm-up on its 4×4 corner and the untimed call on the square, and extrapolated
-  to the frame by floating-point operations (``extrapolated: true``).
+  to the frame by floating-point operations (``extrapolated: true``); their ``peak_mem_mb`` is
+  the crop's, not extrapolated.
   ``pipeline_*`` rows time :meth:`~cva_confidence_ros.pipeline.StereoPipeline.process` on the
   image pair: matching, WTA, cheap measure and network, what the node does per frame.
 * ``network_gflops``: operations the evaluator chose to run (counted per tile,
@@ -584,7 +585,8 @@ def format_fast_table(records: Sequence[dict[str, Any]]) -> str:
             f"| {'—' if share is None else f'{share:.1%}'} | {r['network_gflops']:.1f} "
             f"| {r['gemm_gflops']:.1f} | {'—' if peak is None else f'{peak:.0f}'} | {auc} |"
         )
-    lines.append('* timed on a crop, extrapolated to the frame by FLOPs')
+    lines.append('* timed on a crop, extrapolated to the frame by FLOPs; peak MB is the '
+                 "crop's")
     return '\n'.join(lines)
 
 
@@ -628,8 +630,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             rows, columns = (int(v) for v in args.auc_crop.lower().split('x'))
         except ValueError as exc:
             raise ConfigError(f'--auc-crop must be ROWSxCOLUMNS; got {args.auc_crop!r}') from exc
-        if args.crop < 4 or rows < 16 or columns < 16:
-            raise ConfigError('--crop must be ≥ 4 and --auc-crop at least 16x16')
+        if args.crop < 4:
+            raise ConfigError(f'--crop must be ≥ 4 pixels; got {args.crop}')
+        if rows < 16 or columns < 16:
+            raise ConfigError(f'--auc-crop must be at least 16x16; got {args.auc_crop!r}')
         from cva_confidence_ros.memory import keep_freed_memory
 
         keep_freed_memory()  # as the node does, so that the timed frames see the node's heap

@@ -11,7 +11,8 @@ frame. One record per (network, precision[, layout]) with the keys of
   ``network_gflops`` is the network's floating-point operations (counted, 2 per multiply-add)
   over ``gpu_ms``. ``gemm_gflops`` is a float32 matmul (TF32 off) and ``gemm_bf16_gflops`` a
   bf16 matmul, both on the same device in the same run: the practical peaks.
-* ``peak_mem_mb``: ``torch.cuda.max_memory_allocated`` during the timed frames.
+* ``peak_mem_mb``: ``torch.cuda.max_memory_allocated`` during the timed frames (MiB), read
+  before the network-only timing allocates its own device copy of the volume.
 * ``auc_rel`` (with ``--data-root``): mean over the develop scenes (every scene halved until
   its ground truth fits D, census_bm, all known pixels of the full scene) of the row's AUC over
   that of the exact float32 CVA-Net on the same pixels; ``auc`` is the row's mean AUC itself.
@@ -219,6 +220,20 @@ def run_gpu(
                 evaluator.net = evaluator.net.to(  # type: ignore[call-overload]
                     memory_format=torch.channels_last_3d
                 )
+            for _ in range(warmup):
+                evaluator(volume)
+            if target.type == 'cuda':
+                torch.cuda.synchronize(target)
+                torch.cuda.reset_peak_memory_stats(target)
+            walls = []
+            for _ in range(settings.repeat):
+                start = time.perf_counter()
+                evaluator(volume)
+                walls.append(time.perf_counter() - start)
+            # The peak of the timed frames alone: the network-only input below is a second
+            # device copy of the padded volume (164 MB at 640×480, D = 128) that no frame has.
+            peak = (torch.cuda.max_memory_allocated(target) / 2**20
+                    if target.type == 'cuda' else None)
             padded = torch.from_numpy(pad_cost_volume(volume)).to(target)[None, None]
             if layout:
                 padded = padded.contiguous(memory_format=torch.channels_last_3d)
@@ -229,19 +244,8 @@ def run_gpu(
                     evaluator.net(padded)
 
             for _ in range(warmup):
-                evaluator(volume)
                 network_only()
-            if target.type == 'cuda':
-                torch.cuda.synchronize(target)
-                torch.cuda.reset_peak_memory_stats(target)
-            walls = []
-            for _ in range(settings.repeat):
-                start = time.perf_counter()
-                evaluator(volume)
-                walls.append(time.perf_counter() - start)
             gpu = statistics.median(timer(network_only) for _ in range(settings.repeat))
-            peak = (torch.cuda.max_memory_allocated(target) / 2**20
-                    if target.type == 'cuda' else None)
             flops = evaluator._flops('tile', settings.height, settings.width)
             auc = None
             if develop and note is None:
