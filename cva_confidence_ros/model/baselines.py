@@ -157,12 +157,14 @@ def _head(c_in: int) -> nn.Sequential:
     )
 
 
-def _check_pair(disparity: torch.Tensor, image: torch.Tensor, min_side: int) -> None:
+def _check_pair(
+    disparity: torch.Tensor, image: torch.Tensor, min_side: int, name: str = 'image'
+) -> None:
     if disparity.ndim != 4 or disparity.shape[1] != 1:
         raise InputError(f'expected disparity (B, 1, H, W); got {tuple(disparity.shape)}')
     if image.shape != disparity.shape:
         raise InputError(
-            f'expected image of the disparity shape {tuple(disparity.shape)}; '
+            f'expected {name} of the disparity shape {tuple(disparity.shape)}; '
             f'got {tuple(image.shape)}'
         )
     if min(disparity.shape[2:]) < min_side:
@@ -188,7 +190,7 @@ class CCNN(nn.Module):
 
     def forward_logits(self, disparity: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
         """Logits of the centre pixels of (B, 1, h + 8, w + 8) inputs: (B, 1, h, w)."""
-        del image
+        _check_pair(disparity, image, 2 * TOWER_MARGIN + 1)
         return self.head(self.tower(disparity))
 
     def forward(self, disparity: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
@@ -216,6 +218,7 @@ class LFN(CCNN):
 
     def forward_logits(self, disparity: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
         """Logits of the centre pixels of (B, 1, h + 8, w + 8) inputs: (B, 1, h, w)."""
+        _check_pair(disparity, image, 2 * TOWER_MARGIN + 1)
         return self.head(torch.cat([self.tower(disparity), self.image_tower(image)], dim=1))
 
 
@@ -251,6 +254,7 @@ class ConfNet(nn.Module):
 
     def forward_logits(self, disparity: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
         """(B, 1, H, W) logits of inputs whose sides are multiples of 16."""
+        _check_pair(disparity, image, 1)
         height, width = disparity.shape[2:]
         if height % CONFNET_FACTOR or width % CONFNET_FACTOR:
             raise InputError(
@@ -299,6 +303,8 @@ class FusionNet(nn.Module):
         self, disparity: torch.Tensor, local: torch.Tensor, global_: torch.Tensor
     ) -> torch.Tensor:
         """(B, 1, h, w) logits of three (B, 1, h + 8, w + 8) inputs."""
+        _check_pair(disparity, local, 2 * TOWER_MARGIN + 1, 'local confidence')
+        _check_pair(disparity, global_, 2 * TOWER_MARGIN + 1, 'global confidence')
         features = [
             self.disparity_tower(disparity),
             self.local_tower(local),
@@ -382,11 +388,17 @@ def network_inputs(
         grey image (ITU-R 601 luma for colour) / 255.
 
     Raises:
-        InputError: Shapes that do not fit, an image that is not uint8, or D not a finite
-            number >= 1.
+        InputError: Shapes that do not fit, a disparity that is not real numbers, an image that
+            is not uint8, or D not a finite number >= 1.
     """
-    disparity = np.asarray(disparity, dtype=np.float32)
+    disparity = np.asarray(disparity)
     image = np.asarray(image)
+    if disparity.dtype.kind not in 'fiu':
+        # The float32 cast below dropped an imaginary part, took True as 1 px and parsed strings.
+        raise InputError(
+            f'disparity must hold real numbers (float or int); got dtype {disparity.dtype}'
+        )
+    disparity = disparity.astype(np.float32, copy=False)
     if disparity.ndim != 2:
         raise InputError(f'disparity must be (H, W); got shape {disparity.shape}')
     if image.shape[:2] != disparity.shape or not (

@@ -19,7 +19,9 @@ local network) and ConfNet together on the same crops (the sum of their two loss
 parameters are disjoint, so this is two independent trainings sharing the data loading);
 stage 2 freezes both, computes their confidence maps of every training scene once, and trains
 the fusion network. Each stage runs the configured schedule (``--epochs`` at ``--lr`` then
-``--epochs-low-lr`` at the lower rate), so an LGC-Net run has twice as many epochs.
+``--epochs-low-lr`` at the lower rate), so an LGC-Net run has twice as many epochs; an epoch
+of a stage draws ``--samples-per-epoch`` or as many samples as that stage's scenes have
+labelled pixels.
 
 The two stages learn from disjoint halves of the training scenes (``--fusion-split alternate``,
 the default; :func:`split_scenes`): the scenes sorted by name, even positions for CCNN + ConfNet,
@@ -36,6 +38,7 @@ One process (CPU or one GPU); DistributedDataParallel is not offered for these s
 from __future__ import annotations
 
 from collections.abc import Callable
+import dataclasses
 from dataclasses import dataclass
 import datetime
 import math
@@ -114,6 +117,14 @@ _CHOICES = [
     'loss: binary cross-entropy on labelled pixels; optimiser Adam (β1 0.9, β2 0.999) with '
     "this project's learning-rate schedule instead of the papers' (CPU budget)",
 ]
+#: Validation settings of a checkpoint written before they were saved: the defaults.
+_VAL_DEFAULTS: dict[str, Any] = {
+    field.name: field.default
+    for field in dataclasses.fields(TrainConfig)
+    if field.name in ('val_datasets', 'val_synthetic', 'val_pixels')
+}
+_VAL_DEFAULTS['val_datasets'] = list(_VAL_DEFAULTS['val_datasets'])
+
 _LGC_CHOICES = [
     'local network: CCNN; ConfNet without batch normalisation (batches of 1–2 crops on CPU)',
     'two stages in one run: CCNN + ConfNet (stage 1), then the fusion with both frozen '
@@ -454,12 +465,20 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
     state: dict[str, Any] | None = None
     if config.resume and checkpoint.is_file():
         state = _load_checkpoint(checkpoint, config, _schedule)
-        saved_split = state['config'].get('fusion_split', 'none')
-        if config.arch == 'lgcnet' and saved_split != config.fusion_split:
+        saved = {'fusion_split': 'none', **_VAL_DEFAULTS, **state['config']}
+        current = config.to_dict()
+        # The fusion epoch kept is the one of best validation AUC: once one is recorded, the
+        # later epochs must be validated on the same pixels to be compared with it.
+        keys = ['fusion_split'] + (list(_VAL_DEFAULTS) if state.get('best_fusion') else [])
+        changed = [k for k in keys if saved[k] != current[k]]
+        if config.arch == 'lgcnet' and changed:
             raise ConfigError(
-                f'cannot resume from {checkpoint}: the run was started with other settings '
-                f'(fusion_split: {saved_split!r} → {config.fusion_split!r}); use another --out '
-                'folder or the original settings'
+                f'cannot resume from {checkpoint}: the run was started with other settings ('
+                + ', '.join(f'{k}: {saved[k]!r} → {current[k]!r}' for k in changed)
+                + ')'
+                + (', and its best fusion epoch so far was chosen on the saved validation '
+                   'pixels' if changed != ['fusion_split'] else '')
+                + '; use another --out folder or the original settings'
             )
 
     # Both listed before either is prepared: a missing validation scene costs no matching.
@@ -489,10 +508,15 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
     val_scenes = _prepare(val_loaders, config, True, log, prepare_disparity_scene, pairs)
     val_subsets = validation_subset(val_scenes, config.val_pixels, config.seed)
     side = crop_side(config, scenes)
-    n_samples = config.samples_per_epoch or len(index)
+    # An epoch of a stage draws as many samples as that stage has labelled pixels (half of
+    # them each with the alternate split), or --samples-per-epoch.
+    stage_samples = {name: config.samples_per_epoch or len(at) for name, at in stage_index.items()}
+    n_samples = stage_samples['parts' if config.arch == 'lgcnet' else 'single']
+    per_epoch = (f'{n_samples} (parts) / {stage_samples["fusion"]} (fusion)'
+                 if config.arch == 'lgcnet' else f'{n_samples}')
     log(
         f'{len(scenes)} training scenes, {len(index)} labelled pixels, '
-        f'{index.fraction_wrong:.1%} labelled wrong; {n_samples} samples per epoch '
+        f'{index.fraction_wrong:.1%} labelled wrong; {per_epoch} samples per epoch '
         f'({config.mode} mode, crops of {side}² outputs); {len(val_scenes)} validation scenes'
     )
 
@@ -545,11 +569,11 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
         if config.mode == 'sparse':
             # dense_crops would redraw a permutation of all pixels per 4096 crops: a quarter
             # to a third of the pixels unseen, and minutes an epoch on real data sets.
-            crops = pixel_crops(stage_index[stage], n_samples, config.seed, epoch)
+            crops = pixel_crops(stage_index[stage], stage_samples[stage], config.seed, epoch)
         else:
             crops = dense_crops(
                 stage_scenes[stage],
-                stage_index[stage], n_samples, side, config.seed, epoch
+                stage_index[stage], stage_samples[stage], side, config.seed, epoch
             )
         per_step = max(1, math.ceil(config.batch_size / side**2))
         steps = list(batches(np.arange(len(crops.scene)), per_step))
@@ -649,6 +673,7 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
                        history, device, wall, command, _scene_facts)
     if config.arch == 'lgcnet':
         summary['fusion_split'] = split
+        summary['fusion_samples_per_epoch'] = stage_samples['fusion']
         summary['parts_scenes'] = [s.name for s in stage_scenes['parts']]
         summary['fusion_scenes'] = [s.name for s in stage_scenes['fusion']]
         summary['network_notes'].append(
