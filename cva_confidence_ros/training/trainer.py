@@ -97,6 +97,8 @@ _RESUME_DEFAULTS = {
 _SCHEDULE_KEYS = ('epochs', 'epochs_low_lr', 'lr', 'low_lr_factor')
 #: (stage, learning rate) of each epoch of a run.
 Schedule = list[tuple[str, float]]
+#: Labelled training pixels whose logits are checked after each epoch (NaN, infinity).
+_PROBE_PIXELS = 256
 
 
 @dataclass(frozen=True)
@@ -262,16 +264,69 @@ def check_finite_loss(loss: float, epoch: int, lr: float, out: Path) -> None:
         ModelError: ``loss`` is NaN or infinite (the same on every process: it is summed).
     """
     if not math.isfinite(loss):
-        raise ModelError(
-            f'training diverged: the loss of epoch {epoch + 1} is {loss} (lr {lr:g}); '
-            'lower --lr. No weights were written'
-            + (f'; the checkpoint in {out} still holds epoch {epoch}' if epoch else '')
+        raise _diverged(f'the loss of epoch {epoch + 1} is {loss}', epoch, lr, out)
+
+
+def _diverged(what: str, epoch: int, lr: float, out: Path) -> ModelError:
+    """The error of a run that diverged in ``epoch`` (0-based), ``what`` saying how."""
+    return ModelError(
+        f'training diverged: {what} (lr {lr:g}); lower --lr. No weights were written'
+        + (f'; the checkpoint in {out} still holds epoch {epoch}' if epoch else '')
+    )
+
+
+def _check_finite_network(
+    net: nn.Module,
+    scenes: list[PreparedScene],
+    index: SampleIndex,
+    dist: _Dist,
+    epoch: int,
+    lr: float,
+    out: Path,
+) -> None:
+    """Stop a run whose last steps left weights that give non-finite logits: the loss of an
+    epoch is that of the weights before each step, so it stays finite when only the last step
+    diverged, and the checkpoint and weights file would take the broken weights.
+
+    The network runs as inference runs it (eval mode) on up to :data:`_PROBE_PIXELS` labelled
+    training pixels spread over the index; the count is summed over the processes, so that
+    all of them stop together.
+
+    Raises:
+        ModelError: Some logit is NaN or infinite.
+    """
+    count = min(_PROBE_PIXELS, len(index))
+    chosen = np.linspace(0, len(index) - 1, count).round().astype(np.int64)
+    volumes, _ = gather_extracts(scenes, index, chosen)
+    training = net.training
+    net.eval()
+    try:
+        with torch.no_grad():
+            logits = _Logits(net)(volumes.to(dist.device)).float()
+    finally:
+        net.train(training)
+    bad = int(dist.sum([float((~torch.isfinite(logits)).sum())])[0])
+    if bad:
+        raise _diverged(
+            f'after epoch {epoch + 1}, {bad} of {count * dist.world} logits of the network '
+            'at training pixels are NaN or infinite',
+            epoch,
+            lr,
+            out,
         )
 
 
 def _save_checkpoint(path: Path, state: dict[str, Any]) -> None:
     tmp = path.with_name(path.name + '.tmp')
     torch.save(state, tmp)
+    os.replace(tmp, path)
+
+
+def _write_history(out: Path, history: list[dict[str, Any]]) -> None:
+    """``out/history.json``, replaced whole (a run stopped while writing it keeps the last)."""
+    path = out / 'history.json'
+    tmp = path.with_name(path.name + '.tmp')
+    tmp.write_text(json.dumps(history, indent=2) + '\n', 'utf-8')
     os.replace(tmp, path)
 
 
@@ -423,7 +478,16 @@ def _validate(
     scenes: list[PreparedScene],
     subsets: list[tuple[np.ndarray, np.ndarray]],
     device: torch.device,
+    epoch: int = 0,
+    lr: float = 0.0,
+    out: Path = Path(),
 ) -> dict[str, float | None]:
+    """Validation scores of ``net`` after ``epoch`` (0-based; ``lr`` and ``out`` for the
+    message of a diverged run).
+
+    Raises:
+        ModelError: A confidence is NaN or infinite (the network diverged).
+    """
     from cva_confidence_ros.metrics import auc_scores
 
     confidences, wrongs = [], []
@@ -435,6 +499,15 @@ def _validate(
     if not confidences:
         return {'val_auc': None, 'val_auc_opt': None, 'val_error_rate': None, 'val_high': None}
     confidence = np.concatenate(confidences)
+    bad = int(np.count_nonzero(~np.isfinite(confidence)))
+    if bad:
+        raise _diverged(
+            f'after epoch {epoch + 1}, {bad} of {confidence.size} validation confidences are '
+            'NaN or infinite',
+            epoch,
+            lr,
+            out,
+        )
     scores = auc_scores(confidence, np.concatenate(wrongs))
     return {
         **{f'val_{key}': float(scores[key]) for key in ('auc', 'auc_opt', 'error_rate')},
@@ -696,6 +769,10 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         start_epoch = int(state['epoch'])
         previous_wall = float(state.get('wall_time_s', 0.0))
         log(f'resumed from {checkpoint} after epoch {start_epoch}')
+        if dist.main:
+            # A run stopped between its checkpoint and history.json left that one short; a
+            # resume with no epoch left to train would never write it.
+            _write_history(out, history)
         if config.init_weights:
             log(f'note: {config.init_weights} not read again: the checkpoint holds the weights')
         started_with = state['config'].get('data_root')
@@ -724,6 +801,7 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
             config, model, optimiser, scenes, index, n_samples, epoch, dist, teacher
         )
         check_finite_loss(loss, epoch, config.lr_at(epoch), out)
+        _check_finite_network(net, scenes, index, dist, epoch, lr, out)
         record: dict[str, Any] = {
             'epoch': epoch + 1,
             'lr': lr,
@@ -733,7 +811,7 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
             'samples_per_s': seen / max(seconds, 1e-9),
         }
         if dist.main:
-            record.update(_validate(net, val_scenes, val_subsets, dist.device))
+            record.update(_validate(net, val_scenes, val_subsets, dist.device, epoch, lr, out))
             history.append(record)
             wall = previous_wall + time.perf_counter() - started
             _save_checkpoint(
@@ -751,7 +829,7 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
                     'teacher_sha256': teacher_digest,
                 },
             )
-            (out / 'history.json').write_text(json.dumps(history, indent=2) + '\n', 'utf-8')
+            _write_history(out, history)
             val = record.get('val_auc')
             log(
                 f'epoch {epoch + 1}/{config.total_epochs}: lr {lr:.1e}, loss {loss:.4f}, '
