@@ -440,6 +440,7 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
         _progress,
         _save_checkpoint,
         _scene_facts,
+        _write_history,
         check_finite_loss,
         check_run_setup,
     )
@@ -648,9 +649,7 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
                 'wall_time_s': wall,
             },
         )
-        import json
-
-        (out / 'history.json').write_text(json.dumps(history, indent=2) + '\n', 'utf-8')
+        _write_history(out, history)
         val = record.get('val_auc')
         parts = ''
         if stage == 'parts' and record['val_auc_local'] is not None:

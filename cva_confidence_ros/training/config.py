@@ -45,6 +45,9 @@ _DEVELOP_SCENES: dict[str, str] = {
 #: Largest run seed: the trainer seeds torch with seed · 1 000 003 + …, which
 #: ``torch.manual_seed`` takes only below 2**64.
 _MAX_SEED = 2**32 - 1
+#: The largest learning rate taken: far beyond any that trains (10 already diverges, and says
+#: so), well inside what Adam's float32 steps hold (1e39 overflowed at the first step).
+_LR_MAX = 1e6
 
 
 def default_synthetic_size(max_disparity: int) -> tuple[int, int]:
@@ -313,6 +316,9 @@ class TrainConfig:
                 f'lr must be finite and > 0, low_lr_factor in (0, 1]; got {self.lr}, '
                 f'{self.low_lr_factor}'
             )
+        if self.lr > _LR_MAX:
+            # Adam's step in float32 overflowed: a raw RuntimeError at the first step.
+            raise ConfigError(f'lr must be at most {_LR_MAX:g}; got {self.lr:g}')
         if not 0.0 <= self.distill_weight <= 1.0:
             raise ConfigError(f'distill_weight must be in [0, 1]; got {self.distill_weight}')
         if (self.distill_weight > 0) != bool(self.teacher):

@@ -85,3 +85,14 @@ def test_a_resume_writes_the_history_a_stopped_run_left_short(
     history = json.loads((out / 'history.json').read_text())
     assert [h['epoch'] for h in history] == [1]
     assert not (out / 'history.json.tmp').exists()
+
+
+def test_a_learning_rate_beyond_float32_steps_is_refused_by_name() -> None:
+    # --lr 1e39 is finite as a double: Adam's first step raised "value cannot be converted
+    # to type float without overflow".
+    from cva_confidence_ros.errors import ConfigError
+    from cva_confidence_ros.training import TrainConfig
+
+    with pytest.raises(ConfigError, match=r'^lr must be at most 1e\+06; got 1e\+39$'):
+        TrainConfig(synthetic=1, lr=1e39)
+    assert TrainConfig(synthetic=1, lr=10.0).lr == 10.0
