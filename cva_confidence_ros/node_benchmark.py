@@ -48,6 +48,7 @@ from __future__ import annotations
 import argparse
 from collections import Counter
 from collections.abc import Callable, Iterator, Mapping, Sequence
+import contextlib
 from dataclasses import dataclass
 import itertools
 import json
@@ -190,8 +191,9 @@ class NodeBenchSettings:
             raise ConfigError(f'crop must be two sizes ≥ 1 (rows, columns); got {self.crop}')
         if self.threads is not None and self.threads < 1:
             raise ConfigError(f'threads must be ≥ 1; got {self.threads}')
-        if self.rate_hz is not None and not self.rate_hz > 0:
-            raise ConfigError(f'rate must be > 0 Hz; got {self.rate_hz}')
+        if self.rate_hz is not None and not 0 < self.rate_hz <= 1e6:
+            # above 1 MHz the burst's stamps (ns) would no longer be distinct
+            raise ConfigError(f'rate must be in (0, 1e6] Hz; got {self.rate_hz}')
         if self.burst_frames < 2:
             raise ConfigError(f'burst_frames must be ≥ 2; got {self.burst_frames}')
         if not self.outputs or any(topic not in _OUTPUTS for topic in self.outputs):
@@ -361,7 +363,8 @@ class NodeProcess:
                 raise self.fail(f'the node printed no ready line within {timeout:.0f} s')
 
     def memory_mb(self, field_name: str) -> float | None:
-        """``VmRSS``, ``VmHWM``… of the node process in MB, None where unreadable."""
+        """``VmRSS``, ``VmHWM``… of the node process in MiB (``/proc`` counts KiB), None where
+        unreadable."""
         try:
             with open(f'/proc/{self.process.pid}/status', encoding='ascii') as status:
                 for line in status:
@@ -394,6 +397,27 @@ class NodeProcess:
                 self.process.wait(10)
         self._reader.join(10)
         return self.process.returncode
+
+
+@contextlib.contextmanager
+def _stop_on_sigterm() -> Iterator[None]:
+    """Turn SIGTERM (``timeout``, CI runners, systemd) into :class:`SystemExit` meanwhile, so
+    that ``finally`` blocks stop the node; its default action would end this process at once
+    and leave the node running. Only in the main thread, and only over the default action."""
+    if threading.current_thread() is not threading.main_thread() or (
+        signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL
+    ):
+        yield
+        return
+
+    def _exit(signum: int, _frame: object) -> None:
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, _exit)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 # The DDS client -----------------------------------------------------------------------------
@@ -681,7 +705,11 @@ def _burst(
     )
     wall_s = time.perf_counter() - start
     cpu_end = node.cpu_seconds()
+    if not node.alive():
+        raise node.fail('the node died during the burst')
     times = sorted(t for t in (client.answer_time(s) for s in frames) if t is not None)
+    dropped_now = client.counter('frames_dropped') - dropped
+    throttled_now = client.counter('frames_throttled') - throttled
     output_hz = (len(times) - 1) / (times[-1] - times[0]) if len(times) >= 2 else None
     cpu_cores = (
         (cpu_end - cpu_start) / wall_s
@@ -693,8 +721,11 @@ def _burst(
         'burst_sent': len(frames),
         'burst_publish_hz': (len(frames) - 1) / published_s if published_s > 0 else None,
         'burst_answered': len(times),
-        'burst_dropped': client.counter('frames_dropped') - dropped,
-        'burst_throttled': client.counter('frames_throttled') - throttled,
+        'burst_dropped': dropped_now,
+        'burst_throttled': throttled_now,
+        # neither answered nor dropped / skipped by the node's policy: lost on the way, unpaired,
+        # invalid, failed, or not answered within the timeout
+        'burst_lost': max(len(frames) - len(times) - dropped_now - throttled_now, 0),
         'burst_output_hz': output_hz,
         'burst_cpu_cores': cpu_cores,
     }
@@ -747,7 +778,7 @@ def measure_node(
                 os.environ.pop(name, None)
             else:
                 os.environ[name] = saved
-    with client:
+    with client, _stop_on_sigterm():
         command = [*node_command(), '--ros-args']
         command += node_parameters(settings, matcher, method, model_path)
         node = NodeProcess(command, env)
@@ -771,6 +802,8 @@ def measure_node(
                     node.alive,
                 ):
                     _check_frames(client, node)
+                    if not node.alive():
+                        raise node.fail('the node died during a timed frame')
                     raise node.fail(f'no answer within {settings.timeout_s:.0f} s')
                 answered = client.answer_time(stamp)
                 assert answered is not None
@@ -818,6 +851,7 @@ def measure_node(
         'rss_ready_mb': rss_ready,
         'dds_profile': settings.dds_profile,
         'params': dict(settings.params),
+        'outputs': list(settings.outputs),
         'note': '',
     }
     record.update(burst)
@@ -1033,13 +1067,14 @@ def _crop_in_subprocess(settings: NodeBenchSettings, matcher: str, weights: str)
         sys.executable, '-m', 'cva_confidence_ros.node_benchmark',
         _CROP_WORKER_FLAG, matcher, '--weights', weights, *_settings_args(settings),
     ]  # fmt: skip
-    result = subprocess.run(
-        command,
-        capture_output=True,
-        text=True,
-        env=_package_env(settings.threads),
-        check=False,
-    )
+    with _stop_on_sigterm():  # subprocess.run kills the worker when this ends by an exception
+        result = subprocess.run(
+            command,
+            capture_output=True,
+            text=True,
+            env=_package_env(settings.threads),
+            check=False,
+        )
     for line in reversed(result.stdout.splitlines()):
         if line.startswith(_RECORD_PREFIX):
             return json.loads(line[len(_RECORD_PREFIX):])
@@ -1105,6 +1140,7 @@ def extrapolate_cva_net(
         'stages_ms': stages,
         'rss_ready_mb': None,
         'dds_profile': base.get('dds_profile'),
+        'outputs': base.get('outputs'),
         'base_config': base['config'],
         'base_latency_ms': base['latency_ms_median'],
         'network_ms': network_ms,
@@ -1142,10 +1178,17 @@ def run_suite(
     from cva_confidence_ros.confidence import CONFIDENCE_METHODS
     from cva_confidence_ros.matching import MATCHERS
 
-    for name in matchers:
-        MATCHERS.get(name)
-    for name in methods:
-        CONFIDENCE_METHODS.get(name)
+    for option, names, registry in (
+        ('matchers', matchers, MATCHERS),
+        ('methods', methods, CONFIDENCE_METHODS),
+    ):
+        if not names:
+            raise ConfigError(f'--{option} needs at least one name')
+        for name in names:
+            registry.get(name)
+        repeated = sorted(name for name, count in Counter(names).items() if count > 1)
+        if repeated:
+            raise ConfigError(f'--{option} names {repeated} more than once')
     full = settings.full_cva_net or settings.device != 'cpu'
     if settings.params and _NETWORK in methods and not full:
         raise ConfigError(
@@ -1210,9 +1253,10 @@ def format_table(records: Sequence[dict[str, Any]], threads: int) -> str:
         f"{first['device']}, {threads} CPU cores, DDS profile {first.get('dds_profile')}",
         '',
         '| config | latency ms | fps | online (≥ 5 Hz) | matching ms | confidence ms '
-        '| node frame ms | peak RSS MB |',
+        '| node frame ms | peak RSS MiB |',
         '|---|---:|---:|:---:|---:|---:|---:|---:|',
     ]
+    awaited = ' and '.join(first.get('outputs') or NodeBenchSettings().outputs)
     for record in records:
         stages = record.get('stages_ms') or {}
         mark = ' *' if record['extrapolated'] else ''
@@ -1225,7 +1269,7 @@ def format_table(records: Sequence[dict[str, Any]], threads: int) -> str:
     lines += [
         '',
         'latency = median over the timed frames of: publish of the pair + camera infos → '
-        'disparity and confidence received (one frame at a time, reliable QoS); fps = 1000 / '
+        f'{awaited} received (one frame at a time, reliable QoS); fps = 1000 / '
         "latency; matching, confidence, node frame = the node's own stage times (from "
         '/diagnostics; node frame = message in → outputs published); peak RSS = VmHWM of the '
         'node process.',
@@ -1234,21 +1278,24 @@ def format_table(records: Sequence[dict[str, Any]], threads: int) -> str:
     if bursts:
         lines += [
             '',
-            '| config | burst in Hz | sent | answered | dropped | throttled | out Hz '
+            '| config | burst in Hz | sent | answered | dropped | throttled | lost | out Hz '
             '| node CPU cores |',
-            '|---|---:|---:|---:|---:|---:|---:|---:|',
+            '|---|---:|---:|---:|---:|---:|---:|---:|---:|',
         ]
         lines += [
             f"| {r['config']} | {_cell(r['burst_publish_hz'])} | {r['burst_sent']} "
             f"| {r['burst_answered']} | {r['burst_dropped']} | {r['burst_throttled']} "
-            f"| {_cell(r['burst_output_hz'], 2)} | {_cell(r['burst_cpu_cores'], 2)} |"
+            f"| {r.get('burst_lost', '–')} | {_cell(r['burst_output_hz'], 2)} "
+            f"| {_cell(r['burst_cpu_cores'], 2)} |"
             for r in bursts
         ]
         lines.append(
             'burst: pairs published at a fixed rate without waiting; the node works on the '
             'newest pending pair and drops the ones it had no time for, or skips them under '
-            'max_rate_hz (throttled); node CPU cores = its user + system CPU time over the '
-            "burst's wall time (publish of the first pair → the node idle again)."
+            'max_rate_hz (throttled); lost = neither answered nor dropped nor throttled (never '
+            'paired, invalid, failed or no answer in time); node CPU cores = its user + system '
+            "CPU time over the burst's wall time (publish of the first pair → the node idle "
+            'again).'
         )
     extrapolated = [r for r in records if r['extrapolated']]
     if extrapolated:
