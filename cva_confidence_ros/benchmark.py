@@ -557,7 +557,7 @@ def format_table(records: Sequence[dict[str, Any]], threads: int) -> str:
         f"{first['width']}×{first['height']}, D = {first['max_disparity']}, "
         f'{threads} CPU cores; frame = image pair → disparity; median ms per frame',
         f"{'config':<14}{'device':<8}{'ms/frame':>10}{'real':>9}{'synth':>9}{'volume':>9}"
-        f"{'SGBM*':>9}{'× SGBM':>9}{'peak MB':>10}",
+        f"{'SGBM*':>9}{'× SGBM':>9}{'peak MiB':>10}",
     ]
     for record in records:
         per_pair = record.get('per_pair_ms', {})
@@ -574,7 +574,7 @@ def format_table(records: Sequence[dict[str, Any]], threads: int) -> str:
     lines.append(
         'volume = cost-volume part of a matcher frame (the rest is WTA); real = Motorcycle, '
         'synth = banded synthetic pair;\nSGBM* = OpenCV SGBM frames interleaved with that '
-        "row's frames in the same process (the ratio's reference); peak MB = peak resident "
+        "row's frames in the same process (the ratio's reference); peak MiB = peak resident "
         'memory a frame needs (buffers kept between frames included)'
     )
     for record in networks:
@@ -584,7 +584,7 @@ def format_table(records: Sequence[dict[str, Any]], threads: int) -> str:
         lines.append(
             f"{record['config']}: {record['network_gflops']:.1f} GFLOP/s{share} a "
             f"{_GEMM_SIZE}² float32 matmul ({gemm or nan:.1f} GFLOP/s); measured on a "
-            f'{crop[0]}×{crop[1]} crop, ms/frame extrapolated by FLOPs, peak MB of the crop'
+            f'{crop[0]}×{crop[1]} crop, ms/frame extrapolated by FLOPs, peak MiB of the crop'
             + (f"; {record['note']}" if record.get('note') else '')
         )
     return '\n'.join(lines)

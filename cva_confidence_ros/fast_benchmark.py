@@ -572,7 +572,7 @@ def format_fast_table(records: Sequence[dict[str, Any]]) -> str:
         'census_bm cost volume of the Motorcycle pair',
         '',
         '| config | ms/frame | fps | network share | network GFLOP/s | GEMM GFLOP/s '
-        '| peak MB | auc_rel |',
+        '| peak MiB | auc_rel |',
         '|---|---:|---:|---:|---:|---:|---:|---:|',
     ]
     for r in records:
@@ -585,7 +585,7 @@ def format_fast_table(records: Sequence[dict[str, Any]]) -> str:
             f"| {'—' if share is None else f'{share:.1%}'} | {r['network_gflops']:.1f} "
             f"| {r['gemm_gflops']:.1f} | {'—' if peak is None else f'{peak:.0f}'} | {auc} |"
         )
-    lines.append('* timed on a crop, extrapolated to the frame by FLOPs; peak MB is the '
+    lines.append('* timed on a crop, extrapolated to the frame by FLOPs; peak MiB is the '
                  "crop's")
     return '\n'.join(lines)
 

@@ -310,7 +310,7 @@ def format_gpu_table(records: Sequence[dict[str, Any]]) -> str:
         f"{first['gemm_gflops'] / 1e3:.1f} TFLOP/s"
         + ('' if bf16 is None else f', bf16 matmul {bf16 / 1e3:.0f} TFLOP/s'),
         '',
-        '| config | ms/frame (host→host) | fps | network ms | network TFLOP/s | peak MB '
+        '| config | ms/frame (host→host) | fps | network ms | network TFLOP/s | peak MiB '
         '| AUC | auc_rel |',
         '|---|---:|---:|---:|---:|---:|---:|---:|',
     ]

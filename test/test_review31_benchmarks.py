@@ -127,4 +127,4 @@ def test_fast_table_says_the_crop_rows_peak_is_the_crops() -> None:
            'gemm_gflops': 50.0, 'auc_rel': None, 'extrapolated': True, 'network_share': 1.0,
            'threads': 1, 'numba_threads': 1}
     footnote = format_fast_table([row]).splitlines()[-1]
-    assert footnote.startswith('* timed on a crop') and "peak MB is the crop's" in footnote
+    assert footnote.startswith('* timed on a crop') and "peak MiB is the crop's" in footnote
