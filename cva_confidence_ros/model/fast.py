@@ -237,8 +237,10 @@ class CVANetFast(nn.Module):
         check_volume_tensor(volume, self.max_disparity)
 
     def forward_logits(self, volume: torch.Tensor) -> torch.Tensor:
-        """(B, 1, D, H + 12, W + 12) float32 → (B, H, W) float32 pre-sigmoid scores."""
+        """(B, 1, D, H + 12, W + 12) floating point (converted to the dtype of the weights) →
+        (B, H, W) pre-sigmoid scores."""
         self.check_input(volume)
+        volume = volume.to(self.encoder.fc_curve.weight.dtype)
         return self.classification(self.fusion(self.encoder(volume)))
 
     def forward(self, volume: torch.Tensor) -> torch.Tensor:
@@ -313,6 +315,7 @@ class FoldedCVANetFast(nn.Module):
         before it is shared between neighbouring pixels).
         """
         check_volume_tensor(volume, self.max_disparity)
+        volume = volume.to(self.curve.weight.dtype)  # a float64 or float16 volume, as unfolded
         # Channels-last (NHWC) convolutions: ≈ 10 % faster on this CPU's oneDNN than NCHW,
         # equal up to float rounding (< 1e-5).
         x = aligned_curve(volume[:, 0]).contiguous(memory_format=torch.channels_last)

@@ -96,7 +96,7 @@ class FoldedCVANet(nn.Module):
             InputError: ``volume`` not a floating-point (B, 1, D, ≥13, ≥13) tensor with this D.
         """
         check_volume_tensor(volume, self.max_disparity)
-        x = volume
+        x = volume.to(next(self.parameters()).dtype)  # a float64 or float16 volume, as unfolded
         for conv in self.fusion:
             x = F.relu(conv(x))
         return x

@@ -199,9 +199,10 @@ class CVANetLite(nn.Module):
         check_volume_tensor(volume, self.max_disparity)
 
     def forward_logits(self, volume: torch.Tensor) -> torch.Tensor:
-        """(B, 1, D, H + 12, W + 12) float32 → (B, H, W) float32 pre-sigmoid scores."""
+        """(B, 1, D, H + 12, W + 12) floating point (converted to the dtype of the weights) →
+        (B, H, W) pre-sigmoid scores."""
         self.check_input(volume)
-        fused = self.fusion(volume)
+        fused = self.fusion(volume.to(_weights_dtype(self)))
         batch, _, _, height, width = fused.shape
         if batch == 0:  # no curves: the depth convolutions cannot run on an empty layout
             return fused.new_zeros((0, height, width))
@@ -222,9 +223,21 @@ class CVANetLite(nn.Module):
         return FoldedCVANetLite(self)
 
 
+def _weights_dtype(net: nn.Module) -> torch.dtype:
+    """The dtype of ``net``'s first parameter: the one its input is brought to (any
+    floating-point volume is taken; a float64 one stopped at the first layer with "mixed
+    dtype" or "Input type ... and bias type")."""
+    return next(net.parameters()).dtype
+
+
 def check_volume_tensor(volume: torch.Tensor, max_disparity: int) -> None:
     """Raise :class:`InputError` unless ``volume`` is a floating-point (B, 1, D, ≥13, ≥13)
-    tensor with the given D."""
+    tensor with the given D (a numpy array is named, not failed on)."""
+    if not isinstance(volume, torch.Tensor):
+        raise InputError(
+            f'expected a cost-volume torch.Tensor of shape (B, 1, D, H + 12, W + 12); '
+            f'got {type(volume).__name__}'
+        )
     if volume.ndim != 5 or volume.shape[1] != 1:
         raise InputError(
             f'expected a cost-volume tensor of shape (B, 1, D, H + 12, W + 12); '
@@ -317,7 +330,7 @@ class FoldedCVANetLite(nn.Module):
         depth stage only at the wanted pixels.
         """
         check_volume_tensor(volume, self.max_disparity)
-        x = volume
+        x = volume.to(_weights_dtype(self))  # a float64 or float16 volume, as unfolded
         for conv in self.fusion:
             x = F.relu(conv(x))
         return x

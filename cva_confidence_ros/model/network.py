@@ -195,6 +195,11 @@ class CVANet(nn.Module):
     def check_input(self, volume: torch.Tensor) -> None:
         """Raise :class:`InputError` unless ``volume`` is a floating-point (B, 1, D, ≥13, ≥13)
         tensor with this D."""
+        if not isinstance(volume, torch.Tensor):
+            raise InputError(
+                f'expected a cost-volume torch.Tensor of shape (B, 1, D, H + 12, W + 12); '
+                f'got {type(volume).__name__}'
+            )
         if volume.ndim != 5 or volume.shape[1] != 1:
             raise InputError(
                 f'expected a cost-volume tensor of shape (B, 1, D, H + 12, W + 12); '
@@ -219,13 +224,16 @@ class CVANet(nn.Module):
         """Pre-sigmoid scores, for a numerically stable ``binary_cross_entropy_with_logits``.
 
         Args:
-            volume: (B, 1, D, H + 12, W + 12) float32 normalised cost volume.
+            volume: (B, 1, D, H + 12, W + 12) normalised cost volume, floating point (converted
+                to the dtype of the weights, float32 unless the network was converted).
 
         Returns:
-            (B, H, W) float32 logits; ``sigmoid`` of them is :meth:`forward`.
+            (B, H, W) logits in the dtype of the weights; ``sigmoid`` of them is :meth:`forward`.
         """
         self.check_input(volume)
-        fused = self.fusion(volume)
+        # Any floating-point volume is accepted (check_input): a float64 or float16 one would
+        # otherwise stop in the first layer with "mixed dtype" or "Input type ... and bias type".
+        fused = self.fusion(volume.to(self.fusion.input_bn.weight.dtype))
         batch, _, _, height, width = fused.shape
         if batch == 0:  # no curves: the depth convolutions cannot run on an empty layout
             return fused.new_zeros((0, height, width))
