@@ -45,9 +45,9 @@ _DEVELOP_SCENES: dict[str, str] = {
 #: Largest run seed: the trainer seeds torch with seed · 1 000 003 + …, which
 #: ``torch.manual_seed`` takes only below 2**64.
 _MAX_SEED = 2**32 - 1
-#: The largest learning rate taken: far beyond any that trains (10 already diverges, and says
-#: so), well inside what Adam's float32 steps hold (1e39 overflowed at the first step).
-_LR_MAX = 1e6
+#: The largest learning rate taken: one float32 holds (Adam's steps are float32; 1e39 stopped
+#: the first step with a raw overflow error). Far smaller ones already diverge, and say so.
+_LR_MAX = 1e38
 
 
 def default_synthetic_size(max_disparity: int) -> tuple[int, int]:
