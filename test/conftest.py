@@ -6,6 +6,7 @@ from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager, contextmanager
 import resource
 import signal
+from types import ModuleType
 
 import numpy as np
 import pytest
@@ -19,6 +20,13 @@ def one_torch_thread() -> Iterator[None]:
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+@pytest.fixture
+def ort() -> ModuleType:
+    """``onnxruntime``, or the test is skipped where ``onnx`` or it is not installed."""
+    pytest.importorskip('onnx')
+    return pytest.importorskip('onnxruntime')
 
 
 @pytest.fixture

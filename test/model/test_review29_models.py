@@ -27,12 +27,6 @@ pytestmark = pytest.mark.usefixtures('one_torch_thread')
 
 
 @pytest.fixture
-def ort():
-    pytest.importorskip('onnx')
-    return pytest.importorskip('onnxruntime')
-
-
-@pytest.fixture
 def float64_default() -> Iterator[None]:
     previous = torch.get_default_dtype()
     torch.set_default_dtype(torch.float64)

@@ -29,12 +29,6 @@ ARCHS = [CVANet, CVANetLite, CVANetFast]
 pytestmark = pytest.mark.usefixtures('one_torch_thread')
 
 
-@pytest.fixture
-def ort():
-    pytest.importorskip('onnx')
-    return pytest.importorskip('onnxruntime')
-
-
 def _trained_like(cls: type, seed: int = 0) -> nn.Module:
     """Random weights and BN statistics (folding must carry them)."""
     torch.manual_seed(seed)
