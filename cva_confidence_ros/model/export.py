@@ -37,7 +37,7 @@ import torch.nn.functional as F
 from cva_confidence_ros.checks import is_int
 from cva_confidence_ros.errors import ConfigError, ModelError, reason
 from cva_confidence_ros.model.fast import FoldedCVANetFast
-from cva_confidence_ros.model.inference import PAD, FoldedCVANet, _unwrap, fold_batchnorm
+from cva_confidence_ros.model.inference import PAD, FoldedCVANet, _unwrap
 from cva_confidence_ros.model.lite import FoldedCVANetLite, check_volume_tensor
 from cva_confidence_ros.model.weights import architecture_of, default_weights_path, load_weights
 
@@ -84,11 +84,11 @@ def _deployable(net: nn.Module) -> tuple[CostVolumeModel, str, int]:
     # A (Distributed)DataParallel wrapper, which architecture_of accepts, has no
     # fold_batchnorm and no max_disparity. Folding reads the BN running statistics whatever
     # the mode, so the caller's network need not be switched to eval mode.
-    typed: Any = _unwrap(net)  # each of the three has max_disparity; Lite and Fast fold themselves
+    typed: Any = _unwrap(net)  # each of the three has max_disparity and folds itself
     if folded_arch:  # already folded (fold_batchnorm): a copy, the caller's is left as it is
         folded = copy.deepcopy(typed)
     else:
-        folded = fold_batchnorm(typed) if arch == 'cvanet' else typed.fold_batchnorm()
+        folded = typed.fold_batchnorm()
     # The graph is float32 on the CPU as documented, whatever the network's device, its dtype
     # or torch's default dtype (the folded layers are built in the default dtype).
     folded = folded.to('cpu', torch.float32)

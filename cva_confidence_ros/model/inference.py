@@ -378,8 +378,6 @@ def _inference_model(
     if getattr(net, 'is_folded', False):
         return net.to(device)
     if fold_bn:
-        if isinstance(net, CVANet):
-            return fold_batchnorm(net).to(device)
         fold = getattr(net, 'fold_batchnorm', None)
         if not callable(fold):
             raise ConfigError(

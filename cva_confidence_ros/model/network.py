@@ -244,6 +244,13 @@ class CVANet(nn.Module):
         """Confidence in (0, 1) of shape (B, H, W) for an input (B, 1, D, H + 12, W + 12)."""
         return torch.sigmoid(self.forward_logits(volume))
 
+    def fold_batchnorm(self) -> nn.Module:
+        """The inference form, as CVA-Net-Lite and -Fast fold themselves:
+        :func:`~cva_confidence_ros.model.inference.fold_batchnorm` of this network."""
+        from cva_confidence_ros.model.inference import fold_batchnorm
+
+        return fold_batchnorm(self)
+
 
 def check_network_options(
     max_disparity: int, minimum: int, reason: str, dropout: float

@@ -136,3 +136,15 @@ def check_confidence_method(
     with pytest.raises(ModelError, match=f"expected '{arch}'"):
         factory(matcher='census_bm', max_disparity=depth, weights=str(cva_net_path))
     return factory
+
+
+def trained_like(cls: type, depth: int, seed: int = 0) -> nn.Module:
+    """A ``cls(depth)`` network in eval mode with random weights and batch-norm statistics
+    (folding must carry them)."""
+    torch.manual_seed(seed)
+    net = cls(depth)
+    for module in net.modules():
+        if isinstance(module, nn.modules.batchnorm._BatchNorm):
+            module.running_mean.uniform_(-0.2, 0.2)
+            module.running_var.uniform_(0.5, 1.5)
+    return net.eval()

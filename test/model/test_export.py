@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from light_net_test_utils import trained_like
 import numpy as np
 import pytest
 import torch
@@ -26,20 +27,9 @@ onnxruntime = pytest.importorskip('onnxruntime')
 D = 16
 
 
-def _trained_like(cls: type, seed: int) -> torch.nn.Module:
-    """A network with random weights and batch-norm statistics (folding must carry them)."""
-    torch.manual_seed(seed)
-    net = cls(D)
-    for module in net.modules():
-        if isinstance(module, torch.nn.modules.batchnorm._BatchNorm):
-            module.running_mean.uniform_(-0.2, 0.2)
-            module.running_var.uniform_(0.5, 1.5)
-    return net.eval()
-
-
 @pytest.mark.parametrize('cls', [CVANet, CVANetLite, CVANetFast])
 def test_onnx_runtime_gives_the_network_at_any_size(tmp_path: Path, cls: type) -> None:
-    net = _trained_like(cls, 0)
+    net = trained_like(cls, D, 0)
     path = export_onnx(net, tmp_path / 'net.onnx', example_size=(20, 24))
     session = onnxruntime.InferenceSession(str(path), providers=['CPUExecutionProvider'])
     (feed,) = session.get_inputs()
@@ -57,7 +47,7 @@ def test_onnx_runtime_gives_the_network_at_any_size(tmp_path: Path, cls: type) -
 
 def test_the_command_writes_the_graph_and_its_card(tmp_path: Path, capsys) -> None:
     weights = tmp_path / 'cvanet_fast_census_sgm_d16.pt'
-    save_weights(_trained_like(CVANetFast, 2), weights, {'matcher': 'census_sgm'})
+    save_weights(trained_like(CVANetFast, D, 2), weights, {'matcher': 'census_sgm'})
     out = tmp_path / 'exported' / 'fast.onnx'
     assert main([str(weights), '--out', str(out), '--check-size', '24x40']) == 0
     err = capsys.readouterr().err
@@ -78,7 +68,7 @@ def test_what_cannot_be_exported_is_refused(tmp_path: Path, capsys) -> None:
     with pytest.raises(ModelError, match='cost-volume networks'):
         export_onnx(CCNN(D), tmp_path / 'c.onnx')
     weights = tmp_path / 'w.pt'
-    save_weights(_trained_like(CVANetFast, 3), weights, {'matcher': 'census_bm'})
+    save_weights(trained_like(CVANetFast, D, 3), weights, {'matcher': 'census_bm'})
     assert main([str(weights), '--out', str(tmp_path / 'w.txt'), '--no-check']) == 2
     assert 'must name a .onnx file' in capsys.readouterr().err
     assert not (tmp_path / 'c.onnx').exists()
@@ -88,7 +78,7 @@ def test_what_cannot_be_exported_is_refused(tmp_path: Path, capsys) -> None:
 def test_the_onnxruntime_backend_gives_the_torch_values(cls: type) -> None:
     from cva_confidence_ros.model import SparseConfig, SparseEvaluator
 
-    net = _trained_like(cls, 4)
+    net = trained_like(cls, D, 4)
     volume = np.random.default_rng(5).random((D, 23, 37), dtype=np.float32)
     torch_eval = SparseEvaluator(net)
     ort_eval = SparseEvaluator(net, backend='onnxruntime')
@@ -145,7 +135,7 @@ def test_the_pipeline_with_onnxruntime_matches_torch() -> None:
 def test_an_opset_the_exporter_cannot_write_exits_2_with_one_line(tmp_path: Path,
                                                                   capsys) -> None:
     weights = tmp_path / 'w.pt'
-    save_weights(_trained_like(CVANetFast, 4), weights, {'matcher': 'census_bm'})
+    save_weights(trained_like(CVANetFast, D, 4), weights, {'matcher': 'census_bm'})
     for opset in ('0', '-1', '99'):
         out = tmp_path / f'opset{opset}.onnx'
         assert main([str(weights), '--out', str(out), '--opset', opset, '--no-check']) == 2
@@ -153,4 +143,4 @@ def test_an_opset_the_exporter_cannot_write_exits_2_with_one_line(tmp_path: Path
         assert err.count('\n') == 1 and err.startswith('cva-export: error: ONNX opset must be')
         assert f'got {opset}' in err and not out.exists()
     with pytest.raises(ModelError, match=r'ONNX opset must be an integer in \[\d+, \d+\].*got 1'):
-        export_onnx(_trained_like(CVANetFast, 4), tmp_path / 'x.onnx', opset=1)
+        export_onnx(trained_like(CVANetFast, D, 4), tmp_path / 'x.onnx', opset=1)

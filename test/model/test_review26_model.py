@@ -24,10 +24,6 @@ DEPTH = 16
 ARCHS = [CVANet, CVANetLite, CVANetFast]
 
 
-def _folded(net):
-    return fold_batchnorm(net) if isinstance(net, CVANet) else net.fold_batchnorm()
-
-
 def _volume(shape=(DEPTH, 5, 6), seed=0):
     return np.random.default_rng(seed).random(shape).astype(np.float32)
 
@@ -53,7 +49,7 @@ def test_integer_cost_volumes_are_refused(arch):
     net = arch(DEPTH).eval()
     volume = torch.randint(0, 256, (1, 1, DEPTH, 13, 13), dtype=torch.uint8)
     with torch.no_grad():
-        for module in (net, _folded(net)):
+        for module in (net, net.fold_batchnorm()):
             with pytest.raises(InputError, match='floating-point.*uint8'):
                 module(volume)
             with pytest.raises(InputError, match='floating-point.*int64'):
@@ -130,7 +126,7 @@ def test_a_folded_network_converted_to_float64_runs_every_way(arch):
     net = arch(DEPTH)
     volume = _volume((DEPTH, 7, 5), seed=1)
     exact = predict_confidence(net, volume)
-    folded = _folded(net).double()
+    folded = net.fold_batchnorm().double()
     np.testing.assert_allclose(predict_confidence(folded, volume), exact, atol=1e-6)
     for path in ('tile', 'fused', 'extracts'):
         evaluator = SparseEvaluator(folded, path=path)

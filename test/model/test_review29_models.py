@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from pathlib import Path
 
+from light_net_test_utils import trained_like
 import numpy as np
 import pytest
 import torch
@@ -16,7 +17,6 @@ from cva_confidence_ros.model import (
     CVANet,
     CVANetFast,
     CVANetLite,
-    fold_batchnorm,
     save_weights,
 )
 
@@ -36,27 +36,12 @@ def float64_default() -> Iterator[None]:
         torch.set_default_dtype(previous)
 
 
-def _trained_like(cls: type, seed: int = 0) -> nn.Module:
-    """Random weights and BN statistics (folding must carry them)."""
-    torch.manual_seed(seed)
-    net = cls(D)
-    for module in net.modules():
-        if isinstance(module, nn.modules.batchnorm._BatchNorm):
-            module.running_mean.uniform_(-0.2, 0.2)
-            module.running_var.uniform_(0.5, 1.5)
-    return net.eval()
-
-
-def _folded(net: nn.Module) -> nn.Module:
-    return fold_batchnorm(net) if isinstance(net, CVANet) else net.fold_batchnorm()
-
-
 def test_check_onnx_reports_a_graph_that_does_not_run_as_a_model_error(ort, tmp_path: Path):
     # The docstring promised ModelError when "the graph does not run"; a graph of another D
     # raised onnxruntime's own InvalidArgument from session.run.
     from cva_confidence_ros.model.export import check_onnx, export_onnx
 
-    path = export_onnx(_trained_like(CVANetFast), tmp_path / 'd16.onnx', example_size=(14, 14))
+    path = export_onnx(trained_like(CVANetFast, D), tmp_path / 'd16.onnx', example_size=(14, 14))
     with pytest.raises(ModelError, match=r'ONNX Runtime cannot run .*d16\.onnx.*\(1, 24, 8, 9\)'):
         check_onnx(path, CVANetFast(24).eval(), (8, 9), repeat=1)
 
@@ -68,7 +53,7 @@ def test_the_onnxruntime_backend_runs_a_float64_folded_network(ort, cls: type):
     # (RuntimeError: Input type (float) and bias type (double) should be the same)".
     from cva_confidence_ros.model.sparse import SparseEvaluator
 
-    folded = _folded(_trained_like(cls, 1)).double()
+    folded = trained_like(cls, D, 1).fold_batchnorm().double()
     volume = np.random.default_rng(2).random((D, 5, 7), dtype=np.float32)
     expected = SparseEvaluator(folded)(volume)
     evaluator = SparseEvaluator(folded, backend='onnxruntime')
@@ -88,7 +73,7 @@ def test_export_under_a_float64_default_dtype_writes_the_float32_graph(
 
     from cva_confidence_ros.model.export import OnnxRuntimeNet, check_onnx, export_onnx
 
-    net = _trained_like(cls, 3)
+    net = trained_like(cls, D, 3)
     path = export_onnx(net, tmp_path / 'net.onnx', example_size=(14, 14))
     graph = onnx.load(str(path))
     assert graph.graph.input[0].type.tensor_type.elem_type == onnx.TensorProto.FLOAT
@@ -96,7 +81,8 @@ def test_export_under_a_float64_default_dtype_writes_the_float32_graph(
     padded = torch.rand(1, 1, D, 15, 16, dtype=torch.float32)
     with torch.no_grad():
         expected = net(padded.double()).float()
-    torch.testing.assert_close(OnnxRuntimeNet(_folded(net))(padded), expected, atol=1e-5, rtol=0)
+    runner = OnnxRuntimeNet(net.fold_batchnorm())
+    torch.testing.assert_close(runner(padded), expected, atol=1e-5, rtol=0)
 
 
 def test_export_and_check_leave_the_network_in_training_mode(ort, tmp_path: Path):
@@ -104,7 +90,7 @@ def test_export_and_check_leave_the_network_in_training_mode(ort, tmp_path: Path
     # middle of a training run switched off its dropout and BN updates for the rest of it.
     from cva_confidence_ros.model.export import check_onnx, export_onnx
 
-    net = _trained_like(CVANetFast, 4).train()
+    net = trained_like(CVANetFast, D, 4).train()
     path = export_onnx(net, tmp_path / 'net.onnx', example_size=(14, 14))
     assert net.training and all(module.training for module in net.modules())
     # The graph is still the eval-mode network (folded BN statistics, no dropout).
@@ -118,7 +104,7 @@ def test_export_takes_a_wrapped_network_as_save_weights_does(ort, tmp_path: Path
     # fold_batchnorm on the wrapper: "expected a CVANet; got DataParallel" / AttributeError.
     from cva_confidence_ros.model.export import check_onnx, export_onnx
 
-    net = _trained_like(cls, 5)
+    net = trained_like(cls, D, 5)
     wrapped = nn.DataParallel(net)
     save_weights(wrapped, tmp_path / 'w.pt', {'matcher': 'census_bm'})  # accepted there
     path = export_onnx(wrapped, tmp_path / 'net.onnx', example_size=(14, 14))
@@ -131,7 +117,7 @@ def test_the_onnxruntime_net_checks_its_input_as_the_network_does(ort):
     # a wrong depth or size to ONNX Runtime's InvalidArgument.
     from cva_confidence_ros.model.export import OnnxRuntimeNet
 
-    runner = OnnxRuntimeNet(_folded(_trained_like(CVANetFast, 6)))
+    runner = OnnxRuntimeNet(trained_like(CVANetFast, D, 6).fold_batchnorm())
     volume = torch.randint(0, 256, (1, 1, D, 13, 13), dtype=torch.uint8)
     with pytest.raises(InputError, match='floating-point.*uint8'):
         runner(volume)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from light_net_test_utils import trained_like
 import numpy as np
 import pytest
 import torch
@@ -16,7 +17,6 @@ from cva_confidence_ros.model import (
     CVANetFast,
     CVANetLite,
     dense_macs,
-    fold_batchnorm,
     macs_per_pixel,
     predict_confidence,
     save_weights,
@@ -27,21 +27,6 @@ D = 16
 ARCHS = [CVANet, CVANetLite, CVANetFast]
 
 pytestmark = pytest.mark.usefixtures('one_torch_thread')
-
-
-def _trained_like(cls: type, seed: int = 0) -> nn.Module:
-    """Random weights and BN statistics (folding must carry them)."""
-    torch.manual_seed(seed)
-    net = cls(D)
-    for module in net.modules():
-        if isinstance(module, nn.modules.batchnorm._BatchNorm):
-            module.running_mean.uniform_(-0.2, 0.2)
-            module.running_var.uniform_(0.5, 1.5)
-    return net.eval()
-
-
-def _folded(net: nn.Module) -> nn.Module:
-    return fold_batchnorm(net) if isinstance(net, CVANet) else net.fold_batchnorm()
 
 
 @pytest.mark.parametrize('size', [(0, 5), (5, -1), (5,), (2.5, 3), (True, 4), 'ab', None])
@@ -63,8 +48,8 @@ def test_export_and_check_refuse_a_size_that_is_not_two_positive_integers(
 def test_a_folded_network_is_exported_as_it_is(ort, tmp_path: Path, cls: type) -> None:
     # Was: ModelError "expected a network of a registered architecture ...; got
     # FoldedCVANetFast", though the folded form is the one the graph holds.
-    net = _trained_like(cls, 1)
-    folded = _folded(net)
+    net = trained_like(cls, D, 1)
+    folded = net.fold_batchnorm()
     path = export_onnx(folded, tmp_path / 'folded.onnx', example_size=(3, 4))
     session = ort.InferenceSession(str(path), providers=['CPUExecutionProvider'])
     volume = np.random.default_rng(2).random((1, D, 5, 9), dtype=np.float32)
@@ -78,7 +63,7 @@ def test_an_opset_the_exporter_fails_at_leaves_stdout_clean(ort, tmp_path: Path,
     # CVA-Net-Fast's gather has no ONNX form before opset 9. Was: torch's exporter printed
     # the whole TorchScript graph (~100 lines) on stdout before the one-line error.
     weights = tmp_path / 'w.pt'
-    save_weights(_trained_like(CVANetFast, 3), weights, {'matcher': 'census_bm'})
+    save_weights(trained_like(CVANetFast, D, 3), weights, {'matcher': 'census_bm'})
     out = tmp_path / 'opset7.onnx'
     assert main([str(weights), '--out', str(out), '--opset', '7', '--no-check']) == 2
     captured = capfd.readouterr()
@@ -97,7 +82,7 @@ def test_the_onnxruntime_net_refuses_a_bad_thread_count(ort, threads) -> None:
     # Was: -2 and True accepted without a word, 2.5 and '2' a TypeError from ONNX Runtime.
     from cva_confidence_ros.model.export import OnnxRuntimeNet
 
-    net = _trained_like(CVANetFast, 4).fold_batchnorm()
+    net = trained_like(CVANetFast, D, 4).fold_batchnorm()
     with pytest.raises(ConfigError, match=r'threads must be None or an integer >= 0.*got'):
         OnnxRuntimeNet(net, threads=threads)
     # 0 (as None) is torch's thread count, as before.
@@ -123,7 +108,7 @@ def test_mac_counts_take_a_wrapped_network_as_export_does(cls: type) -> None:
 def test_cva_net_lite_takes_an_empty_batch_as_the_other_networks_do(folded: bool) -> None:
     # Was: RuntimeError from the depth convolution (trained form) and "cannot reshape tensor
     # of 0 elements" (folded form); CVA-Net-Fast and the folded CVA-Net give (0, H, W).
-    net = _trained_like(CVANetLite, 5)
+    net = trained_like(CVANetLite, D, 5)
     model = net.fold_batchnorm() if folded else net
     with torch.no_grad():
         out = model(torch.rand(0, 1, D, 15, 17))

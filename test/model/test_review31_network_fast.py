@@ -8,7 +8,6 @@ import torch
 
 from cva_confidence_ros.errors import InputError
 from cva_confidence_ros.model.fast import CVANetFast
-from cva_confidence_ros.model.inference import fold_batchnorm
 from cva_confidence_ros.model.lite import CVANetLite
 from cva_confidence_ros.model.network import CVANet
 
@@ -19,9 +18,7 @@ def _network(kind: str) -> torch.nn.Module:
     torch.manual_seed(0)
     name, _, folded = kind.partition('_')
     net = {'cvanet': CVANet, 'fast': CVANetFast, 'lite': CVANetLite}[name](DEPTH).eval()
-    if not folded:
-        return net
-    return fold_batchnorm(net) if name == 'cvanet' else net.fold_batchnorm()
+    return net.fold_batchnorm() if folded else net
 
 
 # (the Lite and folded CVA-Net cases: the same faults, mended in lite.py and inference.py)
