@@ -15,6 +15,7 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import Header
@@ -28,6 +29,13 @@ FX = 100.0
 BASELINE = 0.1
 TRUE_DISPARITY = 5
 FRAME = 'left_optical'
+
+#: A node that starts in a second: Census block matching at D = 16 and the MLM measure.
+SMALL_MLM = (
+    Parameter('matcher', value='census_bm'),
+    Parameter('max_disparity', value=16),
+    Parameter('confidence_method', value='mlm'),
+)
 
 
 def domain_id(offset: int) -> int:

@@ -11,6 +11,7 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from node_test_utils import (
+    SMALL_MLM,
     Spinner,
     StereoClient,
     feed_frame,
@@ -33,9 +34,7 @@ pytestmark = pytest.mark.timeout(180)
 
 NAMESPACE = f'review29_{os.getpid()}'
 OVERRIDES = [
-    Parameter('matcher', value='census_bm'),
-    Parameter('max_disparity', value=16),
-    Parameter('confidence_method', value='mlm'),
+    *SMALL_MLM,
 ]
 
 

@@ -8,6 +8,7 @@ import threading
 from typing import Any
 
 from node_test_utils import (
+    SMALL_MLM,
     first_stamp,
     image_msg,
     info_msgs,
@@ -27,9 +28,7 @@ pytestmark = pytest.mark.timeout(180)
 
 NAMESPACE = f'review30_{os.getpid()}'
 OVERRIDES = [
-    Parameter('matcher', value='census_bm'),
-    Parameter('max_disparity', value=16),
-    Parameter('confidence_method', value='mlm'),
+    *SMALL_MLM,
     Parameter('autostart', value=True),
 ]
 

@@ -10,6 +10,7 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from node_test_utils import (
+    SMALL_MLM,
     feed_frame,
     first_stamp,
     localhost_context,
@@ -27,9 +28,7 @@ pytestmark = pytest.mark.timeout(120)
 
 NAMESPACE = f'review31_{os.getpid()}'
 OVERRIDES = [
-    Parameter('matcher', value='census_bm'),
-    Parameter('max_disparity', value=16),
-    Parameter('confidence_method', value='mlm'),
+    *SMALL_MLM,
 ]
 
 

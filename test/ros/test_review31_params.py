@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import os
 
-from node_test_utils import localhost_context, spare_domain_id
+from node_test_utils import SMALL_MLM, localhost_context, spare_domain_id
 import pytest
 from rcl_interfaces.msg import ParameterType
 from rclpy.parameter import Parameter
@@ -26,9 +26,7 @@ def test_a_read_only_double_given_as_a_whole_number_is_a_double(kind: str) -> No
     overrides = [Parameter(name, value=2)]
     with localhost_context(spare_domain_id()) as context:
         if kind == 'confidence':
-            overrides += [Parameter('matcher', value='census_bm'),
-                          Parameter('max_disparity', value=16),
-                          Parameter('confidence_method', value='mlm')]
+            overrides += SMALL_MLM
             node = ConfidenceNode(context=context, namespace=NAMESPACE,
                                   parameter_overrides=overrides)
         else:
