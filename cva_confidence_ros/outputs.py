@@ -9,13 +9,14 @@ behind, which the job would make anyway.
 
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 import tempfile
 
-from cva_confidence_ros.errors import ConfigError
+from cva_confidence_ros.errors import ConfigError, DataError, reason
 
-__all__ = ['check_output_dir', 'check_output_file']
+__all__ = ['check_output_dir', 'check_output_file', 'write_text_atomic']
 
 
 def _unusable(option: str, path: Path, error: OSError) -> ConfigError:
@@ -98,3 +99,52 @@ def check_output_dir(path: str | os.PathLike[str], option: str) -> Path:
         raise _unusable(option, path, error) from None
     _probe(path, option, path)
     return path
+
+
+def write_text_atomic(path: str | os.PathLike[str], text: str, what: str = '') -> Path:
+    """Write ``text`` (UTF-8) beside ``path``, sync it to the disk and move it in place.
+
+    Written directly, a full disk or a crash half-way left a truncated file over the one of
+    an earlier run; synced only after the rename, a crash soon after it can leave an empty
+    file (ext4, XFS with delayed allocation), the old one gone.
+
+    Args:
+        path: Output file; parent folders are created.
+        text: The whole content.
+        what: Words before the path in the error message (``'records '``).
+
+    Returns:
+        The path written.
+
+    Raises:
+        DataError: The file cannot be written; an older file at ``path`` is left as it was.
+    """
+    out = Path(path)
+    tmp = out.with_name(out.name + '.tmp')
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        with open(tmp, 'w', encoding='utf-8') as handle:
+            handle.write(text)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, out)
+        _sync_folder(out.parent)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        state = '; the file there was left as it was' if out.exists() else ''
+        raise DataError(f'cannot write {what}{out}: {reason(exc)}{state}') from None
+    return out
+
+
+def _sync_folder(folder: Path) -> None:
+    """Put a rename in ``folder`` on the disk, where the system can (not on Windows)."""
+    try:
+        handle = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        with contextlib.suppress(OSError):  # the file is in place; only durability is left
+            os.fsync(handle)
+    finally:
+        os.close(handle)

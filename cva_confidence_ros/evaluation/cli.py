@@ -45,7 +45,7 @@ from cva_confidence_ros.errors import (
     InputError,
     from_interrupt,
 )
-from cva_confidence_ros.outputs import check_output_dir, check_output_file
+from cva_confidence_ros.outputs import check_output_dir, check_output_file, write_text_atomic
 
 __all__ = ['SceneRun', 'exit_code', 'main', 'parse_dataset_names', 'parse_weights', 'run_scenes']
 
@@ -321,11 +321,7 @@ def run(args: argparse.Namespace) -> int:
     from cva_confidence_ros.calibration import add_table
     from cva_confidence_ros.confidence import CONFIDENCE_METHODS
     from cva_confidence_ros.datasets import load_scene, resize_sample
-    from cva_confidence_ros.evaluation.records import (
-        format_table,
-        write_records,
-        write_text_atomic,
-    )
+    from cva_confidence_ros.evaluation.records import format_table, write_records
     from cva_confidence_ros.evaluation.scene import evaluate_scene
     from cva_confidence_ros.matching import MATCHERS
 

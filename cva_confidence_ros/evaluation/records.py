@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
-import contextlib
 from dataclasses import asdict, dataclass
 import json
 import math
@@ -11,7 +10,8 @@ from numbers import Integral, Real
 import os
 from pathlib import Path
 
-from cva_confidence_ros.errors import DataError, InputError, reason
+from cva_confidence_ros.errors import DataError, InputError
+from cva_confidence_ros.outputs import write_text_atomic
 
 __all__ = [
     'RECORD_KEYS',
@@ -19,7 +19,6 @@ __all__ = [
     'format_table',
     'read_records',
     'write_records',
-    'write_text_atomic',
 ]
 
 RECORD_KEYS = (
@@ -148,55 +147,6 @@ def write_records(records: Iterable[RecordLike], path: str | os.PathLike[str]) -
     items = [r.as_dict() for r in _as_records(records)]
     return write_text_atomic(path, json.dumps(items, indent=2, allow_nan=False) + '\n',
                              'records ')
-
-
-def write_text_atomic(path: str | os.PathLike[str], text: str, what: str = '') -> Path:
-    """Write ``text`` (UTF-8) beside ``path``, sync it to the disk and move it in place.
-
-    Written directly, a full disk or a crash half-way left a truncated file over the one of
-    an earlier run; synced only after the rename, a crash soon after it can leave an empty
-    file (ext4, XFS with delayed allocation), the old one gone.
-
-    Args:
-        path: Output file; parent folders are created.
-        text: The whole content.
-        what: Words before the path in the error message (``'records '``).
-
-    Returns:
-        The path written.
-
-    Raises:
-        DataError: The file cannot be written; an older file at ``path`` is left as it was.
-    """
-    out = Path(path)
-    tmp = out.with_name(out.name + '.tmp')
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        with open(tmp, 'w', encoding='utf-8') as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, out)
-        _sync_folder(out.parent)
-    except OSError as exc:
-        with contextlib.suppress(OSError):
-            tmp.unlink(missing_ok=True)
-        state = '; the file there was left as it was' if out.exists() else ''
-        raise DataError(f'cannot write {what}{out}: {reason(exc)}{state}') from None
-    return out
-
-
-def _sync_folder(folder: Path) -> None:
-    """Put a rename in ``folder`` on the disk, where the system can (not on Windows)."""
-    try:
-        handle = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        with contextlib.suppress(OSError):  # the file is in place; only durability is left
-            os.fsync(handle)
-    finally:
-        os.close(handle)
 
 
 def read_records(path: str | os.PathLike[str]) -> list[EvalRecord]:

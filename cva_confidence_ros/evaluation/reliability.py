@@ -127,7 +127,7 @@ def write_calibration(tables: Mapping[Key, ReliabilityTable], out_dir: str | Pat
         DataError: ``calibration.json`` or ``.md`` cannot be written (an old one is left as
             it was: each is written beside, synced, then moved in place).
     """
-    from cva_confidence_ros.evaluation.records import write_text_atomic
+    from cva_confidence_ros.outputs import write_text_atomic
     from cva_confidence_ros.plots import save_reliability_diagram
 
     if not tables:

@@ -42,7 +42,7 @@ import time
 from typing import Any, cast
 
 from cva_confidence_ros.errors import ConfigError, DataError, InputError, ModelError, reason
-from cva_confidence_ros.outputs import check_output_dir
+from cva_confidence_ros.outputs import check_output_dir, write_text_atomic
 
 __all__ = [
     'COLUMNS',
@@ -516,7 +516,6 @@ def run(args: argparse.Namespace) -> int:
     from cva_confidence_ros.confidence import CONFIDENCE_METHODS
     from cva_confidence_ros.datasets import list_scenes, load_scene
     from cva_confidence_ros.evaluation.cli import run_scenes
-    from cva_confidence_ros.evaluation.records import write_text_atomic
     from cva_confidence_ros.evaluation.scene import evaluate_scene
     from cva_confidence_ros.matching import MATCHERS
 

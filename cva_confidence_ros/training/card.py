@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-import contextlib
 import json
 import math
 import os
@@ -13,7 +12,7 @@ from typing import Any
 
 import torch
 
-from cva_confidence_ros.errors import DataError, reason
+from cva_confidence_ros.outputs import write_text_atomic
 
 __all__ = ['card_paths', 'hardware_facts', 'write_model_card']
 
@@ -86,24 +85,6 @@ def _json_ready(value: Any) -> Any:
     if isinstance(value, (list, tuple)):
         return [_json_ready(item) for item in value]
     return value
-
-
-def _write_text(path: Path, text: str) -> None:
-    """Write ``text`` beside ``path`` and move it in place: a crash or a full disk half-way
-    left a truncated card over the good one of an earlier run.
-
-    Raises:
-        DataError: The file cannot be written; an older one at ``path`` is left as it was.
-    """
-    tmp = path.with_name(path.name + '.tmp')
-    try:
-        tmp.write_text(text, encoding='utf-8')
-        os.replace(tmp, path)
-    except OSError as exc:
-        with contextlib.suppress(OSError):
-            tmp.unlink(missing_ok=True)
-        state = '; the file there was left as it was' if path.exists() else ''
-        raise DataError(f'cannot write model card {path}: {reason(exc)}{state}') from None
 
 
 _CVANET_TEXT = (
@@ -255,6 +236,6 @@ def write_model_card(
             f'{_fmt(record["samples_per_s"])} | {_fmt(record.get("val_auc"))} |'
         )
     lines += ['', '## Evaluation on the develop split', '', '(to be added)', '']
-    _write_text(json_path, json_text + '\n')
-    _write_text(md_path, '\n'.join(lines))
+    write_text_atomic(json_path, json_text + '\n', 'model card ')
+    write_text_atomic(md_path, '\n'.join(lines), 'model card ')
     return md_path, json_path

@@ -35,7 +35,7 @@ from cva_confidence_ros.model import (
     resolve_device,
     save_weights,
 )
-from cva_confidence_ros.outputs import check_output_dir, check_output_file
+from cva_confidence_ros.outputs import check_output_dir, check_output_file, write_text_atomic
 from cva_confidence_ros.training.card import hardware_facts, write_model_card
 from cva_confidence_ros.training.config import TrainConfig, parse_dataset_spec
 from cva_confidence_ros.training.data import (
@@ -324,10 +324,8 @@ def _save_checkpoint(path: Path, state: dict[str, Any]) -> None:
 
 def _write_history(out: Path, history: list[dict[str, Any]]) -> None:
     """``out/history.json``, replaced whole (a run stopped while writing it keeps the last)."""
-    path = out / 'history.json'
-    tmp = path.with_name(path.name + '.tmp')
-    tmp.write_text(json.dumps(history, indent=2) + '\n', 'utf-8')
-    os.replace(tmp, path)
+    write_text_atomic(out / 'history.json', json.dumps(history, indent=2) + '\n',
+                      'training history ')
 
 
 def _schedule(config: TrainConfig) -> Schedule:

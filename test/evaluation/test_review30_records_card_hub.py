@@ -122,13 +122,28 @@ def test_a_command_with_a_backtick_stays_one_code_span(tmp_path: Path) -> None:
 def test_a_crash_while_writing_the_card_leaves_the_old_one(tmp_path: Path, monkeypatch) -> None:
     md_path, json_path = write_model_card(tmp_path / 'w.pt', _facts())
     old_json, old_md = json_path.read_text(), md_path.read_text()
-    real = Path.write_text
+    import builtins
 
-    def half_then_full_disk(self: Path, data: str, *args: object, **kwargs: object) -> int:
-        real(self, data[: len(data) // 2], *args, **kwargs)
-        raise OSError(28, 'No space left on device')
+    from cva_confidence_ros import outputs
 
-    monkeypatch.setattr(Path, 'write_text', half_then_full_disk)
+    class HalfThenFullDisk:
+        """A text file that takes half of what is written, then reports a full disk."""
+
+        def __init__(self, *args: object, **kwargs: object) -> None:
+            self.file = builtins.open(*args, **kwargs)
+
+        def __enter__(self) -> HalfThenFullDisk:
+            return self
+
+        def __exit__(self, *exc: object) -> None:
+            self.file.close()
+
+        def write(self, data: str) -> int:
+            self.file.write(data[: len(data) // 2])
+            raise OSError(28, 'No space left on device')
+
+    # The card's files are written through outputs.write_text_atomic's open().
+    monkeypatch.setattr(outputs, 'open', HalfThenFullDisk, raising=False)
     with pytest.raises(DataError, match='cannot write model card .*w.json: OSError: .*No space '
                                         'left.*left as it was'):
         write_model_card(tmp_path / 'w.pt', _facts(final_train_loss=0.25))
