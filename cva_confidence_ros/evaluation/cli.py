@@ -47,7 +47,15 @@ from cva_confidence_ros.errors import (
 )
 from cva_confidence_ros.outputs import check_output_dir, check_output_file, write_text_atomic
 
-__all__ = ['SceneRun', 'exit_code', 'main', 'parse_dataset_names', 'parse_weights', 'run_scenes']
+__all__ = [
+    'SceneRun',
+    'exit_code',
+    'main',
+    'parse_dataset_names',
+    'parse_splits',
+    'parse_weights',
+    'run_scenes',
+]
 
 PROG = 'cva-evaluate'
 
@@ -77,6 +85,59 @@ def parse_dataset_names(text: str) -> list[str]:
                 )
             names.append(item)
     return list(dict.fromkeys(names))
+
+
+def parse_splits(text: str | None, datasets: Sequence[str]) -> dict[str, str | None]:
+    """Map each data set to its split from ``--split``.
+
+    Args:
+        text: None (each data set's default), ``SPLIT`` (every given data set that has that
+            split; the others keep their default, so ``--dataset develop --split trainingH``
+            reads Middlebury v3 at half size and KITTI 2015 as always), or
+            ``NAME=SPLIT[,NAME=SPLIT...]`` (those data sets only).
+        datasets: The data sets being evaluated.
+
+    Returns:
+        Data set → split, None where its default applies.
+
+    Raises:
+        ConfigError: A bare split that none of the data sets has, a ``NAME=SPLIT`` pair naming
+            a data set that is not evaluated, one it does not have, or a pair without a split.
+    """
+    from cva_confidence_ros.datasets import DATASETS
+
+    chosen: dict[str, str | None] = {name: None for name in datasets}
+    if text is None:
+        return chosen
+    splits = {name: DATASETS.get(name).splits for name in datasets}
+    items = [item.strip() for item in text.split(',') if item.strip()]
+    if not items:
+        raise ConfigError(f'--split names no split; got {text!r}')
+    if len(items) == 1 and '=' not in items[0]:
+        split = items[0]
+        having = [name for name in datasets if split in splits[name]]
+        if len(datasets) == 1:
+            DATASETS.get(datasets[0]).resolve_split(split)  # its own error, naming its splits
+        elif not having:
+            held = ', '.join(f'{name}: {list(splits[name]) or "none"}' for name in datasets)
+            raise ConfigError(f'--split {split!r}: no data set evaluated has it ({held})')
+        chosen.update({name: split for name in having})
+        return chosen
+    for item in items:
+        name, sep, split = (part.strip() for part in item.partition('='))
+        if not sep:
+            raise ConfigError(
+                f'--split: expected NAME=SPLIT pairs (or one SPLIT for every data set); '
+                f'got {item!r} in {text!r}'
+            )
+        if name not in chosen:
+            raise ConfigError(
+                f'--split names data set {name!r}, which is not among --dataset {list(datasets)}'
+            )
+        if not split:
+            raise ConfigError(f'--split pair {item!r} lacks a split after "="')
+        chosen[name] = DATASETS.get(name).resolve_split(split)
+    return chosen
 
 
 def parse_weights(text: str | None, matchers: Sequence[str]) -> dict[str, str | None]:
@@ -129,7 +190,8 @@ def _build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--dataset', required=True,
                         help='data set name(s), comma-separated, or "develop"')
     parser.add_argument('--split', default=None,
-                        help='data set split (default per data set, e.g. trainingQ)')
+                        help='data set split (default per data set, e.g. trainingQ): SPLIT '
+                        'for every data set that has it, or NAME=SPLIT[,NAME=SPLIT...]')
     parser.add_argument('--matchers', required=True,
                         help='comma-separated matchers: census_bm,census_sgm,mccnn_fast')
     parser.add_argument('--methods', required=True,
@@ -302,13 +364,16 @@ def _build_methods(
 
 
 def _scene_lists(
-    datasets: Sequence[str], root: Path | None, split: str | None, max_scenes: int | None
+    datasets: Sequence[str],
+    root: Path | None,
+    splits: dict[str, str | None],
+    max_scenes: int | None,
 ) -> list[tuple[str, str]]:
     from cva_confidence_ros.datasets import list_scenes
 
     jobs: list[tuple[str, str]] = []
     for name in datasets:
-        scenes = list(list_scenes(name, root, split=split))
+        scenes = list(list_scenes(name, root, split=splits[name]))
         if not scenes:
             where = root if root is not None else '(no --data-root)'
             raise DataError(f'no stereo pairs of data set {name!r} found under {where}')
@@ -327,6 +392,7 @@ def run(args: argparse.Namespace) -> int:
 
     _check_args(args)
     datasets = parse_dataset_names(args.dataset)
+    splits = parse_splits(args.split, datasets)
     matchers = _split_names(args.matchers, 'matchers')
     for matcher in matchers:
         MATCHERS.get(matcher)
@@ -336,14 +402,14 @@ def run(args: argparse.Namespace) -> int:
     for method in methods:
         CONFIDENCE_METHODS.get(method)
     built = _build_methods(args, matchers, methods)
-    jobs = _scene_lists(datasets, args.data_root, args.split, args.max_scenes)
+    jobs = _scene_lists(datasets, args.data_root, splits, args.max_scenes)
     calibration: dict[tuple[str, str, str], Any] = {}
 
     def work(index: int, job: tuple[str, str]) -> list[Any]:
         dataset, scene = job
         prefix = f'[{index}/{len(jobs)}] {dataset}/{scene}'
         tic = time.perf_counter()
-        sample = load_scene(dataset, args.data_root, scene, split=args.split)
+        sample = load_scene(dataset, args.data_root, scene, split=splits[dataset])
         if args.downsample > 1:
             sample = resize_sample(sample, args.downsample)
         _log(f'{prefix} loaded {sample.left.shape[1]}x{sample.left.shape[0]} '
