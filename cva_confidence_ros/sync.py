@@ -24,11 +24,13 @@ Time going backwards (``ros2 bag play --loop``, a driver restart, a simulator re
 late stragglers by whether the old messages form sets, and by how far back they go
 (``min_jump_ns``, 1 s by default). Messages at or before the last emitted stamp of their key are
 kept aside (bounded like the queues, and counted as dropped); a single straggler, whose partners
-have long gone, never completes a set. Once the old messages do complete one, the streams have
-jumped back when that set lies ``min_jump_ns`` or more before the last one, or when it is the
-second such set in a row, with no newer message in between (a shorter jump that goes on: the loop
-of a bag shorter than ``min_jump_ns``); a single whole frame delivered after a newer one is
-dropped. The synchroniser then starts over from them: the set is emitted with
+have long gone, never completes a set, and is let go when a newer message of its key comes (its
+stream went on past it) or when it came before the message of its key that starts the streams
+over: it never pairs with the messages of the next pass. Once the old messages do complete one,
+the streams have jumped back when that set lies ``min_jump_ns`` or more before the last one, or
+when it is the second such set in a row, with no newer message in between (a shorter jump that
+goes on: the loop of a bag shorter than ``min_jump_ns``); a single whole frame delivered after a
+newer one is dropped. The synchroniser then starts over from them: the set is emitted with
 :attr:`MatchedSet.jumped_from_ns` set (after a shorter jump, the first of the two sets is emitted
 too), the messages still waiting from before the jump are dropped, and
 :attr:`StampSynchronizer.jumps` counts one.
@@ -303,8 +305,9 @@ class StampSynchronizer:
             if last is not None and stamp_ns <= last:
                 self.dropped += 1
                 return self._hold(key, stamp_ns, msg, last)
-            # A newer message: the streams go on, so what lay only a little back was late.
-            self._release_near()
+            # A newer message: the streams go on, so what lay only a little back was late, and
+            # so was all that this key holds aside (a stream is time ordered).
+            self._release_near(key)
             queue = self._queues[key]
             if not self._insert(key, queue, stamp_ns, msg):
                 return []
@@ -388,19 +391,22 @@ class StampSynchronizer:
             entries.append(entry)
         return _Behind(dict(chosen), items, entries)
 
-    def _release_near(self) -> None:
-        """A message newer than the last set of its key came, so the streams go on: the held
-        messages only a little older were late, and are let go. Those a jump or more back stay
-        (the first messages after a jump may cross the last ones from before it)."""
+    def _release_near(self, newer: Hashable) -> None:
+        """A message of ``newer`` later than the last set of its key came, so the streams go on:
+        the held messages only a little older were late, and are let go, as are all of
+        ``newer``'s (its stream went on past them: stragglers, which would otherwise pair with
+        the next pass after a loop). Those of other keys a jump or more back stay (the first
+        messages after a jump may cross the last ones from before it)."""
         let_go: list[_Held] = []
         if self._behind is not None:
             let_go += self._behind.entries
             self._behind = None
         for key in self.keys:
             held = self._stale[key]
-            if any(entry.near for entry in held):
-                let_go += [entry for entry in held if entry.near]
-                self._stale[key] = [entry for entry in held if not entry.near]
+            gone = [entry for entry in held if key == newer or entry.near]
+            if gone:
+                let_go += gone
+                self._stale[key] = [entry for entry in held if not (key == newer or entry.near)]
         self._release(let_go)
 
     def _start_over(
@@ -411,6 +417,19 @@ class StampSynchronizer:
         on every key)."""
         jumped_from = self._last_set_ns
         self.jumps += 1
+        stragglers: list[_Held] = []
+        for key in self.keys:
+            starts = [h.seq for h in self._stale[key] if h.stamp_ns == chosen[key]]
+            if not starts:
+                continue
+            # Newer than the set, yet come before it on its key: of the pass before (a stream
+            # is time ordered), never to pair with the new pass.
+            gone = [
+                h for h in self._stale[key] if h.stamp_ns > chosen[key] and h.seq < min(starts)
+            ]
+            stragglers += gone
+            self._stale[key] = [h for h in self._stale[key] if not any(h is g for g in gone)]
+        self._release(stragglers)
         for other in self.keys:
             self._note(other, [s for s, _ in self._queues[other]], 'jump')
         self.dropped += sum(len(queue) for queue in self._queues.values())
