@@ -56,24 +56,38 @@ def image_projection(
     their points by the ROI offset). Any other size must be the one binning and ROI describe.
 
     Raises:
-        InputError: A P that is not 12 values, an ROI that does not lie within the calibration
-            size, a binning that leaves no pixels of it, or (``image_size`` given) images that
-            are not the size the info describes; ``name`` says whose info.
+        InputError: A P that is not 12 values, a calibration size of 0, an ROI that is
+            neither all zeros nor of a width and height > 0 or that does not lie within the
+            calibration size, a binning that leaves no pixels of it, or (``image_size`` given)
+            images that are not the size the info describes; ``name`` says whose info.
     """
     full_w, full_h = int(info.width), int(info.height)
     projection = _projection(info.p, f'{name} p')
     if image_size is not None and tuple(image_size) == (full_w, full_h):
         return (full_w, full_h), projection
+    if full_w <= 0 or full_h <= 0:
+        raise InputError(
+            f'{name}: calibration size (width × height) must be > 0; got {full_w}×{full_h} '
+            '(an unset camera info?)'
+        )
     binning_x, binning_y = max(int(info.binning_x), 1), max(int(info.binning_y), 1)
     roi = info.roi
     x0, y0 = int(roi.x_offset), int(roi.y_offset)
-    crop_w = int(roi.width) if int(roi.width) > 0 else full_w - x0
-    crop_h = int(roi.height) if int(roi.height) > 0 else full_h - y0
+    crop_w, crop_h = int(roi.width), int(roi.height)
+    if (x0, y0, crop_w, crop_h) == (0, 0, 0, 0):
+        crop_w, crop_h = full_w, full_h
+    elif crop_w <= 0 or crop_h <= 0:
+        # Only an ROI of all zeros is the whole (REP 104, image_geometry): a zero width or
+        # height in any other is a window of no pixels, not one "to the edge".
+        raise InputError(
+            f'{name}: roi {crop_w}×{crop_h} at ({x0}, {y0}) must be all zeros (the whole '
+            'image) or have a width and height > 0 (REP 104)'
+        )
     whole = (binning_x, binning_y, x0, y0, crop_w, crop_h) == (1, 1, 0, 0, full_w, full_h)
     if image_size is not None and whole:
         width, height = image_size
         raise InputError(f'{name} must be for {width}×{height} images; got {full_w}×{full_h}')
-    if crop_w <= 0 or crop_h <= 0 or x0 + crop_w > full_w or y0 + crop_h > full_h:
+    if x0 + crop_w > full_w or y0 + crop_h > full_h:
         raise InputError(
             f'{name}: roi {int(roi.width)}×{int(roi.height)} at ({x0}, {y0}) must lie within '
             f'its calibration size {full_w}×{full_h} (REP 104)'
