@@ -54,17 +54,21 @@ class Calibration:
     doffs: float = 0.0
 
     def depth(self, disparity: np.ndarray) -> np.ndarray:
-        """Depth in metres, ``fx * baseline / (d + doffs)``; NaN where ``d + doffs ≤ 0``.
+        """Depth in metres, ``fx * baseline / (d + doffs)``; NaN where ``d + doffs ≤ 0`` or
+        ``d`` is not finite.
 
         Args:
-            disparity: Disparity, any shape, float, NaN = unknown.
+            disparity: Disparity, any shape, float, NaN or ±inf (Middlebury PFMs) = unknown.
 
         Returns:
             float32 array of the same shape.
         """
         total = np.asarray(disparity, dtype=np.float64) + self.doffs
         with np.errstate(divide='ignore', invalid='ignore'):
-            depth = np.where(total > 0, self.fx * self.baseline / total, np.nan)
+            # An inf disparity is unknown (as Middlebury stores it), not a point at depth 0.
+            depth = np.where(
+                np.isfinite(total) & (total > 0), self.fx * self.baseline / total, np.nan
+            )
         return depth.astype(np.float32)
 
 
@@ -138,20 +142,43 @@ def write_pfm(path: str | Path, array: np.ndarray, scale: float = 1.0) -> None:
 
     Args:
         path: Output file.
-        array: (H, W) or (H, W, 3) float array; converted to float32.
+        array: (H, W) or (H, W, 3) real (float, integer or bool) array; converted to float32
+            (NaN and ±inf are written as they are).
         scale: Absolute value of the header scale (stored negative for little-endian).
 
     Raises:
-        DataError: Bad shape or scale, or the file cannot be written.
+        DataError: Bad shape, dtype (complex, strings, objects), values that float32 cannot
+            hold (finite ones that would become ±inf) or scale, or the file cannot be written.
     """
-    array = np.asarray(array, dtype=np.float32)
+    array = np.asarray(array)
+    if not (
+        np.issubdtype(array.dtype, np.floating)
+        or np.issubdtype(array.dtype, np.integer)
+        or array.dtype == np.bool_
+    ):
+        # Complex values lost their imaginary part (a warning only), strings raised ValueError.
+        raise DataError(f'PFM holds real numbers; got dtype {array.dtype}')
+    with np.errstate(over='ignore'):
+        values = array.astype(np.float32)
+    overflow = np.isinf(values) & np.isfinite(array)
+    if overflow.any():
+        # Written as ±inf, which reads back as 'unknown' (Middlebury), not as the value.
+        raise DataError(
+            f'PFM stores float32: {int(overflow.sum())} finite value(s) beyond ±3.4e38 would '
+            f'be written as inf (largest {float(np.abs(array[overflow]).max()):g})'
+        )
+    array = values
     if not (array.ndim == 2 or (array.ndim == 3 and array.shape[2] == 3)):
         raise DataError(f'PFM holds (H, W) or (H, W, 3) arrays; got shape {array.shape}')
     if array.shape[0] == 0 or array.shape[1] == 0:
         # read_pfm (and other readers) refuse a header of size 0: the file would not read back.
         raise DataError(f'PFM holds at least one pixel; got shape {array.shape}')
-    if not (scale > 0 and math.isfinite(scale)):
-        raise DataError(f'PFM scale must be finite and > 0; got {scale}')
+    if (
+        isinstance(scale, bool)
+        or not isinstance(scale, (int, float, np.integer, np.floating))
+        or not (scale > 0 and math.isfinite(scale))
+    ):
+        raise DataError(f'PFM scale must be finite and > 0; got {scale!r}')
     magic = 'PF' if array.ndim == 3 else 'Pf'
     header = f'{magic}\n{array.shape[1]} {array.shape[0]}\n{-scale}\n'.encode('ascii')
     body = np.flipud(array).astype('<f4').tobytes()
