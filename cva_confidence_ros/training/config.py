@@ -5,8 +5,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
 import math
+import os
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from cva_confidence_ros.checks import is_int, is_real
 from cva_confidence_ros.errors import ConfigError
@@ -246,7 +249,36 @@ class TrainConfig:
                     f'{name} must be a sequence of data set specs; got the string {specs!r} '
                     f'(write ({specs!r},))'
                 )
+            # None ended in "'NoneType' object is not iterable", a number in the spec parser's
+            # AttributeError.
+            if not isinstance(specs, Sequence) or not all(isinstance(s, str) for s in specs):
+                raise ConfigError(
+                    f"{name} must be a sequence of data set specs ('name' or 'name:split'); "
+                    f'got {type(specs).__name__} {specs!r}'
+                )
             object.__setattr__(self, name, tuple(specs))
+        for name in ('vflip', 'resume', 'overwrite', 'progress'):
+            # A string such as 'false' is true; a numpy bool is neither JSON (the history and
+            # card) nor loadable from a checkpoint.
+            value = getattr(self, name)
+            if not isinstance(value, (bool, np.bool_)):
+                raise ConfigError(
+                    f'{name} must be True or False; got {type(value).__name__} {value!r}'
+                )
+            object.__setattr__(self, name, bool(value))
+        for name in ('data_root', 'out', 'weights_out', 'teacher', 'init_weights'):
+            # A Path is kept as a str: checkpoints are read with weights_only, which refuses a
+            # pickled Path (a resume would fail with 'cannot read checkpoint').
+            value = getattr(self, name)
+            if value is None and name != 'out':
+                continue
+            path = os.fspath(value) if isinstance(value, os.PathLike) else value
+            if not isinstance(path, str):
+                raise ConfigError(
+                    f'{name} must be a path (str or os.PathLike); got {type(value).__name__} '
+                    f'{value!r}'
+                )
+            object.__setattr__(self, name, path)
         for field in fields(self):
             # Numpy integers are integers (and plain ints keep the checkpoints and cards JSON).
             if is_int(getattr(self, field.name)):
@@ -257,7 +289,11 @@ class TrainConfig:
                 raise ConfigError(
                     f'{name} must be a real number; got {type(value).__name__} {value!r}'
                 )
-            object.__setattr__(self, name, float(value))
+            try:
+                number = float(value)
+            except OverflowError:  # an int beyond float: refused below as infinite
+                number = math.inf if value > 0 else -math.inf
+            object.__setattr__(self, name, number)
         if self.synthetic_size is not None:
             size = self.synthetic_size
             if (
