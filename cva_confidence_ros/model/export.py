@@ -35,7 +35,7 @@ from torch import nn
 import torch.nn.functional as F
 
 from cva_confidence_ros.checks import is_int
-from cva_confidence_ros.errors import ConfigError, ModelError, reason
+from cva_confidence_ros.errors import ConfigError, InputError, ModelError, reason
 from cva_confidence_ros.model.fast import FoldedCVANetFast
 from cva_confidence_ros.model.inference import PAD, FoldedCVANet, _unwrap
 from cva_confidence_ros.model.lite import FoldedCVANetLite, check_volume_tensor
@@ -67,6 +67,25 @@ class CostVolumeModel(nn.Module):
         self.net = net
 
     def forward(self, cost_volume: torch.Tensor) -> torch.Tensor:
+        """(B, D, H, W) costs → (B, H, W) confidence.
+
+        Raises:
+            InputError: ``cost_volume`` not a (B, D, H, W) tensor with H, W >= 1 (the network
+                checks D and the dtype); named as given, not as the padded 5-D tensor the
+                network sees.
+        """
+        if (
+            not isinstance(cost_volume, torch.Tensor)
+            or cost_volume.ndim != 4
+            or cost_volume.shape[2] < 1
+            or cost_volume.shape[3] < 1
+        ):
+            shape = getattr(cost_volume, 'shape', None)
+            raise InputError(
+                'expected a cost-volume tensor of shape (B, D, H, W), H and W >= 1 (one volume '
+                f'is volume[None]); got {type(cost_volume).__name__}'
+                + ('' if shape is None else f' of shape {tuple(shape)}')
+            )
         padded = F.pad(cost_volume, (PAD, PAD, PAD, PAD))
         return self.net(padded.unsqueeze(1))
 
@@ -157,10 +176,14 @@ def _trace_to_onnx(
     """Trace ``module`` on ``example`` into an ONNX file with dynamic ``input_axes`` (the output
     ``confidence`` (B, H, W) dynamic throughout).
 
+    The graph is written beside ``path`` and moved there once whole: a failed export (a full
+    disk, an opset too old) leaves an older file at ``path`` as it was.
+
     Raises:
-        ModelError: The ``onnx`` package (which the exporter writes with) is missing, or the
+        ModelError: The ``onnx`` package (which the exporter writes with) is missing, the
             exporter cannot write the network at ``opset`` (out of the range this torch
-            supports, or too old for an operator of the network).
+            supports, or too old for an operator of the network), or ``path`` cannot be
+            written.
     """
     low, high = _opset_range()
     if not is_int(opset) or not low <= opset <= high:
@@ -168,6 +191,7 @@ def _trace_to_onnx(
             f'ONNX opset must be an integer in [{low}, {high}] (what this torch exports); '
             f'got {opset!r}'
         )
+    partial = path.with_name(f'.{path.name}.partial')
     try:
         with warnings.catch_warnings(), torch.no_grad(), _ir_dump_hidden():
             # The traced shape checks and ONNX's constant folding notes are expected.
@@ -175,7 +199,7 @@ def _trace_to_onnx(
             torch.onnx.export(
                 module,
                 (example,),
-                str(path),
+                str(partial),
                 dynamo=False,
                 opset_version=int(opset),
                 input_names=[input_name],
@@ -185,6 +209,9 @@ def _trace_to_onnx(
                     'confidence': {0: 'batch', 1: 'height', 2: 'width'},
                 },
             )
+        with open(partial, 'rb') as handle:  # on the disk before it replaces an older graph
+            os.fsync(handle.fileno())
+        os.replace(partial, path)
     except ModuleNotFoundError as exc:
         raise ModelError(f'ONNX export needs the onnx package ({exc}): pip install onnx') from exc
     except OSError as exc:  # a full disk, no permission
@@ -192,6 +219,9 @@ def _trace_to_onnx(
     except RuntimeError as exc:  # torch.onnx.OnnxExporterError is one too
         hint = '' if opset == DEFAULT_OPSET else f'; the default opset {DEFAULT_OPSET} works'
         raise ModelError(f'cannot export to ONNX at opset {opset} ({reason(exc)}){hint}') from exc
+    finally:
+        with contextlib.suppress(OSError):
+            partial.unlink(missing_ok=True)
 
 
 def export_onnx(
@@ -216,7 +246,7 @@ def export_onnx(
     Raises:
         ModelError: Another architecture, the ``onnx`` package is missing, ``opset`` is
             one the exporter cannot write the network at, or ``path`` is a folder or in a
-            place that cannot be written.
+            place that cannot be written (an older file at ``path`` is then left as it was).
         ConfigError: ``example_size`` not two integers >= 1.
     """
     example_size = _check_size(example_size, 'example_size')
@@ -380,12 +410,17 @@ def _build_parser() -> argparse.ArgumentParser:
     parser.add_argument('weights', nargs='?', default=None,
                         help='weights file (.pt); default: the shipped file for --arch, '
                         '--matcher and --max-disparity')
-    parser.add_argument('--arch', default='cvanet_fast', choices=EXPORTABLE,
-                        help='architecture of the shipped weights to export (without WEIGHTS)')
-    parser.add_argument('--matcher', default='census_bm',
-                        help='matcher of the shipped weights (without WEIGHTS)')
-    parser.add_argument('--max-disparity', type=int, default=64,
-                        help='depth of the shipped weights (without WEIGHTS)')
+    # None: not given. Without WEIGHTS they pick the shipped file (defaults cvanet_fast,
+    # census_bm, 64); with WEIGHTS, those given must be what the file holds.
+    parser.add_argument('--arch', default=None, choices=EXPORTABLE,
+                        help='architecture of the shipped weights to export (default '
+                        'cvanet_fast); with WEIGHTS: checked against the file')
+    parser.add_argument('--matcher', default=None,
+                        help='matcher of the shipped weights (default census_bm); with '
+                        'WEIGHTS: checked against the file')
+    parser.add_argument('--max-disparity', type=int, default=None,
+                        help='depth D of the shipped weights (default 64); with WEIGHTS: '
+                        'checked against the file')
     parser.add_argument('--out', type=Path, required=True, help='the .onnx file to write')
     parser.add_argument('--opset', type=int, default=DEFAULT_OPSET, help='ONNX opset version')
     parser.add_argument('--check-size', type=_size, default=None, metavar='HxW',
@@ -397,15 +432,24 @@ def _build_parser() -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Export for parsed arguments; raises ``CVAError`` on bad input."""
-    from cva_confidence_ros.outputs import check_output_file
+    from cva_confidence_ros.outputs import check_output_file, write_text_atomic
 
     if Path(args.out).suffix != '.onnx':
         raise ModelError(f'--out must name a .onnx file; got {args.out}')
     out = check_output_file(args.out, '--out')
-    weights = Path(args.weights) if args.weights else default_weights_path(
-        args.matcher, args.max_disparity, args.arch
-    )
-    net, meta = load_weights(weights, arch=None)
+    # The card beside the graph: refused up front, as --out is, rather than after the graph.
+    card = check_output_file(out.with_suffix('.json'), 'the card beside --out:')
+    if args.weights:
+        # Checked, not ignored (--max-disparity 32 exported a D = 64 file without a word).
+        weights = Path(args.weights)
+        net, meta = load_weights(weights, args.matcher, args.max_disparity, arch=args.arch)
+    else:
+        weights = default_weights_path(
+            args.matcher or 'census_bm',
+            64 if args.max_disparity is None else args.max_disparity,
+            args.arch or 'cvanet_fast',
+        )
+        net, meta = load_weights(weights, arch=None)
     arch = architecture_of(net)
     depth = int(meta.get('max_disparity') or net.max_disparity)
     # Written beside --out and moved there once checked: a graph that fails the check is not
@@ -443,13 +487,15 @@ def run(args: argparse.Namespace) -> int:
                     f'the exported graph differs from PyTorch by {check["max_abs_diff"]:.2e} '
                     f'(more than 1e-4); {out} not written'
                 )
+        # The card first, whole or not at all: written after the graph, a card that could not
+        # be written left the new graph beside the card of the one before (its matcher, D).
+        write_text_atomic(card, json.dumps(record, indent=2) + '\n')
         os.replace(staging, out)
     finally:
         staging.unlink(missing_ok=True)
-    print(f'{PROG}: wrote {out} ({arch}, {meta.get("matcher")}, D = {depth}, opset '
-          f'{args.opset}, {out.stat().st_size / 1e6:.2f} MB; exported in {seconds:.1f} s)',
-          file=sys.stderr)
-    out.with_suffix('.json').write_text(json.dumps(record, indent=2) + '\n', encoding='utf-8')
+    print(f'{PROG}: wrote {out} and {card.name} ({arch}, {meta.get("matcher")}, D = {depth}, '
+          f'opset {args.opset}, {out.stat().st_size / 1e6:.2f} MB; exported in '
+          f'{seconds:.1f} s)', file=sys.stderr)
     return 0
 
 
@@ -457,8 +503,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``cva-export`` (``ros2 run cva_confidence_ros export``).
 
     Returns:
-        0 when written (and checked), 2 on bad input (one line on stderr), 1 if the file
-        cannot be written.
+        0 when written (and checked); 2 on bad input or a graph or card that cannot be
+        written (one line on stderr; a graph and card from before are left as they were); 1 if
+        the checked graph cannot be moved in place.
     """
     from cva_confidence_ros.evaluation.cli import exit_code
 

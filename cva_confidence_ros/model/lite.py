@@ -7,7 +7,9 @@ evaluation) runs it unchanged. It keeps the paper's three stages, each made chea
 
 * :class:`LiteFusion` — input batch normalisation; a first 3D convolution with an 8×3×3
   kernel and stride 4 along the disparity axis (16 filters), which condenses the cost curve to
-  ⌊(D − 8) / 4⌋ + 1 bins while it starts the spatial fusion; five further 3×3×3 convolutions
+  ⌊(D − 8) / 4⌋ + 1 bins while it starts the spatial fusion (the last (D − 8) mod 4
+  disparities fall outside every bin and are not read: all are read for D = 8 + 4k, e.g. 64,
+  not the last two for D = 66); five further 3×3×3 convolutions
   with 16 filters, unpadded in the image plane (six in all: the 13×13 window) and zero-padded
   along the disparity axis so that the condensed depth is kept;
 * :class:`LiteDepthProcessing` — three convolutions along the disparity axis with kernel
@@ -337,8 +339,9 @@ class FoldedCVANetLite(nn.Module):
 
     def head_logits(self, curves: torch.Tensor) -> torch.Tensor:
         """Depth processing and classification of fused curves: (N, 16, D'') → (N,) logits."""
-        # (N, C·D'') with feature index c·D'' + d, as the banded matrices expect.
-        x = curves.reshape(curves.shape[0], curves.shape[1] * curves.shape[2])  # N may be 0
+        # (N, C·D'') with feature index c·D'' + d, as the banded matrices expect. N may be 0:
+        # flatten, not reshape(N, -1), which the ONNX graph cannot resolve for an empty batch.
+        x = curves.flatten(1)
         for index in range(len(LITE_DEPTH_KERNELS)):
             matrix = getattr(self, f'depth_matrix{index}')
             x = F.relu(torch.addmm(getattr(self, f'depth_bias{index}'), x, matrix))
