@@ -77,10 +77,15 @@ def select_pixels(
         ``(ys, xs)``, two (M,) int64 arrays in row-major order, M = min(N, known pixels).
 
     Raises:
-        InputError: ``known`` is not 2-D, ``max_pixels`` is not an integer ≥ 1 (or None) or
-            ``seed`` not an integer ≥ 0.
+        InputError: ``known`` is not a 2-D bool mask, ``max_pixels`` is not an integer ≥ 1
+            (or None) or ``seed`` not an integer ≥ 0.
     """
-    known = np.asarray(known, dtype=bool)
+    known = np.asarray(known)
+    if known.dtype != np.bool_:
+        # A cast read a disparity map given in its place as known where it is NaN or nonzero.
+        raise InputError(
+            f'known must be an (H, W) bool mask (e.g. np.isfinite(gt)); got dtype {known.dtype}'
+        )
     if known.ndim != 2:
         raise InputError(f'known must be an (H, W) bool mask; got shape {known.shape}')
     # NaN passed every comparison and scored all pixels; 2.5 or True failed in numpy's choice.
@@ -295,7 +300,8 @@ def evaluate_scene(
     """Score confidence methods on one scene for one matcher.
 
     The scene is first halved in resolution until its largest ground-truth disparity fits
-    the cost-volume depth (``datasets.fit_disparity_range``, as in the paper).
+    the cost-volume depth, i.e. is at most D − 1 (``datasets.fit_disparity_range``, as in the
+    paper: halved "as long as the maximum disparity exceeds 255" for D = 256).
 
     Args:
         sample: A ``datasets.StereoSample`` (left/right uint8 images, (H, W) float32
@@ -325,8 +331,8 @@ def evaluate_scene(
 
     Raises:
         InputError: The scene has no ground-truth pixels, ``method_order`` names a method
-            not in ``methods``, or a method returns a bad map (or, in patch mode, not one
-            value per scored pixel).
+            not in ``methods``, or a method returns a bad map (NaN at a scored pixel, or, in
+            patch mode, not one value per scored pixel); the message names the method.
         ConfigError: Unknown matcher.
     """
     from cva_confidence_ros.confidence import ConfidenceInputs
@@ -341,9 +347,13 @@ def evaluate_scene(
             f'method_order names methods that are not given: {unknown}; given: {list(methods)}'
         )
     emit = log if log is not None else (lambda _message: None)
+    largest = sample.max_disparity
     sample, factor = fit_disparity_range(sample, max_disparity)
     if factor > 1:
-        emit(f'ground truth exceeds D = {max_disparity}: evaluating at 1/{factor} resolution')
+        # The cost volume holds d = 0 … D − 1: a ground truth of D − 0.5 is halved, though it
+        # does not exceed D.
+        emit(f'ground truth reaches {largest:.4g} px > D − 1 = {max_disparity - 1}: '
+             f'evaluating at 1/{factor} resolution')
     gt = np.asarray(sample.disparity, dtype=np.float32)
     ys, xs = select_pixels(np.isfinite(gt), max_pixels, seed)
     if ys.size == 0:
@@ -403,7 +413,12 @@ def evaluate_scene(
         if dense is None:
             dense = np.full(disparity.shape, np.nan, dtype=np.float32)
             dense[ys, xs] = values
-        score = score_confidence(values, error)
+        try:
+            score = score_confidence(values, error)
+        except InputError as exc:  # a NaN map named neither the method nor the scene
+            raise InputError(
+                f'confidence method {name!r} on {sample.dataset}/{sample.scene}: {exc}'
+            ) from None
         emit(f'{matcher} {name} {time.perf_counter() - tic:.2f} s '
              f'AUC {100 * score.auc:.2f} (opt {100 * score.auc_opt:.2f})')
         maps[name] = dense

@@ -203,16 +203,36 @@ def _mean(values: Sequence[float]) -> float:
 
 
 def _cells(records: Sequence[dict[str, Any]]) -> dict[tuple[str, str], dict[str, float]]:
-    """(row label, matcher) → {'opt': ..., method: mean AUC × 10²}."""
-    grouped: dict[tuple[str, str], dict[str, list[float]]] = {}
+    """(row label, matcher) → {'opt': ..., method: mean AUC × 10²}.
+
+    Raises:
+        InputError: Two different records of one scene, matcher and method, or a method
+            without records for some scenes of its row: its mean (over other scenes than the
+            row's other cells and ``Opt.``) could take the bold it does not earn.
+    """
+    grouped: dict[tuple[str, str], dict[str, dict[str, float]]] = {}
     optimal: dict[tuple[str, str], dict[str, float]] = {}
     for r in records:
         key = (r['row'], r['matcher'])
-        grouped.setdefault(key, {}).setdefault(r['method'], []).append(r['auc'])
+        scenes = grouped.setdefault(key, {}).setdefault(r['method'], {})
+        held = scenes.setdefault(r['scene'], r['auc'])  # a record given twice counts once
+        if held != r['auc']:
+            raise InputError(
+                f'table 1 records: two different records of {key[0]} {r["scene"]} {key[1]} '
+                f'{r["method"]}: auc {held} and {r["auc"]}; keep one of them'
+            )
         optimal.setdefault(key, {}).setdefault(r['scene'], r['auc_opt'])
     cells = {}
     for key, methods in grouped.items():
-        cell = {name: _mean(values) * 100.0 for name, values in methods.items()}
+        for name, scenes in methods.items():
+            lacking = [scene for scene in optimal[key] if scene not in scenes]
+            if lacking:
+                raise InputError(
+                    f'table 1 records: {name} has no record of {len(lacking)} of the '
+                    f'{len(optimal[key])} scenes of {key[0]} {key[1]} ({lacking[:5]}); a mean '
+                    'over other scenes than the rest of the row is no comparison'
+                )
+        cell = {name: _mean(list(scenes.values())) * 100.0 for name, scenes in methods.items()}
         cell['opt'] = _mean(list(optimal[key].values())) * 100.0
         cells[key] = cell
     return cells
@@ -245,6 +265,10 @@ def format_table1(
 
     Returns:
         The table, ending in a newline; the best method value of each row is bold (ties: all).
+
+    Raises:
+        InputError: Two different records of one scene, matcher and method, or a method
+            with records for only some scenes of a row (its mean would cover other scenes).
     """
     cells = _cells(records)
     header = ['data set', 'matcher', 'Opt.', *[title for _, title in columns]]
@@ -462,16 +486,25 @@ def _train(args: argparse.Namespace, protocol: str, arch: str, matcher: str) -> 
 
 
 def _load_reusable(
-    path: Path, methods: Sequence[str]
+    path: Path, methods: Sequence[str], settings: dict[str, Any] | None = None
 ) -> dict[tuple[str, str, str], dict[str, dict[str, Any]]]:
     """(dataset, scene, matcher) → method → record, from a records JSON (a list, or the
     ``records`` of a ``table1.json``).
+
+    Args:
+        path: The ``--reuse`` file.
+        methods: Methods whose records are kept.
+        settings: This run's ``max_disparity``, ``max_pixels`` and ``seed``; a ``table1.json``
+            that states other ones is refused (a list of records states none: only the
+            per-scene pixel check of :func:`run` applies).
 
     Raises:
         DataError: The file cannot be read, is not JSON, or holds neither a list nor an object
             with ``records``.
         InputError: A record is not valid, or two records of one scene, matcher and method
             differ (which to take?); the message names the file and the record's index.
+        ConfigError: A ``table1.json`` of another D, ``--max-pixels`` or (for pixel subsets)
+            ``--seed`` than ``settings``.
     """
     from cva_confidence_ros.evaluation.records import EvalRecord
 
@@ -487,6 +520,21 @@ def _load_reusable(
             f'--reuse {path}: a JSON object without "records" (keys {sorted(data)[:8]}); '
             'expected a list of records or a table1.json'
         )
+    if isinstance(data, dict) and settings is not None:
+        # The per-scene check (pixel count and error rate) let through records of another D
+        # or seed wherever the WTA error count came out the same.
+        options = {'max_disparity': '--max-disparity', 'max_pixels': '--max-pixels',
+                   'seed': '--seed'}
+        for setting, option in options.items():
+            if setting not in data or (setting == 'seed' and settings['max_pixels'] is None):
+                continue  # without a subset, the seed selects nothing
+            if data[setting] != settings[setting]:
+                old, new = (('none (all pixels)' if value is None else value)
+                            for value in (data[setting], settings[setting]))
+                raise ConfigError(
+                    f'--reuse {path}: its records were scored with {option} {old}, this run '
+                    f'uses {new}; use the same D, --max-pixels and --seed'
+                )
     items = data['records'] if isinstance(data, dict) else data
     if not isinstance(items, list):
         raise DataError(
@@ -586,7 +634,9 @@ def run(args: argparse.Namespace) -> int:
             f'--train-missing (or cva-train --arch ARCH) or give --weights-dir'
         )
     # Read before any training: a bad --reuse file fails now, not after hours of it.
-    reusable = _load_reusable(args.reuse, methods) if args.reuse else {}
+    settings = {'max_disparity': args.max_disparity, 'max_pixels': args.max_pixels,
+                'seed': args.seed}
+    reusable = _load_reusable(args.reuse, methods, settings) if args.reuse else {}
     by_arch = {arch: method for method, arch in LEARNED.items()}
     for arch, matcher in missing:
         weights[(by_arch[arch], matcher)] = _train(args, protocol, arch, matcher)
