@@ -17,13 +17,14 @@ then encodes them, with the replay's settings as its parameters, and leaves the 
 
 from __future__ import annotations
 
-from collections import OrderedDict
+from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 import os
 from pathlib import Path
 import queue
+import re
 import shutil
 import signal
 import subprocess
@@ -104,9 +105,16 @@ _OPTIONAL = {
 # What a frame needs before it can be scored; points2, depth, the overlay, the scan and
 # camera_info are only recorded.
 _SCORED = ('disparity', 'confidence', 'disparity_filtered')
-# Bag times kept for the frames no longer pending, so that their outputs that come after the
-# scored ones (points2, depth, ...) are written at the input's bag time too.
+# Frames no longer pending that are kept (their bag times and outputs received), so that their
+# outputs that come after the scored ones (points2, depth, ...) are written at the input's bag
+# time too.
 _DONE_TIMES = 100
+
+
+# Strings that rcl takes as they are in a -p override (names like census_bm, reliable), less
+# the words it reads as a bool or a double.
+_PLAIN = re.compile(r'[A-Za-z_][A-Za-z0-9_]*')
+_NOT_STRINGS = {'y', 'n', 'yes', 'no', 'true', 'false', 'on', 'off', 'nan', 'inf', 'infinity'}
 
 
 def _ros_value(value: object) -> str:
@@ -114,6 +122,12 @@ def _ros_value(value: object) -> str:
         return 'true' if value else 'false'
     if isinstance(value, float):
         return repr(float(value))
+    if isinstance(value, str) and not (
+        _PLAIN.fullmatch(value) and value.lower() not in _NOT_STRINGS
+    ):
+        # rcl reads a -p value as YAML: quoted, a path stays the string it is (unquoted,
+        # '/data/run #2/mask.png' read '/data/run', '123' an integer, 'a: b' did not parse).
+        return "'" + value.replace("'", "''") + "'"
     return str(value)
 
 
@@ -287,17 +301,21 @@ class NodeProcess:
         return 0 if code in self.STOPPED_CODES else code
 
 
-@dataclass
+@dataclass(eq=False)
 class _PendingFrame:
     """A pair published to the node whose outputs have not all come yet."""
 
     frame: int
     timestamp_ns: int
     published: float
+    stamp_ns: int = 0
     geometry: Any = None
     size: tuple[int, int] = (0, 0)
     items: dict[str, Any] | None = None
     error: str = ''  # why its camera infos give no geometry
+    # The names of its outputs received so far, and its scored ones (name → message).
+    received: set[str] = field(default_factory=set)
+    parts: dict[str, Any] = field(default_factory=dict)
 
 
 class _Player:
@@ -625,13 +643,22 @@ class _Recorder:
         self.store = store
         self.options = options
         self.topics = options.topics.outputs()
-        self.frames: dict[int, _PendingFrame] = {}
-        # Stamp → input bag time of the frames answered or given up (the newest few).
-        self.done_times: OrderedDict[int, int] = OrderedDict()
-        self.parts: dict[int, dict[str, Any]] = {}
+        # Stamp → its frames still waited for, in publish order: a stamp sent again before
+        # the node answered it (a bag loop shorter than the node's latency, a stamp the bag
+        # repeats) is one frame each, and the node answers them in that order.
+        self.frames: dict[int, deque[_PendingFrame]] = {}
+        # The frames answered or given up (the newest few, without their inputs), oldest first.
+        self.done: deque[_PendingFrame] = deque(maxlen=_DONE_TIMES)
         self.publish_times: dict[int, float] = {}
         self.last_output = time.monotonic()
         self.answered = 0
+        self.unreadable_topics: set[str] = set()
+        # The frames waited for that still hold their input messages (for the plots' left
+        # image), newest last: only the newest few do. A node answers none that far behind
+        # (it holds one pair besides the one it works on), and one that answers nothing must
+        # not have the replay hold every image of the bag.
+        self.holding: deque[_PendingFrame] = deque()
+        self.hold = max(GT_WAIT_FRAMES, 4 * options.queue_size)
         # The node's ignore mask, for the share of the judged pixels it keeps.
         path = options.pipeline.mask_path
         self.mask = load_mask(path, '--mask') if path else None
@@ -652,7 +679,7 @@ class _Recorder:
         pending = _PendingFrame(
             frame=frame, timestamp_ns=timestamp_ns,
             published=max(times, default=time.monotonic()),
-            items=dict(matched.items),
+            stamp_ns=matched.stamp_ns, items=dict(matched.items),
         )
         try:
             left = matched.items['left']
@@ -666,7 +693,10 @@ class _Recorder:
             # The node drops this pair too (it counts as not answered); a node that answers
             # it all the same gets the frame skipped with this reason.
             pending.error = str(err)
-        self.frames[matched.stamp_ns] = pending
+        self.frames.setdefault(matched.stamp_ns, deque()).append(pending)
+        self.holding.append(pending)
+        while len(self.holding) > self.hold:
+            self.holding.popleft().items = None
 
     def unanswered(self) -> int:
         """Pairs published whose outputs never (all) came."""
@@ -678,9 +708,10 @@ class _Recorder:
         leave them queued: they hold memory, and the ground truth for them would not wait).
 
         Raises:
-            BagError: ``node`` (the one the replay started) has exited.
+            BagError: ``node`` (the one the replay started) has exited (checked while waiting
+                too: a pause in the bag does not keep the replay waiting for a dead node).
         """
-        _check_running(node)
+        self._check_node(node, progress)
         while True:
             self.session.interrupts.check()
             left = until - time.monotonic()
@@ -692,15 +723,23 @@ class _Recorder:
             except queue.Empty:
                 if left <= 0:
                     return
+                self._check_node(node, progress)
                 continue
             self._handle(*item, progress=progress)
+
+    def _check_node(self, node: NodeProcess | None, progress: Progress) -> None:
+        """Raise :class:`BagError` if ``node`` has exited, once the outputs it sent before are
+        handled (the frames it answered are processed, not dropped)."""
+        if node is not None and node.exit_code is not None:
+            self.take_received(progress)
+            _check_running(node)
 
     def finish(self, node: NodeProcess | None, progress: Progress) -> None:
         """After the last input: wait for the outstanding outputs (or the drain timeout)."""
         self.last_output = time.monotonic()
         while self.frames and time.monotonic() - self.last_output < self.options.drain_timeout_s:
             self.session.interrupts.check()
-            _check_running(node)
+            self._check_node(node, progress)
             try:
                 item = self.received.get(timeout=0.1)
             except queue.Empty:
@@ -726,38 +765,70 @@ class _Recorder:
         try:
             msg = self.store.deserialize_cdr(raw, _OUTPUT_TYPES[name])
         except SerdeError as err:
-            self.session.skip(f'an output on {self.topics[name]}', err)
+            # A message, not a stereo pair (``skipped`` counts pairs): counted unreadable, as
+            # an input's; the frame it is of goes without it.
+            topic = self.topics[name]
+            counts = self.session.counts
+            counts['unreadable'] = counts.get('unreadable', 0) + 1
+            if topic not in self.unreadable_topics:
+                self.unreadable_topics.add(topic)
+                self.session.log(
+                    f'skipped an output on {topic} (more on it are only counted): {err}'
+                )
             return
         stamp = stamp_to_ns(msg.header.stamp)
-        pending = self.frames.get(stamp)
+        owner = self._owner(stamp, name)
         # At the input's bag time, as offline; the header stamp only for an unknown frame.
-        timestamp = (
-            pending.timestamp_ns if pending is not None else self.done_times.get(stamp, stamp)
-        )
+        known = owner or self._newest(stamp)
+        timestamp = known.timestamp_ns if known is not None else stamp
         self.session.write([(self.topics[name], _OUTPUT_TYPES[name], raw)], timestamp)
-        if pending is None or name not in _SCORED:
+        if owner is None:
             return
-        parts = self.parts.setdefault(stamp, {})
-        parts[name] = msg
-        if any(key not in parts for key in _SCORED):
+        owner.received.add(name)
+        pending = self.frames.get(stamp, ())
+        if owner not in pending or name not in _SCORED:
             return
-        del self.parts[stamp]
-        self._done(stamp)
+        owner.parts[name] = msg
+        if any(key not in owner.parts for key in _SCORED):
+            return
+        self._done(owner)
         self.answered += 1
         progress.update()
-        self._score(pending, stamp, parts, received)
+        self._score(owner, stamp, owner.parts, received)
         # Outputs come in the order the pairs went out: earlier pairs still incomplete were
         # dropped (by publish order, not stamp: after a jump back the stamps start over).
-        for older in [s for s, p in self.frames.items() if p.frame < pending.frame]:
+        for older in [p for q in self.frames.values() for p in q if p.frame < owner.frame]:
             self._done(older)
-            self.parts.pop(older, None)
         self.session.drop_ground_truth_before(stamp)
 
-    def _done(self, stamp: int) -> None:
-        """Stop waiting for the frame of ``stamp``; keep its bag time for its later outputs."""
-        self.done_times[stamp] = self.frames.pop(stamp).timestamp_ns
-        while len(self.done_times) > _DONE_TIMES:
-            self.done_times.popitem(last=False)
+    def _owner(self, stamp: int, name: str) -> _PendingFrame | None:
+        """The frame an output ``name`` of ``stamp`` is of: the oldest frame of that stamp
+        that has none yet, done ones first (the later outputs of a frame the node answered,
+        or of one given up that got some), then those still waited for; None if no frame."""
+        for frame in self.done:
+            if frame.stamp_ns == stamp and frame.received and name not in frame.received:
+                return frame
+        for frame in self.frames.get(stamp, ()):
+            if name not in frame.received:
+                return frame
+        return None
+
+    def _newest(self, stamp: int) -> _PendingFrame | None:
+        """The latest frame of ``stamp`` published (waited for or done), if any is known."""
+        pending = self.frames.get(stamp)
+        if pending:
+            return pending[-1]
+        return next((frame for frame in reversed(self.done) if frame.stamp_ns == stamp), None)
+
+    def _done(self, frame: _PendingFrame) -> None:
+        """Stop waiting for ``frame``; keep its bag time and outputs for its later outputs."""
+        pending = self.frames[frame.stamp_ns]
+        pending.remove(frame)
+        if not pending:
+            del self.frames[frame.stamp_ns]
+        if frame.items is not None:
+            self.holding.remove(frame)
+        self.done.append(replace(frame, items=None, geometry=None, parts={}))
 
     def _score(
         self, pending: _PendingFrame, stamp: int, parts: dict[str, Any], received: float
