@@ -1358,6 +1358,12 @@ class ReplaySession:
                 )
 
                 reason = f'the node answered none of the {counts["pairs"]} stereo pairs'
+                if counts.get('unreadable'):
+                    # Live mode: the node's outputs may have come, unreadable (cut short).
+                    reason += (
+                        f'; {counts["unreadable"]} messages could not be read (see the '
+                        'messages above)'
+                    )
                 if self.options.mode == 'live' and large_messages_unset():
                     reason += f' ({LARGE_MESSAGES_HINT})'
             return ReplayOutcome(self.report, self.paths, 2, f'{reason} ({where})')

@@ -273,3 +273,24 @@ def test_a_node_that_answers_nothing_does_not_have_every_image_held(tmp_path: Pa
     gc.collect()
     assert [ref() is not None for ref in lefts] == [False] * 200 + [True] * 100
     assert sum(map(len, recorder.frames.values())) == 300  # all still waited for
+
+
+def test_a_replay_whose_every_output_was_unreadable_says_so(tmp_path: Path) -> None:
+    # Every output cut short: the closing line said only that the node answered none of the
+    # pairs, though it did, unreadably.
+    options = _options(tmp_path, write_stereo_bag(tmp_path / 'in', [{}, {}],
+                                                  ground_truth=False))
+    plan, pairs = _pairs(options)
+    session = ReplaySession(options, plan, lambda _: None)
+    recorder = live._Recorder(session, jazzy_typestore(), options, queue.Queue())
+    with session:
+        for index, (stamp, items, logged) in enumerate(pairs):
+            recorder.expect(SimpleNamespace(stamp_ns=stamp, items=items), index, logged)
+            session.counts['pairs'] += 1
+            for name, _, raw in _answer(options, items):
+                recorder._handle(name, raw[:12], time.monotonic(), _progress())
+    outcome = session.outcome()
+    assert session.counts['processed'] == 0 and session.counts['unreadable'] > 0
+    assert outcome.exit_code == 2
+    assert 'the node answered none of the 2 stereo pairs; ' in outcome.message
+    assert f"{session.counts['unreadable']} messages could not be read" in outcome.message
