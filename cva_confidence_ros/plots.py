@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 import errno
+import itertools
 import math
 import os
 from pathlib import Path
@@ -47,6 +48,8 @@ UNKNOWN_RGB = (40, 40, 110)
 
 PathLike = str | os.PathLike[str]
 
+_PARTIAL_IDS = itertools.count()
+
 
 def _check_map(name: str, array: np.ndarray) -> np.ndarray:
     array = np.asarray(array)
@@ -59,7 +62,8 @@ def _check_map(name: str, array: np.ndarray) -> np.ndarray:
 
 
 def _save(path: PathLike, write: Callable[[Path], object]) -> Path:
-    """Make the parent folders of ``path`` and ``write(path)``.
+    """Make the parent folders of ``path`` and ``write`` it: to a file beside it, renamed
+    onto ``path`` once complete.
 
     Raises:
         OSError: The file cannot be written. A folder at ``path`` and a file where a parent
@@ -80,15 +84,28 @@ def _save(path: PathLike, write: Callable[[Path], object]) -> Path:
                 )
             break
     out.parent.mkdir(parents=True, exist_ok=True)
-    write(out)
+    # Written beside ``path`` and renamed onto it: a write that fails half-way (a full disk)
+    # leaves no truncated PNG, and a PNG already at ``path`` stays whole until then.
+    partial = out.with_name(f'.{out.name[:200]}.{os.getpid()}-{next(_PARTIAL_IDS)}.part')
+    try:
+        write(partial)
+        os.replace(partial, out)
+    except BaseException:
+        partial.unlink(missing_ok=True)
+        raise
     return out
 
 
 def _write_rgb(rgb: np.ndarray, path: PathLike) -> Path:
-    from matplotlib.image import imsave
+    import cv2
 
-    rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
-    return _save(path, lambda out: imsave(out, rgb, format='png'))
+    # Not matplotlib's imsave: it adds an alpha channel (an RGBA PNG where RGB is promised).
+    # OpenCV takes BGR; encoded in memory, so that nothing is written if encoding fails.
+    bgr = np.ascontiguousarray(np.asarray(rgb, dtype=np.uint8)[..., ::-1])
+    ok, png = cv2.imencode('.png', bgr)
+    if not ok:
+        raise InputError(f'cannot encode a {rgb.shape} image as PNG')
+    return _save(path, lambda out: out.write_bytes(png.tobytes()))
 
 
 def _bound(name: str, value: float | None) -> float | None:
@@ -114,10 +131,15 @@ def _colorize(
     values = values.astype(np.float64)
     finite = np.isfinite(values)
     known = ~np.isnan(values)
+    # A default bound never lies beyond the given one: the scale would be inverted, and a
+    # map wholly below a given vmin drawn white instead of black.
     if vmin is None:
         vmin = float(values[finite].min()) if finite.any() else 0.0
+        if vmax is not None:
+            vmin = min(vmin, vmax)
     if vmax is None:
         vmax = float(values[finite].max()) if finite.any() else 1.0
+        vmax = max(vmax, vmin)
     # Halves: vmax − vmin of two finite extremes can overflow to inf (and x / inf is 0).
     half_span = vmax / 2 - vmin / 2
     with np.errstate(invalid='ignore', over='ignore'):
@@ -147,9 +169,11 @@ def save_confidence_map(
         confidence: (H, W) float array, any real range (±inf saturate); NaN marks pixels
             without a value (drawn in ``UNKNOWN_RGB``).
         path: Output PNG file; parent folders are created.
-        vmin: Value drawn black; default the finite minimum (use 0 for learned confidence).
-        vmax: Value drawn white; default the finite maximum (use 1 for learned confidence).
-            ``vmin > vmax`` inverts the scale. A constant map is drawn mid-grey.
+        vmin: Value drawn black; default the finite minimum (use 0 for learned confidence),
+            or ``vmax`` where that is lower.
+        vmax: Value drawn white; default the finite maximum (use 1 for learned confidence),
+            or ``vmin`` where that is higher. ``vmin > vmax`` (both given) inverts the scale. A
+            constant map is drawn mid-grey.
         cmap: Any matplotlib colormap name.
 
     Returns:
@@ -487,7 +511,8 @@ def save_roc_curves(
 
     Raises:
         InputError: A curve's two arrays differ in length or are not 1-D, or hold NaN, a
-            density outside [0, 1] or not ascending, or an error rate outside [0, 1].
+            density outside [0, 1] or not ascending, or an error rate outside [0, 1]; an
+            ``error_rate`` that is not a number in [0, 1].
         OSError: ``path`` cannot be written (a folder, under a file, no permission).
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -511,7 +536,8 @@ def save_roc_curves(
                              f'in [0, 1]; got {problem}')
         axes.plot(density, rate, label=name, linewidth=1.5)
     if error_rate is not None:
-        density, rate = optimal_roc_curve(float(error_rate))
+        # Not float(error_rate) first: a string or True would pass optimal_roc_curve's checks.
+        density, rate = optimal_roc_curve(error_rate)
         axes.plot(density, rate, 'k--', label='optimal', linewidth=1.2)
     axes.set_xlim(0.0, 1.0)
     axes.set_ylim(bottom=0.0)

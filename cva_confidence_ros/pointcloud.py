@@ -68,6 +68,13 @@ def _projection(matrix: Sequence[float] | np.ndarray, name: str) -> np.ndarray:
     array = np.asarray(matrix, dtype=np.float64)
     if array.size != 12:
         raise InputError(f'{name} must be a 3×4 projection matrix (12 values); got {array.size}')
+    # 12 values in another grid (a transposed 4×3 P) would be read row-major as garbage, and
+    # refused, if at all, as a focal length ≤ 0.
+    if array.shape != (3, 4) and array.squeeze().ndim != 1:
+        raise InputError(
+            f'{name} must be a 3×4 projection matrix or its 12 values in a row; got shape '
+            f'{array.shape}'
+        )
     array = array.reshape(3, 4)
     if not np.all(np.isfinite(array)):
         raise InputError(f'{name} must be finite; got {array.tolist()}')
@@ -127,10 +134,12 @@ class StereoGeometry:
 
         Args:
             p_left: 3×4 (or 12 values, row-major) projection matrix of the left camera.
-            p_right: Same for the right camera; ``P_right[0, 3] = −fx · B``.
+            p_right: Same for the right camera; ``P_right[0, 3] − P_left[0, 3] = −fx · B``
+                (``P_left[0, 3]`` is 0 where the left camera is the rectified frame's origin).
 
         Raises:
-            InputError: Wrong size, non-finite values, fx ≤ 0, or a baseline ≤ 0.
+            InputError: Wrong size or shape (a 4×3 P, say), non-finite values, fx ≤ 0, or a
+                baseline ≤ 0.
         """
         left = _projection(p_left, 'P_left')
         right = _projection(p_right, 'P_right')
@@ -149,7 +158,10 @@ class StereoGeometry:
             cx=float(left[0, 2]),
             cy=float(left[1, 2]),
             cx_right=float(right[0, 2]),
-            baseline=float(-right[0, 3] / right[0, 0]),
+            # Tx = −fx · (position of the camera along x in the rectified frame): the baseline
+            # is their difference, which −Tx_right alone gives only for a left camera at the
+            # origin (P_left[0, 3] = 0, the usual case).
+            baseline=float((left[0, 3] - right[0, 3]) / right[0, 0]),
         )
 
     @property
