@@ -41,6 +41,11 @@ __all__ = [
 DEFAULT_BINS = 10
 
 
+#: How far below its bin's lower edge a bin's mean confidence can lie: half a float16 step
+#: below 1 (an edge rounded to float16 for binning a float16 confidence), plus rounding.
+_EDGE_SLACK = 2.0**-12 + 1e-9
+
+
 def _edges(bins: int) -> np.ndarray:
     # k / B exactly rounded: linspace gives 0.30000000000000004 for 3 / 10.
     return np.arange(bins + 1) / bins
@@ -70,7 +75,10 @@ def _confidence_array(confidence: Any) -> np.ndarray:
 class ReliabilityTable:
     """Confidence against correctness in equal-width bins of [0, 1].
 
-    Bin ``i`` holds the confidences in ``[i / B, (i + 1) / B)``, the last bin also 1.0.
+    Bin ``i`` holds the confidences in ``[i / B, (i + 1) / B)``, the last bin also 1.0. A
+    float32 (float16) confidence is compared with the edges rounded to float32 (float16), as
+    the node compares it with ``np.float32(threshold)``: ``np.float32(0.7)``, a little below
+    0.7, is in the bin that starts at 0.7, among the pixels a robot keeps at 0.7.
 
     Attributes:
         counts: (B,) int64 pixels per bin.
@@ -286,10 +294,12 @@ class ReliabilityTable:
                     f'not a reliability table: bins {key}[{i}] of {count} pixels must be a '
                     f'number in [0, 1]; got {values[i]!r}'
                 )
-            # The mean of confidences in [i / B, (i + 1) / B) lies in that bin (up to rounding);
-            # one outside is no table of these bins (a shifted or hand-edited list).
+            # The mean of confidences in [i / B, (i + 1) / B) lies in that bin (up to rounding;
+            # below it by up to half a float16 step, the edge rounded as a float16 / float32
+            # confidence is binned); one outside is no table of these bins (a shifted or
+            # hand-edited list).
             low, high = i / len(counts), (i + 1) / len(counts)
-            if count and not low - 1e-9 <= float(conf[i]) <= high + 1e-9:
+            if count and not low - _EDGE_SLACK <= float(conf[i]) <= high + 1e-9:
                 raise InputError(
                     f'not a reliability table: bins mean_confidence[{i}] must lie in its bin '
                     f'[{low:g}, {high:g}]; got {conf[i]!r}'
@@ -348,7 +358,8 @@ def reliability(confidence: Any, correct: Any, bins: int = DEFAULT_BINS) -> Reli
     """
     if isinstance(bins, bool) or not isinstance(bins, (int, np.integer)) or bins < 1:
         raise InputError(f'bins must be an integer ≥ 1; got {bins!r}')
-    values = _confidence_array(confidence)
+    array = np.asarray(confidence)
+    values = _confidence_array(array)
     labels = np.asarray(correct)
     if labels.dtype != bool:
         raise InputError(f'correct must be a bool array; got dtype {labels.dtype}')
@@ -364,7 +375,12 @@ def reliability(confidence: Any, correct: Any, bins: int = DEFAULT_BINS) -> Reli
             f'confidence and correct must have the same size; got {values.size} and {labels.size}'
         )
     # Not int(c · B): 15/22 · 22 = 14.999999999999998 would put an edge into the bin below it.
-    index = np.minimum(np.searchsorted(_edges(bins), values, side='right') - 1, bins - 1)
+    edges = _edges(bins)
+    if array.dtype.kind == 'f' and array.dtype.itemsize < 8:
+        # The edges in the confidence's own precision: np.float32(0.7) (0.69999999) is the
+        # node's threshold 0.7 (np.float32(threshold)), so it belongs to the bin from 0.7 on.
+        edges = edges.astype(array.dtype).astype(np.float64)
+    index = np.minimum(np.searchsorted(edges, values, side='right') - 1, bins - 1)
     hits = labels.astype(np.float64)
     return ReliabilityTable(
         counts=np.bincount(index, minlength=bins).astype(np.int64),
@@ -382,19 +398,24 @@ def expected_error(confidence: Any, mask: Any = None) -> float | None:
 
     Args:
         confidence: Probabilities in [0, 1], any shape; NaN (no confidence) is left out.
-        mask: Optional bool array of the same shape: only these pixels.
+        mask: Optional bool array of the same shape: only these pixels (numbers: non-zero
+            selects).
 
     Returns:
         The predicted error rate in [0, 1]; None if no pixel is left.
 
     Raises:
-        InputError: Values outside [0, 1], no numbers, or a mask of another shape or with NaN.
+        InputError: Values outside [0, 1], no numbers, or a mask of another shape, of no
+            bool or number dtype (str, object, complex) or with NaN.
     """
     # Called on every frame by the node: pick the pixels first, convert only those.
     values = _numeric('confidence', np.asarray(confidence))
     if mask is not None:
         mask = np.asarray(mask)
-        if mask.dtype.kind in 'fc' and np.isnan(mask).any():
+        if mask.dtype.kind not in 'biuf':
+            # Cast to bool, every non-empty string ('False' too) or object would select its pixel.
+            raise InputError(f'mask must be a bool array; got dtype {mask.dtype}')
+        if mask.dtype.kind == 'f' and np.isnan(mask).any():
             # NaN cast to bool is True: the pixel would be counted as selected.
             raise InputError('mask must be a bool array; got NaN in a float mask')
         mask = mask.astype(bool)
