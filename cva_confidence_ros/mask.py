@@ -75,20 +75,32 @@ def reduce_mask(mask: np.ndarray, factor: int) -> np.ndarray:
 
     Raises:
         ConfigError: ``factor`` is not an integer ≥ 1.
+        InputError: ``mask`` is not (H, W), or smaller than one ``factor × factor`` block (as
+            :func:`~cva_confidence_ros.datasets.resize.resize_image` refuses such an image).
     """
     factor = check_factor(factor)
-    mask = np.asarray(mask, dtype=bool)
+    mask = _check_2d(mask)
     if factor == 1:
         return mask
     height, width = mask.shape[0] // factor, mask.shape[1] // factor
+    if height == 0 or width == 0:
+        # An empty mask would judge no pixel of an image that cannot be shrunk either.
+        raise InputError(
+            f'cannot shrink a {mask.shape[1]}×{mask.shape[0]} px mask by {factor}: it is '
+            'smaller than one block'
+        )
     blocks = mask[: height * factor, : width * factor].reshape(height, factor, width, factor)
     return np.asarray(blocks.all(axis=(1, 3)), dtype=bool)
 
 
 def mask_rows(mask: np.ndarray) -> tuple[int, int]:
     """Rows ``[y0, y1)`` from the first to the last row with a judged pixel (``(0, 0)`` when
-    there is none)."""
-    rows = np.flatnonzero(np.asarray(mask, dtype=bool).any(axis=1))
+    there is none).
+
+    Raises:
+        InputError: ``mask`` is not (H, W).
+    """
+    rows = np.flatnonzero(_check_2d(mask).any(axis=1))
     if rows.size == 0:
         return 0, 0
     return int(rows[0]), int(rows[-1]) + 1
@@ -105,9 +117,24 @@ def check_mask_size(
         option: The parameter or option that named the mask, for the message (e.g.
             ``'--mask'`` of the bag tools, or ``"mask_path 'robot.png'"``).
     """
+    mask = _check_2d(mask, option)
     if mask.shape != (height, width):
         raise InputError(
             f'the mask ({option}) is {mask.shape[1]}×{mask.shape[0]} px but the images are '
             f'{width}×{height} px; draw the mask on a frame of this camera at the resolution '
             f'it publishes'
         )
+
+
+def _check_2d(mask: np.ndarray, option: str = '') -> np.ndarray:
+    """``mask`` as an (H, W) bool array, or :class:`InputError` naming its shape: a colour
+    image or a flattened mask would be misread (rows counted across the channels) or fail
+    inside numpy."""
+    mask = np.asarray(mask)
+    if mask.ndim != 2:
+        name = f'the mask ({option})' if option else 'the mask'
+        raise InputError(
+            f'{name} must be (H, W), one value a pixel; got shape {mask.shape} (load_mask '
+            'reads an image file into one)'
+        )
+    return mask.astype(bool, copy=False)

@@ -25,9 +25,10 @@ of the 523 beams across a wall).
 
 Beams follow REP 117: a range where the nearest point lies in ``[range_min, range_max]``;
 ``+inf`` where the kept points in the band all lie beyond ``range_max`` (nothing within range);
-``−inf`` where they all lie closer than ``range_min`` (too close); NaN where no kept pixel
-falls in the beam at all (no measurement: the camera saw nothing it trusts there, which is not
-free space — consumers should not clear along it).
+``−inf`` where they all lie closer than ``range_min`` (too close); NaN where no kept point
+of the band falls in the beam at all (no measurement: the camera saw nothing it trusts there,
+or only above or below the band, which is not free space — consumers should not clear along
+it).
 """
 
 from __future__ import annotations
@@ -164,14 +165,14 @@ def disparity_to_scan(
         config: Height band, ranges and pitch; None = :class:`ScanConfig` defaults.
 
     Returns:
-        A :class:`Scan`, ``floor(fx · (angle_max − angle_min)) + 1`` beams between the
-        extreme bearings of :func:`bearing_range` (≤ W for a level camera; a pitched one sees
-        wider at the bottom (or top) corners, and its scan has more beams).
+        A :class:`Scan`, ``floor(fx · (angle_max − angle_min)) + 1`` beams (at least 2)
+        between the extreme bearings of :func:`bearing_range` (≤ W for a level camera; a
+        pitched one sees wider at the bottom (or top) corners, and its scan has more beams).
 
     Raises:
         InputError: ``disparity``, ``geometry`` or ``mask`` as
             :func:`~cva_confidence_ros.pointcloud.disparity_to_points` says, a ``confidence``
-            of another shape, or an image narrower than 2 columns.
+            of another shape, or an image narrower than 2 columns or without a row.
         ConfigError: ``config`` is not a :class:`ScanConfig`.
     """
     disparity, mask = _check_disparity(disparity, geometry, mask)
@@ -179,8 +180,11 @@ def disparity_to_scan(
     if not isinstance(config, ScanConfig):
         raise ConfigError(f'config must be a ScanConfig; got {type(config).__name__}')
     height, width = disparity.shape
-    if width < 2:
-        raise InputError(f'a scan needs an image at least 2 columns wide; got {width}')
+    if width < 2 or height < 1:
+        # A 0-row image used to give a scan of NaN beams, its bearings taken at row −1.
+        raise InputError(
+            f'a scan needs an image at least 2 columns wide and 1 row high; got {width}×{height}'
+        )
     if confidence is None:
         confidence = np.zeros(disparity.shape, np.float32)
     else:
