@@ -285,3 +285,16 @@ def break_storage(bag: Path) -> int:
         if failed and count > 0:
             return count
     raise AssertionError(f'no page of {storage} fails part-way when damaged')
+
+
+def live_options(tmp_path: Path, bag: Path, *extra: str) -> Any:
+    """``cva-bag-replay BAG --mode live`` options for the recorder tests: PKRN at D = 16 on
+    the CPU, outputs under ``tmp_path``, a 1 s drain timeout."""
+    from msg_tools.bag_replay import build_parser, options_from_args
+
+    return options_from_args(build_parser().parse_args([
+        str(bag), '--mode', 'live', '--out', str(tmp_path / 'out'),
+        '--report', str(tmp_path / 'report'), '--matcher', 'census_bm',
+        '--confidence-method', 'pkrn', '--device', 'cpu', '--max-disparity', str(MAX_DISPARITY),
+        '--drain-timeout', '1', *extra,
+    ]))

@@ -13,12 +13,11 @@ import time
 from types import SimpleNamespace
 from typing import Any, cast
 
-from msg_test_utils import START_NS, read_bag, write_stereo_bag
+from msg_test_utils import START_NS, live_options, read_bag, write_stereo_bag
 import pytest
 
 from cva_confidence_ros.pipeline import StereoPipeline
 from msg_tools import live
-from msg_tools.bag_replay import build_parser, options_from_args
 from msg_tools.bagio import InputBag, OutputBag
 from msg_tools.convert import jazzy_typestore, stamp_to_ns
 from msg_tools.progress import GracefulInterrupt, Progress
@@ -34,15 +33,6 @@ from msg_tools.replay import (
 )
 
 MS = 1_000_000
-
-
-def _options(tmp_path: Path, bag: Path, *extra: str) -> ReplayOptions:
-    return options_from_args(build_parser().parse_args([
-        str(bag), '--mode', 'live', '--out', str(tmp_path / 'out'),
-        '--report', str(tmp_path / 'report'), '--matcher', 'census_bm',
-        '--confidence-method', 'pkrn', '--device', 'cpu', '--max-disparity', '16',
-        '--drain-timeout', '1', *extra,
-    ]))
 
 
 class _Publisher:
@@ -96,7 +86,7 @@ class _Player:
 def _play(
     tmp_path: Path, bag: Path, *extra: str, node: Any = None, **player: Any
 ) -> tuple[ReplayOutcome, _Player]:
-    options = _options(tmp_path, bag, *extra)
+    options = live_options(tmp_path, bag, *extra)
     with InputBag(bag) as source:
         plan = plan_topics(source, options, lambda _: None)
         fake = _Player(plan, options, **player)
@@ -146,7 +136,7 @@ def test_a_looped_bag_loses_no_frame_to_a_node_one_frame_behind(tmp_path: Path) 
     frames = [dict(stamp=START_NS + i * 10**8, logged=START_NS + k * 10**8)
               for k, i in enumerate([0, 1, 2, 0, 1, 2])]
     bag = write_stereo_bag(tmp_path / 'in', frames, ground_truth=False)
-    options = _options(tmp_path, bag)
+    options = live_options(tmp_path, bag)
     store = jazzy_typestore()
     pairs: list[tuple[int, dict[str, Any], int]] = []
     with InputBag(bag) as source:
@@ -253,7 +243,7 @@ def test_publish_times_of_a_pair_are_not_kept(tmp_path: Path) -> None:
     # Approximate mode: only the set's own stamp was taken back; the publish times of its
     # other stamps (and of messages that never paired) stayed, a few entries a frame for the
     # whole run.
-    options = _options(tmp_path, write_stereo_bag(tmp_path / 'in', [{}]))
+    options = live_options(tmp_path, write_stereo_bag(tmp_path / 'in', [{}]))
     store = jazzy_typestore()
     with InputBag(options.bag) as source:
         plan = plan_topics(source, options, lambda _: None)
@@ -275,7 +265,7 @@ def test_an_answered_pair_without_geometry_is_skipped_not_lost(tmp_path: Path) -
     # frame answered but neither processed nor skipped: 1 pair, 0 + 0 + 0 dropped.
     bad = write_stereo_bag(tmp_path / 'bad', [{'info_size': (44, 30)}], ground_truth=False)
     good = write_stereo_bag(tmp_path / 'good', [{}], ground_truth=False)
-    options = _options(tmp_path, bad)
+    options = live_options(tmp_path, bad)
     store = jazzy_typestore()
 
     def first_pair(path: Path) -> dict[str, Any]:

@@ -15,12 +15,11 @@ from types import SimpleNamespace
 from typing import Any, cast
 import weakref
 
-from msg_test_utils import START_NS, read_bag, write_stereo_bag
+from msg_test_utils import START_NS, live_options, read_bag, write_stereo_bag
 import pytest
 
 from cva_confidence_ros.pipeline import PipelineConfig, StereoPipeline
 from msg_tools import live
-from msg_tools.bag_replay import build_parser, options_from_args
 from msg_tools.bagio import InputBag
 from msg_tools.convert import jazzy_typestore, stamp_to_ns
 from msg_tools.progress import GracefulInterrupt, Progress
@@ -37,15 +36,6 @@ from msg_tools.replay import (
 
 MS = 1_000_000
 SCORED = ('disparity', 'confidence', 'disparity_filtered')
-
-
-def _options(tmp_path: Path, bag: Path, *extra: str) -> ReplayOptions:
-    return options_from_args(build_parser().parse_args([
-        str(bag), '--mode', 'live', '--out', str(tmp_path / 'out'),
-        '--report', str(tmp_path / 'report'), '--matcher', 'census_bm',
-        '--confidence-method', 'pkrn', '--device', 'cpu', '--max-disparity', '16',
-        '--drain-timeout', '1', *extra,
-    ]))
 
 
 def _pairs(options: ReplayOptions) -> tuple[TopicPlan, list[tuple[int, dict[str, Any], int]]]:
@@ -84,7 +74,7 @@ def test_frames_of_one_stamp_waited_for_together_are_each_answered(tmp_path: Pat
     # time, and frames 2 and 3 were counted dropped although answered (2 of 4 answered).
     frames = [dict(stamp=START_NS + i * 100 * MS, logged=START_NS + k * 100 * MS)
               for k, i in enumerate([0, 1, 0, 1])]
-    options = _options(tmp_path, write_stereo_bag(tmp_path / 'in', frames, ground_truth=False))
+    options = live_options(tmp_path, write_stereo_bag(tmp_path / 'in', frames, ground_truth=False))
     plan, pairs = _pairs(options)
     session = ReplaySession(options, plan, lambda _: None)
     recorder = live._Recorder(session, jazzy_typestore(), options, queue.Queue())
@@ -153,7 +143,7 @@ class _Node:
 
 
 def _play(tmp_path: Path, bag: Path, node: _Node, answered: Any) -> tuple[ReplayOutcome, int]:
-    options = _options(tmp_path, bag)
+    options = live_options(tmp_path, bag)
     _answer(options, _pairs(options)[1][0][1])  # compiles the matcher before the clock runs
     with InputBag(bag) as source:
         plan = plan_topics(source, options, lambda _: None)
@@ -200,22 +190,32 @@ def test_a_node_that_exits_during_a_pause_of_the_bag_ends_the_replay_at_once(
     assert answers == 1 and outcome.report.counts['processed'] == 1
 
 
-def test_an_output_that_cannot_be_read_is_no_skipped_pair(tmp_path: Path) -> None:
-    # A points2 cut short: counted as a skipped pair besides its frame, processed (1 pair,
-    # 1 processed + 1 skipped), and logged once per message.
-    options = _options(tmp_path, write_stereo_bag(tmp_path / 'in', [{}, {}],
+def _answer_cut(
+    tmp_path: Path, cut: tuple[str, ...] | None, log: Any
+) -> tuple[ReplaySession, Any]:
+    """Two pairs answered through the recorder, the outputs named in ``cut`` (None: all)
+    cut short to 12 bytes."""
+    options = live_options(tmp_path, write_stereo_bag(tmp_path / 'in', [{}, {}],
                                                   ground_truth=False))
     plan, pairs = _pairs(options)
-    logs: list[str] = []
-    session = ReplaySession(options, plan, logs.append)
+    session = ReplaySession(options, plan, log)
     recorder = live._Recorder(session, jazzy_typestore(), options, queue.Queue())
     with session:
         for index, (stamp, items, logged) in enumerate(pairs):
             recorder.expect(SimpleNamespace(stamp_ns=stamp, items=items), index, logged)
             session.counts['pairs'] += 1
             for name, _, raw in _answer(options, items):
-                recorder._handle(name, raw[:12] if name == 'points' else raw,
-                                 time.monotonic(), _progress())
+                short = cut is None or name in cut
+                recorder._handle(name, raw[:12] if short else raw, time.monotonic(),
+                                 _progress())
+    return session, recorder
+
+
+def test_an_output_that_cannot_be_read_is_no_skipped_pair(tmp_path: Path) -> None:
+    # A points2 cut short: counted as a skipped pair besides its frame, processed (1 pair,
+    # 1 processed + 1 skipped), and logged once per message.
+    logs: list[str] = []
+    session, recorder = _answer_cut(tmp_path, ('points',), logs.append)
     counts = session.counts
     assert (counts['pairs'], counts['processed'], counts['skipped']) == (2, 2, 0)
     assert counts['unreadable'] == 2 and recorder.unanswered() == 0
@@ -258,7 +258,7 @@ def test_string_parameters_reach_the_node_as_they_are(tmp_path: Path) -> None:
 def test_a_node_that_answers_nothing_does_not_have_every_image_held(tmp_path: Path) -> None:
     # Each frame waited for kept its input messages: a silent node had the replay hold every
     # image of the bag (a 5-minute 10 Hz VGA bag: 1.8 GB). Only the newest hundred do now.
-    options = _options(tmp_path, write_stereo_bag(tmp_path / 'in', [{}], ground_truth=False))
+    options = live_options(tmp_path, write_stereo_bag(tmp_path / 'in', [{}], ground_truth=False))
     plan, [(_, items, _)] = _pairs(options)
     recorder = live._Recorder(
         ReplaySession(options, plan, lambda _: None), jazzy_typestore(), options, queue.Queue()
@@ -278,17 +278,7 @@ def test_a_node_that_answers_nothing_does_not_have_every_image_held(tmp_path: Pa
 def test_a_replay_whose_every_output_was_unreadable_says_so(tmp_path: Path) -> None:
     # Every output cut short: the closing line said only that the node answered none of the
     # pairs, though it did, unreadably.
-    options = _options(tmp_path, write_stereo_bag(tmp_path / 'in', [{}, {}],
-                                                  ground_truth=False))
-    plan, pairs = _pairs(options)
-    session = ReplaySession(options, plan, lambda _: None)
-    recorder = live._Recorder(session, jazzy_typestore(), options, queue.Queue())
-    with session:
-        for index, (stamp, items, logged) in enumerate(pairs):
-            recorder.expect(SimpleNamespace(stamp_ns=stamp, items=items), index, logged)
-            session.counts['pairs'] += 1
-            for name, _, raw in _answer(options, items):
-                recorder._handle(name, raw[:12], time.monotonic(), _progress())
+    session, _ = _answer_cut(tmp_path, None, lambda _: None)
     outcome = session.outcome()
     assert session.counts['processed'] == 0 and session.counts['unreadable'] > 0
     assert outcome.exit_code == 2
