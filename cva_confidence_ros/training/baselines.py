@@ -317,8 +317,16 @@ def _masked_bce(logits: torch.Tensor, targets: torch.Tensor, mask: torch.Tensor)
 
 
 def _auc(net: nn.Module, scenes: list[DisparityScene], subsets: list[Any], device: Any,
-         part: str | None = None) -> dict[str, float | None]:
+         part: str | None = None, epoch: int = 0, lr: float = 0.0,
+         out: Path = Path()) -> dict[str, float | None]:
+    """Validation scores of ``net`` (or of LGC-Net's ``part``, ``local`` or ``global``) after
+    ``epoch`` (0-based; ``lr`` and ``out`` for the message of a diverged run).
+
+    Raises:
+        ModelError: A confidence is NaN or infinite (the network diverged).
+    """
     from cva_confidence_ros.metrics import auc_scores
+    from cva_confidence_ros.training.trainer import _diverged
 
     confidences, wrongs = [], []
     net.eval()
@@ -344,6 +352,17 @@ def _auc(net: nn.Module, scenes: list[DisparityScene], subsets: list[Any], devic
     if not confidences:
         return {'val_auc': None, 'val_auc_opt': None, 'val_error_rate': None, 'val_high': None}
     confidence = np.concatenate(confidences)
+    bad = int(np.count_nonzero(~np.isfinite(confidence)))
+    if bad:
+        # auc_scores would refuse them as bad input, which says nothing of the training.
+        name = {'local': 'CCNN ', 'global': 'ConfNet '}.get(part or '', '')
+        raise _diverged(
+            f'after epoch {epoch + 1}, {bad} of {confidence.size} {name}validation confidences '
+            'are NaN or infinite',
+            epoch,
+            lr,
+            out,
+        )
     scores = auc_scores(confidence, np.concatenate(wrongs))
     return {
         **{f'val_{key}': float(scores[key]) for key in ('auc', 'auc_opt', 'error_rate')},
@@ -397,19 +416,19 @@ def _optimiser(net: nn.Module, stage: str, lr: float) -> torch.optim.Optimizer:
     return torch.optim.Adam(params, lr=lr, betas=(0.9, 0.999))
 
 
-def _step_loss(
+def _stage_logits(
     net: nn.Module, stage: str, scenes: list[DisparityScene], crops: Any, step: np.ndarray,
     side: int, device: Any,
-) -> tuple[torch.Tensor, int]:
+) -> tuple[list[torch.Tensor], torch.Tensor, torch.Tensor]:
+    """Logits of the networks ``stage`` trains (CCNN and ConfNet in ``parts``, else one), each
+    (B, 1, side, side), on the crops ``step``, with their targets and loss masks."""
     if stage == 'fusion':
         planes, targets, mask = gather_planes(
             scenes, crops, step, side, TOWER_MARGIN, ('disparity', 'local', 'global_')
         )
         planes = [p.to(device) for p in planes]
         assert isinstance(net, LGCNet)  # stage 'fusion' is LGC-Net's
-        logits = net.fusion.forward_logits(*planes)
-        mask, targets = mask.to(device), targets.to(device)
-        return _masked_bce(logits, targets, mask), int(mask.sum())
+        return [net.fusion.forward_logits(*planes)], targets.to(device), mask.to(device)
     planes, targets, mask = gather_planes(scenes, crops, step, side, TOWER_MARGIN)
     mask, targets = mask.to(device), targets.to(device)
     planes = [p.to(device) for p in planes]
@@ -417,12 +436,73 @@ def _step_loss(
         forward_logits = cast(  # CCNN or LFN
             'Callable[[torch.Tensor, torch.Tensor], torch.Tensor]', net.forward_logits
         )
-        return _masked_bce(forward_logits(*planes), targets, mask), int(mask.sum())
+        return [forward_logits(*planes)], targets, mask
     assert isinstance(net, LGCNet)  # stage 'parts' is LGC-Net's
-    loss = _masked_bce(net.local.forward_logits(*planes), targets, mask)
     inner = [p[:, :, TOWER_MARGIN:-TOWER_MARGIN, TOWER_MARGIN:-TOWER_MARGIN] for p in planes]
-    loss = loss + _masked_bce(net.confnet.forward_logits(*inner), targets, mask)
+    logits = [net.local.forward_logits(*planes), net.confnet.forward_logits(*inner)]
+    return logits, targets, mask
+
+
+def _step_loss(
+    net: nn.Module, stage: str, scenes: list[DisparityScene], crops: Any, step: np.ndarray,
+    side: int, device: Any,
+) -> tuple[torch.Tensor, int]:
+    logits, targets, mask = _stage_logits(net, stage, scenes, crops, step, side, device)
+    loss = _masked_bce(logits[0], targets, mask)
+    for more in logits[1:]:  # parts: CCNN's loss + ConfNet's
+        loss = loss + _masked_bce(more, targets, mask)
     return loss, int(mask.sum())
+
+
+def _check_finite_outputs(
+    net: nn.Module, stage: str, scenes: list[DisparityScene], index: SampleIndex, side: int,
+    device: Any, epoch: int, lr: float, out: Path,
+) -> None:
+    """Stop a run whose last steps left weights with non-finite outputs, as CVA-Net's trainer
+    does: the loss of an epoch is that of the weights before each step, so it stays finite
+    when only the last step diverged, and the checkpoint and weights file would take the
+    broken weights (an LGC-Net stage 1 so broken also feeds NaN maps to the fusion).
+
+    The networks the stage trains run in eval mode on crops of the run's side around up to
+    ``_PROBE_PIXELS`` labelled pixels spread over the stage's index (one crop per
+    ``_PROBE_PIXELS`` outputs at the most); their labelled outputs are checked.
+
+    Raises:
+        ModelError: Some logit is NaN or infinite.
+    """
+    from cva_confidence_ros.training.trainer import _PROBE_PIXELS, _diverged
+
+    count = min(len(index), max(1, _PROBE_PIXELS // side**2))
+    chosen = np.linspace(0, len(index) - 1, count).round().astype(np.int64)
+    number = index.scene[chosen]
+    heights = np.array([scenes[int(n)].shape[0] for n in number])
+    widths = np.array([scenes[int(n)].shape[1] for n in number])
+    crops = CropBatch(
+        number.astype(np.int32),
+        np.minimum(index.ys[chosen], heights - side).astype(np.int32),
+        np.minimum(index.xs[chosen], widths - side).astype(np.int32),
+        np.ones(count, np.int32),
+    )
+    net.eval()
+    try:
+        with torch.no_grad():
+            logits, _, mask = _stage_logits(
+                net, stage, scenes, crops, np.arange(count), side, device
+            )
+    finally:
+        net.train()
+    bad = sum(int((~torch.isfinite(part[:, 0][mask])).sum()) for part in logits)
+    if bad:
+        name = {'parts': 'CCNN and ConfNet', 'fusion': 'the fusion network'}.get(
+            stage, 'the network'
+        )
+        raise _diverged(
+            f'after epoch {epoch + 1}, {bad} of {int(mask.sum()) * len(logits)} logits of '
+            f'{name} at training pixels are NaN or infinite',
+            epoch,
+            lr,
+            out,
+        )
 
 
 def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
@@ -542,6 +622,9 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
         saved_optimiser = (str(state.get('stage', 'single')), state['optimizer'])
         best = state.get('best_fusion')
         log(f'resumed from {checkpoint} after epoch {start_epoch}')
+        # A run stopped between its checkpoint and history.json left that one short; a resume
+        # with no epoch left to train would never write it.
+        _write_history(out, history)
     elif config.resume:
         log(f'--resume: no checkpoint in {out}, starting from scratch')
 
@@ -599,6 +682,9 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
                 bar.set_postfix(loss=f'{loss_sum / max(1, seen):.4f}', sps=f'{seen / elapsed:.0f}')
         seconds = time.perf_counter() - tic
         check_finite_loss(loss_sum / max(1, seen), epoch, lr, out)
+        _check_finite_outputs(
+            net, stage, stage_scenes[stage], stage_index[stage], side, device, epoch, lr, out
+        )
         record: dict[str, Any] = {
             'epoch': epoch + 1,
             'lr': lr,
@@ -610,8 +696,8 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
         if stage != 'single':
             record['stage'] = stage
         if stage == 'parts':
-            local = _auc(net, val_scenes, val_subsets, device, 'local')
-            global_ = _auc(net, val_scenes, val_subsets, device, 'global')
+            local = _auc(net, val_scenes, val_subsets, device, 'local', epoch, lr, out)
+            global_ = _auc(net, val_scenes, val_subsets, device, 'global', epoch, lr, out)
             record.update(
                 {
                     'val_auc': None,
@@ -622,7 +708,7 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
                 }
             )
         else:
-            record.update(_auc(net, val_scenes, val_subsets, device))
+            record.update(_auc(net, val_scenes, val_subsets, device, None, epoch, lr, out))
         history.append(record)
         if stage == 'fusion' and record['val_auc'] is not None and (
             best is None or record['val_auc'] < best['val_auc']

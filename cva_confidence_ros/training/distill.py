@@ -77,11 +77,21 @@ def load_teacher(
 
 
 def teacher_logits(teacher: nn.Module, volumes: torch.Tensor) -> torch.Tensor:
-    """The teacher's (B, H, W) logits for (B, 1, D, H + 12, W + 12) inputs, without a graph."""
+    """The teacher's (B, H, W) logits for (B, 1, D, H + 12, W + 12) inputs, without a graph.
+
+    The teacher runs in eval mode whatever its mode (and is given its mode back): in training
+    mode an unfolded network would normalise by the batch's statistics, move its running
+    statistics and drop out, so its targets would change from call to call.
+    """
     # load_teacher returns a folded cost-volume network, which has forward_logits.
     forward_logits = cast('Callable[[torch.Tensor], torch.Tensor]', teacher.forward_logits)
-    with torch.no_grad():
-        return forward_logits(volumes)
+    was_training = teacher.training
+    teacher.eval()
+    try:
+        with torch.no_grad():
+            return forward_logits(volumes)
+    finally:
+        teacher.train(was_training)
 
 
 def distillation_loss(
@@ -95,7 +105,8 @@ def distillation_loss(
     Args:
         logits: (N,) student logits of the labelled outputs.
         targets: (N,) labels, 1 = correct disparity (float, or bool / integer 0 and 1).
-        teacher: (N,) teacher logits of the same outputs, or None (then A must be 0).
+        teacher: (N,) teacher logits of the same outputs, or None (then A must be 0); taken
+            as constant targets (detached).
         weight: A in [0, 1].
 
     Returns:
@@ -125,7 +136,8 @@ def distillation_loss(
         if weight != 0.0:
             raise ConfigError('a distill weight > 0 needs teacher logits')
         return hard
-    soft = F.binary_cross_entropy_with_logits(logits, torch.sigmoid(teacher.float()))
+    # The teacher's probability is a target: no gradient flows back into the teacher.
+    soft = F.binary_cross_entropy_with_logits(logits, torch.sigmoid(teacher.detach().float()))
     return (1.0 - weight) * hard + weight * soft
 
 
