@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from decimal import Decimal
 import math
 from pathlib import Path
 import sys
@@ -91,8 +92,9 @@ class BagSpec:
         baseline: Baseline in metres overriding the calibration (None = keep).
         topic_prefix: Namespace of every topic ('' = root), e.g. ``/stereo``; with the topic
             names it must make valid ROS 2 topic names (``bagio.check_topic_name``).
-        left_frame: frame_id of the left camera (images, infos, ground truth).
-        right_frame: frame_id of the right camera.
+        left_frame: frame_id of the left camera (images, infos, ground truth); not starting
+            with '/', which tf2 refuses.
+        right_frame: frame_id of the right camera (the same).
         gt_topic: Topic of the ground truth, relative to the prefix.
     """
 
@@ -136,6 +138,14 @@ class BagSpec:
             raise ConfigError(f'baseline must be > 0 m; got {self.baseline}')
         if not self.left_frame or not self.right_frame:
             raise ConfigError('frame ids must not be empty')
+        for side, frame in (('left', self.left_frame), ('right', self.right_frame)):
+            if frame.startswith('/'):
+                # tf2 refuses such a frame ('frame_ids cannot start with a /'): nothing the
+                # node publishes in it could be placed.
+                raise ConfigError(
+                    f"{side} frame id must not start with '/' (tf2 refuses such frames); got "
+                    f'{frame!r}'
+                )
         prefix = self.topic_prefix.strip('/')
         if prefix:
             check_topic_name(f'/{prefix}', 'topic prefix')
@@ -172,7 +182,10 @@ class BagSpec:
         return stamp
 
     def _raw_stamp_ns(self, index: int) -> int:
-        return int(round(self.start_time_s * 1e9)) + int(round(index * 1e9 / self.rate_hz))
+        # The start as it was written (repr: the shortest decimal of the float): in float
+        # arithmetic 1700000000.999 s became 1700000000999000064 ns.
+        start = Decimal(repr(float(self.start_time_s))) * 1_000_000_000
+        return int(start.to_integral_value()) + int(round(index * 1e9 / self.rate_hz))
 
 
 @dataclass
@@ -345,6 +358,9 @@ def _frame_messages(
         geometry, width, height, stamp, (spec.left_frame, spec.right_frame), store
     )
     gt = np.asarray(sample.disparity, dtype=np.float32)
+    # Unknown is NaN in the bag: +inf (how Middlebury's PFMs and ``read_pfm`` mark it) would be
+    # a valid disparity, a depth of 0 m, to any other reader.
+    gt = np.where(np.isfinite(gt), gt, np.float32(np.nan))
     return [
         ('left_info', CAMERA_INFO, left_info),
         ('right_info', CAMERA_INFO, right_info),

@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import os
 from pathlib import Path
+import stat
 import sys
 import tempfile
 from typing import Any
@@ -104,6 +105,32 @@ def _parse_polygon(corners: list[str]) -> np.ndarray:
     return np.asarray(points, dtype=np.int32)
 
 
+def _polygon_corners(polygon: Any) -> np.ndarray:
+    """``polygon`` as the (N, 2) int32 corners OpenCV fills, checked as ``--polygon`` is: a
+    line or a point would be drawn as such, corners past int32 would wrap around."""
+    try:
+        points = np.asarray(polygon)
+    except ValueError:  # corners of different lengths
+        points = np.asarray(polygon, dtype=object)
+    if points.ndim != 2 or points.shape[1] != 2:
+        raise ConfigError(
+            f'a polygon must be (N, 2) corners (x, y); got shape {points.shape}: {polygon!r}'
+        )
+    if points.dtype.kind not in 'iu':
+        raise ConfigError(
+            f'polygon corners must be whole pixels (integers); got {points.dtype}: '
+            f'{points.tolist()}'
+        )
+    if len(points) < 3:
+        raise ConfigError(f'a polygon needs 3 corners or more; got {len(points)}: '
+                          f'{points.tolist()}')
+    if np.abs(points.astype(np.float64)).max() > _INT32_MAX:  # OpenCV takes 32-bit corners
+        raise ConfigError(
+            f'polygon corners must lie within ±{_INT32_MAX} px; got {points.tolist()}'
+        )
+    return points.astype(np.int32)
+
+
 def draw_mask(
     width: int,
     height: int,
@@ -120,13 +147,14 @@ def draw_mask(
         start: A mask to add to (True or nonzero = judged), or None for all judged.
         rects: ``[x0, y0, x1, y1]``, each ignoring ``x0 ≤ x < x1``, ``y0 ≤ y < y1`` (clipped
             to the image; one that leaves no pixel of the image is refused).
-        polygons: (N, 2) int corners (x, y), N ≥ 3, each ignoring its inside and edges (one
-            that leaves no pixel of the image is refused).
+        polygons: (N, 2) int corners (x, y) (an array or a list of pairs), N ≥ 3, within
+            ±(2³¹ − 1), each ignoring its inside and edges (one that leaves no pixel of the
+            image is refused).
         below: Ignore rows ``y ≥ below``. above: Ignore rows ``y < above``.
 
     Raises:
-        ConfigError: A rectangle, polygon or row outside the image, or the wrong size of
-            ``start``.
+        ConfigError: A rectangle, polygon or row outside the image, a polygon that is not
+            one (fewer than 3 corners, not whole pixels), or the wrong size of ``start``.
     """
     # A copy as bool: a 0/255 start mask would otherwise come back as 0/1 uint8 after &=
     keep = np.ones((height, width), dtype=bool) if start is None else np.array(start, bool)
@@ -143,7 +171,7 @@ def draw_mask(
                 f'(X0 < X1 and Y0 < Y1, inside it)'
             )
         keep[cy0:cy1, cx0:cx1] = False
-    for polygon in polygons:
+    for polygon in map(_polygon_corners, polygons):
         # One at a time: a polygon off the image (a typo, x and y swapped) is refused, as a
         # rectangle is, instead of silently ignoring nothing.
         canvas = np.zeros((height, width), dtype=np.uint8)
@@ -232,12 +260,26 @@ def _write_atomically(path: Path, rgb_or_gray: np.ndarray) -> None:
         raise InputError(f'could not encode {path} as PNG')
     handle, temporary = tempfile.mkstemp(prefix=f'.{path.name}.', dir=path.parent)
     try:
+        # mkstemp makes the file 0600, which a node running as another user (a service, a
+        # container) could not read: a replaced file keeps its mode, a new one gets the umask's.
+        os.fchmod(handle, _file_mode(path))
         with os.fdopen(handle, 'wb') as stream:
             stream.write(data.tobytes())
         os.replace(temporary, path)
     except BaseException:
         Path(temporary).unlink(missing_ok=True)
         raise
+
+
+def _file_mode(path: Path) -> int:
+    """Permissions for a file written at ``path``: those of the file it replaces, or those
+    ``open`` gives a new one (0666 less the umask)."""
+    try:
+        return stat.S_IMODE(path.stat().st_mode)
+    except FileNotFoundError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask
 
 
 def summary(keep: np.ndarray) -> str:
