@@ -92,7 +92,8 @@ class GracefulInterrupt:
     process. A second signal outside a critical section is raised at once, for a step that
     takes long. Inside :meth:`critical` (writing a
     message into a bag, which must not be cut in half) and after :meth:`closing` (the outputs
-    are being finalised) signals are only noted.
+    are being finalised) signals are only noted (the first with its line inside a critical
+    section, with none after :meth:`closing`).
 
     Use as a context manager around the run; it may be entered again inside (the handlers are
     set by the outermost ``with`` and put back when it ends). Signal handlers can only be set
@@ -117,10 +118,14 @@ class GracefulInterrupt:
 
     def _handler(self, signum: int, frame: FrameType | None) -> None:
         self._signals += 1
-        if self._depth or self._closing:
+        if self._closing:
             return
         if self._signals > 1:
-            raise KeyboardInterrupt
+            if not self._depth:
+                raise KeyboardInterrupt
+            return
+        # Said inside a critical section too (its next check stops the run all the same): a
+        # first Ctrl-C there went without a word, and a user pressed again, unanswered.
         if self.notice:
             sys.stderr.write(f'{self.notice} (Ctrl-C again to stop at once)\n')
             sys.stderr.flush()

@@ -105,7 +105,8 @@ def check_report_folder(
     A folder that holds an earlier report would end up with a mix of two runs (old PNGs next
     to a new ``report.json``), so it needs ``overwrite`` (:func:`clear_report` then removes
     the old report's files, and only those). A folder that does not look like a report (no
-    ``report.json``, and names this tool never writes) is refused even with ``overwrite``.
+    ``report.json``, and names this tool never writes) is refused even with ``overwrite``,
+    and so is one where a name of the report's files is a symbolic link or a folder.
 
     Args:
         folder: The report folder (need not exist).
@@ -115,7 +116,7 @@ def check_report_folder(
 
     Raises:
         ConfigError: The folder holds something and ``overwrite`` is off, or it holds
-            something that is not a report.
+            something that is not a report (a link or folder of a report file's name too).
     """
     path = Path(folder)
     if not path.is_dir():
@@ -123,6 +124,16 @@ def check_report_folder(
     entries = sorted(p for p in path.iterdir() if p.resolve() not in ignore)
     if not entries:
         return
+    for entry in entries:
+        if _REPORT_FILE.fullmatch(entry.name) and (entry.is_symlink() or not entry.is_file()):
+            # Neither listed as the report's nor deleted by clear_report: the report was then
+            # written through a link (into the file it points to, elsewhere) or failed at the
+            # end of the run on a folder of that name.
+            kind = 'a symbolic link' if entry.is_symlink() else 'not a file'
+            raise ConfigError(
+                f'the report folder {folder} holds {entry.name}, which is {kind}; a report '
+                f'writes a file of that name: remove it, or pick another folder'
+            )
     names = [p.name for p in entries]
     listing = ', '.join(names[:3]) + (f' and {len(names) - 3} more' if len(names) > 3 else '')
     ours = {p.name for p in report_files(path)}
@@ -274,11 +285,22 @@ def score_frame(
         when ``gt`` is None or has no known pixel.
 
     Raises:
-        InputError: Shapes that differ.
+        InputError: A disparity that is no 2-D map of numbers, shapes that differ, a
+            confidence that is no real number (bool, complex, ...), ``kept`` or ``region``
+            not bool, or (from ``evaluation.score_confidence``) a NaN confidence at a scored
+            pixel.
     """
     from cva_confidence_ros.evaluation import score_confidence, select_pixels
     from cva_confidence_ros.metrics import kitti_error
 
+    disparity = np.asarray(disparity)
+    if disparity.ndim != 2 or disparity.dtype.kind not in 'fiu':
+        # Unpacked below as (h, w): a (h, w, 1) map was a bare ValueError, a list an
+        # AttributeError, neither caught by the replay as a frame it cannot score.
+        raise InputError(
+            f'disparity must be an (h, w) map of numbers; got shape {disparity.shape} '
+            f'and dtype {disparity.dtype}'
+        )
     height, width = disparity.shape
     score = FrameScore(frame=frame, stamp_ns=stamp_ns, width=width, height=height)
     arrays = (('confidence', confidence), ('kept', kept)) + (
@@ -291,6 +313,18 @@ def score_frame(
             raise InputError(
                 f'{name} must have the disparity shape {disparity.shape}; got {np.shape(array)}'
             )
+    confidence = np.asarray(confidence)
+    if confidence.dtype.kind not in 'fiu':
+        # Cast to float32, a bool map was read as 0 / 1, which score_confidence refuses.
+        raise InputError(
+            f'confidence must hold real numbers (float or int); got dtype {confidence.dtype}'
+        )
+    for name, mask in (('kept', kept), ('region', region)):
+        if mask is not None and np.asarray(mask).dtype != np.bool_:
+            # Cast to bool, a disparity map given in its place counted NaN and nonzero as True.
+            raise InputError(
+                f'{name} must be an (h, w) bool mask; got dtype {np.asarray(mask).dtype}'
+            )
     _frame_statistics(score, disparity, confidence, kept, probabilistic, region)
     if gt is None:
         score.note = 'no ground truth'
@@ -300,7 +334,9 @@ def score_frame(
         score.note = 'ground truth has no known pixel'
         return score
     error = np.asarray(kitti_error(disparity, gt), dtype=bool)[ys, xs]
-    scored = score_confidence(np.asarray(confidence, dtype=np.float32)[ys, xs], error)
+    # Ranked in its own dtype, as cva-evaluate ranks it: a cast to float32 tied float64
+    # values that differ only beyond its 7 digits.
+    scored = score_confidence(confidence[ys, xs], error)
     kept_here = np.asarray(kept, dtype=bool)[ys, xs]
     score.error_rate = scored.error_rate
     score.auc = scored.auc
