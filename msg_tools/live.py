@@ -566,7 +566,7 @@ def _play(
         interrupts=interrupts,
     )
     recorder = _Recorder(session, store, options, player.received)
-    with session:
+    with session, progress:
         position: int | None = None  # bag time of the last message read
         try:
             start_bag: int | None = None
@@ -618,7 +618,6 @@ def _play(
                 session.counts['dropped'] = recorder.unanswered()
                 if interrupts.requested:
                     session.read_ahead_ground_truth(bag, position, store)
-    progress.finish()
     return session.outcome()
 
 

@@ -11,7 +11,24 @@ import time
 from types import FrameType
 from typing import TextIO
 
-__all__ = ['GracefulInterrupt', 'Progress']
+__all__ = ['GracefulInterrupt', 'Progress', 'print_above']
+
+# The progress line being rewritten in place on a terminal (no newline after it yet): a log
+# line printed to its stream goes above it (print_above), not onto its end.
+_open_line: Progress | None = None
+
+
+def print_above(message: str, stream: TextIO | None = None) -> None:
+    """Print ``message`` as a line of ``stream`` (stderr by default); where a progress line
+    is being rewritten there on a terminal, above it (the line is cleared, the message
+    printed, the progress drawn again), not glued to its end."""
+    stream = stream if stream is not None else sys.stderr
+    line = _open_line
+    if line is not None and line.stream is stream:
+        stream.write('\r\x1b[K' + message + '\n' + line.line() + '\x1b[K')
+    else:
+        stream.write(message + '\n')
+    stream.flush()
 
 
 class Progress:
@@ -65,6 +82,8 @@ class Progress:
         self.done = self.done + 1 if done is None else int(done)
         now = self.clock()
         if self._tty:
+            global _open_line
+            _open_line = self
             self.stream.write('\r' + self.line() + '\x1b[K')
             self.stream.flush()
         elif force or now - self._last >= self.interval:
@@ -73,8 +92,18 @@ class Progress:
             self.stream.write(self.line() + '\n')
             self.stream.flush()
 
+    def __enter__(self) -> Progress:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        # Also on an error or Ctrl-C: the line ends, so what is printed next starts a line.
+        self.finish()
+
     def finish(self) -> None:
         """Print the final line (unless the last line printed says the same)."""
+        global _open_line
+        if _open_line is self:
+            _open_line = None
         if self._tty:
             self.stream.write('\r' + self.line() + '\x1b[K\n')
         elif self._printed != self.done:
@@ -127,8 +156,7 @@ class GracefulInterrupt:
         # Said inside a critical section too (its next check stops the run all the same): a
         # first Ctrl-C there went without a word, and a user pressed again, unanswered.
         if self.notice:
-            sys.stderr.write(f'{self.notice} (Ctrl-C again to stop at once)\n')
-            sys.stderr.flush()
+            print_above(f'{self.notice} (Ctrl-C again to stop at once)')
 
     def __enter__(self) -> GracefulInterrupt:
         self._entered += 1

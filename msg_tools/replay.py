@@ -16,7 +16,6 @@ from dataclasses import asdict, dataclass, field
 import importlib
 import math
 from pathlib import Path
-import sys
 from typing import Any
 
 import numpy as np
@@ -46,7 +45,7 @@ from msg_tools.convert import (
     jazzy_typestore,
     stamp_to_ns,
 )
-from msg_tools.progress import GracefulInterrupt, Progress
+from msg_tools.progress import GracefulInterrupt, Progress, print_above
 from msg_tools.scoring import (
     FrameScore,
     ReplayReport,
@@ -122,7 +121,8 @@ _MAX_REMEMBERED = 1000
 
 def log_stderr(message: str) -> None:
     """Print one ``[cva-bag-replay]`` line on stderr."""
-    print(f'[cva-bag-replay] {message}', file=sys.stderr, flush=True)
+    # Above a progress line on a terminal, not glued to its end.
+    print_above(f'[cva-bag-replay] {message}')
 
 
 @dataclass(frozen=True)
@@ -1183,16 +1183,26 @@ class ReplaySession:
         gt = None
         if msg is not None:
             gt, note = self._ground_truth(result, msg)
-        try:
-            score = score_frame(
+        def score_against(truth: np.ndarray | None) -> FrameScore:
+            return score_frame(
                 result.frame, result.stamp_ns, result.disparity, result.confidence,
-                result.kept, gt, max_pixels=self.options.max_pixels, seed=self.options.seed,
+                result.kept, truth, max_pixels=self.options.max_pixels, seed=self.options.seed,
                 probabilistic=is_probabilistic(self.options.pipeline.confidence_method),
                 region=result.region,
             )
+
+        try:
+            score = score_against(gt)
         except InputError as err:
-            score = FrameScore(frame=result.frame, stamp_ns=result.stamp_ns)
             note = f'not scored: {err}'
+            try:
+                # What needs no ground truth (kept share, predicted error, mean confidence)
+                # is still the frame's: only the scoring against it failed.
+                score = score_against(None) if gt is not None else None
+            except InputError:
+                score = None
+            if score is None:
+                score = FrameScore(frame=result.frame, stamp_ns=result.stamp_ns)
         else:
             if gt is not None and self.options.scan is not None and result.geometry is not None:
                 self._score_scan(score, result, gt)
@@ -1528,7 +1538,7 @@ def run_offline(
         progress = Progress(plan.pairs_expected, prefix='[cva-bag-replay] offline: ')
         session = ReplaySession(options, plan, log, interrupts=interrupts)
         position: int | None = None  # bag time of the last message read
-        with session:
+        with session, progress:
             try:
                 for topic, msgtype, timestamp, raw in bag.messages(plan.topics):
                     interrupts.check()
@@ -1560,7 +1570,6 @@ def run_offline(
                 session.counts['unpaired'] = sync.dropped
                 if interrupts.requested:
                     session.read_ahead_ground_truth(bag, position, store)
-        progress.finish()
     return session.outcome()
 
 
