@@ -17,6 +17,7 @@ import numpy as np
 from cva_confidence_ros.checks import is_int
 from cva_confidence_ros.confidence.base import (
     CONFIDENCE_METHODS,
+    GENERIC_OPTIONS,
     ConfidenceInputs,
     ConfidenceMethod,
 )
@@ -41,7 +42,9 @@ class _DisparityNetConfidence(ConfidenceMethod):
     Raises:
         ModelError: Weights missing, corrupt, of another architecture, or for another matcher
             or D.
-        ConfigError: ``max_disparity`` not an integer ≥ 1, or a bad device.
+        ConfigError: ``matcher`` not a non-empty str, ``weights`` not a path,
+            ``max_disparity`` not an integer ≥ 1, a bad device, or an option that is neither
+            a parameter nor a generic option.
     """
 
     arch: ClassVar[str] = ''
@@ -57,6 +60,27 @@ class _DisparityNetConfidence(ConfidenceMethod):
         device: str = 'cpu',
         **_: Any,
     ) -> None:
+        # Only the pipeline's generic options may be ignored: a misspelt one (weigths=...)
+        # would otherwise load the shipped weights without a word.
+        unknown = set(_) - GENERIC_OPTIONS
+        if unknown:
+            raise ConfigError(
+                f'unknown options {sorted(unknown)} for {type(self).__name__}; expected its '
+                f'parameters or the generic {sorted(GENERIC_OPTIONS)}'
+            )
+        # None would skip the weights' matcher check and then refuse every named input
+        # ("weights are for matcher None"); 5 would ask to train weights for matcher 5.
+        if not isinstance(matcher, str) or not matcher:
+            raise ConfigError(
+                f'matcher must be a non-empty str (a matcher name); got '
+                f'{type(matcher).__name__} {matcher!r}'
+            )
+        # Path() would raise a bare TypeError for an int, bytes or a list.
+        if weights is not None and not isinstance(weights, (str, os.PathLike)):
+            raise ConfigError(
+                'weights must be a path (str or os.PathLike) or None for the shipped weights; '
+                f'got {type(weights).__name__} {weights!r}'
+            )
         self.matcher = matcher
         # int() would take '64' or 64.5 (truncated) and raise a bare TypeError for None.
         if not is_int(max_disparity) or max_disparity < 1:
@@ -77,9 +101,16 @@ class _DisparityNetConfidence(ConfidenceMethod):
         """Return (H, W) float32 confidence in (0, 1) of the left WTA disparity.
 
         Raises:
-            InputError: The volume's depth differs from the weights' D, or the inputs come
-                from another matcher than the weights were trained for.
+            InputError: ``inputs`` not a :class:`ConfidenceInputs`, the volume's depth differs
+                from the weights' D, or the inputs come from another matcher than the weights
+                were trained for.
         """
+        if not isinstance(inputs, ConfidenceInputs):
+            # A bare array failed with "'numpy.ndarray' object has no attribute".
+            raise InputError(
+                f'{type(self).__name__} takes a ConfidenceInputs (cost volume, disparity, '
+                f'image); got {type(inputs).__name__}'
+            )
         if inputs.max_disparity != self.max_disparity:
             raise InputError(
                 f'{self.method} weights {self.weights_path.name} are for D = '

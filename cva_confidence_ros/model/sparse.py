@@ -569,13 +569,15 @@ def sparse_confidence(
         A :class:`SparseResult`; with stride 1 and no cascade it is the exact network.
 
     Raises:
-        InputError: Shapes that do not fit, an image that is not uint8, or a cascade without
-            ``cheap``.
+        InputError: An empty volume, shapes that do not fit (``network``'s result included),
+            an image that is not uint8, a disparity or ``cheap`` that is not real numbers, or a
+            cascade without ``cheap``.
     """
-    if not isinstance(cost_volume, np.ndarray) or cost_volume.ndim != 3:
+    if not isinstance(cost_volume, np.ndarray) or cost_volume.ndim != 3 or 0 in cost_volume.shape:
+        # An empty axis was an IndexError from the stride grid (its first row at -1).
         array = isinstance(cost_volume, np.ndarray)
         got = cost_volume.shape if array else type(cost_volume).__name__
-        raise InputError(f'cost_volume must be a (D, H, W) numpy array; got {got}')
+        raise InputError(f'cost_volume must be a (D, H, W) numpy array, no axis empty; got {got}')
     _, height, width = cost_volume.shape
     shape = (height, width)
     _check_guides(image, disparity, shape)
@@ -591,11 +593,21 @@ def sparse_confidence(
         if cheap is None or np.shape(cheap) != shape:
             given = None if cheap is None else np.shape(cheap)
             raise InputError(f'cascade {config.cascade!r} needs a {shape} cheap map; got {given}')
+        if np.asarray(cheap).dtype.kind not in 'fiu':
+            # Strings were parsed as numbers (or a bare ValueError), complex parts dropped.
+            raise InputError(
+                f'cheap must hold real numbers (float or int); got dtype {np.asarray(cheap).dtype}'
+            )
         rank = _ranks(cheap)
         undecided, calibration = cascade_selection(rank, grid, config.cascade_fraction)
         decided = ~undecided
         evaluated = (undecided & grid) | calibration
     probability = np.asarray(network(cost_volume, evaluated), dtype=np.float32)
+    if probability.shape != shape:
+        # Was a bare IndexError ('boolean index did not match') at the first lookup.
+        raise InputError(
+            f'network must give {shape} probabilities for this frame; got {probability.shape}'
+        )
     if config.exact:
         return SparseResult(probability, evaluated, decided)
     if decided.any():
@@ -616,7 +628,7 @@ def sparse_confidence(
 
 def _check_guides(image: object, disparity: object, shape: tuple[int, int]) -> None:
     """InputError unless ``image`` is an (H, W) or (H, W, 3) uint8 array and ``disparity``
-    an (H, W) array, (H, W) = ``shape``."""
+    an (H, W) array of real numbers, (H, W) = ``shape``."""
     if not isinstance(image, np.ndarray) or not (
         image.shape[:2] == shape
         and (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3))
@@ -630,6 +642,11 @@ def _check_guides(image: object, disparity: object, shape: tuple[int, int]) -> N
     if not isinstance(disparity, np.ndarray) or disparity.shape != shape:
         got = disparity.shape if isinstance(disparity, np.ndarray) else type(disparity).__name__
         raise InputError(f'disparity must be {shape}; got {got}')
+    if disparity.dtype.kind not in 'fiu':
+        # The float32 cast of the fill parsed strings, took True as 1 px, dropped imaginary parts.
+        raise InputError(
+            f'disparity must hold real numbers (float or int); got dtype {disparity.dtype}'
+        )
 
 
 def _ranks(values: np.ndarray) -> np.ndarray:
@@ -660,10 +677,22 @@ def cascade_selection(
         candidates, at least :data:`MIN_CALIBRATION` (fewer only if fewer exist).
 
     Raises:
-        ConfigError: ``fraction`` outside (0, 1].
+        ConfigError: ``fraction`` not a real number in (0, 1].
+        InputError: ``candidates`` not a bool array of the shape of ``rank``.
     """
-    if not 0.0 < fraction <= 1.0:
-        raise ConfigError(f'cva_cascade_fraction must be in (0, 1]; got {fraction}')
+    if not is_real(fraction) or not 0.0 < float(fraction) <= 1.0:
+        raise ConfigError(
+            f'cva_cascade_fraction must be a real number in (0, 1]; '
+            f'got {type(fraction).__name__} {fraction!r}'
+        )
+    rank, candidates = np.asarray(rank), np.asarray(candidates)
+    if candidates.shape != rank.shape or candidates.dtype != np.bool_:
+        # A 0/1 integer array picked pixels by index instead of masking: the calibration
+        # sample landed off the stride grid, two pixels instead of sixteen.
+        raise InputError(
+            f'candidates must be a bool array of the rank shape {rank.shape}; '
+            f'got {candidates.shape} {candidates.dtype}'
+        )
     flat = rank.ravel()
     order = np.argsort(flat, kind='stable')
     count = flat.size
@@ -698,12 +727,16 @@ def monotone_map(x_fit: np.ndarray, y_fit: np.ndarray, x_new: np.ndarray) -> np.
         float64 array of the shape of ``x_new``.
 
     Raises:
-        InputError: Empty or mismatched fit arrays.
+        InputError: Empty or mismatched fit arrays, or fit values that are not finite.
     """
     x_fit = np.asarray(x_fit, dtype=np.float64).ravel()
     y_fit = np.asarray(y_fit, dtype=np.float64).ravel()
     if x_fit.size == 0 or x_fit.shape != y_fit.shape:
         raise InputError(f'need equal, non-empty fit arrays; got {x_fit.shape}, {y_fit.shape}')
+    if not (np.isfinite(x_fit).all() and np.isfinite(y_fit).all()):
+        # A NaN became a step centre or mean: the map was NaN over whole ranges of x.
+        bad = int(np.count_nonzero(~np.isfinite(x_fit) | ~np.isfinite(y_fit)))
+        raise InputError(f'fit arrays must be finite; got {bad} NaN or infinite pairs')
     order = np.lexsort((y_fit, x_fit))
     xs, ys = x_fit[order], y_fit[order]
     # Equal x must land in one block: pool them first.
@@ -830,8 +863,8 @@ def joint_bilateral_fill(
 
     Raises:
         InputError: Grid shape that does not fit the image and stride, ``known`` not bool,
-            a stride below 1, or a guide that is not an (H, W) / (H, W, 3) uint8 image with an
-            (H, W) disparity.
+            a stride below 1, an empty image, or a guide that is not an (H, W) / (H, W, 3)
+            uint8 image with an (H, W) disparity.
     """
     if not is_int(stride) or stride < 1:
         raise InputError(f'stride must be an integer >= 1; got {type(stride).__name__} {stride!r}')
@@ -839,6 +872,9 @@ def joint_bilateral_fill(
         got = image.shape if isinstance(image, np.ndarray) else type(image).__name__
         raise InputError(f'image must be (H, W) or (H, W, 3); got {got}')
     height, width = image.shape[:2]
+    if height == 0 or width == 0:
+        # The stride grid of an empty axis started at -1 and asked for one sample.
+        raise InputError(f'image must not be empty; got {image.shape}')
     _check_guides(image, disparity, (height, width))
     values, known = np.asarray(values), np.asarray(known)
     rows_g, cols_g = _grid_axis(height, stride), _grid_axis(width, stride)
