@@ -224,6 +224,11 @@ def hamming_cost_volume(
         raise InputError(f'step must be -1 or 1; got {step!r}')
     height, width = codes_ref.shape
     shape = (height, width, int(depth))
+    if out is not None and not isinstance(out, np.ndarray):
+        # out.shape of a list or a tensor was an AttributeError (or a torch.Size)
+        raise InputError(
+            f'out must be a C-contiguous {shape} uint8 numpy array; got {type(out).__name__}'
+        )
     if out is not None and (
         layout != 'hwd' or out.shape != shape or out.dtype != np.uint8
         or not out.flags['C_CONTIGUOUS']

@@ -43,7 +43,8 @@ def _argmin_depth(volume: np.ndarray, out: np.ndarray) -> bool | np.bool_:
 
 
 def check_cost_volume(cost_volume: object) -> np.ndarray:
-    """A non-empty (D, H, W) float array as C-contiguous float32 (no copy if it is one).
+    """A non-empty (D, H, W) float array as C-contiguous float32, or float64 when it has 64 bits
+    or more (no copy if it is one of them).
 
     Raises:
         InputError: Not a numpy array, not 3-D, empty, or not float.
@@ -58,15 +59,18 @@ def check_cost_volume(cost_volume: object) -> np.ndarray:
         )
     if cost_volume.dtype.kind != 'f':
         raise InputError(f'cost_volume must be float (float32); got dtype {cost_volume.dtype}')
-    return np.ascontiguousarray(cost_volume, dtype=np.float32)
+    # float64 stays float64: rounded to float32, costs a hair apart became equal (the winner
+    # went to the smaller d, a sub-pixel curve went flat) and costs beyond 3.4e38 became inf.
+    dtype = np.float64 if cost_volume.dtype.itemsize >= 8 else np.float32
+    return np.ascontiguousarray(cost_volume, dtype=dtype)
 
 
 def wta_disparity(cost_volume: np.ndarray) -> np.ndarray:
     """Winner-takes-all disparity: the d of the lowest cost of every pixel.
 
     Args:
-        cost_volume: (D, H, W) float cost volume (float32 is used without a copy), lower =
-            better. Ties go to the smallest d.
+        cost_volume: (D, H, W) float cost volume (float32 and float64 are used without a
+            copy, each in its own precision), lower = better. Ties go to the smallest d.
 
     Returns:
         (H, W) float32 disparities, integers in [0, D − 1].
