@@ -239,6 +239,8 @@ class InputBag:
         Raises:
             BagError: Topic missing or of another type; the message lists what the bag has.
         """
+        if isinstance(msgtypes, str):  # one type, not its characters (`in` would match a part)
+            msgtypes = [msgtypes]
         topics = self.topics
         if topic not in topics:
             listing = ', '.join(f'{name} [{kind}]' for name, kind in sorted(topics.items()))
@@ -263,6 +265,9 @@ class InputBag:
     ) -> Iterator[tuple[str, str, int, bytes]]:
         """Raw messages of ``topics`` in bag-time order, from bag time ``start`` (ns) on.
 
+        ``topics`` is a list of topic names; a single name (a ``str``) is one topic, not a
+        list of its characters.
+
         Yields:
             (topic, message type, bag timestamp in ns, CDR bytes).
 
@@ -274,7 +279,8 @@ class InputBag:
         """
         from rosbags.rosbag2 import ReaderError
 
-        wanted = [conn for conn in self.reader.connections if conn.topic in set(topics)]
+        names = {topics} if isinstance(topics, str) else set(topics)
+        wanted = [conn for conn in self.reader.connections if conn.topic in names]
         if not wanted:
             return
         self._check_storage(wanted)
@@ -356,10 +362,16 @@ def deserialize(store: Any, data: bytes, msgtype: str, where: str) -> Any:
             bag robot_bag'``).
 
     Raises:
-        BagError: The bytes are no ``msgtype`` (truncated or corrupt data); names ``where``.
+        BagError: The bytes are no ``msgtype`` (truncated or corrupt data), or ``msgtype``
+            is no type of ``store``; names ``where``.
     """
     from rosbags.serde import SerdeError
 
+    if msgtype not in store.types:
+        raise BagError(
+            f'{where} cannot be read: its type {msgtype!r} is not a message type of the '
+            f'typestore (ROS 2 Jazzy)'
+        )
     try:
         return store.deserialize_cdr(data, msgtype)
     except SerdeError as err:
@@ -569,11 +581,31 @@ class OutputBag:
         self.replacing = self._staging is not None
 
     def write(self, topic: str, msgtype: str, message: Any, timestamp_ns: int) -> None:
-        """Append one message (a ``rosbags`` message object or CDR bytes)."""
+        """Append one message (a ``rosbags`` message object or CDR bytes).
+
+        Raises:
+            BagError: The bag is not open, ``msgtype`` is no type of the typestore, the topic
+                has another type already, a timestamp outside 0 … 2^63 − 1 ns (rosbag2's
+                int64 nanoseconds; MCAP's are unsigned), or the storage fails.
+        """
         if self._writer is None:
             raise BagError(f'output bag {self.path} is not open')
+        try:
+            stamp = int(timestamp_ns)
+        except (TypeError, ValueError, OverflowError):
+            stamp = -1
+        if not 0 <= stamp < 2**63:
+            raise BagError(
+                f'cannot write a message on {topic} to output bag {self.path}: its timestamp '
+                f'must be 0 … 2^63 − 1 ns; got {timestamp_ns!r}'
+            )
         conn = self._connections.get(topic)
         if conn is None:
+            if msgtype not in self.typestore.types:
+                raise BagError(
+                    f'cannot write topic {topic} to output bag {self.path}: {msgtype!r} is '
+                    f'not a message type of its typestore (ROS 2 Jazzy)'
+                )
             conn = self._writer.add_connection(
                 topic, msgtype, typestore=self.typestore, offered_qos_profiles=[self._qos]
             )
@@ -584,7 +616,7 @@ class OutputBag:
             self.typestore.serialize_cdr(message, msgtype)
         )
         try:
-            self._writer.write(conn, int(timestamp_ns), data)
+            self._writer.write(conn, stamp, data)
         except (OSError, sqlite3.Error) as err:  # a full disk, a file system gone away
             state = ''
             if self._staging is not None:

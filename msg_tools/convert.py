@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from cva_confidence_ros.camera_info import check_rows, image_projection
+from cva_confidence_ros.checks import is_int, is_real
 from cva_confidence_ros.errors import InputError
 from cva_confidence_ros.pointcloud import StereoGeometry
 
@@ -204,11 +205,21 @@ def disparity_to_msg(
         typestore: ``rosbags`` typestore; the Jazzy one by default.
 
     Returns:
-        The message; ``valid_window`` covers the whole image.
+        The message; ``valid_window`` covers the whole image. A value that is no raw
+        disparity (±inf, below 0) is written NaN, as unknown: an inf would be a valid value
+        by the message's definition (≥ ``min_disparity``), a point at depth fT/inf = 0.
+
+    Raises:
+        InputError: Not a (H, W) array, or ``delta_d`` not a finite number ≥ 0.
     """
+    if not is_real(delta_d) or not np.isfinite(delta_d) or delta_d < 0:
+        raise InputError(f'delta_d must be a finite number >= 0; got {delta_d!r}')
     store = typestore or jazzy_typestore()
     offset = geometry.disparity_offset
-    shifted = np.asarray(disparity, dtype=np.float32) + np.float32(offset)
+    with np.errstate(over='ignore', invalid='ignore'):
+        raw = np.asarray(disparity, dtype=np.float32)
+        shifted = raw + np.float32(offset)
+        shifted = np.where(np.isfinite(shifted) & (raw >= 0), shifted, np.float32(np.nan))
     finite = shifted[np.isfinite(shifted)]
     image = float_image_to_msg(shifted, stamp_ns, frame_id, store)
     roi = store.types['sensor_msgs/msg/RegionOfInterest'](
@@ -241,13 +252,20 @@ def disparity_from_msg(msg: Any, offset: float = 0.0, what: str = 'disparity') -
         invalid), or, for a plain image, negative.
 
     Raises:
-        InputError: Any other encoding, or data too short for the declared size.
+        InputError: Any other encoding, data too short for the declared size, or a
+            ``DisparityImage`` whose ``min_disparity`` is not finite (NaN would make every
+            pixel invalid).
     """
     inner = getattr(msg, 'image', None)
     is_disparity_image = inner is not None and hasattr(inner, 'encoding')
     image = inner if is_disparity_image else msg
     values = _pixels(image, _FLOAT_ENCODINGS, what).astype(np.float32)
     lowest = np.float32(msg.min_disparity) if is_disparity_image else np.float32(0.0)
+    if not np.isfinite(lowest):
+        raise InputError(
+            f'{what}: the DisparityImage has min_disparity {float(msg.min_disparity)}; '
+            f'expected a finite number (below it a pixel is invalid)'
+        )
     with np.errstate(invalid='ignore'):
         invalid = ~np.isfinite(values) | ~(values >= lowest)
     if is_disparity_image:
@@ -312,7 +330,18 @@ def camera_info_msgs(
         stamp_ns: Header stamp (ns) of both messages.
         frame_ids: Frame ids of the left and the right camera.
         typestore: ``rosbags`` typestore; the Jazzy one by default.
+
+    Raises:
+        InputError: A width or height that is not an integer > 0 (a uint32 of the message),
+            or not two frame ids.
     """
+    for name, value in (('width', width), ('height', height)):
+        if not is_int(value) or not 0 < value < 2**32:
+            raise InputError(
+                f'camera info {name} must be an integer in 1 … 2^32 − 1; got {value!r}'
+            )
+    if isinstance(frame_ids, str) or len(frame_ids) != 2:
+        raise InputError(f'expected two frame ids (left, right); got {frame_ids!r}')
     store = typestore or jazzy_typestore()
     messages = []
     for side, frame_id in zip(('left', 'right'), frame_ids, strict=True):
