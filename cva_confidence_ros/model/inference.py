@@ -210,6 +210,8 @@ def _check_volume(net: nn.Module, cost_volume: np.ndarray) -> np.ndarray:
         raise InputError(
             f'cost_volume must be a numpy array (D, H, W); got {type(cost_volume).__name__}'
         )
+    # The values the network gets: a masked array's mask hid NaN from the checks below.
+    cost_volume = np.asarray(cost_volume)
     if cost_volume.ndim != 3 or min(cost_volume.shape) < 1:
         raise InputError(f'cost_volume must have shape (D, H, W); got {cost_volume.shape}')
     if not np.issubdtype(cost_volume.dtype, np.floating):
@@ -279,7 +281,8 @@ def tile_shape(
     The widest activation has ``activations_per_pixel`` float32 values per pixel of the padded
     tile (default CVA-Net's 32-channel fusion output, 32 · D), over
     (rows + 12) · (columns + 12) pixels, counted :data:`_LIVE_COPIES` times. Networks give
-    their own figure by :func:`activations_per_pixel`.
+    their own figure by :func:`activations_per_pixel`. The smallest tile is 1 × 1: a budget
+    below the need of its 13 × 13 padded pixels gives 1 × 1 tiles, which exceed it.
 
     Raises:
         ConfigError: ``tile_budget_mb`` not a finite number > 0, or ``height``, ``width``,
@@ -297,7 +300,10 @@ def tile_shape(
             )
     values = 32 * max_disparity if activations_per_pixel is None else activations_per_pixel
     per_pixel = 4 * values * _LIVE_COPIES
-    padded_pixels = max(1, int(tile_budget_mb * 1e6 / per_pixel))
+    # From (max(H, W) + 12)² pixels on the whole image is one tile; capping there keeps a
+    # budget near the float maximum (× 1e6 = inf) from failing in int().
+    whole = (max(height, width) + 2 * PAD) ** 2
+    padded_pixels = max(1, int(min(tile_budget_mb * 1e6 / per_pixel, whole)))
     side = max(1, int(math.sqrt(padded_pixels)) - 2 * PAD)
     columns = min(width, side)
     rows = max(1, padded_pixels // (columns + 2 * PAD) - 2 * PAD)

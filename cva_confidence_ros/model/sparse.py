@@ -508,7 +508,8 @@ class SparseEvaluator:
         per_extract = 4 * _LIVE_COPIES * PATCH_SIZE**2 * activations_per_pixel(
             self.net, self.max_disparity
         )
-        return max(1, min(_EXTRACT_BATCH, int(self.tile_budget_mb * 1e6 / per_extract)))
+        # Capped before int(): a budget near the float maximum makes the count infinite.
+        return max(1, int(min(_EXTRACT_BATCH, self.tile_budget_mb * 1e6 / per_extract)))
 
     def _extracts(
         self,

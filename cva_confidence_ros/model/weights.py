@@ -198,16 +198,20 @@ def load_weights(
             registered architecture.
 
     Returns:
-        ``(net, meta)``; ``net`` is a :class:`CVANet` unless ``arch`` says otherwise.
+        ``(net, meta)``; ``net`` is a :class:`CVANet` unless ``arch`` says otherwise, in
+        float32 whatever the stored precision (weights stored as float16 load as float32).
 
     Raises:
-        ModelError: Missing, empty or corrupt file; a stored ``meta`` that is not a dict or
-            whose ``arch`` or ``max_disparity`` has the wrong type; weights of another
-            architecture; or weights for another matcher or depth than asked.
+        ModelError: Missing, empty or corrupt file (or a cva-train checkpoint); a stored
+            ``meta`` that is not a dict or whose ``arch`` or ``max_disparity`` has the wrong
+            type; weights of another architecture; or weights for another matcher or depth
+            than asked.
         ConfigError: ``path`` not a str or ``os.PathLike``, ``max_disparity`` not an integer,
-            or ``arch`` neither None nor a str.
+            ``arch`` neither None nor a str, or a bad ``device`` (CUDA asked for where there
+            is none); checked before the file is read.
     """
     path = _weights_path(path)
+    torch_device = resolve_device(device)
     if max_disparity is not None and not is_int(max_disparity):
         raise ConfigError(
             f'max_disparity must be an integer or None; '
@@ -219,8 +223,10 @@ def load_weights(
         )
     if path.is_dir():
         raise ModelError(f'weights file {path} is a directory; expected a .pt file')
-    if not path.is_file():
+    if not path.exists():
         raise ModelError(f'weights file {path} does not exist')
+    if not path.is_file():
+        raise ModelError(f'weights file {path} is not a regular file; expected a .pt file')
     if path.stat().st_size == 0:
         raise ModelError(f'weights file {path} is empty')
     try:
@@ -230,6 +236,11 @@ def load_weights(
             f'cannot read weights file {path} ({reason(exc)}); '
             'expected a torch.save dict with state_dict and meta'
         ) from exc
+    if isinstance(blob, dict) and 'model' in blob and 'optimizer' in blob:
+        raise ModelError(
+            f'{path} is a cva-train checkpoint, not a weights file; the weights file is the '
+            'one a finished run writes to --weights-out (continue this run with --resume)'
+        )
     if not isinstance(blob, dict) or 'state_dict' not in blob or 'meta' not in blob:
         keys = sorted(blob) if isinstance(blob, dict) else type(blob).__name__
         raise ModelError(
@@ -292,7 +303,7 @@ def load_weights(
             f'{path} holds NaN or infinite values in {len(broken)} tensors '
             f'(first: {broken[0]}); the training that wrote it diverged'
         )
-    net.to(resolve_device(device)).eval()
+    net.to(torch_device).eval()
     return net, meta
 
 
