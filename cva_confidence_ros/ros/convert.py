@@ -18,6 +18,7 @@ Conventions follow ``stereo_image_proc`` so that the node drops into existing pi
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from builtin_interfaces.msg import Time
@@ -635,7 +636,18 @@ def disparity_to_message(
 
 
 def disparity_from_message(msg: DisparityImage) -> np.ndarray:
-    """(H, W) float32 disparity of a ``DisparityImage``; NaN below ``min_disparity``."""
+    """(H, W) float32 disparity of a ``DisparityImage``; NaN below ``min_disparity``.
+
+    Raises:
+        InputError: An image that is not 32FC1 (see :func:`float_image_to_array`), or a
+            ``min_disparity`` that is NaN or +inf (every pixel would read as unknown).
+    """
+    lowest = float(msg.min_disparity)
+    if math.isnan(lowest) or lowest == math.inf:
+        raise InputError(
+            f'disparity image: min_disparity must be a number below +inf (the smallest valid '
+            f'disparity); got {lowest}, which would leave every pixel unknown'
+        )
     values = float_image_to_array(msg.image, 'disparity image')
     with np.errstate(invalid='ignore'):
         invalid = ~(values >= msg.min_disparity)
