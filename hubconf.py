@@ -16,8 +16,11 @@ are the files in ``models/`` next to this file, the ones ``cva-evaluate`` and th
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # not at run time: torch.hub.list would name them as entries
+    from collections.abc import Callable
+    from typing import Any
 
 # torch.hub checks these import names before it loads an entry.
 dependencies = ['torch', 'numpy', 'numba', 'scipy', 'cv2']
@@ -29,6 +32,8 @@ _BASELINES = ('ccnn', 'lfn', 'lgcnet')
 def _network(
     arch: str, matcher: str, max_disparity: int, pretrained: bool, device: str
 ) -> Any:
+    import numpy as np
+
     from cva_confidence_ros.checks import is_int
     from cva_confidence_ros.errors import ConfigError
     from cva_confidence_ros.matching import MATCHERS
@@ -41,6 +46,9 @@ def _network(
     if not is_int(max_disparity) or max_disparity < 1:
         raise ConfigError(f'max_disparity must be an integer ≥ 1; got {max_disparity!r}')
     MATCHERS.get(matcher)
+    # A truthy string ('False' from a config file) loaded the shipped weights.
+    if not isinstance(pretrained, (bool, np.bool_)):
+        raise ConfigError(f'pretrained must be True or False; got {pretrained!r}')
     if pretrained:
         path = default_weights_path(matcher, max_disparity, arch)
         net, meta = load_weights(path, matcher=matcher, max_disparity=max_disparity,
@@ -66,7 +74,8 @@ def cvanet(
         matcher: The matcher whose cost volumes it judges: census_bm, census_sgm, mccnn_fast.
         max_disparity: Cost-volume depth D: 64 or 256 shipped (any D untrained).
         pretrained: Load the shipped weights (``models/cvanet_<matcher>_d<D>.pt``); False
-            gives the paper's initialisation.
+            gives an untrained network, CVA-Net with the paper's initialisation (the other
+            entries: that of their class).
         device: cpu, cuda or auto.
 
     Returns:
