@@ -92,7 +92,7 @@ def _match_all(
                 'cost_max': float(volume.max()),
                 'seconds': round(seconds, 3),
                 'error_rate': float(wrong.mean()),
-                'png': str(png),
+                'png': png.name,  # beside the summary (the run's folder may move)
             }
         )
         _log(f'{name}: cost volume {volume.shape} in {seconds:.2f} s, '

@@ -25,7 +25,8 @@ def test_demo_matches_bags_and_replays(tmp_path: Path, capsys: pytest.CaptureFix
     for row in summary:
         assert 0.0 <= row['cost_min'] <= row['cost_mean'] <= row['cost_max'] <= 1.0
         assert 0.0 < row['error_rate'] < 0.6
-        assert Path(row['png']).stat().st_size > 0
+        assert row['png'] == f"disparity_{row['matcher']}.png"  # beside the summary
+        assert (out / row['png']).stat().st_size > 0
     report = json.loads((out / 'replay' / 'census_bm__pkrn' / 'report.json').read_text())
     assert len(report['frames']) == 1
     assert report['summary']['auc'] >= report['summary']['auc_opt'] > 0
