@@ -51,6 +51,16 @@ TYPE_NAMES = {
 #: a double to YAML 1.2 and to rcl's parameter files.
 _EXPONENT_FLOAT = r'^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$'
 _INT64 = (-(2**63), 2**63 - 1)
+#: The plain (unquoted) words rcl's parameter files read as booleans; PyYAML writes y, Y, n and
+#: N plain, which YAML 1.1 reads as strings.
+_RCL_BOOLS = frozenset(
+    spelling
+    for word in ('y', 'yes', 'true', 'on', 'n', 'no', 'false', 'off')
+    for spelling in (word, word.capitalize(), word.upper())
+)
+#: The start of a plain scalar that rcl may read as a number (it takes whatever ``strtod``
+#: reads whole: ``1e-3``, ``08``, ``inf``, ``nan``, ``0x1p3``), where PyYAML writes it plain.
+_RCL_NUMBER_START = r'\s*[-+]?(?:[0-9.]|inf|nan)'
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -163,10 +173,22 @@ def _double_loader() -> type:
 
 
 def yaml_scalar(value: Any) -> str:
-    """``value`` (a Python parameter value) written so that YAML reads it back unchanged."""
+    """``value`` (a Python parameter value) written so that YAML, and rcl reading a parameter
+    file, read it back unchanged: a string that rcl would take for a bool or a number (``y``,
+    ``1e-3``, ``inf``, which YAML 1.1 leaves strings) is quoted."""
+    import re
+
     import yaml
 
-    text = yaml.safe_dump(value, default_flow_style=True, width=10**6)
+    class RclDumper(yaml.SafeDumper):
+        pass
+
+    def represent_str(dumper: yaml.SafeDumper, text: str) -> Any:
+        other = text in _RCL_BOOLS or re.match(_RCL_NUMBER_START, text, re.IGNORECASE)
+        return dumper.represent_scalar('tag:yaml.org,2002:str', text, style="'" if other else None)
+
+    RclDumper.add_representer(str, represent_str)
+    text = yaml.dump(value, Dumper=RclDumper, default_flow_style=True, width=10**6)
     return text.removesuffix('\n').removesuffix('\n...')
 
 

@@ -711,21 +711,31 @@ def keep_doubles(node: Node, names: Iterable[str]) -> None:
     :func:`restore_types` when the on-set callback refuses a change: rclpy retypes a
     dynamically typed parameter to the value offered before the callback runs, refused or
     not (a refused ``max_rate_hz abc`` left it a string parameter).
+
+    rclpy checks the parameters of one change in turn and stops at the first it refuses (out of
+    range, wrong type, read-only), before any on-set callback, after retyping the ones it passed:
+    an atomic ``max_rate_hz abc`` + ``queue_size 0`` left max_rate_hz described as a string. So
+    the changes rclpy retypes without a check of their own (a settable double offered as
+    anything but a double) go last: rclpy refuses before them, or passes them on to the on-set
+    callback, which refuses them and calls :func:`restore_types`.
     """
     doubles = frozenset(names)
+    settable = frozenset(name for name in doubles if not node.describe_parameter(name).read_only)
 
     def as_doubles(params: list[Parameter]) -> list[Parameter]:
-        return [
+        converted = [
             Parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
             if p.name in doubles and p.type_ == Parameter.Type.INTEGER else p
             for p in params
         ]
+        return sorted(  # stable: the order of the rest is kept
+            converted, key=lambda p: p.name in settable and p.type_ != Parameter.Type.DOUBLE
+        )
 
     node.add_pre_set_parameters_callback(as_doubles)
     whole = [
-        node.get_parameter(name) for name in sorted(doubles)
+        node.get_parameter(name) for name in sorted(settable)
         if node.get_parameter(name).type_ == Parameter.Type.INTEGER
-        and not node.describe_parameter(name).read_only
     ]
     if whole:
         node.set_parameters(whole)  # before any on-set callback: converted by as_doubles
