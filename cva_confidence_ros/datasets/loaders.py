@@ -56,7 +56,9 @@ class StereoSample:
         scene: Scene id within the data set (as listed by :func:`list_scenes`).
         left: (H, W, 3) uint8 RGB or (H, W) uint8 gray left image.
         right: Same shape and dtype as ``left``.
-        disparity: (H, W) float32 left ground-truth disparity in pixels, ≥ 0, NaN = unknown.
+        disparity: (H, W) float32 left ground-truth disparity in pixels, ≥ 0, NaN = unknown;
+            +inf (how Middlebury and ETH3D PFMs, and :func:`read_pfm`, mark unknown) is
+            stored as NaN.
         nonocc: (H, W) bool, True where the pixel is visible in both views, or None if the data
             set has no occlusion information.
         calib: Calibration of the pair, or None.
@@ -84,11 +86,25 @@ class StereoSample:
                 f'got {self.left.shape} and {self.right.shape}'
             )
         shape = self.left.shape[:2]
+        for field in ('disparity', 'nonocc'):
+            value = getattr(self, field)
+            if not isinstance(value, np.ndarray) and (field == 'disparity' or value is not None):
+                # A list or None failed with AttributeError on .dtype.
+                raise DataError(
+                    f'{where}: {field} must be a numpy array of shape {shape}; '
+                    f'got {type(value).__name__}'
+                )
         if self.disparity.dtype != np.float32 or self.disparity.shape != shape:
             raise DataError(
                 f'{where}: disparity must be float32 of shape {shape}; '
                 f'got {self.disparity.dtype} {self.disparity.shape}'
             )
+        unknown = np.isposinf(self.disparity)
+        if unknown.any():
+            # Middlebury's inf = unknown was kept as a disparity ∞ (NaN = unknown elsewhere).
+            disparity = self.disparity.copy()
+            disparity[unknown] = np.nan
+            object.__setattr__(self, 'disparity', disparity)
         with np.errstate(invalid='ignore'):
             negative = self.disparity < 0
         if negative.any():
@@ -218,12 +234,19 @@ class StereoDataset:
 
     def no_pairs(self, folder: Path, split: str | None = None) -> DataError:
         """The error for a root without a single pair in this layout (for ``split``, named
-        with the splits that do hold pairs: a default split the root lacks gave no hint)."""
+        with the splits that do hold pairs: a default split the root lacks gave no hint; for no
+        split, the splits whose subfolders hold pairs)."""
         where = ''
         if split is not None:
             others = [s for s in self.splits if s != split and self.list_scenes(folder, s)]
             held = f'; split(s) {others} hold pairs there' if others else ''
             where = f' for split {split!r}{held}'
+        else:
+            # <root>/ThirdSize/<scene>/ (the original Middlebury 2005 layout) without a split
+            # said only 'no pairs found'.
+            others = [s for s in self.splits if self.list_scenes(folder, s)]
+            if others:
+                where = f' without a split; split(s) {others} hold pairs there'
         return DataError(
             f'no {self.name} stereo pairs found under {folder}{where}; expected {self.layout}'
         )
