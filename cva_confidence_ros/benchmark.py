@@ -424,8 +424,8 @@ def run_network(
 
     The matcher's volume is computed on a band of ``crop`` full-width rows in the middle of
     the Motorcycle pair (so that every crop column has all its disparities) and cut to the
-    middle ``crop`` columns. After an untimed run on a 4×4 corner, freed heap is handed back
-    to the OS and the peak mark reset, then ``min(repeat, 3)`` calls
+    middle ``crop`` columns. After untimed runs on a 4×4 corner and on the crop itself, freed
+    heap is handed back to the OS and the peak mark reset, then ``min(repeat, 3)`` calls
     of ``predict_confidence`` on the crop are timed; the median gives the crop's rate, and
     the frame's time is that median × FLOPs(frame) / FLOPs(crop), both counted by
     :func:`cva_confidence_ros.node_benchmark.network_flops` with the same tiling.
@@ -467,7 +467,10 @@ def run_network(
     # Folded once, as the confidence method does for a stream of frames.
     model = fold_batchnorm(net)
     predict_confidence(model, np.ascontiguousarray(volume[:, :4, :4]), device=device)
-    # Freed heap (the band's matching, the warm-up) back to the OS first, as in run_case: a
+    # An untimed call on the crop itself, as run_case's full-size warm-up: the first call at a
+    # shape pays one-off costs (kernel selection, buffers) that no later frame has.
+    predict_confidence(model, volume, device=device)
+    # Freed heap (the band's matching, the warm-ups) back to the OS first, as in run_case: a
     # crop that reuses it would otherwise not show it in its peak.
     _release_free_heap()
     rss_before = memory_kb('VmRSS')
@@ -672,6 +675,17 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
         if args.json is not None:
             check_output_file(args.json, '--json')
+        if args.network:
+            from cva_confidence_ros.model.network import FUSION_LAYERS, MIN_DISPARITY
+
+            if settings.max_disparity < MIN_DISPARITY:
+                # Refused here: the network row runs last, after minutes of matcher rows.
+                raise ConfigError(
+                    f'the CVA-Net row {_NETWORK_PREFIX}{settings.max_disparity} needs '
+                    f'--max-disparity ≥ {MIN_DISPARITY} (its fusion removes '
+                    f'{2 * FUSION_LAYERS} disparities); got {settings.max_disparity}: raise it '
+                    'or pass --no-network'
+                )
         records = []
         for name in names:
             print(f'measuring {name} …', file=sys.stderr, flush=True)

@@ -13,8 +13,10 @@ combinations, plus whole-pipeline rows, for CVA-Net and, in the ``lite*`` rows, 
   it), after a warm-up on its 4×4 corner and the untimed call on the square, and extrapolated
   to the frame by floating-point operations (``extrapolated: true``); their ``peak_mem_mb`` is
   the crop's, not extrapolated.
-  ``pipeline_*`` rows time :meth:`~cva_confidence_ros.pipeline.StereoPipeline.process` on the
-  image pair: matching, WTA, cheap measure and network, what the node does per frame.
+  ``pipeline:*`` rows time :meth:`~cva_confidence_ros.pipeline.StereoPipeline.process` on the
+  image pair: matching, WTA, cheap measure and network, what the node does per frame; they
+  need shipped weights for D (the other rows fall back to a random network), else the run is
+  refused before any row is measured.
 * ``network_gflops``: operations the evaluator chose to run (counted per tile,
   :class:`~cva_confidence_ros.model.SparseEvaluator`) per second of the row's time;
   ``gemm_gflops``: a 2048² float32 matmul in the same process, the practical peak.
@@ -28,7 +30,9 @@ combinations, plus whole-pipeline rows, for CVA-Net and, in the ``lite*`` rows, 
   cva_confidence_ros.fast_benchmark`` runs on 1 unless ``--threads`` says otherwise).
 * ``auc_rel``: mean AUC over the develop scenes of the configuration / that of the exact fp32
   network (the paper network at full resolution), when ``--data-root`` holds the develop split;
-  None without it; Lite rows are relative to the same exact CVA-Net (so they can be < 1).
+  None without it, and where it is undefined (windows without ground truth are skipped; an
+  exact AUC of 0 has no ratio); Lite rows are relative to the same exact CVA-Net (so they
+  can be < 1).
   Each scene is halved until its ground truth fits D, its census_bm cost volume computed, and
   a ``--auc-crop`` window (rows×columns, the one of nine candidate positions with the most
   ground truth) scored on its known pixels. A sparse configuration depends on the
@@ -114,7 +118,7 @@ class FastConfig:
 _METHODS = {'cvanet': 'cva_net', 'cvanet_lite': 'cva_net_lite', 'cvanet_fast': 'cva_net_fast'}
 _LITE = 'cvanet_lite'
 _FAST = 'cvanet_fast'
-_TITLES = {_LITE: 'CVA-Net-Lite', _FAST: 'CVA-Net-Fast'}
+_TITLES = {'cvanet': 'CVA-Net', _LITE: 'CVA-Net-Lite', _FAST: 'CVA-Net-Fast'}
 
 #: The rows of ``--suite fast``, in order.
 FAST_CONFIGS: tuple[FastConfig, ...] = (
@@ -330,8 +334,11 @@ def _auc_rel(configs: Sequence[FastConfig], crops: list[dict[str, Any]], net: An
     bf16_pairs: list[tuple[float, float]] = []
     for item in crops:
         tic = time.perf_counter()
-        exact = evaluator(item['volume'])
         known, wrong = item['known'], item['wrong']
+        if not known.any():
+            log(f'  AUC of {item["name"]}: skipped, no ground truth in its window')
+            continue
+        exact = evaluator(item['volume'])
         exact_auc = roc_auc(exact[known], wrong[known])
         exact_aucs.append(exact_auc)
         light_exact = {arch: light[arch](item['volume']) for arch in light}
@@ -357,12 +364,21 @@ def _auc_rel(configs: Sequence[FastConfig], crops: list[dict[str, Any]], net: An
                                roc_auc(exact[centre][sub_known], sub_wrong[sub_known])))
         log(f'  AUC of {item["name"]}: exact {exact_auc:.4f} '
             f'({time.perf_counter() - tic:.0f} s)')
-    mean_exact = float(np.mean(exact_aucs))
-    out = {name: float(np.mean(values)) / mean_exact for name, values in aucs.items() if values}
-    out['exact'] = 1.0
+    out: dict[str, float] = {}
     if bf16_pairs:
         low_mean, ref_mean = np.mean(bf16_pairs, axis=0)
-        out['bf16'] = float(low_mean / ref_mean)
+        if ref_mean > 0:
+            out['bf16'] = float(low_mean / ref_mean)
+    mean_exact = float(np.mean(exact_aucs)) if exact_aucs else 0.0
+    if mean_exact <= 0:
+        # No scored pixel, or none wrong: the exact AUC is 0 and no ratio to it exists.
+        log('  auc_rel undefined: the exact network scored no wrong pixel (AUC 0) on the '
+            f'{len(exact_aucs)} window(s) with ground truth')
+        return out
+    out.update(
+        {name: float(np.mean(values)) / mean_exact for name, values in aucs.items() if values}
+    )
+    out['exact'] = 1.0
     return out
 
 
@@ -395,7 +411,8 @@ def run_fast(
         ``numba_threads`` and, for cascades, ``cheap_ms``.
 
     Raises:
-        ConfigError: ``threads`` < 1, or rows of a network that cannot be built.
+        ConfigError: ``threads`` < 1, rows of a network that cannot be built, or pipeline
+            rows without shipped weights for D (refused before any row is measured).
     """
     with _thread_limit(threads):
         return _measure_rows(settings, configs, crop, data_root, auc_crop, log, gemm_size)
@@ -418,7 +435,11 @@ def _measure_rows(
 
     device = resolve_device('cpu')
     depth = settings.max_disparity
-    net, note = _network(NETWORK_MATCHER, depth)
+    _check_pipeline_weights(configs, depth)
+    # CVA-Net is needed by its own rows and as the AUC reference; Lite and Fast rows alone
+    # also run at a D below its minimum.
+    needed = data_root is not None or any(c.arch == 'cvanet' for c in configs)
+    net, note = _network(NETWORK_MATCHER, depth) if needed else (None, None)
     light = {
         arch: _light_network(depth, arch) for arch in {c.arch for c in configs} - {'cvanet'}
     }
@@ -530,6 +551,29 @@ def _measure_rows(
     return records
 
 
+def _check_pipeline_weights(configs: Sequence[FastConfig], depth: int) -> None:
+    """Refuse pipeline rows without shipped weights before anything is measured: the pipeline
+    loads them (the other rows fall back to a random network), and it used to fail only when
+    its row came, after every row before it had been measured."""
+    from cva_confidence_ros.errors import ModelError
+    from cva_confidence_ros.model import default_weights_path
+
+    missing: dict[str, list[str]] = {}
+    for config in configs:
+        if config.pipeline:
+            try:
+                default_weights_path(NETWORK_MATCHER, depth, config.arch)
+            except ModelError:
+                missing.setdefault(config.arch, []).append(config.name)
+    if missing:
+        which = '; '.join(f'{_TITLES[arch]} for {names}' for arch, names in missing.items())
+        raise ConfigError(
+            f'pipeline rows need shipped {NETWORK_MATCHER} weights at D = {depth}, and there '
+            f'are none: {which}; leave these rows out (--configs) or choose a D with shipped '
+            'weights'
+        )
+
+
 def _weights_path(depth: int, arch: str = 'cvanet') -> str:
     from cva_confidence_ros.errors import ModelError
     from cva_confidence_ros.model import default_weights_path
@@ -585,8 +629,9 @@ def format_fast_table(records: Sequence[dict[str, Any]]) -> str:
             f"| {'—' if share is None else f'{share:.1%}'} | {r['network_gflops']:.1f} "
             f"| {r['gemm_gflops']:.1f} | {'—' if peak is None else f'{peak:.0f}'} | {auc} |"
         )
-    lines.append('* timed on a crop, extrapolated to the frame by FLOPs; peak MiB is the '
-                 "crop's")
+    if any(r.get('extrapolated') for r in records):
+        lines.append('* timed on a crop, extrapolated to the frame by FLOPs; peak MiB is the '
+                     "crop's")
     return '\n'.join(lines)
 
 
