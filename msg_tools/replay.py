@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections import Counter, OrderedDict
 from collections.abc import Callable
+import contextlib
 from dataclasses import asdict, dataclass, field
 import importlib
 import math
@@ -1195,14 +1196,12 @@ class ReplaySession:
             score = score_against(gt)
         except InputError as err:
             note = f'not scored: {err}'
-            try:
+            score = FrameScore(frame=result.frame, stamp_ns=result.stamp_ns)
+            if gt is not None:
                 # What needs no ground truth (kept share, predicted error, mean confidence)
                 # is still the frame's: only the scoring against it failed.
-                score = score_against(None) if gt is not None else None
-            except InputError:
-                score = None
-            if score is None:
-                score = FrameScore(frame=result.frame, stamp_ns=result.stamp_ns)
+                with contextlib.suppress(InputError):
+                    score = score_against(None)
         else:
             if gt is not None and self.options.scan is not None and result.geometry is not None:
                 self._score_scan(score, result, gt)
