@@ -105,6 +105,9 @@ _RECORD_PREFIX = 'BENCH-RECORD '
 #: Keys of the ``cvanet_d<D>`` record that ``--json`` keeps beyond :data:`RECORD_KEYS` (the
 #: README's network-row table quotes the crop and the threads).
 _NETWORK_EXTRA_KEYS = ('extrapolated', 'crop', 'crop_ms', 'threads', 'note')
+# What the matcher table's per-pair, volume and paired-SGBM columns (and its × SGBM ratio)
+# are computed from: in the JSON too, so that it holds the table's numbers.
+_MATCHER_EXTRA_KEYS = ('per_pair_ms', 'stages_ms', 'paired_sgbm_ms', *_NETWORK_EXTRA_KEYS)
 _SUITES = ('matchers', 'node', 'fast', 'gpu', 'cloud')
 
 
@@ -701,7 +704,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # The records are saved before anything is printed: a table that fails to print (a closed
     # pipe) must not lose a run of minutes.
     if args.json is not None:
-        write_records(args.json, records, _NETWORK_EXTRA_KEYS, host=host)
+        write_records(args.json, records, _MATCHER_EXTRA_KEYS, host=host)
     print(format_table(records, os.cpu_count() or 1))
     print(f'host: {host}')
     return 0

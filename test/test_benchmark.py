@@ -60,7 +60,10 @@ def test_tiny_run_writes_the_records(tmp_path: Path, capsys: pytest.CaptureFixtu
     records = json.loads(out.read_text())
     assert [r['config'] for r in records] == ['census_bm', 'opencv_sgbm']
     for record in records:
-        assert tuple(record) == (*benchmark.RECORD_KEYS, 'host')
+        # The table's per-pair, volume and paired-SGBM columns come from these.
+        assert tuple(record) == (*benchmark.RECORD_KEYS, 'per_pair_ms', 'stages_ms',
+                                 'paired_sgbm_ms', 'host')
+        assert set(record['per_pair_ms']) == {'real', 'synthetic'}
         assert record['host'] == benchmark.host_summary()
         assert (record['width'], record['height'], record['max_disparity']) == (64, 48, 16)
         assert record['device'] == 'cpu'
