@@ -49,6 +49,7 @@ import ctypes
 import ctypes.util
 from dataclasses import dataclass, field
 import json
+import math
 import os
 from pathlib import Path
 import platform
@@ -565,17 +566,20 @@ def format_table(records: Sequence[dict[str, Any]], threads: int) -> str:
         f"{'config':<14}{'device':<8}{'ms/frame':>10}{'real':>9}{'synth':>9}{'volume':>9}"
         f"{'SGBM*':>9}{'× SGBM':>9}{'peak MiB':>10}",
     ]
+
+    def cell(value: float | None, digits: int = 1) -> str:
+        # A dash where the row has no such number (SGBM's own volume, the network's pairs).
+        return f'{"—":>9}' if value is None or math.isnan(value) else f'{value:>9.{digits}f}'
+
     for record in records:
         per_pair = record.get('per_pair_ms', {})
         volume = record.get('stages_ms', {}).get('volume')
         reference = record.get('paired_sgbm_ms') or baseline
-        ratio = record['ms_per_frame'] / reference if reference else nan
+        ratio = record['ms_per_frame'] / reference if reference else None
         lines.append(
             f"{record['config']:<14}{record['device']:<8}{record['ms_per_frame']:>10.1f}"
-            f"{per_pair.get('real', nan):>9.1f}{per_pair.get('synthetic', nan):>9.1f}"
-            f'{volume if volume is not None else nan:>9.1f}'
-            f'{reference if reference else nan:>9.1f}'
-            f'{ratio:>9.2f}{_peak_cell(record.get("peak_mem_mb"))}'
+            f"{cell(per_pair.get('real'))}{cell(per_pair.get('synthetic'))}{cell(volume)}"
+            f'{cell(reference or None)}{cell(ratio, 2)}{_peak_cell(record.get("peak_mem_mb"))}'
         )
     lines.append(
         'volume = cost-volume part of a matcher frame (the rest is WTA); real = Motorcycle, '

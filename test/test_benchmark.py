@@ -71,6 +71,7 @@ def test_tiny_run_writes_the_records(tmp_path: Path, capsys: pytest.CaptureFixtu
         assert record['network_gflops'] is None and record['auc_rel'] is None
     printed = capsys.readouterr().out
     assert 'opencv_sgbm' in printed and f'host: {benchmark.host_summary()}' in printed
+    assert 'nan' not in printed  # a dash where a row has no such number (SGBM's own volume)
 
 
 def test_unknown_configuration_exits_with_a_usage_error(
