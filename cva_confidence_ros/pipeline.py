@@ -196,6 +196,12 @@ class PipelineConfig:
         # (the warm-up pair's width), and 1 / np.int64(2) makes a numpy scale.
         for name in ('max_disparity', 'downsample', 'speckle_size', 'cva_stride'):
             object.__setattr__(self, name, int(getattr(self, name)))
+        # Numpy floats and fractions likewise as Python floats: roi_rows rounds the share times
+        # the height to 9 digits, which a float16 share (np.float16(0.25)) overflowed to NaN,
+        # and every frame failed with "cannot convert float NaN to integer".
+        for name in ('confidence_threshold', 'speckle_range', 'tile_budget_mb',
+                     'cva_cascade_fraction', 'roi_top', 'roi_bottom'):
+            object.__setattr__(self, name, float(getattr(self, name)))
         object.__setattr__(self, 'lr_check', bool(self.lr_check))
 
     def roi_rows(self, height: int) -> tuple[int, int]:
@@ -243,7 +249,9 @@ class PipelineResult:
         valid: (H, W) bool, True where the disparity is finite, confidence ≥ threshold and
             the pixel is not in a speckle of the pixels that pass (``speckle_size``).
         left: (H, W) or (H, W, 3) uint8 left image at the processed resolution.
-        scale: Processed size / input size (1 / downsample).
+        scale: 1 / downsample, the factor of pixel coordinates: each processed pixel is one
+            downsample × downsample block of the input, and the bottom rows and right columns
+            that fill no block are cropped (processed size = input size // downsample).
         timings_ms: Milliseconds per stage (``resize``, ``matching``, ``confidence``,
             ``subpixel`` when refined, ``speckle`` when filtered, ``total``).
         probabilistic: Whether ``confidence`` is meant as the probability that the disparity
@@ -315,8 +323,9 @@ class StereoPipeline:
             mask (``'--mask'`` of the bag tools).
 
     Raises:
-        ConfigError: The device is not available here, the method's options do not fit, or
-            max_disparity is below the method's smallest depth (2 for ``pkrn``, ``lrd``).
+        ConfigError: ``config`` is no :class:`PipelineConfig`, the device is not available
+            here, the method's options do not fit, or max_disparity is below the method's
+            smallest depth (2 for ``pkrn``, ``lrd``).
         ModelError: Weights that cannot be loaded or do not fit the matcher and depth.
     """
 
@@ -324,6 +333,7 @@ class StereoPipeline:
         from cva_confidence_ros.confidence import CONFIDENCE_METHODS
         from cva_confidence_ros.model import resolve_device
 
+        _check_config(config)
         self.config = config
         # Checked here for every method, not on the first frame: a node that accepts
         # device=cuda on a machine without CUDA would then drop every frame.
@@ -453,8 +463,10 @@ class StereoPipeline:
         """Match one rectified pair and estimate per-pixel confidence.
 
         Args:
-            left: (H, W) or (H, W, 3) uint8 rectified left image (RGB order if colour).
-            right: Same shape and dtype as ``left``.
+            left: (H, W) or (H, W, 3) rectified left image (RGB order if colour): uint8, or
+                float with finite values in [0, 255], rounded to uint8
+                (``matching.check_image_pair``).
+            right: Same shape as ``left``, uint8 or float likewise.
 
         Returns:
             A :class:`PipelineResult` at 1/downsample of the input resolution.
@@ -639,11 +651,13 @@ def output_region(
         option: What the caller calls ``config.mask_path``, for the message (``'--mask'``).
 
     Raises:
+        ConfigError: ``config`` is no :class:`PipelineConfig`.
         InputError: The mask, shrunk by ``downsample``, is not of ``shape`` (drawn for another
             resolution), or the region of interest and the mask have no pixel in common.
     """
     from cva_confidence_ros.mask import reduce_mask
 
+    _check_config(config)
     rows = config.roi_rows(shape[0])
     reduced = None
     if mask is not None:
@@ -677,6 +691,16 @@ def judged_region(
     y0, y1 = (0, height) if rows is None else rows
     region[y0:y1] = True if mask is None else mask[y0:y1]
     return region
+
+
+def _check_config(config: object) -> None:
+    """Raise :class:`ConfigError` unless ``config`` is a :class:`PipelineConfig` (a dict of its
+    fields or a matcher name failed with "'dict' object has no attribute 'device'")."""
+    if not isinstance(config, PipelineConfig):
+        raise ConfigError(
+            f'config must be a PipelineConfig; got {type(config).__name__} {config!r:.80}'
+            + ('; pass PipelineConfig(**fields)' if isinstance(config, dict) else '')
+        )
 
 
 def _judged_rows(rows: tuple[int, int], mask: np.ndarray) -> tuple[int, int]:
