@@ -201,7 +201,9 @@ def build_parser() -> argparse.ArgumentParser:
     output.add_argument(
         '--weights-out', default=None, help='final weights PATH.pt (+ PATH.md, PATH.json)'
     )
-    output.add_argument(
+    # A resume continues the run in OUT, an overwrite starts it afresh: one of them.
+    restart = output.add_mutually_exclusive_group()
+    restart.add_argument(
         '--resume',
         action='store_true',
         help='continue from OUT/checkpoint.pt after its last finished epoch; refused unless the '
@@ -209,10 +211,11 @@ def build_parser() -> argparse.ArgumentParser:
         'start are those of the run and every finished epoch keeps its learning rate; '
         '--epochs / --epochs-low-lr may grow to train longer',
     )
-    output.add_argument(
+    restart.add_argument(
         '--overwrite',
         action='store_true',
-        help='start afresh in an OUT that holds the checkpoint of an earlier run',
+        help='start afresh in an OUT that holds the checkpoint of an earlier run (its '
+        'checkpoint and history.json are removed first)',
     )
     output.add_argument('--no-progress', action='store_true', help='no progress bar')
     return parser

@@ -27,7 +27,7 @@ from torch import nn
 
 from cva_confidence_ros.datasets import StereoSample, list_scenes, load_scene
 from cva_confidence_ros.datasets.synthetic import synthetic_pair
-from cva_confidence_ros.errors import ConfigError, ModelError, reason
+from cva_confidence_ros.errors import ConfigError, DataError, ModelError, reason
 from cva_confidence_ros.model import (
     ARCHITECTURES,
     PATCH_SIZE,
@@ -36,7 +36,7 @@ from cva_confidence_ros.model import (
     save_weights,
 )
 from cva_confidence_ros.outputs import check_output_dir, check_output_file, write_text_atomic
-from cva_confidence_ros.training.card import hardware_facts, write_model_card
+from cva_confidence_ros.training.card import card_paths, hardware_facts, write_model_card
 from cva_confidence_ros.training.config import TrainConfig, parse_dataset_spec
 from cva_confidence_ros.training.data import (
     LabelledScene,
@@ -62,6 +62,7 @@ from cva_confidence_ros.training.distill import (
 __all__ = ['CHECKPOINT_NAME', 'VAL_SEED_OFFSET', 'train']
 
 CHECKPOINT_NAME = 'checkpoint.pt'
+_HISTORY_NAME = 'history.json'
 #: Synthetic validation pairs use seeds from here on, disjoint from the training seeds.
 VAL_SEED_OFFSET = 1_000_000
 # Fields that must not change between a run and its resume: they decide the samples, the
@@ -101,6 +102,9 @@ Schedule = list[tuple[str, float]]
 _PROBE_PIXELS = 256
 
 
+_T = TypeVar('_T')
+
+
 @dataclass(frozen=True)
 class _Dist:
     rank: int
@@ -122,6 +126,43 @@ class _Dist:
         tensor = torch.tensor(values, dtype=torch.float64, device=self.device)
         torch.distributed.all_reduce(tensor)
         return tensor.tolist()
+
+    def settle(self, error: Exception | None) -> None:
+        """The barrier after work of the main process alone (validation, files): every
+        process learns whether that work failed, and all stop together.
+
+        A bare barrier left the other processes waiting for the main one as long as its
+        process lived after the error (a caller that catches it), then ended them with gloo's
+        'Connection closed by peer'.
+
+        Raises:
+            Exception: ``error``, on the process that met it.
+            ModelError: On the other processes, when the main process failed.
+        """
+        if self.world > 1:
+            failed = self.sum([float(error is not None)])[0] > 0
+            if failed:
+                # Every process took part in the exchange: the group can end on each.
+                torch.distributed.destroy_process_group()
+                if error is None:
+                    raise ModelError(
+                        f'process 0 of {self.world} stopped with an error (its message is in '
+                        f'its output); process {self.rank} stops with it'
+                    )
+        if error is not None:
+            raise error
+
+    def on_main(self, work: Callable[[], _T], default: _T) -> _T:
+        """``work()`` on the main process, ``default`` on the others; an error of the main
+        process is raised on every process (see :meth:`settle`)."""
+        result, error = default, None
+        if self.main:
+            try:
+                result = work()
+            except Exception as exc:  # raised again by settle, on every process
+                error = exc
+        self.settle(error)
+        return result
 
 
 def _setup_distributed(device: str) -> _Dist:
@@ -317,14 +358,31 @@ def _check_finite_network(
 
 
 def _save_checkpoint(path: Path, state: dict[str, Any]) -> None:
+    """Write ``state`` beside ``path`` and move it in place.
+
+    Raises:
+        DataError: The checkpoint cannot be written (a full disk, a folder in the way); the
+            one at ``path`` is left as it was.
+    """
     tmp = path.with_name(path.name + '.tmp')
-    torch.save(state, tmp)
-    os.replace(tmp, path)
+    try:
+        # Opened here, not by torch's writer: an OSError names the cause (torch's says
+        # '[enforce fail at inline_container.cc:…]').
+        with open(tmp, 'wb') as handle:
+            torch.save(state, handle)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except (OSError, RuntimeError) as exc:  # torch's writer raises RuntimeError
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        kept = '; the one there was left as it was' if path.is_file() else ''
+        raise DataError(f'cannot write checkpoint {path} ({reason(exc)}){kept}') from exc
 
 
 def _write_history(out: Path, history: list[dict[str, Any]]) -> None:
     """``out/history.json``, replaced whole (a run stopped while writing it keeps the last)."""
-    write_text_atomic(out / 'history.json', json.dumps(history, indent=2) + '\n',
+    write_text_atomic(out / _HISTORY_NAME, json.dumps(history, indent=2) + '\n',
                       'training history ')
 
 
@@ -675,8 +733,9 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
 
     Raises:
         ConfigError: Bad configuration, or ``resume`` with a checkpoint of other settings.
-        DataError: Unreadable data or no labelled pixel.
-        ModelError: Unreadable checkpoint.
+        DataError: Unreadable data, no labelled pixel, or a file that cannot be written.
+        ModelError: Unreadable checkpoint; under torchrun, on the other processes, an error
+            of process 0 in the work it does alone (validation, files).
     """
     from cva_confidence_ros.model.baselines import BASELINE_ARCHS
 
@@ -691,11 +750,13 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         # Fixed crop shapes: let cuDNN time its kernels once and keep the fastest.
         torch.backends.cudnn.benchmark = True
     out = Path(config.out)
-    if dist.main:
-        out.mkdir(parents=True, exist_ok=True)
-    dist.barrier()
     log = _Log(out / 'train.log', dist.main)
-    log(f'cva-train: {command or config.to_dict()}')
+
+    def begin() -> None:
+        out.mkdir(parents=True, exist_ok=True)
+        log(f'cva-train: {command or config.to_dict()}')
+
+    dist.on_main(begin, None)
     started = time.perf_counter()
 
     # The checkpoint, and the weight files named on the command line, are checked before the
@@ -720,11 +781,15 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
 
     # Both listed before either is prepared: a missing validation scene costs no matching.
     loaders = _load_samples(config, False)
-    val_loaders = _load_samples(config, True) if dist.main else []
+    val_loaders: list[tuple[str, Callable[[], StereoSample]]] = dist.on_main(
+        lambda: _load_samples(config, True), []
+    )
     pairs: dict[str, str] = {}  # the pairs taken, to take each once
     scenes = _prepare(loaders, config, False, log, prepare_scene, pairs)
     index = sample_index(scenes)
-    val_scenes = _prepare(val_loaders, config, True, log, prepare_scene, pairs)
+    val_scenes: list[PreparedScene] = dist.on_main(
+        lambda: _prepare(val_loaders, config, True, log, prepare_scene, pairs), []
+    )
     val_subsets = validation_subset(val_scenes, config.val_pixels, config.seed)
     n_samples = config.samples_per_epoch or len(index)
     log(
@@ -767,10 +832,9 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         start_epoch = int(state['epoch'])
         previous_wall = float(state.get('wall_time_s', 0.0))
         log(f'resumed from {checkpoint} after epoch {start_epoch}')
-        if dist.main:
-            # A run stopped between its checkpoint and history.json left that one short; a
-            # resume with no epoch left to train would never write it.
-            _write_history(out, history)
+        # A run stopped between its checkpoint and history.json left that one short; a
+        # resume with no epoch left to train would never write it.
+        dist.on_main(partial(_write_history, out, history), None)
         if config.init_weights:
             log(f'note: {config.init_weights} not read again: the checkpoint holds the weights')
         started_with = state['config'].get('data_root')
@@ -788,6 +852,41 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
     if dist.world > 1:
         device_ids = [dist.device.index] if dist.device.type == 'cuda' else None
         model = nn.parallel.DistributedDataParallel(model, device_ids=device_ids)
+
+    def finish_epoch(epoch: int, record: dict[str, Any]) -> None:
+        """Validate, checkpoint, history and log line of an epoch (the main process)."""
+        lr = record['lr']
+        record.update(_validate(net, val_scenes, val_subsets, dist.device, epoch, lr, out))
+        history.append(record)
+        wall = previous_wall + time.perf_counter() - started
+        _save_checkpoint(
+            checkpoint,
+            {
+                'format': 1,
+                'epoch': epoch + 1,
+                'model': {k: v.detach().cpu() for k, v in net.state_dict().items()},
+                'optimizer': optimiser.state_dict(),
+                'history': history,
+                'config': config.to_dict(),
+                'processes': dist.world,
+                'wall_time_s': wall,
+                'init_meta': _weights_facts(init_meta) if init_meta else None,
+                'teacher_sha256': teacher_digest,
+            },
+        )
+        _write_history(out, history)
+        val = record.get('val_auc')
+        log(
+            f'epoch {epoch + 1}/{config.total_epochs}: lr {lr:.1e}, loss '
+            f'{record["train_loss"]:.4f}, {record["samples"]} samples in '
+            f'{record["seconds"]:.1f} s ({record["samples_per_s"]:.1f}/s)'
+            + (
+                f', val AUC {val:.4f} (optimal {record["val_auc_opt"]:.4f}), '
+                f'{record["val_high"]:.1%} of val outputs >= 0.5'
+                if val is not None
+                else ''
+            )
+        )
 
     for epoch in range(start_epoch, config.total_epochs):
         lr = config.lr_at(epoch)
@@ -808,38 +907,7 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
             'seconds': seconds,
             'samples_per_s': seen / max(seconds, 1e-9),
         }
-        if dist.main:
-            record.update(_validate(net, val_scenes, val_subsets, dist.device, epoch, lr, out))
-            history.append(record)
-            wall = previous_wall + time.perf_counter() - started
-            _save_checkpoint(
-                checkpoint,
-                {
-                    'format': 1,
-                    'epoch': epoch + 1,
-                    'model': {k: v.detach().cpu() for k, v in net.state_dict().items()},
-                    'optimizer': optimiser.state_dict(),
-                    'history': history,
-                    'config': config.to_dict(),
-                    'processes': dist.world,
-                    'wall_time_s': wall,
-                    'init_meta': _weights_facts(init_meta) if init_meta else None,
-                    'teacher_sha256': teacher_digest,
-                },
-            )
-            _write_history(out, history)
-            val = record.get('val_auc')
-            log(
-                f'epoch {epoch + 1}/{config.total_epochs}: lr {lr:.1e}, loss {loss:.4f}, '
-                f'{seen} samples in {seconds:.1f} s ({record["samples_per_s"]:.1f}/s)'
-                + (
-                    f', val AUC {val:.4f} (optimal {record["val_auc_opt"]:.4f}), '
-                    f'{record["val_high"]:.1%} of val outputs >= 0.5'
-                    if val is not None
-                    else ''
-                )
-            )
-        dist.barrier()
+        dist.on_main(partial(finish_epoch, epoch, record), None)
 
     wall = previous_wall + time.perf_counter() - started
     last = history[-1] if history else {}
@@ -886,11 +954,14 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         'history': history,
         'date': datetime.date.today().isoformat(),
     }
-    if config.weights_out and dist.main:
-        path = save_weights(net, config.weights_out, summary)
-        md_path, json_path = write_model_card(path, summary)
-        log(f'wrote {path}, {md_path} and {json_path}')
-    dist.barrier()
+
+    def write_weights() -> None:
+        if config.weights_out:
+            path = save_weights(net, config.weights_out, summary)
+            md_path, json_path = write_model_card(path, summary)
+            log(f'wrote {path}, {md_path} and {json_path}')
+
+    dist.on_main(write_weights, None)
     if dist.world > 1:
         torch.distributed.destroy_process_group()
     return summary
@@ -904,11 +975,14 @@ def _weights_facts(meta: dict[str, Any]) -> dict[str, Any]:
 
 def check_run_setup(config: TrainConfig) -> None:
     """Refuse an unknown matcher or output paths that cannot be written (before hours of
-    training, not after them); apply ``config.threads`` to numba and torch.
+    training, not after them); apply ``config.threads`` to numba and torch. With
+    ``overwrite``, remove the checkpoint and history of the earlier run in ``out``: a run
+    stopped before its first checkpoint would otherwise be resumed from that one.
 
     Raises:
-        ConfigError: The matcher is not registered, or ``out`` / ``weights_out`` cannot be
-            written.
+        ConfigError: The matcher is not registered, ``resume`` and ``overwrite`` are both
+            set, ``out`` / ``weights_out`` cannot be written, or ``weights_out`` (or its
+            card) is the checkpoint or history of ``out``.
     """
     from cva_confidence_ros.matching import MATCHERS
 
@@ -916,11 +990,27 @@ def check_run_setup(config: TrainConfig) -> None:
         raise ConfigError(
             f'unknown matcher {config.matcher!r}; expected one of {MATCHERS.names()}'
         )
+    if config.resume and config.overwrite:
+        # The resume won, silently: the earlier run went on instead of a fresh one.
+        raise ConfigError(
+            '--resume continues the run in --out, --overwrite starts it afresh; give one'
+        )
     # The weights file first: the check of --out makes that folder.
     if config.weights_out:
         check_output_file(config.weights_out, '--weights-out')
     out = check_output_dir(config.out, '--out')
     checkpoint = out / CHECKPOINT_NAME
+    if config.weights_out:
+        # The weights (or their card) over the checkpoint or the history: a resume then
+        # found a weights file, or history.json a model card.
+        run_files = {(out / name).resolve(): name for name in (CHECKPOINT_NAME, _HISTORY_NAME)}
+        for target in (Path(config.weights_out), *card_paths(config.weights_out)):
+            if target.resolve() in run_files:
+                raise ConfigError(
+                    f'--weights-out {config.weights_out}: {target} would replace the '
+                    f'{run_files[target.resolve()]} of the run in --out {out}; write the '
+                    'weights elsewhere or under another name'
+                )
     if checkpoint.exists() and not checkpoint.is_file():
         raise ConfigError(f'--out {out}: {checkpoint} is not a file; cannot keep checkpoints')
     if checkpoint.is_file() and not (config.resume or config.overwrite):
@@ -929,6 +1019,14 @@ def check_run_setup(config: TrainConfig) -> None:
             f'--out {out} holds the checkpoint of an earlier run ({CHECKPOINT_NAME}, written '
             f'{written}): --resume to continue it, --overwrite to start over, or another --out'
         )
+    if config.overwrite:
+        for stale in (checkpoint, out / _HISTORY_NAME):
+            try:
+                stale.unlink(missing_ok=True)
+            except OSError as exc:
+                raise ConfigError(
+                    f'--overwrite: cannot remove {stale} of the earlier run ({reason(exc)})'
+                ) from exc
     if config.threads:
         # numba's OpenMP layer resets the OpenMP thread count that torch also uses: numba first.
         _limit_numba_threads(config.threads)
