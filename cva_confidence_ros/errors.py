@@ -6,6 +6,8 @@ Every message says what was expected and what came, e.g.
 
 from __future__ import annotations
 
+import re
+
 __all__ = [
     'BagError',
     'CVAError',
@@ -53,7 +55,12 @@ def reason(exc: BaseException, limit: int = 200) -> str:
     first = lines[0].strip() if lines else ''
     if first.endswith(':') and len(lines) > 1:  # a heading, e.g. torch's load_state_dict
         first = f'{first} {lines[1].strip()}'
-    first = first.split('. ', 1)[0]
+    sentences = first.split('. ')
+    first = sentences.pop(0)
+    # A first 'sentence' that is only a bracketed tag says nothing (torch's writer: '[enforce
+    # fail at inline_container.cc:747] . open file failed …'): the next one goes with it.
+    while sentences and not re.sub(r'\[[^\]]*\]', '', first).strip(' .'):
+        first = f'{first}. {sentences.pop(0)}'
     if len(first) > limit:
         first = first[: limit - 1] + '…'
     return f'{type(exc).__name__}: {first}' if first else type(exc).__name__
