@@ -28,7 +28,6 @@ import numpy as np
 
 from cva_confidence_ros.benchmark import BenchSettings, make_pairs, run_suite
 from cva_confidence_ros.checks import is_real
-from cva_confidence_ros.errors import ConfigError
 
 __all__ = ['format_cloud_table', 'main', 'run_cloud']
 
@@ -192,10 +191,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``cva-benchmark --suite cloud``; returns the exit code."""
 
     def measure(args: argparse.Namespace, settings: BenchSettings) -> list[dict[str, Any]]:
-        if not is_real(args.threshold) or not 0.0 <= args.threshold <= 1.0:
-            raise ConfigError(f'--threshold must be in [0, 1]; got {args.threshold}')
         return run_cloud(settings, args.threshold)
 
+    parser = _parser()
+    args = parser.parse_args(argv)
+    # Refused before run_suite makes the --json folder: a bad threshold leaves nothing behind.
+    if not is_real(args.threshold) or not 0.0 <= args.threshold <= 1.0:
+        parser.exit(
+            2, f'cva-benchmark: error: --threshold must be in [0, 1]; got {args.threshold}\n'
+        )
     return run_suite(
-        _parser(), argv, measure, format_cloud_table, ('points_in', 'points_out', 'bytes')
+        parser, argv, measure, format_cloud_table, ('points_in', 'points_out', 'bytes')
     )

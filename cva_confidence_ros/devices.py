@@ -27,7 +27,10 @@ def resolve_device(device: str | torch.device) -> torch.device:
     ):
         raise ConfigError(f'device must be {_NAMES}; got {device!r}')
     else:
-        resolved = torch.device(device)
+        try:
+            resolved = torch.device(device)
+        except RuntimeError:  # an index torch cannot read: 'cuda:01', 'cuda:٣', 20 digits
+            raise ConfigError(f'device must be {_NAMES}; got {device!r}') from None
     if resolved.type not in ('cpu', 'cuda'):
         raise ConfigError(f'device must be {_NAMES}; got {device!r}')
     if resolved.type == 'cuda':

@@ -76,6 +76,7 @@ class _Timer:
     """Seconds of one call: CUDA events on a GPU, the host clock on a CPU."""
 
     def __init__(self, device: Any) -> None:
+        self.device = device
         self.cuda = device.type == 'cuda'
 
     def __call__(self, fn: Callable[[], Any]) -> float:
@@ -86,9 +87,12 @@ class _Timer:
             fn()
             return time.perf_counter() - start
         begin, end = torch.cuda.Event(enable_timing=True), torch.cuda.Event(enable_timing=True)
-        begin.record()
+        # On the stream of the device the work runs on: without one, the events go to the
+        # current device's stream (cuda:0) and time nothing of the work on cuda:1.
+        stream = torch.cuda.current_stream(self.device)
+        begin.record(stream)
         fn()
-        end.record()
+        end.record(stream)
         end.synchronize()
         return begin.elapsed_time(end) / 1e3
 
@@ -168,26 +172,17 @@ def run_gpu(
         The records.
 
     Raises:
-        ConfigError: Unknown network or precision, fp16 on a CPU, or a negative warmup.
+        ConfigError: Unknown network or precision, none of either, a device that is not
+            there (CUDA on a machine without), fp16 on a CPU, or a negative warmup.
     """
     import torch
 
     from cva_confidence_ros.matching import compute_cost_volume
     from cva_confidence_ros.metrics import roc_auc
-    from cva_confidence_ros.model import SparseEvaluator, pad_cost_volume, resolve_device
+    from cva_confidence_ros.model import SparseEvaluator, pad_cost_volume
     from cva_confidence_ros.model.sparse import precision_context
 
-    if warmup < 0:
-        raise ConfigError(f'warmup must be ≥ 0 untimed frames; got {warmup}')
-    unknown = [n for n in networks if n not in GPU_NETWORKS]
-    if unknown:
-        raise ConfigError(f'unknown networks {unknown}; expected some of {list(GPU_NETWORKS)}')
-    bad = [p for p in precisions if p not in PRECISIONS]
-    if bad:
-        raise ConfigError(f'unknown precisions {bad}; expected some of {list(PRECISIONS)}')
-    target = resolve_device(device)
-    if target.type != 'cuda' and 'fp16' in precisions:
-        raise ConfigError('fp16 needs a CUDA device; use --precisions fp32 bf16 on a CPU')
+    target = _check_rows(networks, precisions, device, warmup)
     # Fixed shapes: let cuDNN time its kernels; the flag is the process's, so it is put back.
     with _cudnn_autotuner(target):
         depth = settings.max_disparity
@@ -279,13 +274,41 @@ def run_gpu(
                 f"= {record['network_gflops'] / 1e3:.1f} TFLOP/s"
                 + ('' if auc is None else f', AUC {auc:.4f}'))
             records.append(record)
-            del evaluator, padded
+            # network_only's defaults hold this row's evaluator and padded volume: without it in
+            # the del, both stayed on the device through the next row's frames and its peak.
+            del evaluator, padded, network_only
             if target.type == 'cuda':
                 torch.cuda.empty_cache()
         if develop and not _fill_auc_rel(records):
             log(f'auc_rel left empty: it needs the {_REFERENCE} row (--networks exact '
                 '--precisions fp32) with shipped weights')
         return records
+
+
+def _check_rows(
+    networks: Sequence[str], precisions: Sequence[str], device: str, warmup: int
+) -> Any:
+    """The device of :func:`run_gpu`'s rows (a :class:`torch.device`), once its arguments are
+    checked; raises :class:`ConfigError` as :func:`run_gpu` says."""
+    from cva_confidence_ros.devices import resolve_device
+
+    if warmup < 0:
+        raise ConfigError(f'warmup must be ≥ 0 untimed frames; got {warmup}')
+    if not networks or not precisions:
+        raise ConfigError(
+            f'no rows to measure: networks {list(networks)}, precisions {list(precisions)}; '
+            f'expected some of {list(GPU_NETWORKS)} and of {list(PRECISIONS)}'
+        )
+    unknown = [n for n in networks if n not in GPU_NETWORKS]
+    if unknown:
+        raise ConfigError(f'unknown networks {unknown}; expected some of {list(GPU_NETWORKS)}')
+    bad = [p for p in precisions if p not in PRECISIONS]
+    if bad:
+        raise ConfigError(f'unknown precisions {bad}; expected some of {list(PRECISIONS)}')
+    target = resolve_device(device)
+    if target.type != 'cuda' and 'fp16' in precisions:
+        raise ConfigError('fp16 needs a CUDA device; use --precisions fp32 bf16 on a CPU')
+    return target
 
 
 def _fill_auc_rel(records: Sequence[dict[str, Any]]) -> bool:
@@ -357,7 +380,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return run_gpu(settings, args.networks, args.precisions, args.device, args.data_root,
                        not args.no_channels_last, args.warmup)
 
-    return run_suite(_parser(), argv, measure, format_gpu_table, _EXTRA_KEYS)
+    parser = _parser()
+    args = parser.parse_args(argv)
+    try:  # before run_suite makes the --json folder: no CUDA here leaves nothing behind
+        _check_rows(args.networks, args.precisions, args.device, args.warmup)
+    except ConfigError as error:
+        parser.exit(2, f'cva-benchmark: error: {error}\n')
+    return run_suite(parser, argv, measure, format_gpu_table, _EXTRA_KEYS)
 
 
 if __name__ == '__main__':

@@ -10,8 +10,8 @@ thresholds once at start-up keeps those blocks on the heap for the next frame; t
 size then stays at the peak of a frame, which a long-running node reaches anyway.
 
 Only the command-line programs call :func:`keep_freed_memory` (the node, the bag replay, the
-evaluation and demo tools); importing the library changes nothing. ``CVA_MALLOC_TUNING=0`` in
-the environment turns it off.
+evaluation, training and demo tools, ``cva-benchmark --suite fast``); importing the library
+changes nothing. ``CVA_MALLOC_TUNING=0`` in the environment turns it off.
 """
 
 from __future__ import annotations
