@@ -272,7 +272,7 @@ def make_pairs(settings: BenchSettings) -> dict[str, tuple[np.ndarray, np.ndarra
 def memory_kb(field_name: str) -> int | None:
     """A ``/proc/self/status`` field in kB (e.g. ``VmRSS``, ``VmHWM``); None if unreadable."""
     try:
-        with open('/proc/self/status', encoding='ascii') as status:
+        with open('/proc/self/status', encoding='ascii', errors='replace') as status:
             for line in status:
                 if line.startswith(field_name + ':'):
                     return int(line.split()[1])

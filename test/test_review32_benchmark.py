@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -161,3 +162,22 @@ def test_fast_table_has_the_crop_footnote_only_with_a_starred_row() -> None:
                                                       'extrapolated': True}])
     assert '| exact * |' in starred
     assert starred.splitlines()[-1].startswith('* timed on a crop')
+
+
+def test_memory_kb_reads_a_status_with_a_non_ascii_process_name(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A process named 'kaméra' (prctl PR_SET_NAME): the ASCII read raised UnicodeDecodeError.
+    import builtins
+
+    from cva_confidence_ros.benchmark import memory_kb
+
+    status = tmp_path / 'status'
+    status.write_bytes('Name:\tkaméra\nVmRSS:\t  2048 kB\nVmHWM:\t  4096 kB\n'.encode())
+    real_open = builtins.open
+
+    def fake_open(path, *args, **kwargs):
+        return real_open(status if path == '/proc/self/status' else path, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, 'open', fake_open)
+    assert (memory_kb('VmRSS'), memory_kb('VmHWM'), memory_kb('VmSwap')) == (2048, 4096, None)
