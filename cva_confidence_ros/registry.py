@@ -24,7 +24,17 @@ class Registry(Generic[T]):
         self._items: dict[str, T] = {}
 
     def register(self, name: str) -> Callable[[T], T]:
-        """Register the decorated object under ``name``."""
+        """Register the decorated object under ``name``.
+
+        Raises:
+            ConfigError: ``name`` is not a non-empty str, or is registered already.
+        """
+        # Names come from configuration, always str: an int name could never be selected, and
+        # sorted() of mixed names broke names() and every unknown-name error (a bare TypeError).
+        if not isinstance(name, str) or not name:
+            raise ConfigError(
+                f'{self.kind} name must be a non-empty str; got {type(name).__name__} {name!r}'
+            )
 
         def decorator(obj: T) -> T:
             if name in self._items:

@@ -50,6 +50,10 @@ GENERIC_OPTIONS = frozenset(
 _REAL_KINDS = 'fiu'
 #: Slack around [0, 1] for costs, so that float rounding in a matcher is not an error.
 _COST_TOLERANCE = 1e-4
+#: The bounds as float32 holds them: 1 + 1e-4 is 1.00010001659 there, above the float64 sum,
+#: so a float32 cost at the bound (or a float64 one, once cast) was refused.
+_COST_LOW = np.float32(-_COST_TOLERANCE)
+_COST_HIGH = np.float32(1.0 + _COST_TOLERANCE)
 
 
 def _as_volume(name: str, volume: Any) -> np.ndarray:
@@ -59,14 +63,19 @@ def _as_volume(name: str, volume: Any) -> np.ndarray:
         raise InputError(f'{name} must hold real numbers (float or int); got dtype {volume.dtype}')
     if volume.ndim != 3 or 0 in volume.shape:
         raise InputError(f'{name} must be a non-empty (D, H, W) array; got shape {volume.shape}')
-    volume = np.ascontiguousarray(volume, dtype=np.float32)
     # Two reductions per frame; NaN propagates into both, and ±inf falls outside the range.
-    low, high = float(volume.min()), float(volume.max())
-    if not (-_COST_TOLERANCE <= low and high <= 1.0 + _COST_TOLERANCE):
+    # Taken before the cast, which keeps the order: the extremes as float32 are the float32
+    # volume's, and a float64 cost of 1e300 is reported as such, not as float32's inf (nor
+    # with its overflow warning).
+    low, high = volume.min(), volume.max()
+    with np.errstate(over='ignore'):
+        inside = _COST_LOW <= np.float32(low) and np.float32(high) <= _COST_HIGH
+    if not inside:
         raise InputError(
-            f'{name} must hold finite costs in [0, 1]; got values in [{low:g}, {high:g}]'
+            f'{name} must hold finite costs in [0, 1]; got values in '
+            f'[{float(low):g}, {float(high):g}]'
         )
-    return volume
+    return np.ascontiguousarray(volume, dtype=np.float32)
 
 
 def _as_disparity(name: str, disparity: Any, shape: tuple[int, int]) -> np.ndarray:
@@ -157,8 +166,10 @@ class ConfidenceInputs:
 
 
 def _finite_clip(values: np.ndarray) -> np.ndarray:
+    # clip already sends ±inf to the nearest end; only NaN (no order) needs a value: 0. An
+    # isfinite mask sent +inf to 0 as well, below 1e30's 1: the map was not increasing.
     values = np.asarray(values, dtype=np.float32)
-    return np.where(np.isfinite(values), np.clip(values, 0.0, 1.0), np.float32(0.0)).astype(
+    return np.where(np.isnan(values), np.float32(0.0), np.clip(values, 0.0, 1.0)).astype(
         np.float32
     )
 
@@ -196,7 +207,7 @@ class ConfidenceMethod(ABC):
             confidence: (H, W) float32 as returned by :meth:`__call__`.
 
         Returns:
-            (H, W) float32 in [0, 1]; non-finite values become 0.
+            (H, W) float32 in [0, 1]; NaN becomes 0, ±inf the nearest end.
         """
         return _finite_clip(confidence)
 
@@ -269,4 +280,8 @@ def is_probabilistic(name: str) -> bool:
     Raises:
         ConfigError: Unknown method name.
     """
-    return bool(getattr(CONFIDENCE_METHODS.get(name), 'probabilistic', False))
+    factory = CONFIDENCE_METHODS.get(name)
+    # A factory that is a classmethod (``MaximumLikelihood.from_options``) is a bound method:
+    # getattr on it reads the function's attributes, never the class's ``probabilistic``.
+    owner = factory.__self__ if inspect.ismethod(factory) else factory
+    return bool(getattr(owner, 'probabilistic', False))
