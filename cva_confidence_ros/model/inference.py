@@ -244,16 +244,18 @@ def pad_cost_volume(cost_volume: np.ndarray, dtype: np.dtype | type = np.float32
 
 def _check_tile_budget(tile_budget_mb: object) -> float:
     """``tile_budget_mb`` as a float; ConfigError unless it is a finite real number > 0."""
-    budget = cast('float | np.integer', tile_budget_mb)  # only used once is_real holds
-    if (
-        not is_real(tile_budget_mb)
-        or not (math.isfinite(budget) and budget > 0)
-    ):
+    budget = math.inf
+    if is_real(tile_budget_mb):
+        try:
+            budget = float(cast('float | np.integer', tile_budget_mb))
+        except OverflowError:  # an int beyond float (2**2000): math.isfinite raised it bare
+            budget = math.inf
+    if not is_real(tile_budget_mb) or not (math.isfinite(budget) and budget > 0):
         raise ConfigError(
             f'tile_budget_mb must be a finite number > 0 (megabytes); '
             f'got {type(tile_budget_mb).__name__} {tile_budget_mb!r}'
         )
-    return float(budget)
+    return budget
 
 
 def _check_batch_size(batch_size: object) -> int:

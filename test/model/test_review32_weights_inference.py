@@ -100,3 +100,13 @@ def test_sparse_extract_batch_of_a_budget_near_the_float_maximum() -> None:
 
     evaluator = SparseEvaluator(CVANet(max_disparity=16).eval(), tile_budget_mb=1e303)
     assert evaluator.extract_batch == 512
+
+
+def test_a_tile_budget_beyond_float_is_a_config_error() -> None:
+    # math.isfinite(2**2000) raised a bare OverflowError.
+    from cva_confidence_ros.errors import ConfigError
+    from cva_confidence_ros.model.inference import _check_tile_budget
+
+    with pytest.raises(ConfigError, match='tile_budget_mb must be a finite number > 0'):
+        _check_tile_budget(2**2000)
+    assert _check_tile_budget(np.int64(64)) == 64.0
