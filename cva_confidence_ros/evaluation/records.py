@@ -11,6 +11,7 @@ import os
 from pathlib import Path
 
 from cva_confidence_ros.errors import DataError, InputError
+from cva_confidence_ros.metrics import DENSITY_STEPS, optimal_auc
 from cva_confidence_ros.outputs import write_text_atomic
 
 __all__ = [
@@ -233,6 +234,46 @@ def _check_same_pixels(items: Sequence[EvalRecord]) -> None:
             )
 
 
+def _lowest_auc(error_rate: float, n_pixels: int) -> float:
+    """The AUC that :func:`cva_confidence_ros.metrics.roc_auc` gives a perfect confidence map
+    (the correct pixels in one group of equal values above the wrong ones): no map of
+    ``n_pixels`` pixels at this error rate scores lower.
+
+    The trapezoid rule over the curve's 5 % samples falls below Eq. (1) (``auc_opt``) by up to
+    0.004, and by up to 0.03 for a few pixels.
+    """
+    right = n_pixels - round(error_rate * n_pixels)
+    counts = {-(-k * n_pixels // DENSITY_STEPS) for k in range(1, DENSITY_STEPS + 1)}
+    if right >= min(counts):
+        counts.add(right)  # the end of the group of correct pixels, at error rate 0
+    points = sorted(counts)
+    rates = [max(0, count - right) / count for count in points]
+    return math.fsum(
+        (points[i + 1] - points[i]) / n_pixels * (rates[i] + rates[i + 1]) / 2.0
+        for i in range(len(points) - 1)
+    )
+
+
+def _check_possible(items: Sequence[EvalRecord]) -> None:
+    """Refuse a record whose AUC is below its ``auc_opt`` by more than the sampling of the
+    ROC curve allows: no confidence map scores that (``auc`` and ``auc_opt`` swapped, or
+    taken from other runs), and its cell would beat ``Opt.`` in the table.
+
+    Raises:
+        InputError: The message names the record and both values.
+    """
+    for r in items:
+        slack = max(0.0, optimal_auc(r.error_rate, r.n_pixels)
+                    - _lowest_auc(r.error_rate, r.n_pixels))
+        if r.auc < r.auc_opt - slack - 1e-9:
+            raise InputError(
+                f'evaluation record {r.dataset}/{r.scene} {r.matcher} {r.method}: auc '
+                f'{r.auc} is below auc_opt {r.auc_opt} by more than the {slack:.2g} a '
+                f'perfect confidence map can reach (error_rate {r.error_rate}, n_pixels '
+                f'{r.n_pixels}); no confidence scores that: are auc and auc_opt swapped?'
+            )
+
+
 def format_table(
     records: Iterable[RecordLike],
     methods: Sequence[str] | None = None,
@@ -245,7 +286,9 @@ def format_table(
     scenes of that data set (the mean of per-scene AUCs, as in the paper; a record given twice
     counts once). In every row the smallest method value, compared after rounding to
     ``decimals``, is bold (ties: all of them); ``Opt.`` is never bold. A method without
-    records for a row shows ``–``.
+    records for a row shows ``–``; one with records for only some of the row's scenes
+    shows its mean over those, takes no part in the bold (it covers other scenes than
+    ``Opt.`` and the rest of the row) and is named in a note below the table.
 
     Args:
         records: :class:`EvalRecord` objects or dicts with :data:`RECORD_KEYS`.
@@ -254,20 +297,24 @@ def format_table(
         decimals: Digits after the decimal point.
 
     Returns:
-        The Markdown table, lines joined with ``\\n``, ending in a newline. An empty input
-        gives a header-only table. A ``|`` in a name is written ``\\|``.
+        The Markdown table, lines joined with ``\\n``, ending in a newline; after it, where a
+        method lacks scenes of a row, an empty line and a note naming those cells. An empty
+        input gives a header-only table. A ``|`` in a name is written ``\\|``.
 
     Raises:
         InputError: ``methods`` is one string, holds a non-string or a name twice;
             ``decimals`` is not an integer ≥ 0; two records of one scene, matcher and method
             differ; two records of one scene and matcher differ in ``auc_opt``,
-            ``error_rate`` or ``n_pixels`` (scored on other pixels, e.g. in another run).
+            ``error_rate`` or ``n_pixels`` (scored on other pixels, e.g. in another run); a
+            record's ``auc`` is below its ``auc_opt`` by
+            more than a perfect confidence map can be (up to 0.004; 0.03 for a few pixels).
     """
     if isinstance(decimals, bool) or not isinstance(decimals, Integral) or decimals < 0:
         # -1 or 2.5 failed in the format as 'ValueError: Format specifier missing precision'.
         raise InputError(f'decimals must be an integer ≥ 0; got {decimals!r}')
     items = _unique(_as_records(records))
     _check_same_pixels(items)
+    _check_possible(items)
     if methods is None:
         methods = list(dict.fromkeys(r.method for r in items))
     elif isinstance(methods, str) or not all(isinstance(m, str) for m in methods):
@@ -289,22 +336,32 @@ def format_table(
         '| ' + ' | '.join(header) + ' |',
         '|' + '|'.join([':---', ':---'] + ['---:'] * (len(header) - 2)) + '|',
     ]
+    partial: list[str] = []
     for dataset, matcher in rows:
+        scenes = len(optimal[(dataset, matcher)])
         opt = _mean(list(optimal[(dataset, matcher)].values())) * 100.0
-        cells = {}
+        cells, compared = {}, []
         for method in methods:
             values = aucs.get((dataset, matcher, method))
             if values:
                 cells[method] = f'{_mean(values) * 100.0:.{decimals}f}'
-        best = min((float(text) for text in cells.values()), default=None)
+                if len(values) == scenes:
+                    compared.append(float(cells[method]))
+                else:  # a mean over other scenes than Opt. and the rest of the row
+                    partial.append(f'{method} in {dataset} {matcher} ({len(values)} of '
+                                   f'{scenes} scenes)')
+        best = min(compared, default=None)
         row = [_cell(dataset), _cell(matcher), f'{opt:.{decimals}f}']
         for method in methods:
             text = cells.get(method)
             if text is None:
                 row.append('–')
-            elif float(text) == best:
+            elif float(text) == best and len(aucs[(dataset, matcher, method)]) == scenes:
                 row.append(f'**{text}**')
             else:
                 row.append(text)
         lines.append('| ' + ' | '.join(row) + ' |')
+    if partial:
+        lines += ['', 'Not compared (no bold), a mean over only some scenes of the row: '
+                  + '; '.join(partial) + '.']
     return '\n'.join(lines) + '\n'

@@ -43,8 +43,10 @@ def pooled(tables: Mapping[Key, ReliabilityTable]) -> dict[Key, ReliabilityTable
 
     Raises:
         InputError: A data set is named :data:`ALL_DATASETS` beside others (its row and the
-            pooled one would be one key), or tables to pool differ in their bins (the message
-            names the matcher, method and the bins of each data set).
+            pooled one would be one key), a matcher and method lack a table of some data set
+            (their row over all data sets would cover only some of them), or tables to pool
+            differ in their bins (the message names the matcher, method and the bins of each
+            data set).
     """
     rows: dict[Key, ReliabilityTable] = dict(sorted(tables.items()))
     datasets = {key[0] for key in tables}
@@ -57,6 +59,13 @@ def pooled(tables: Mapping[Key, ReliabilityTable]) -> dict[Key, ReliabilityTable
             )
         for matcher, method in sorted({(key[1], key[2]) for key in tables}):
             parts = {key[0]: t for key, t in tables.items() if key[1:] == (matcher, method)}
+            if len(parts) < len(datasets):
+                raise InputError(
+                    f'cannot pool the reliability tables of {matcher} {method} over the data '
+                    f'sets: it has tables of {sorted(parts)} only, none of '
+                    f'{sorted(datasets - set(parts))}; its row {ALL_DATASETS!r} would cover '
+                    'other pixels than those of the other methods'
+                )
             if len({t.bins for t in parts.values()}) > 1:  # merge named neither row
                 bins = ', '.join(f'{name} {t.bins}' for name, t in sorted(parts.items()))
                 raise InputError(

@@ -10,6 +10,7 @@ from pathlib import Path
 import platform
 from typing import Any
 
+import numpy as np
 import torch
 
 from cva_confidence_ros.outputs import write_text_atomic
@@ -55,8 +56,8 @@ def _fmt(value: Any, digits: int = 4) -> str:
     noise)."""
     if value is None:
         return '—'
-    if isinstance(value, float):
-        return f'{value:.{digits}g}'
+    if isinstance(value, (float, np.floating)):
+        return f'{float(value):.{digits}g}'
     if isinstance(value, (list, tuple)):
         return ', '.join(_fmt(v, digits) for v in value) or '—'
     return str(value)
@@ -65,6 +66,8 @@ def _fmt(value: Any, digits: int = 4) -> str:
 def _code(text: Any) -> str:
     """``text`` as a Markdown code span: a backtick in it (``--out 'a`b'``) ended a span in
     single backticks, so the fence is one backtick longer than the longest run inside."""
+    if text is None or text == '':
+        return '—'  # '``' is no code span: it showed as two backticks; 'None' as a command
     text = str(text)
     longest = run = 0
     for char in text:
@@ -77,7 +80,9 @@ def _code(text: Any) -> str:
 
 def _json_ready(value: Any) -> Any:
     """``value`` with every NaN or infinity (a diverged loss) as None: ``json.dumps`` writes
-    them as ``NaN`` / ``Infinity``, which is not JSON."""
+    them as ``NaN`` / ``Infinity``, which is not JSON; numpy scalars as Python numbers."""
+    if isinstance(value, np.generic):  # json.dumps refused np.float32 and np.int64
+        value = value.item()
     if isinstance(value, float) and not math.isfinite(value):
         return None
     if isinstance(value, Mapping):
@@ -180,7 +185,7 @@ def write_model_card(
         '## Use',
         '',
         f'- matcher: {_code(facts.get("matcher"))}',
-        f'- cost-volume depth D: {facts.get("max_disparity")} (images are halved until the '
+        f'- cost-volume depth D: {_fmt(facts.get("max_disparity"))} (images are halved until the '
         'disparity range fits D)',
         '',
         '## Training data',
@@ -196,12 +201,12 @@ def write_model_card(
         '',
         '## Procedure',
         '',
-        f'- mode: {facts.get("mode")}'
+        f'- mode: {_fmt(facts.get("mode"))}'
         + (f' (crops of {_crop_side(facts)}² outputs)' if facts.get('mode') == 'dense' else '')
         + ('; half of them turned upside down (--vflip)' if facts.get('vflip') else ''),
-        f'- epochs: {facts.get("epochs")} at lr {_fmt(facts.get("lr"), 12)} + '
-        f'{facts.get("epochs_low_lr")} at lr {_fmt(facts.get("lr_low"), 12)}',
-        f'- batch size: {facts.get("batch_size")}, samples per epoch: '
+        f'- epochs: {_fmt(facts.get("epochs"))} at lr {_fmt(facts.get("lr"), 12)} + '
+        f'{_fmt(facts.get("epochs_low_lr"))} at lr {_fmt(facts.get("lr_low"), 12)}',
+        f'- batch size: {_fmt(facts.get("batch_size"))}, samples per epoch: '
         f'{_fmt(facts.get("samples_per_epoch"))}, samples seen: {_fmt(facts.get("samples_seen"))}'
         + (', arithmetic: bf16 autocast' if facts.get('precision') == 'bf16' else ''),
         *(
@@ -209,7 +214,7 @@ def write_model_card(
             if facts.get('network_notes')
             else [_loss_line(facts), *_init_lines(facts)]
         ),
-        f'- seed: {facts.get("seed")}',
+        f'- seed: {_fmt(facts.get("seed"))}',
         '',
         '## Hardware and time',
         '',
