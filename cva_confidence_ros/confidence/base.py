@@ -11,10 +11,12 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass, fields, is_dataclass
 import inspect
+import os
 from typing import Any, ClassVar
 
 import numpy as np
 
+from cva_confidence_ros.checks import is_int
 from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.registry import Registry
 
@@ -24,6 +26,7 @@ __all__ = [
     'ConfidenceFactory',
     'ConfidenceInputs',
     'ConfidenceMethod',
+    'check_learned_options',
     'compute_confidence',
     'is_probabilistic',
 ]
@@ -89,6 +92,30 @@ def _as_disparity(name: str, disparity: Any, shape: tuple[int, int]) -> np.ndarr
         raise InputError(f'{name} must have shape {shape} (H, W); got {disparity.shape}')
     return np.asarray(disparity, dtype=np.float32)
 
+
+
+def check_learned_options(matcher: object, weights: object, max_disparity: object) -> int:
+    """Check the options a learned method loads its weights by; returns D as an int.
+
+    Raises:
+        ConfigError: ``matcher`` not a non-empty str (None skipped the weights' matcher check
+            and then refused every input; 5 asked to train weights for matcher 5), ``weights``
+            neither None nor a path (``Path()`` raised a bare TypeError), or ``max_disparity``
+            not an integer ≥ 1 (``int()`` took '64' or truncated 64.5).
+    """
+    if not isinstance(matcher, str) or not matcher:
+        raise ConfigError(
+            f'matcher must be a non-empty str (a matcher name); got '
+            f'{type(matcher).__name__} {matcher!r}'
+        )
+    if weights is not None and not isinstance(weights, (str, os.PathLike)):
+        raise ConfigError(
+            'weights must be a path (str or os.PathLike) or None for the shipped weights; '
+            f'got {type(weights).__name__} {weights!r}'
+        )
+    if not is_int(max_disparity) or max_disparity < 1:  # type: ignore[operator]
+        raise ConfigError(f'max_disparity must be an integer ≥ 1; got {max_disparity!r}')
+    return int(max_disparity)  # type: ignore[call-overload]
 
 @dataclass(frozen=True, eq=False)
 class ConfidenceInputs:

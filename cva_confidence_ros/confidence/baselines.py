@@ -14,12 +14,12 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from cva_confidence_ros.checks import is_int
 from cva_confidence_ros.confidence.base import (
     CONFIDENCE_METHODS,
     GENERIC_OPTIONS,
     ConfidenceInputs,
     ConfidenceMethod,
+    check_learned_options,
 )
 from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.model import default_weights_path, load_weights, resolve_device
@@ -68,24 +68,8 @@ class _DisparityNetConfidence(ConfidenceMethod):
                 f'unknown options {sorted(unknown)} for {type(self).__name__}; expected its '
                 f'parameters or the generic {sorted(GENERIC_OPTIONS)}'
             )
-        # None would skip the weights' matcher check and then refuse every named input
-        # ("weights are for matcher None"); 5 would ask to train weights for matcher 5.
-        if not isinstance(matcher, str) or not matcher:
-            raise ConfigError(
-                f'matcher must be a non-empty str (a matcher name); got '
-                f'{type(matcher).__name__} {matcher!r}'
-            )
-        # Path() would raise a bare TypeError for an int, bytes or a list.
-        if weights is not None and not isinstance(weights, (str, os.PathLike)):
-            raise ConfigError(
-                'weights must be a path (str or os.PathLike) or None for the shipped weights; '
-                f'got {type(weights).__name__} {weights!r}'
-            )
+        self.max_disparity = check_learned_options(matcher, weights, max_disparity)
         self.matcher = matcher
-        # int() would take '64' or 64.5 (truncated) and raise a bare TypeError for None.
-        if not is_int(max_disparity) or max_disparity < 1:
-            raise ConfigError(f'max_disparity must be an integer ≥ 1; got {max_disparity!r}')
-        self.max_disparity = int(max_disparity)
         self.device = resolve_device(device)
         path = (
             Path(weights) if weights else default_weights_path(matcher, self.max_disparity,
