@@ -107,6 +107,12 @@ def rgb_to_compressed(
     """
     import cv2
 
+    if not isinstance(rgb, np.ndarray):
+        # A list or an image message raised AttributeError ('list' object has no attribute
+        # 'ndim') instead of saying what is wrong.
+        raise InputError(
+            f'an rgb8 image must be an (H, W, 3) uint8 numpy array; got {type(rgb).__name__}'
+        )
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8 or rgb.size == 0:
         raise InputError(
             f'an rgb8 image must be (H, W, 3) uint8, H and W > 0; got {rgb.dtype} {rgb.shape}'
@@ -228,7 +234,8 @@ def compressed_depth_to_array(
             before anything is allocated).
 
     Raises:
-        InputError: Not a compressedDepth format, an RVL payload, data that is too short or
+        InputError: Not a compressedDepth format, a compression other than png named in it
+            (an RVL payload included), data that is too short or
             is not a one-channel 16-bit PNG (checked in its header before decoding: another
             image format, bit depth or colour type), a PNG of more than ``max_pixels`` pixels
             or that does not decode (one larger than OpenCV reads included), ``max_pixels`` not
@@ -245,6 +252,15 @@ def compressed_depth_to_array(
         raise InputError(f'{name} is not a compressedDepth image (format {text!r})')
     if 'rvl' in rest.lower():
         raise InputError(f'{name}: RVL compressedDepth is not supported (format {text!r})')
+    # What follows "compressedDepth" names the compression: png, or nothing in the older
+    # plugin's messages (PNG too). Anything else ("compressedDepth jpeg") the C++ plugin refuses
+    # as an unsupported format; it was decoded here as if it said png.
+    compression = rest.lower().replace(' ', '').partition('compresseddepth')[2]
+    if compression not in ('', 'png'):
+        raise InputError(
+            f'{name}: compressedDepth compression {compression!r} is not supported; expected '
+            f'png (format {text!r})'
+        )
     if encoding not in ('32FC1', '16UC1'):
         raise InputError(
             f'{name}: compressedDepth of {encoding!r}; expected 32FC1 or 16UC1 (format {text!r})'
