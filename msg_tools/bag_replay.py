@@ -270,6 +270,13 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
             '--sync-tolerance needs --approximate-sync (exact sync pairs equal stamps only)'
         )
     tolerance = SYNC_TOLERANCE_S if args.sync_tolerance is None else args.sync_tolerance
+    if args.scan_frame_id.startswith('/'):
+        # The node refuses it too (tf2 takes no frame with a leading '/'): a scan written with
+        # it could be placed by no costmap.
+        raise ConfigError(
+            f"--scan-frame-id must not start with '/' (tf2 refuses such frames); got "
+            f'{args.scan_frame_id!r}'
+        )
     topics = TopicNames(
         prefix=args.topic_prefix,
         left=args.left_topic,
@@ -312,6 +319,12 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
     )
 
 
+def _is_ros_module(name: str) -> bool:
+    """Whether ``name`` is a module of ROS 2's Python packages (rclpy, rcl_*, *_msgs, ...)."""
+    root = name.split('.')[0]
+    return root == 'rclpy' or root.startswith('rcl_') or root.endswith(('_msgs', '_interfaces'))
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``cva-bag-replay``; returns the exit code."""
     args = build_parser().parse_args(argv)
@@ -336,6 +349,14 @@ def main(argv: list[str] | None = None) -> int:
                 outcome = run_offline(options, interrupts=interrupts)
     except CVAError as err:
         print(f'cva-bag-replay: error: {err}', file=sys.stderr)
+        return 2
+    except ModuleNotFoundError as err:
+        # The node's parameter checks (both modes) and live mode's DDS need ROS 2's Python
+        # packages: a shell without them gets one line, not a traceback.
+        if not _is_ros_module(err.name or ''):
+            raise
+        print(f'cva-bag-replay: error: ROS 2 Python package missing ({err}); run `make setup` '
+              'or source /opt/ros/jazzy/setup.bash', file=sys.stderr)
         return 2
     except (KeyboardInterrupt, SystemError) as exc:
         # Only reached outside the replay proper (start-up, final clean-up): the output bag,
