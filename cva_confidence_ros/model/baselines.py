@@ -47,7 +47,7 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
-from cva_confidence_ros.checks import is_real
+from cva_confidence_ros.checks import is_int, is_real
 from cva_confidence_ros.devices import resolve_device
 from cva_confidence_ros.errors import ConfigError, InputError, ModelError
 from cva_confidence_ros.model.inference import same_device
@@ -157,11 +157,35 @@ def _head(c_in: int) -> nn.Sequential:
     )
 
 
+def _check_size(name: str, value: object) -> int:
+    """``value`` as an int, or :class:`ConfigError` unless it is an integer >= 1."""
+    # int() truncated 16.7 to 16 (a disparity scale other than the one asked for), took True
+    # as 1 and parsed '64'; a 0 or negative size failed later, at the first input.
+    if not is_int(value) or int(cast('int', value)) < 1:
+        raise ConfigError(
+            f'{name} must be an integer >= 1; got {type(value).__name__} {value!r}'
+        )
+    return int(cast('int', value))
+
+
+def _as_weights(module: nn.Module, *planes: torch.Tensor) -> list[torch.Tensor]:
+    """The input planes in the dtype of ``module``'s weights (a float64 or float16 input stopped
+    at the first convolution with "Input type ... and bias type ... should be the same")."""
+    dtype = next(module.parameters()).dtype
+    return [plane.to(dtype) for plane in planes]
+
+
 def _check_pair(
     disparity: torch.Tensor, image: torch.Tensor, min_side: int, name: str = 'image'
 ) -> None:
     if disparity.ndim != 4 or disparity.shape[1] != 1:
         raise InputError(f'expected disparity (B, 1, H, W); got {tuple(disparity.shape)}')
+    for plane, label in ((disparity, 'disparity'), (image, name)):
+        if not plane.dtype.is_floating_point:
+            raise InputError(
+                f'expected a floating-point {label} (normalised as network_inputs does); '
+                f'got {plane.dtype}'
+            )
     if image.shape != disparity.shape:
         raise InputError(
             f'expected {name} of the disparity shape {tuple(disparity.shape)}; '
@@ -177,6 +201,12 @@ class CCNN(nn.Module):
 
     ``forward_logits(disparity, image)`` maps (B, 1, h + 8, w + 8) inputs to (B, 1, h, w)
     logits; the image is accepted and ignored so that every baseline has one signature.
+    Floating-point inputs of another dtype are converted to the weights' dtype (as every
+    network of the package does); integer inputs are an :class:`InputError`.
+
+    Raises:
+        ConfigError: ``max_disparity`` not an integer >= 1 (LFN and LGC-Net alike; for
+            LGC-Net also a ``confnet_width`` that is not).
     """
 
     arch = 'ccnn'
@@ -184,13 +214,14 @@ class CCNN(nn.Module):
 
     def __init__(self, max_disparity: int) -> None:
         super().__init__()
-        self.max_disparity = int(max_disparity)
+        self.max_disparity = _check_size('max_disparity', max_disparity)
         self.tower = _tower(1)
         self.head = _head(TOWER_FILTERS)
 
     def forward_logits(self, disparity: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
         """Logits of the centre pixels of (B, 1, h + 8, w + 8) inputs: (B, 1, h, w)."""
         _check_pair(disparity, image, 2 * TOWER_MARGIN + 1)
+        (disparity,) = _as_weights(self, disparity)
         return self.head(self.tower(disparity))
 
     def forward(self, disparity: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
@@ -211,7 +242,7 @@ class LFN(CCNN):
 
     def __init__(self, max_disparity: int) -> None:
         nn.Module.__init__(self)
-        self.max_disparity = int(max_disparity)
+        self.max_disparity = _check_size('max_disparity', max_disparity)
         self.tower = _tower(1)
         self.image_tower = _tower(1)
         self.head = _head(2 * TOWER_FILTERS)
@@ -219,6 +250,7 @@ class LFN(CCNN):
     def forward_logits(self, disparity: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
         """Logits of the centre pixels of (B, 1, h + 8, w + 8) inputs: (B, 1, h, w)."""
         _check_pair(disparity, image, 2 * TOWER_MARGIN + 1)
+        disparity, image = _as_weights(self, disparity, image)
         return self.head(torch.cat([self.tower(disparity), self.image_tower(image)], dim=1))
 
 
@@ -231,7 +263,7 @@ class ConfNet(nn.Module):
 
     def __init__(self, width: int = CONFNET_WIDTH) -> None:
         super().__init__()
-        w = int(width)
+        w = _check_size('ConfNet width', width)
         self.width = w
         self.disparity_in = nn.Conv2d(1, w, 3, padding=1)
         self.image_in = nn.Conv2d(1, w, 3, padding=1)
@@ -261,6 +293,7 @@ class ConfNet(nn.Module):
                 f'ConfNet inputs must have sides that are multiples of {CONFNET_FACTOR}; '
                 f'got {height}×{width}'
             )
+        disparity, image = _as_weights(self, disparity, image)
         x = torch.cat(
             [F.relu(self.disparity_in(disparity)), F.relu(self.image_in(image))], dim=1
         )
@@ -305,6 +338,7 @@ class FusionNet(nn.Module):
         """(B, 1, h, w) logits of three (B, 1, h + 8, w + 8) inputs."""
         _check_pair(disparity, local, 2 * TOWER_MARGIN + 1, 'local confidence')
         _check_pair(disparity, global_, 2 * TOWER_MARGIN + 1, 'global confidence')
+        disparity, local, global_ = _as_weights(self, disparity, local, global_)
         features = [
             self.disparity_tower(disparity),
             self.local_tower(local),
@@ -325,7 +359,7 @@ class LGCNet(nn.Module):
 
     def __init__(self, max_disparity: int, confnet_width: int = CONFNET_WIDTH) -> None:
         super().__init__()
-        self.max_disparity = int(max_disparity)
+        self.max_disparity = _check_size('max_disparity', max_disparity)
         self.local = CCNN(max_disparity)
         self.confnet = ConfNet(confnet_width)
         self.fusion = FusionNet()
@@ -347,11 +381,11 @@ class LGCNet(nn.Module):
 
     def forward(self, disparity: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
         """(B, 1, H, W) confidence of whole inputs."""
+        _check_pair(disparity, image, 1)
         return torch.sigmoid(self.fusion.forward_logits(*self.parts(disparity, image)))
 
     def dense_confidence(self, disparity: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
         """Same as :meth:`forward` (whole images are this network's unit)."""
-        _check_pair(disparity, image, 1)
         return self(disparity, image)
 
 
