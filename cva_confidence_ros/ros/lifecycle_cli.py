@@ -180,6 +180,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.timeout > 0:  # nan too (it waited no time and said "within nan s")
         print(f'cva-lifecycle: --timeout must be > 0 s; got {args.timeout:g}', file=sys.stderr)
         return EXIT_NO_ANSWER
+    if args.command == 'set' and not args.transition.strip():
+        # Sent, an empty label asks for transition id 0, which rclpy's managed nodes raise on
+        # in their executor: the node ended, and this waited for an answer that never came.
+        print(f"cva-lifecycle: TRANSITION must be a transition's label ({', '.join(GOALS)}); "
+              f'got {args.transition!r}', file=sys.stderr)
+        return EXIT_NO_ANSWER
     from lifecycle_msgs.msg import Transition
     from lifecycle_msgs.srv import ChangeState, GetAvailableTransitions, GetState
     import rclpy
@@ -205,7 +211,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             client = node.create_client(srv_type, service)
             answer = None
             allowed: list[str] | None = None
-            if client.wait_for_service(timeout_sec=args.timeout):
+            found = client.wait_for_service(timeout_sec=args.timeout)
+            if found:
                 if args.command == 'set':
                     state_client = node.create_client(GetState, f'{target}/get_state')
                     goal = GOALS.get(args.transition)
@@ -218,9 +225,17 @@ def main(argv: Sequence[str] | None = None) -> int:
             node.destroy_node()
     finally:
         rclpy.try_shutdown()
-    if answer is None:
+    if answer is None and not found:
         print(f'cva-lifecycle: no answer from {service} within {args.timeout:g} s (is {target} '
               'running, a managed node, and in this ROS_DOMAIN_ID?)', file=sys.stderr)
+        return EXIT_NO_ANSWER
+    if answer is None:
+        # The service is there: the node is busy (a transition that loads a network), not gone.
+        busy = ('the transition may still be going on' if args.command == 'set'
+                else 'it may be busy with a transition')
+        print(f'cva-lifecycle: {service} is there but did not answer within {args.timeout:g} s '
+              f'({busy}; `cva-lifecycle get {target}` tells its state, a longer --timeout '
+              'waits for it)', file=sys.stderr)
         return EXIT_NO_ANSWER
     if args.command == 'get':
         print(f'{answer.current_state.label} [{answer.current_state.id}]')

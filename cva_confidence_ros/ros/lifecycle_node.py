@@ -29,10 +29,12 @@ lifecycle manager.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from functools import partial
 import threading
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from lifecycle_msgs.srv import ChangeState
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.context import Context
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
@@ -89,6 +91,9 @@ class ManagedConfidenceNode(ConfidenceCore, LifecycleNode):
         super().__init__(
             NODE_NAME, context=context, parameter_overrides=parameter_overrides, **kwargs
         )
+        service = getattr(self, '_service_change_state', None)  # None: no lifecycle services
+        if service is not None:
+            service.callback = partial(self._on_change_state, service.callback)
         # Deactivations so far, and on the worker the count when its frame was taken: a frame
         # in progress at a deactivate finishes unpublished, even if activate follows before it
         # ends (it would go out then, an old frame, after pairing started afresh).
@@ -196,6 +201,28 @@ class ManagedConfidenceNode(ConfidenceCore, LifecycleNode):
         )
 
     # Transitions --------------------------------------------------------------------------
+
+    def _on_change_state(
+        self, answer: Any, request: ChangeState.Request, response: ChangeState.Response
+    ) -> ChangeState.Response:
+        """The ``change_state`` service: rclpy's ``answer``, but a transition given by id alone
+        (no label) that the current state does not have is refused (``success`` false, as one
+        by an unknown label is) and logged, not raised: rclpy's ``RCLError`` ended the
+        executor's spin, and with it the node."""
+        if not request.transition.label:
+            allowed = {
+                transition[0]: transition[1]
+                for transition in self._state_machine.available_transitions
+            }
+            if request.transition.id not in allowed:
+                offered = ', '.join(f'{label} [{id_}]' for id_, label in allowed.items())
+                self.get_logger().warning(
+                    f'change_state refused: no transition {request.transition.id} (and no '
+                    f'label) from {self._state_label()}; it allows {offered or "none"}'
+                )
+                response.success = False
+                return response
+        return answer(request, response)
 
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         before = [*self.publishers, *self.timers]
