@@ -251,6 +251,9 @@ class ManagedConfidenceNode(ConfidenceCore, LifecycleNode):
             # A bad qos_overrides value of an input (read-only: fix the parameter file).
             self.get_logger().error(f'activate failed: {error}; still inactive')
             return TransitionCallbackReturn.FAILURE
+        except Exception as error:  # noqa: BLE001  (rclpy would turn it into a silent ERROR)
+            self.get_logger().error(f'activate raised {type(error).__name__}: {error}')
+            return TransitionCallbackReturn.ERROR  # on_error: back to unconfigured
         result = super().on_activate(state)  # enables the lifecycle publishers
         self.get_logger().info('active: subscribed to the stereo inputs')
         return result

@@ -119,3 +119,34 @@ def test_cva_lifecycle_tells_a_busy_node_from_one_that_is_not_there(
         release.set()
         spinner.stop()
         node.destroy_node()
+
+
+def test_an_activate_that_raises_unexpectedly_says_why(
+    context_and_domain: tuple[Any, int], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # rclpy turns an exception of on_activate into ERROR without a word: the node ended
+    # unconfigured and its log did not say why.
+    context, _ = context_and_domain
+    node = ManagedConfidenceNode(context=context, parameter_overrides=list(SMALL_MLM))
+    errors: list[str] = []
+    logger = node.get_logger()
+
+    class Recording:
+        def __getattr__(self, name: str) -> Any:
+            return getattr(logger, name)
+
+        def error(self, message: str, **kwargs: Any) -> None:
+            errors.append(message)
+
+    def broken() -> None:
+        raise RuntimeError('a subscription could not be made')
+
+    try:
+        assert _by_id(node, Transition.TRANSITION_CONFIGURE) is True
+        monkeypatch.setattr(node, 'get_logger', lambda: Recording())
+        monkeypatch.setattr(node, '_activate', broken)
+        assert _by_id(node, Transition.TRANSITION_ACTIVATE) is False
+        assert _state(node) == 'unconfigured'  # on_error cleaned up: configure again
+        assert 'activate raised RuntimeError: a subscription could not be made' in errors
+    finally:
+        node.destroy_node()
