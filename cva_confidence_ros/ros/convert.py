@@ -35,7 +35,8 @@ from std_msgs.msg import Header
 from stereo_msgs.msg import DisparityImage
 
 from cva_confidence_ros.camera_info import check_rows, fold, image_projection
-from cva_confidence_ros.errors import InputError
+from cva_confidence_ros.checks import is_int
+from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.pointcloud import (
     CLOUD_CONFIDENCE_DTYPE,
     CLOUD_DTYPE,
@@ -564,7 +565,21 @@ def scale_camera_info(info: CameraInfo, factor: int, header: Header) -> CameraIn
 
     Returns:
         A new ``CameraInfo`` for ``(width // factor) × (height // factor)`` images.
+
+    Raises:
+        ConfigError: A ``factor`` that is not an integer ≥ 1.
+        InputError: A ``factor`` larger than the info's width or height (no pixel is left).
     """
+    if not is_int(factor) or factor < 1:
+        raise ConfigError(
+            f'downsample factor must be an integer >= 1; got {type(factor).__name__} {factor!r}'
+        )
+    factor = int(factor)
+    if int(info.width) // factor == 0 or int(info.height) // factor == 0:
+        raise InputError(
+            f'camera info of {info.width}×{info.height} px leaves no pixel when shrunk by '
+            f'{factor}'
+        )
     scale = 1.0 / factor
     out = CameraInfo(
         header=header,
@@ -732,7 +747,8 @@ def point_cloud_to_records(msg: PointCloud2) -> np.ndarray:
 
     A field of ``count`` 0 declares no data and is left out, as are PCL's padding fields named
     ``_`` (older clouds declare one per gap, several of them): their bytes stay as padding. An
-    empty cloud (height or width 0) gives an empty array with the fields it declares.
+    empty cloud (height or width 0) gives an empty array with the fields it declares; its
+    data must be empty (or ``row_step`` × ``height`` bytes of padding).
 
     Raises:
         InputError: Big-endian data, a ``point_step`` of 0, an unknown datatype, duplicate or
@@ -767,22 +783,23 @@ def point_cloud_to_records(msg: PointCloud2) -> np.ndarray:
         formats.append(code if count == 1 else (code, (count,)))
         offsets.append(field.offset)
         ends.append(field.offset + size)
+    if row_step < step * width and not empty:
+        raise InputError(f'row_step {row_step} is shorter than width × point_step {step * width}')
+    data = np.frombuffer(msg.data, dtype=np.uint8)
+    if data.size != row_step * height and not (empty and data.size == 0):
+        # More is as wrong as less: a width, height or row_step that does not fit the data
+        # (the rest would be dropped unseen), an empty cloud's included (its data must be
+        # empty, or its rows of row_step of padding).
+        raise InputError(
+            f'cloud data holds {data.size} bytes; {height} rows of row_step {row_step} need '
+            f'{row_step * height}'
+        )
     if empty:
         itemsize = max([step, *ends])
         dtype = np.dtype(
             {'names': names, 'formats': formats, 'offsets': offsets, 'itemsize': itemsize}
         )
         return np.empty((height, width), dtype)
-    if row_step < step * width:
-        raise InputError(f'row_step {row_step} is shorter than width × point_step {step * width}')
-    data = np.frombuffer(msg.data, dtype=np.uint8)
-    if data.size != row_step * height:
-        # More is as wrong as less: a width, height or row_step that does not fit the data
-        # (the rest would be dropped unseen).
-        raise InputError(
-            f'cloud data holds {data.size} bytes; {height} rows of row_step {row_step} need '
-            f'{row_step * height}'
-        )
     dtype = np.dtype({'names': names, 'formats': formats, 'offsets': offsets, 'itemsize': step})
     rows = data[: row_step * height].reshape(height, row_step)[:, : step * width]
     return np.ascontiguousarray(rows).view(dtype).reshape(height, width)
