@@ -63,3 +63,14 @@ def test_an_empty_cloud_with_data_is_refused(height: int, width: int, row_step: 
     padding = bytes(row_step * height)
     assert point_cloud_to_records(_empty_cloud(height, width, row_step, padding)).size == 0
     assert point_cloud_to_records(_empty_cloud(2, 0, 8, bytes(16))).shape == (2, 0)
+
+
+def test_an_8uc1_image_reads_as_mono8() -> None:
+    # The OpenCV spelling some camera drivers give their mono images was refused.
+    from sensor_msgs.msg import Image
+
+    from cva_confidence_ros.ros.convert import image_to_array
+
+    pixels = np.arange(12, dtype=np.uint8).reshape(3, 4)
+    msg = Image(height=3, width=4, encoding='8UC1', step=4, data=pixels.tobytes())
+    np.testing.assert_array_equal(image_to_array(msg), pixels)
