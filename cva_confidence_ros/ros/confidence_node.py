@@ -640,9 +640,18 @@ class ConfidenceCore(Node):
         period = stats.left_period_ns
         return period if period is not None and 2 * config.tolerance_ns >= period else None
 
+    def _input_names(self) -> dict[str, str]:
+        """Synchroniser key → the input's topic as the logs name it: the relative name, or
+        the topic it is remapped to (the one to check with ``ros2 topic``)."""
+        names = {key: topic for key, (topic, _) in self._input_topics().items()}
+        for key, subscription in zip(names, self._subscriptions_in, strict=False):
+            if subscription.topic_name != self.resolve_topic_name(names[key], only_expand=True):
+                names[key] = subscription.topic_name
+        return names
+
     def _unpaired_reason(self, stats: _Stats, elapsed: float) -> str:
         """Why messages arrive but none pair up, naming the topics (lock held)."""
-        names = {key: topic for key, (topic, _) in self._input_topics().items()}
+        names = self._input_names()
         silent = [topic for key, topic in names.items() if not stats.window_keys.get(key)]
         if silent:
             text = (
