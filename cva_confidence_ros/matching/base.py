@@ -139,6 +139,15 @@ def check_image_pair(left: object, right: object) -> tuple[np.ndarray, np.ndarra
     left_u8 = _check_image('left', left)
     right_u8 = _check_image('right', right)
     if left_u8.shape != right_u8.shape:
+        if left_u8.shape[:2] == right_u8.shape[:2]:
+            # Same size, one colour and one grey: a camera pair of two encodings (image_rect
+            # with image_rect_color, say), which a shape alone did not tell.
+            kinds = ['colour' if image.ndim == 3 else 'grey' for image in (left_u8, right_u8)]
+            raise InputError(
+                f'left and right images must both be grey or both colour; got a {kinds[0]} '
+                f'left {left_u8.shape} and a {kinds[1]} right {right_u8.shape} (give both '
+                'cameras one encoding, e.g. both image_rect or both image_rect_color)'
+            )
         raise InputError(
             'left and right images must have the same shape; '
             f'got {left_u8.shape} and {right_u8.shape}'

@@ -50,3 +50,20 @@ def test_hamming_out_that_is_not_an_array_is_an_input_error() -> None:
     out = np.zeros((2, 4, 3), np.uint8).tolist()
     with pytest.raises(InputError, match=r'out must be a C-contiguous \(2, 4, 3\) .*got list'):
         hamming_cost_volume(codes, codes, 3, -1, layout='hwd', out=out)  # type: ignore[arg-type]
+
+
+def test_a_colour_left_with_a_grey_right_is_named_as_such() -> None:
+    # Only 'must have the same shape; got (4, 6, 3) and (4, 6)' before: a pair of two camera
+    # encodings, not of two sizes.
+    from cva_confidence_ros.errors import InputError
+    from cva_confidence_ros.matching import check_image_pair
+
+    grey = np.zeros((4, 6), np.uint8)
+    colour = np.zeros((4, 6, 3), np.uint8)
+    with pytest.raises(InputError, match=r'both be grey or both colour; got a colour left '
+                                         r'\(4, 6, 3\) and a grey right \(4, 6\)'):
+        check_image_pair(colour, grey)
+    with pytest.raises(InputError, match='got a grey left'):
+        check_image_pair(grey, colour)
+    with pytest.raises(InputError, match='must have the same shape'):
+        check_image_pair(grey, np.zeros((4, 7), np.uint8))
