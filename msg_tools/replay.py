@@ -829,7 +829,9 @@ class ReplaySession:
     epoch of that stream, and the n-th jump of the frames and of the ground truth are taken
     as the same one: only ground truth of a frame's own epoch tells that its ground truth can
     no longer come. Frames from before a jump still wait for theirs (it may lag); one that a
-    frame of the same stamp after the jump finds waiting is reported unscored.
+    frame of the same stamp after the jump finds waiting is reported unscored. Ground truth
+    does not score a frame of an earlier epoch, nor does ground truth left from an earlier
+    epoch (a skipped frame's) score a frame after a jump.
 
     The synchroniser records the input messages it lets go without a pair
     (:meth:`report_drops`): each is logged (the first few) and recorded in the report with its
@@ -1035,8 +1037,10 @@ class ReplaySession:
         self._last_truth = stamp_ns
         epoch = self._truth_epoch
         self._give_up_before(stamp_ns, epoch)
-        waiting = self._pending.pop(stamp_ns, None)
-        if waiting is not None:
+        waiting = self._pending.get(stamp_ns)
+        if waiting is not None and waiting[0] >= epoch:
+            # A frame from before a jump back is left waiting: its own came before the jump.
+            del self._pending[stamp_ns]
             self._score(waiting[1], msg)
             return
         if stamp_ns in self._given_up and self._given_up[stamp_ns] == epoch:
@@ -1072,6 +1076,10 @@ class ReplaySession:
         stamp = result.stamp_ns
         epoch = self.frame_epoch(stamp)
         truth = self._truth.pop(stamp, None)
+        if truth is not None and truth[0] < epoch:
+            # Ground truth of this stamp from before a jump back whose frame never took it (a
+            # skipped frame, a second message of one stamp): not this frame's.
+            truth = None
         if truth is None and not any(s > stamp and e == epoch
                                      for s, (e, _) in self._truth.items()):
             earlier = self._pending.pop(stamp, None)
