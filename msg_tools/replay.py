@@ -1047,9 +1047,9 @@ class ReplaySession:
             if not self._late_truth_logged:
                 self._late_truth_logged = True
                 self.log(
-                    f'the ground truth of stamp {stamp_ns} ns came more than {GT_WAIT_FRAMES} '
-                    f'frames after its images; a frame waits at most {GT_WAIT_FRAMES} frames '
-                    f'for it, so frames like it stay unscored'
+                    f'the ground truth of stamp {stamp_ns} ns came {GT_WAIT_FRAMES} or more '
+                    f'frames after its images; a frame waits for it only until '
+                    f'{GT_WAIT_FRAMES} later frames have come, so frames like it stay unscored'
                 )
             return
         self._truth.pop(stamp_ns, None)  # one of an earlier pass: the newer goes last
@@ -1096,8 +1096,8 @@ class ReplaySession:
                 oldest, (old_epoch, frame) = self._pending.popitem(last=False)
                 _remember(self._given_up, oldest, old_epoch)
                 self._score(
-                    frame, None, note=f'no ground truth within {GT_WAIT_FRAMES} frames of it '
-                    '(ground truth later than that is not waited for)'
+                    frame, None, note=f'no ground truth before {GT_WAIT_FRAMES} later frames '
+                    'came (ground truth later than that is not waited for)'
                 )
             return
         # Ground truth of this or a later stamp was read: older waiting frames of its epoch
@@ -1125,7 +1125,7 @@ class ReplaySession:
         """Why the frame of ``stamp_ns`` has no ground truth, in words."""
         if stamp_ns in self._truth_dropped:
             return (
-                f'its ground truth came more than {self.truth_window} ground-truth messages '
+                f'its ground truth came {self.truth_window} or more ground-truth messages '
                 'before it and was not kept'
             )
         if stopped:
