@@ -92,7 +92,8 @@ def _with(image: np.ndarray, index: tuple[int, int], value: float) -> np.ndarray
 
 BAD_IMAGES = {
     'shape mismatch': (np.zeros((8, 12), np.uint8), np.zeros((8, 11), np.uint8), 'same shape'),
-    'gray vs colour': (np.zeros((8, 12), np.uint8), np.zeros((8, 12, 3), np.uint8), 'same shape'),
+    'gray vs colour': (np.zeros((8, 12), np.uint8), np.zeros((8, 12, 3), np.uint8),
+                       'both be grey or both colour'),
     'empty': (np.zeros((0, 12), np.uint8), np.zeros((0, 12), np.uint8), 'empty'),
     'empty width': (np.zeros((8, 0), np.uint8), np.zeros((8, 0), np.uint8), 'empty'),
     '4 channels': (np.zeros((8, 12, 4), np.uint8),) * 2 + ('H×W or H×W×3',),
