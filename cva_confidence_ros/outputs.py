@@ -9,14 +9,16 @@ behind, which the job would make anyway.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 import contextlib
 import os
 from pathlib import Path
 import tempfile
+from typing import BinaryIO
 
 from cva_confidence_ros.errors import ConfigError, DataError, reason
 
-__all__ = ['check_output_dir', 'check_output_file', 'write_text_atomic']
+__all__ = ['check_output_dir', 'check_output_file', 'write_atomic', 'write_text_atomic']
 
 
 def _unusable(option: str, path: Path, error: OSError) -> ConfigError:
@@ -120,21 +122,35 @@ def write_text_atomic(path: str | os.PathLike[str], text: str, what: str = '') -
         DataError: The file cannot be written; an older file at ``path`` is left as it was.
     """
     out = Path(path)
-    tmp = out.with_name(out.name + '.tmp')
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        with open(tmp, 'w', encoding='utf-8') as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, out)
-        _sync_folder(out.parent)
+        write_atomic(out, lambda handle: handle.write(text.encode('utf-8')))
     except OSError as exc:
-        with contextlib.suppress(OSError):
-            tmp.unlink(missing_ok=True)
         state = '; the file there was left as it was' if out.exists() else ''
         raise DataError(f'cannot write {what}{out}: {reason(exc)}{state}') from None
     return out
+
+
+def write_atomic(path: Path, write: Callable[[BinaryIO], object]) -> None:
+    """``write(handle)`` into ``path.tmp`` beside ``path``, sync it to the disk, move it onto
+    ``path`` and sync the folder (see :func:`write_text_atomic`).
+
+    Raises:
+        BaseException: Whatever ``write`` or the file system raised, after removing the
+            partial file; a file at ``path`` is left as it was.
+    """
+    tmp = path.with_name(path.name + '.tmp')
+    try:
+        with open(tmp, 'wb') as handle:
+            write(handle)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        raise
+    _sync_folder(path.parent)
 
 
 def _sync_folder(folder: Path) -> None:

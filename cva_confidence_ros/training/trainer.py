@@ -35,7 +35,12 @@ from cva_confidence_ros.model import (
     resolve_device,
     save_weights,
 )
-from cva_confidence_ros.outputs import check_output_dir, check_output_file, write_text_atomic
+from cva_confidence_ros.outputs import (
+    check_output_dir,
+    check_output_file,
+    write_atomic,
+    write_text_atomic,
+)
 from cva_confidence_ros.training.card import card_paths, hardware_facts, write_model_card
 from cva_confidence_ros.training.config import TrainConfig, parse_dataset_spec
 from cva_confidence_ros.training.data import (
@@ -364,18 +369,11 @@ def _save_checkpoint(path: Path, state: dict[str, Any]) -> None:
         DataError: The checkpoint cannot be written (a full disk, a folder in the way); the
             one at ``path`` is left as it was.
     """
-    tmp = path.with_name(path.name + '.tmp')
     try:
-        # Opened here, not by torch's writer: an OSError names the cause (torch's says
-        # '[enforce fail at inline_container.cc:…]').
-        with open(tmp, 'wb') as handle:
-            torch.save(state, handle)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
+        # Into a file opened by write_atomic, not by torch's writer: an OSError names the
+        # cause (torch's says '[enforce fail at inline_container.cc:…]').
+        write_atomic(path, partial(torch.save, state))
     except (OSError, RuntimeError) as exc:  # torch's writer raises RuntimeError
-        with contextlib.suppress(OSError):
-            tmp.unlink(missing_ok=True)
         kept = '; the one there was left as it was' if path.is_file() else ''
         raise DataError(f'cannot write checkpoint {path} ({reason(exc)}){kept}') from exc
 
