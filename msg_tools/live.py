@@ -609,15 +609,8 @@ def _play(
                     with interrupts.critical():
                         recorder.take_received(progress)
             finally:
-                # Stopped early: the messages still waiting for partners are let go and listed
-                # too, so that the count and the list agree (as offline).
-                with interrupts.critical():
-                    sync.drain()
-                    session.report_drops(sync, stopped=True)
-                session.counts['unpaired'] = sync.dropped
                 session.counts['dropped'] = recorder.unanswered()
-                if interrupts.requested:
-                    session.read_ahead_ground_truth(bag, position, store)
+                session.stop_pairing(sync, bag, position, store)  # as offline
     return session.outcome()
 
 

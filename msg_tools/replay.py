@@ -1257,6 +1257,20 @@ class ReplaySession:
         elif count == _MAX_UNSCORED_LOGS + 1:
             self.log(f'more frames not scored for "{kind}"; only counting them from now on')
 
+    def stop_pairing(
+        self, sync: Any, bag: InputBag, since_ns: int | None, store: Any
+    ) -> None:
+        """End the pairing of a run however it stopped: the messages still waiting for
+        partners are let go and listed (after the end of the bag there are none left), so
+        that the count and the list agree; after a Ctrl-C the ground truth of the frames still
+        waiting is looked for further on in ``bag`` (from ``since_ns``)."""
+        with self.interrupts.critical():
+            sync.drain()
+            self.report_drops(sync, stopped=True)
+        self.counts['unpaired'] = sync.dropped
+        if self.interrupts.requested:
+            self.read_ahead_ground_truth(bag, since_ns, store)
+
     def read_ahead_ground_truth(self, bag: InputBag, since_ns: int | None, store: Any) -> None:
         """Look further into ``bag`` for the ground truth of frames still waiting for it.
 
@@ -1568,15 +1582,7 @@ def run_offline(
                 sync.drain()
                 session.report_drops(sync)
             finally:
-                # Stopped early (Ctrl-C, a bag fault): the messages still waiting for partners
-                # are let go and listed too, so that the count and the list agree (after the
-                # end of the bag there are none left).
-                with interrupts.critical():
-                    sync.drain()
-                    session.report_drops(sync, stopped=True)
-                session.counts['unpaired'] = sync.dropped
-                if interrupts.requested:
-                    session.read_ahead_ground_truth(bag, position, store)
+                session.stop_pairing(sync, bag, position, store)  # also on Ctrl-C, a bag fault
     return session.outcome()
 
 
