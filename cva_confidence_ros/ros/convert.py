@@ -560,55 +560,61 @@ def scale_camera_info(info: CameraInfo, factor: int, header: Header) -> CameraIn
     ``factor``×``factor`` are averaged, so a pixel coordinate ``x`` becomes
     ``(x + 0.5) / factor − 0.5``. Focal lengths and ``P[0, 3]`` (= −fx·B) scale by 1/factor.
 
+    ``info`` is read as REP 104 and ``image_geometry`` have it (binning and region of interest
+    of its calibration size, :func:`~cva_confidence_ros.camera_info.image_projection`): the
+    images it describes are ``roi`` divided by the binning. Binning and ROI are folded into K
+    and P before the shrink, and the result has neither (binning as given when it was 0 or 1,
+    an all-zero ROI): K, P, width and height are those of the shrunk images themselves. Kept
+    as binning (``binning × factor``), ``image_geometry``'s ``x / binning`` would read every
+    pixel ``(factor − 1) / (2 · factor)`` px off the block averages' centres, and an ROI offset
+    by a non-multiple of ``factor`` cannot be written at all. Images of the calibration size
+    whose info's ROI marks something else (the valid area) go through
+    :func:`image_camera_info` first, as the node does.
+
     Args:
-        info: Camera info of the full-resolution images.
+        info: Camera info of the input images.
         factor: 1, 2 or 4 (≥ 1).
         header: Header of the output (the left image's).
 
     Returns:
-        A new ``CameraInfo`` for ``(width // factor) × (height // factor)`` images.
+        A new ``CameraInfo`` for ``(w // factor) × (h // factor)`` images, ``w`` × ``h`` the
+        size ``info`` describes.
 
     Raises:
         ConfigError: A ``factor`` that is not an integer ≥ 1.
-        InputError: A ``factor`` larger than the info's width or height (no pixel is left).
+        InputError: A ``factor`` larger than the images' width or height (no pixel is left),
+            or an info whose size, ROI or binning describe no images (as
+            :func:`~cva_confidence_ros.camera_info.image_projection`).
     """
     if not is_int(factor) or factor < 1:
         raise ConfigError(
             f'downsample factor must be an integer >= 1; got {type(factor).__name__} {factor!r}'
         )
     factor = int(factor)
-    if int(info.width) // factor == 0 or int(info.height) // factor == 0:
+    (width, height), p = image_projection(info, 'camera info')
+    if width // factor == 0 or height // factor == 0:
         raise InputError(
-            f'camera info of {info.width}×{info.height} px leaves no pixel when shrunk by '
-            f'{factor}'
+            f'camera info of {width}×{height} px leaves no pixel when shrunk by {factor}'
         )
     scale = 1.0 / factor
     out = CameraInfo(
         header=header,
-        height=int(info.height) // factor,
-        width=int(info.width) // factor,
+        height=height // factor,
+        width=width // factor,
         distortion_model=info.distortion_model,
         d=list(info.d),
-        binning_x=info.binning_x,
-        binning_y=info.binning_y,
+        # 0 and 1 both mean no binning; any other is folded into K and P.
+        binning_x=min(int(info.binning_x), 1),
+        binning_y=min(int(info.binning_y), 1),
     )
-    k = np.array(info.k, dtype=np.float64).reshape(3, 3)
-    p = np.array(info.p, dtype=np.float64).reshape(3, 4)
+    k = fold(np.array(info.k, dtype=np.float64).reshape(3, 3), info)
     for matrix in (k, p):
-        # Rows 0 and 1 of K and P are pixel coordinates (times the third row).
-        matrix[:2] *= scale
-        matrix[:2, 2] += (scale - 1.0) * 0.5
+        # Rows 0 and 1 of K and P are pixel coordinates times the third row's value.
+        matrix[:2] = matrix[:2] * scale + (scale - 1.0) * 0.5 * matrix[2]
     out.k = k.ravel().tolist()
     out.r = list(info.r)
     out.p = p.ravel().tolist()
-    roi = info.roi
-    out.roi = RegionOfInterest(
-        x_offset=roi.x_offset // factor,
-        y_offset=roi.y_offset // factor,
-        height=roi.height // factor,
-        width=roi.width // factor,
-        do_rectify=roi.do_rectify,
-    )
+    out.roi = RegionOfInterest(do_rectify=bool(info.roi.do_rectify))
     return out
 
 

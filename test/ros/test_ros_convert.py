@@ -469,23 +469,26 @@ def test_pcl_padding_fields_are_padding() -> None:
 
 def test_scale_camera_info() -> None:
     left_info, right_info = info_msgs(7, height=65, width=97, fx=100.0, baseline=0.1)
-    left_info.roi.x_offset, left_info.roi.width = 10, 80
+    roi = left_info.roi
+    roi.x_offset, roi.width, roi.height = 10, 80, 65  # REP 104: images of 80×65
     header = Header(frame_id='out', stamp=ns_to_stamp(7))
     half = scale_camera_info(left_info, 2, header)
-    assert (half.width, half.height) == (48, 32)  # 97 → 96 → 48 and 65 → 64 → 32
+    assert (half.width, half.height) == (40, 32)  # 80 → 40 and 65 → 64 → 32
     assert half.header.frame_id == 'out'
-    # cx = 48.5 → (48.5 + 0.5)/2 − 0.5 = 24; cy = 32.5 → 16.
-    np.testing.assert_allclose(half.k, [50, 0, 24, 0, 50, 16, 0, 0, 1])
-    np.testing.assert_allclose(half.p, [50, 0, 24, 0, 0, 50, 16, 0, 0, 0, 1, 0])
-    assert (half.roi.x_offset, half.roi.width) == (5, 40)
+    # The ROI folded in (review 33): cx = 48.5 − 10 = 38.5 → (38.5 + 0.5)/2 − 0.5 = 19;
+    # cy = 32.5 → 16; no ROI left.
+    np.testing.assert_allclose(half.k, [50, 0, 19, 0, 50, 16, 0, 0, 1])
+    np.testing.assert_allclose(half.p, [50, 0, 19, 0, 0, 50, 16, 0, 0, 0, 1, 0])
+    assert (half.roi.x_offset, half.roi.width, half.roi.height) == (0, 0, 0)
     right_half = scale_camera_info(right_info, 2, header)
     assert right_half.p[3] == pytest.approx(-5.0)  # −fx·B at half size
-    # (The left info without its ROI: with it, REP 104 makes the images 40×32.)
-    plain_half = scale_camera_info(info_msgs(7, height=65, width=97, fx=100.0)[0], 2, header)
+    plain = info_msgs(7, height=65, width=97, fx=100.0)[0]
+    plain_half = scale_camera_info(plain, 2, header)
+    assert (plain_half.width, plain_half.height) == (48, 32)  # 97 → 96 → 48, 65 → 64 → 32
     geometry = camera_info_to_geometry(plain_half, right_half, 48, 32)
     assert geometry.baseline == pytest.approx(0.1)
-    unchanged = scale_camera_info(left_info, 1, header)
-    np.testing.assert_allclose(unchanged.k, left_info.k)
+    unchanged = scale_camera_info(plain, 1, header)
+    np.testing.assert_allclose(unchanged.k, plain.k)
     assert (unchanged.width, unchanged.height) == (97, 65)
 
 
