@@ -418,7 +418,9 @@ def run_live(
 
     Returns:
         The :class:`ReplayOutcome` (same report as offline; ``dropped`` counts the pairs the
-        node did not answer).
+        node did not answer; after a Ctrl-C, ``in_flight`` those published after the last
+        one it answered, which it may still have been working on, and ``dropped`` only the
+        others).
 
     Raises:
         BagError: The bag cannot be opened or lacks an input topic.
@@ -609,7 +611,15 @@ def _play(
                     with interrupts.critical():
                         recorder.take_received(progress)
             finally:
-                session.counts['dropped'] = recorder.unanswered()
+                unanswered = recorder.unanswered()
+                if interrupts.requested:
+                    # Frames newer than the last one answered may still have been on their
+                    # way (the node answers in order, so the older ones were dropped): a
+                    # Ctrl-C does not make them dropped frames.
+                    in_flight = recorder.waited_for()
+                    session.counts['in_flight'] = in_flight
+                    unanswered -= in_flight
+                session.counts['dropped'] = unanswered
                 session.stop_pairing(sync, bag, position, store)  # as offline
     return session.outcome()
 
@@ -693,6 +703,10 @@ class _Recorder:
     def unanswered(self) -> int:
         """Pairs published whose outputs never (all) came."""
         return self.session.counts['pairs'] - self.answered
+
+    def waited_for(self) -> int:
+        """Pairs still waited for: published after the last one answered, not given up."""
+        return sum(len(frames) for frames in self.frames.values())
 
     def drain(self, until: float, progress: Progress, node: NodeProcess | None = None) -> None:
         """Handle outputs until the wall-clock time ``until`` (monotonic seconds), and those
