@@ -247,12 +247,13 @@ def _thread_limit(threads: int | None) -> Iterator[None]:
 
 
 def _cheap(name: str, volume: np.ndarray, disparity: np.ndarray, image: np.ndarray,
-           volume_right: np.ndarray | None) -> np.ndarray | None:
+           volume_right: np.ndarray | None, first_column: int = 0) -> np.ndarray | None:
     from cva_confidence_ros.confidence import CONFIDENCE_METHODS, ConfidenceInputs
 
     if name == 'none':
         return None
-    inputs = ConfidenceInputs(volume, disparity, image, cost_volume_right=volume_right)
+    inputs = ConfidenceInputs(volume, disparity, image, cost_volume_right=volume_right,
+                              first_column=first_column)
     return CONFIDENCE_METHODS.get(name)()(inputs)
 
 
@@ -268,7 +269,8 @@ def develop_crops(
 
     Returns:
         One dict per scene: ``name``, ``volume`` (D, h, w), ``volume_right``, ``disparity``,
-        ``image``, ``wrong`` (h, w) bool, ``known`` (h, w) bool.
+        ``image``, ``wrong`` (h, w) bool, ``known`` (h, w) bool, ``x0`` (the image column of
+        the window's column 0).
     """
     from cva_confidence_ros.datasets import DEVELOP_DATASETS, list_scenes, load_scene
     from cva_confidence_ros.datasets.resize import fit_disparity_range
@@ -306,6 +308,7 @@ def develop_crops(
                 'image': np.ascontiguousarray(sample.left[box]),
                 'wrong': kitti_error(disparity[box], np.nan_to_num(gt)),
                 'known': np.isfinite(gt),
+                'x0': x0,
             })
             print(f'  develop crop {dataset}/{scene}: {rows}×{columns}, {best} known pixels',
                   file=sys.stderr, flush=True)
@@ -346,7 +349,7 @@ def _auc_rel(configs: Sequence[FastConfig], crops: list[dict[str, Any]], net: An
             if config.name in _EXTRAPOLATED:
                 continue
             cheap = _cheap(config.cascade, item['volume'], item['disparity'], item['image'],
-                           item['volume_right'])
+                           item['volume_right'], item.get('x0', 0))
             values = light_exact.get(config.arch, exact)
             result = sparse_confidence(
                 cast('Callable[[np.ndarray, np.ndarray], np.ndarray]',

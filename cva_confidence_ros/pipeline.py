@@ -615,6 +615,7 @@ class StereoPipeline:
             cost_volume_right=crop(inputs.cost_volume_right),
             disparity_right=crop(inputs.disparity_right),
             matcher=inputs.matcher,
+            first_column=columns.start,
         )
         out = np.full((height, width), np.nan, dtype=np.float32)
         out[rows, columns] = np.asarray(self._method(part), dtype=np.float32)

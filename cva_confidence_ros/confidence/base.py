@@ -135,10 +135,15 @@ class ConfidenceInputs:
         disparity_right: Optional (H, W) float32 right disparity, NaN = invalid.
         matcher: Name of the matcher that produced the volume (learned methods check it);
             ``''`` = unknown.
+        first_column: Image column of the arrays' column 0: 0 for whole images; a crop of
+            columns ``x0:`` passes ``x0``, so that what holds at the image's left edge (one
+            candidate with a partner in column 0, see ``handcrafted``) is not applied to the
+            crop's.
 
     Raises:
         InputError: A wrong type, dtype or shape, costs outside [0, 1] (NaN included), an image
-            that is not uint8, or a matcher that is not a str.
+            that is not uint8, a matcher that is not a str, or a ``first_column`` that is not
+            an integer ≥ 0.
     """
 
     cost_volume: np.ndarray
@@ -147,6 +152,7 @@ class ConfidenceInputs:
     cost_volume_right: np.ndarray | None = None
     disparity_right: np.ndarray | None = None
     matcher: str = ''
+    first_column: int = 0
 
     def __post_init__(self) -> None:
         volume = _as_volume('cost_volume', self.cost_volume)
@@ -166,6 +172,12 @@ class ConfidenceInputs:
                 "matcher must be a str (a matcher name, or '' if unknown); "
                 f'got {type(self.matcher).__name__}'
             )
+        if not is_int(self.first_column) or self.first_column < 0:
+            raise InputError(
+                f'first_column must be an integer ≥ 0 (the image column of column 0 of the '
+                f'arrays); got {self.first_column!r}'
+            )
+        object.__setattr__(self, 'first_column', int(self.first_column))
         if self.cost_volume_right is not None:
             right = _as_volume('cost_volume_right', self.cost_volume_right)
             if right.shape != volume.shape:

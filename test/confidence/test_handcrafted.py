@@ -15,17 +15,21 @@ from cva_confidence_ros.confidence import (
 )
 from cva_confidence_ros.errors import ConfigError, InputError
 
-# D = 4, H = W = 2; curves per pixel (y, x).
+# D = 4, H = 2, W = 3; curves per pixel (y, x). Column 0 as a matcher leaves it: one candidate
+# (d = 0) with a partner, the filler 1.0 for the others; every measure but LRC gives it its
+# lowest value (no matching decision there), so the hand values are of columns 1 and 2.
 CURVES = {
-    (0, 0): [0.5, 0.1, 0.3, 0.9],  # c1 = 0.1 at d = 1, c2 = 0.3
-    (0, 1): [0.2, 0.2, 0.6, 1.0],  # two equal minima: c2 = c1 = 0.2
-    (1, 0): [0.0, 0.4, 0.4, 0.8],  # perfect match: c1 = 0, c2 = 0.4
-    (1, 1): [1.0, 0.7, 0.05, 0.6],  # c1 = 0.05 at d = 2, c2 = 0.6
+    (0, 1): [0.5, 0.1, 0.3, 0.9],  # c1 = 0.1 at d = 1, c2 = 0.3
+    (0, 2): [0.2, 0.2, 0.6, 1.0],  # two equal minima: c2 = c1 = 0.2
+    (1, 1): [0.0, 0.4, 0.4, 0.8],  # perfect match: c1 = 0, c2 = 0.4
+    (1, 2): [1.0, 0.7, 0.05, 0.6],  # c1 = 0.05 at d = 2, c2 = 0.6
 }
+COLUMN_0 = [0.05, 1.0, 1.0, 1.0]  # the most distinct minimum of all, with the filler
 
 
 def small_volume() -> np.ndarray:
-    volume = np.empty((4, 2, 2), dtype=np.float32)
+    volume = np.empty((4, 2, 3), dtype=np.float32)
+    volume[:, :, 0] = np.asarray(COLUMN_0)[:, None]
     for (y, x), curve in CURVES.items():
         volume[:, y, x] = curve
     return volume
@@ -43,16 +47,16 @@ def test_registered_names() -> None:
 
 def test_score_is_negated_minimum() -> None:
     result = compute_confidence('score', inputs_for(small_volume()))
-    assert result.dtype == np.float32 and result.shape == (2, 2)
-    np.testing.assert_allclose(result, [[-0.1, -0.2], [0.0, -0.05]], rtol=1e-6)
+    assert result.dtype == np.float32 and result.shape == (2, 3)
+    np.testing.assert_allclose(result, [[-1.0, -0.1, -0.2], [-1.0, 0.0, -0.05]], rtol=1e-6)
 
 
 def test_pkrn_naive_ratio() -> None:
     eps = 1e-3
     result = compute_confidence('pkrn', inputs_for(small_volume()), eps=eps)
     expected = [
-        [(0.3 + eps) / (0.1 + eps), 1.0],
-        [(0.4 + eps) / eps, (0.6 + eps) / (0.05 + eps)],
+        [1.0, (0.3 + eps) / (0.1 + eps), 1.0],
+        [1.0, (0.4 + eps) / eps, (0.6 + eps) / (0.05 + eps)],
     ]
     assert result.dtype == np.float32
     np.testing.assert_allclose(result, expected, rtol=1e-5)
@@ -63,15 +67,16 @@ def test_mlm_softmax_at_minimum() -> None:
     result = compute_confidence('mlm', inputs_for(small_volume()), sigma=sigma)
     e = math.exp
     expected = [
-        [1 / (e(-4) + 1 + e(-2) + e(-8)), 1 / (2 + e(-4) + e(-8))],
-        [1 / (1 + 2 * e(-4) + e(-8)), 1 / (e(-9.5) + e(-6.5) + 1 + e(-5.5))],
+        [0.25, 1 / (e(-4) + 1 + e(-2) + e(-8)), 1 / (2 + e(-4) + e(-8))],
+        [0.25, 1 / (1 + 2 * e(-4) + e(-8)), 1 / (e(-9.5) + e(-6.5) + 1 + e(-5.5))],
     ]
     np.testing.assert_allclose(result, expected, rtol=1e-5)
-    flat = compute_confidence('mlm', inputs_for(np.full((4, 1, 1), 0.5, np.float32)))
-    assert flat[0, 0] == pytest.approx(0.25)
+    flat = compute_confidence('mlm', inputs_for(np.full((4, 1, 2), 0.5, np.float32)))
+    assert flat[0, 1] == pytest.approx(0.25)
 
 
-# H = 1, W = 4, D = 3. Left curves per column and right curves per column.
+# H = 1, W = 4, D = 3. Left curves per column (column 0 as a matcher leaves it) and right
+# curves per column.
 LEFT = [[0.2, 1.0, 1.0], [0.5, 0.6, 0.05], [0.6, 0.3, 0.2], [0.9, 0.3, 0.4]]
 RIGHT = [[0.3, 0.15, 0.25], [0.5, 0.6, 0.7], [0.5, 0.8, 1.0], [0.45, 1.0, 1.0]]
 
@@ -86,7 +91,7 @@ def test_lrd_hand_values() -> None:
     result = compute_confidence('lrd', inputs, eps=eps)
     # right minima per column: 0.15, 0.5, 0.5, 0.45; right column = x - d1.
     expected = [
-        (1.0 - 0.2) / (abs(0.2 - 0.15) + eps),  # d1 = 0 → column 0
+        0.0,  # column 0: a single candidate, no decision (with the filler as c2 it was 16)
         0.0,  # d1 = 2 → column -1: outside the right image, lowest confidence
         (0.3 - 0.2) / (abs(0.2 - 0.15) + eps),  # d1 = 2 → column 0
         (0.4 - 0.3) / (abs(0.3 - 0.5) + eps),  # d1 = 1 → column 2

@@ -12,8 +12,9 @@ from cva_confidence_ros.confidence import CONFIDENCE_METHODS, ConfidenceInputs
 from cva_confidence_ros.confidence.handcrafted import left_right_difference_map, two_smallest
 from cva_confidence_ros.errors import ConfigError, InputError
 
-# D = 2, H = 1, W = 2: pixel 0 a clear perfect match, pixel 1 an ambiguous one.
-VOLUME = np.array([[[0.0, 0.5]], [[1.0, 0.6]]], np.float32)
+# D = 2, H = 1, W = 3: column 0 as a matcher leaves it (one candidate, then the filler), pixel
+# 1 a clear perfect match, pixel 2 an ambiguous one.
+VOLUME = np.array([[[0.3, 0.0, 0.5]], [[1.0, 1.0, 0.6]]], np.float32)
 
 
 def _inputs(**kwargs: np.ndarray) -> ConfidenceInputs:
@@ -35,8 +36,8 @@ def test_lrd_unit_interval_keeps_an_infinite_lrd_on_top() -> None:
         warnings.simplefilter('error')  # the overflow to +inf is meant, not warned about
         raw = lrd(_inputs(cost_volume_right=VOLUME))
         unit = lrd.to_unit_interval(raw)
-    assert np.isposinf(raw).all()
-    np.testing.assert_array_equal(unit, [[1.0, 1.0]])
+    assert raw[0, 0] == 0 and np.isposinf(raw[0, 1:]).all()
+    np.testing.assert_array_equal(unit, [[0.0, 1.0, 1.0]])
 
 
 def test_pkrn_tiny_eps_overflows_to_inf_without_a_warning() -> None:
@@ -44,8 +45,9 @@ def test_pkrn_tiny_eps_overflows_to_inf_without_a_warning() -> None:
     with warnings.catch_warnings():
         warnings.simplefilter('error')  # was RuntimeWarning: overflow encountered in divide
         raw = pkrn(_inputs())
-    assert np.isposinf(raw[0, 0]) and raw[0, 1] == pytest.approx(1.2)
-    np.testing.assert_allclose(pkrn.to_unit_interval(raw), [[1.0, 1 - 1 / 1.2]], rtol=1e-6)
+    assert raw[0, 0] == 1 and np.isposinf(raw[0, 1]) and raw[0, 2] == pytest.approx(1.2)
+    np.testing.assert_allclose(pkrn.to_unit_interval(raw), [[0.0, 1.0, 1 - 1 / 1.2]],
+                               rtol=1e-6)
 
 
 @pytest.mark.parametrize('where', [(0, 0, 0), (1, 0, 1)], ids=['d0', 'd1'])
