@@ -16,9 +16,10 @@ small even for deep volumes. Higher values mean more confident.
 Column 0 of a left-reference volume has a single candidate with a partner in the right image
 (``d = 0``; the others are the matcher's out-of-image filler): its disparity is no matching
 decision, and is wrong wherever the scene is not at infinity. ``score``, ``pkrn``, ``mlm`` and
-``lrd`` give it their lowest value (the filler, the worst cost, made it the most distinct
-minimum: PKRN's AUC on the Motorcycle pair at half size, D = 64, Census-BM, 0.0313 with it,
-0.0276 without). ``lrc`` needs no such rule: the right pixel it checks has every candidate.
+``lrd`` give it their lowest value: the filler, the worst cost, made it the most distinct
+minimum (on the develop split at D = 64, every ground-truth pixel, the rule takes Middlebury v3
+Census-SGM from AUC ×10² 3.98 to 3.70 for PKRN and 6.52 to 6.15 for MLM; KITTI has no ground
+truth in column 0). ``lrc`` needs no such rule: the right pixel it checks has every candidate.
 """
 
 from __future__ import annotations
