@@ -46,7 +46,7 @@ from cva_confidence_ros.pipeline import PipelineConfig
 from cva_confidence_ros.scan import ScanConfig
 from msg_tools.bagio import STORAGES
 from msg_tools.progress import GracefulInterrupt
-from msg_tools.replay import STOPPING, CompressionConfig, ReplayOptions, TopicNames
+from msg_tools.replay import STOPPING, CompressionConfig, OptionError, ReplayOptions, TopicNames
 
 #: ``--sync-tolerance`` unless given: the node's ``approximate_sync_tolerance_seconds`` default.
 SYNC_TOLERANCE_S = 0.01
@@ -62,6 +62,24 @@ _COMPRESSION_OPTIONS = {
     'compressed_depth_max': '--compressed-depth-max',
     'compressed_depth_quantization': '--compressed-depth-quantization',
     'compressed_depth_png_level': '--compressed-depth-png-level',
+}
+#: Fields of ReplayOptions and TopicNames a command line value sets → its option, to name
+#: in their errors (``replay.OptionError``) what the user typed.
+_FIELD_OPTIONS = {
+    'queue_size': '--queue-size',
+    'sync_tolerance_s': '--sync-tolerance',
+    'max_pixels': '--max-pixels',
+    'max_plots': '--max-plots',
+    'seed': '--seed',
+    'rate_scale': '--rate-scale',
+    'startup_timeout_s': '--startup-timeout',
+    'drain_timeout_s': '--drain-timeout',
+    'prefix': '--topic-prefix',
+    'left': '--left-topic',
+    'right': '--right-topic',
+    'left_info': '--left-info-topic',
+    'right_info': '--right-info-topic',
+    'ground_truth': '--gt-topic',
 }
 
 
@@ -228,7 +246,7 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
 
     Raises:
         ConfigError: An invalid value (unknown matcher or method, range errors, ...; a
-            compression value names its option).
+            compression, replay or topic value names its option).
     """
     if args.mask is not None:
         # A missing or unreadable mask is named before any bag is opened.
@@ -277,46 +295,53 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
             f"--scan-frame-id must not start with '/' (tf2 refuses such frames); got "
             f'{args.scan_frame_id!r}'
         )
-    topics = TopicNames(
-        prefix=args.topic_prefix,
-        left=args.left_topic,
-        right=args.right_topic,
-        left_info=args.left_info_topic,
-        right_info=args.right_info_topic,
-        # An empty --gt-topic is refused by name like the other topics, not taken as the
-        # default (which it would then require).
-        ground_truth='ground_truth/disparity' if args.gt_topic is None else args.gt_topic,
-    )
-    return ReplayOptions(
-        bag=args.bag,
-        out=args.out,
-        report=args.report,
-        pipeline=pipeline,
-        topics=topics,
-        gt_required=args.gt_topic is not None,
-        mode=args.mode,
-        storage=args.storage,
-        approximate_sync=args.approximate_sync,
-        sync_tolerance_s=tolerance if args.approximate_sync else 0.0,
-        queue_size=args.queue_size,
-        max_pixels=args.max_pixels,
-        seed=args.seed,
-        max_plots=args.max_plots,
-        publish_points=not args.no_points,
-        points_organized=not args.points_unorganized,
-        points_confidence=args.points_confidence,
-        publish_depth=not args.no_depth,
-        depth_encoding=args.depth_encoding,
-        publish_overlay=args.overlay,
-        compressed=compression if args.compressed else None,
-        scan=scan if args.scan else None,
-        scan_frame_id=args.scan_frame_id,
-        overwrite=args.overwrite,
-        rate_scale=args.rate_scale,
-        start_node=not args.no_start_node,
-        startup_timeout_s=args.startup_timeout,
-        drain_timeout_s=args.drain_timeout,
-    )
+    try:
+        topics = TopicNames(
+            prefix=args.topic_prefix,
+            left=args.left_topic,
+            right=args.right_topic,
+            left_info=args.left_info_topic,
+            right_info=args.right_info_topic,
+            # An empty --gt-topic is refused by name like the other topics, not taken as the
+            # default (which it would then require).
+            ground_truth='ground_truth/disparity' if args.gt_topic is None else args.gt_topic,
+        )
+        return ReplayOptions(
+            bag=args.bag,
+            out=args.out,
+            report=args.report,
+            pipeline=pipeline,
+            topics=topics,
+            gt_required=args.gt_topic is not None,
+            mode=args.mode,
+            storage=args.storage,
+            approximate_sync=args.approximate_sync,
+            sync_tolerance_s=tolerance if args.approximate_sync else 0.0,
+            queue_size=args.queue_size,
+            max_pixels=args.max_pixels,
+            seed=args.seed,
+            max_plots=args.max_plots,
+            publish_points=not args.no_points,
+            points_organized=not args.points_unorganized,
+            points_confidence=args.points_confidence,
+            publish_depth=not args.no_depth,
+            depth_encoding=args.depth_encoding,
+            publish_overlay=args.overlay,
+            compressed=compression if args.compressed else None,
+            scan=scan if args.scan else None,
+            scan_frame_id=args.scan_frame_id,
+            overwrite=args.overwrite,
+            rate_scale=args.rate_scale,
+            start_node=not args.no_start_node,
+            startup_timeout_s=args.startup_timeout,
+            drain_timeout_s=args.drain_timeout,
+        )
+    except OptionError as err:
+        # Named by their dataclass fields; the user typed the options.
+        given = [_FIELD_OPTIONS[name] for name in err.fields if name in _FIELD_OPTIONS]
+        if not given:
+            raise
+        raise ConfigError(f'{", ".join(given)}: {err}') from None
 
 
 def _is_ros_module(name: str) -> bool:

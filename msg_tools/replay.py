@@ -63,6 +63,7 @@ __all__ = [
     'GT_WAIT_FRAMES',
     'Logger',
     'NodeOutputs',
+    'OptionError',
     'ReplayOptions',
     'ReplayOutcome',
     'ReplaySession',
@@ -118,6 +119,19 @@ _MAX_SPAN_S = (2**63 - 1) / 1e9
 GT_WAIT_FRAMES = 100
 # Stamps remembered to say why a frame went unscored (plain integers: cheap to keep).
 _MAX_REMEMBERED = 1000
+#: Stamps of ground-truth messages that matched no processed frame listed in the report and
+#: the closing line (all are counted).
+MAX_LISTED_UNMATCHED_TRUTH = 5
+
+
+class OptionError(ConfigError):
+    """A :class:`ConfigError` of :class:`ReplayOptions` or :class:`TopicNames` about given
+    fields: the message names the fields, ``fields`` holds them for a caller that knows them
+    by other names (the command line's options, ``bag_replay``)."""
+
+    def __init__(self, message: str, *fields: str) -> None:
+        super().__init__(message)
+        self.fields = fields
 
 
 def log_stderr(message: str) -> None:
@@ -164,13 +178,19 @@ class TopicNames:
     def __post_init__(self) -> None:
         prefix = str(self.prefix).strip('/')
         if prefix:
-            check_topic_name(f'/{prefix}', 'topic prefix')
+            try:
+                check_topic_name(f'/{prefix}', 'topic prefix')
+            except ConfigError as err:
+                raise OptionError(str(err), 'prefix') from None
         for name, value in asdict(self).items():
             if name == 'prefix':
                 continue
             if not str(value).strip('/'):
-                raise ConfigError(f'topic {name} must be a non-empty name; got {value!r}')
-            check_topic_name(self.resolve(name), f'topic {name}')
+                raise OptionError(f'topic {name} must be a non-empty name; got {value!r}', name)
+            try:
+                check_topic_name(self.resolve(name), f'topic {name}')
+            except ConfigError as err:
+                raise OptionError(str(err), name) from None
         # The replay tells its inputs apart by topic: two on one topic would leave one of
         # them without messages (every frame unpaired, or the images read as ground truth).
         named: dict[str, str] = {}
@@ -337,7 +357,7 @@ class ReplayOptions:
         if self.storage not in STORAGES:
             raise ConfigError(f'storage must be one of {STORAGES}; got {self.storage!r}')
         if self.queue_size < 1:
-            raise ConfigError(f'queue_size must be >= 1; got {self.queue_size}')
+            raise OptionError(f'queue_size must be >= 1; got {self.queue_size}', 'queue_size')
         from cva_confidence_ros.ros.convert import DEPTH_ENCODINGS
 
         if self.depth_encoding not in DEPTH_ENCODINGS:
@@ -345,24 +365,29 @@ class ReplayOptions:
                 f'depth encoding must be one of {DEPTH_ENCODINGS}; got {self.depth_encoding!r}'
             )
         if not 0 <= self.sync_tolerance_s <= _MAX_SPAN_S:
-            raise ConfigError(
+            raise OptionError(
                 f'sync tolerance must be a finite number of seconds >= 0 (at most '
-                f'{_MAX_SPAN_S:.3g}, the span of int64 ns stamps); got {self.sync_tolerance_s}'
+                f'{_MAX_SPAN_S:.3g}, the span of int64 ns stamps); got {self.sync_tolerance_s}',
+                'sync_tolerance_s',
             )
         if self.max_pixels is not None and self.max_pixels < 1:
-            raise ConfigError(f'max_pixels must be >= 1; got {self.max_pixels}')
+            raise OptionError(f'max_pixels must be >= 1; got {self.max_pixels}', 'max_pixels')
         if self.max_plots < 0:
-            raise ConfigError(f'max_plots must be >= 0; got {self.max_plots}')
+            raise OptionError(f'max_plots must be >= 0; got {self.max_plots}', 'max_plots')
         if self.seed < 0:
             # numpy's generators take no negative seed; the run would fail at its first frame.
-            raise ConfigError(f'seed must be an integer >= 0; got {self.seed}')
+            raise OptionError(f'seed must be an integer >= 0; got {self.seed}', 'seed')
         if not (math.isfinite(self.rate_scale) and self.rate_scale > 0):
-            raise ConfigError(f'rate_scale must be a finite number > 0; got {self.rate_scale}')
-        if not all(math.isfinite(t) and t > 0
-                   for t in (self.startup_timeout_s, self.drain_timeout_s)):
-            raise ConfigError(
+            raise OptionError(
+                f'rate_scale must be a finite number > 0; got {self.rate_scale}', 'rate_scale'
+            )
+        timeouts = {'startup_timeout_s': self.startup_timeout_s,
+                    'drain_timeout_s': self.drain_timeout_s}
+        bad = [name for name, t in timeouts.items() if not (math.isfinite(t) and t > 0)]
+        if bad:
+            raise OptionError(
                 f'timeouts must be a finite number of seconds > 0; got startup '
-                f'{self.startup_timeout_s}, drain {self.drain_timeout_s}'
+                f'{self.startup_timeout_s}, drain {self.drain_timeout_s}', *bad,
             )
         self._check_paths()
 
@@ -862,7 +887,7 @@ class ReplaySession:
         self.report = ReplayReport(config=options.config_record())
         self.report.counts.update(
             total=plan.pairs_expected, pairs=0, processed=0, skipped=0, unpaired=0, dropped=0,
-            unreadable=0,
+            unreadable=0, gt_unmatched=0,
         )
         self.interrupts = interrupts or GracefulInterrupt()
         self.out: OutputBag | None = None
@@ -878,9 +903,13 @@ class ReplaySession:
         self._last_truth: int | None = None
         # Stamps (→ epoch) of frames that stopped waiting after GT_WAIT_FRAMES, and of ground
         # truth that waited longer than truth_window for its frame: to tell why a frame went
-        # unscored.
+        # unscored. A dropped ground truth's epoch is kept while it counts as matching no
+        # frame (None once not: its frame came after all, or one of its stamp was done).
         self._given_up: OrderedDict[int, int | None] = OrderedDict()
-        self._truth_dropped: OrderedDict[int, None] = OrderedDict()
+        self._truth_dropped: OrderedDict[int, int | None] = OrderedDict()
+        # (Stamp, epoch) of the processed frames, to tell a second ground-truth message of a
+        # frame's stamp from one that matched no frame.
+        self._processed: OrderedDict[tuple[int, int], None] = OrderedDict()
         self._late_truth_logged = False
         self._skip_logs = 0
         # Ground-truth messages that could not be read (their stamps are unknown).
@@ -1052,18 +1081,47 @@ class ReplaySession:
                     f'{GT_WAIT_FRAMES} later frames have come, so frames like it stay unscored'
                 )
             return
-        self._truth.pop(stamp_ns, None)  # one of an earlier pass: the newer goes last
+        earlier = self._truth.pop(stamp_ns, None)  # the newer goes last
+        if earlier is not None and earlier[0] != epoch:
+            # One of an earlier pass that no frame took (a second one of this pass stands for
+            # itself).
+            self._truth_unused(stamp_ns, earlier[0])
         self._truth[stamp_ns] = (epoch, msg)
         while self.truth_window is not None and len(self._truth) > self.truth_window:
-            dropped, _ = self._truth.popitem(last=False)
-            _remember(self._truth_dropped, dropped)
+            dropped, (dropped_epoch, _) = self._truth.popitem(last=False)
+            # Counted now (its frame is rarely still to come); taken back if it comes.
+            counted = self._truth_unused(dropped, dropped_epoch)
+            _remember(self._truth_dropped, dropped, dropped_epoch if counted else None)
 
     def drop_ground_truth_before(self, stamp_ns: int) -> None:
         """Forget ground truth older than ``stamp_ns`` (frames that will never come) of the
         frames' epoch; that of another epoch (before or after a jump) is kept."""
         for stamp in [s for s, (e, _) in self._truth.items()
                       if s < stamp_ns and e == self._frame_epoch]:
-            del self._truth[stamp]
+            self._truth_unused(stamp, self._truth.pop(stamp)[0])
+
+    def _truth_unused(self, stamp_ns: int, epoch: int) -> bool:
+        """Count a ground-truth message that goes without scoring a frame as matching no
+        frame (report ``gt_unmatched``, its stamp among the first few listed), unless a frame
+        of its stamp and epoch was processed (a second message of that stamp). Returns whether
+        it was counted."""
+        if (stamp_ns, epoch) in self._processed:
+            return False
+        self.counts['gt_unmatched'] = self.counts.get('gt_unmatched', 0) + 1
+        listed = self.report.gt_unmatched_stamps
+        if len(listed) < MAX_LISTED_UNMATCHED_TRUTH:
+            listed.append(int(stamp_ns))
+        return True
+
+    def _truth_found(self, stamp_ns: int, epoch: int) -> None:
+        """A frame of ``stamp_ns`` came after its ground truth was dropped for waiting too
+        long: that ground truth did match a frame, so it no longer counts as matching none."""
+        if self._truth_dropped.get(stamp_ns, -1) != epoch:
+            return
+        self._truth_dropped[stamp_ns] = None
+        self.counts['gt_unmatched'] -= 1
+        with contextlib.suppress(ValueError):
+            self.report.gt_unmatched_stamps.remove(stamp_ns)
 
     def add_result(self, result: FrameResult) -> None:
         """Offer a processed frame; scored now if its ground truth is known, can no longer
@@ -1075,10 +1133,13 @@ class ReplaySession:
             return
         stamp = result.stamp_ns
         epoch = self.frame_epoch(stamp)
+        _remember(self._processed, (stamp, epoch))
+        self._truth_found(stamp, epoch)
         truth = self._truth.pop(stamp, None)
         if truth is not None and truth[0] < epoch:
             # Ground truth of this stamp from before a jump back whose frame never took it (a
             # skipped frame, a second message of one stamp): not this frame's.
+            self._truth_unused(stamp, truth[0])
             truth = None
         if truth is None and not any(s > stamp and e == epoch
                                      for s, (e, _) in self._truth.items()):
@@ -1319,6 +1380,15 @@ class ReplaySession:
                     # is in the report, and the report is written with the error all the same.
                     failure = failure or err
                     self.report.error = '; '.join(filter(None, (self.report.error, str(err))))
+            # Ground truth still waiting matched no frame; after an early stop only that which
+            # the frames have passed (the rest may be of frames further on in the bag).
+            for stamp, (epoch, _) in self._truth.items():
+                if not stopped or epoch < self._frame_epoch or (
+                    epoch == self._frame_epoch and self._last_frame is not None
+                    and stamp < self._last_frame
+                ):
+                    self._truth_unused(stamp, epoch)
+            self._truth.clear()
         finally:
             if self.out is not None:
                 try:
@@ -1438,7 +1508,29 @@ class ReplaySession:
                 f'; {scored} of {len(self.report.frames)} frames scored (ground truth '
                 f'unusable: {listed}{more})'
             )
+        text += self._unmatched_truth_text()
         return ReplayOutcome(self.report, self.paths, 0, f'{text}; {where}')
+
+    def _unmatched_truth_text(self) -> str:
+        """``; n ground-truth messages matched no processed frame (stamps ...)``, or ''."""
+        count = self.counts.get('gt_unmatched', 0)
+        if not count:
+            return ''
+        stamps = self.report.gt_unmatched_stamps[:2]
+        text = (f'; {count} ground-truth message{"s" if count > 1 else ""} on '
+                f'{self.plan.ground_truth} matched no processed frame')
+        if stamps:
+            more = ', …' if count > len(stamps) else ''
+            text += f' (stamp{"s" if count > 1 else ""} {", ".join(map(str, stamps))}{more} ns'
+            if self._processed:
+                # A constant offset (ground truth stamped at another time) shows here.
+                nearest = min((s for s, _ in self._processed), key=lambda s: abs(s - stamps[0]))
+                if nearest != stamps[0]:
+                    text += (f'; {stamps[0]} is {_offset(stamps[0] - nearest)} than frame '
+                             f'stamp {nearest}')
+            text += ')'
+        return text + (': no stereo pair of that stamp was processed (ground truth must carry '
+                       "its left image's stamp)")
 
     def _unpaired_text(self) -> str:
         """`` (topic: n, ...)`` of the unpaired messages per topic, or ''."""
@@ -1448,7 +1540,7 @@ class ReplaySession:
         return ' (' + ', '.join(f'{t}: {n}' for t, n in sorted(by_topic.items())) + ')'
 
 
-def _remember(stamps: OrderedDict[int, Any], stamp_ns: int, value: Any = None) -> None:
+def _remember(stamps: OrderedDict[Any, Any], stamp_ns: Any, value: Any = None) -> None:
     """Add a stamp (→ ``value``) to a bounded record of stamps (the oldest goes)."""
     stamps[stamp_ns] = value
     while len(stamps) > _MAX_REMEMBERED:

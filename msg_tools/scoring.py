@@ -391,13 +391,18 @@ class ReplayReport:
             by stamp), ``processed``, ``skipped`` (pairs not processed: bad frames; offline
             ``pairs`` = ``processed`` + ``skipped``), ``unpaired`` (input messages that
             matched no pair), ``unreadable`` (messages that cannot be deserialised),
-            ``dropped`` (live mode: pairs the node did not answer).
+            ``dropped`` (live mode: pairs the node did not answer), ``gt_unmatched``
+            (ground-truth messages that matched no processed frame: no stereo pair of their
+            stamp was processed, i.e. their images are missing, unpaired, skipped or, live,
+            not answered, or the ground truth is not stamped like its left image).
         interrupted: The run was stopped (Ctrl-C) before the end of the bag.
         error: The fault that ended the run early, if any.
         unpaired: The first :data:`MAX_LISTED_UNPAIRED` input messages that matched no pair:
             records with ``topic``, ``stamp_ns`` and ``reason`` (``no partner`` or
             ``duplicate stamp``).
         unpaired_by_topic: Input topic → number of its messages that matched no pair.
+        gt_unmatched_stamps: Stamps (ns) of the first few ground-truth messages that matched
+            no processed frame (``counts['gt_unmatched']`` counts them all).
     """
 
     frames: list[FrameScore] = field(default_factory=list)
@@ -407,6 +412,7 @@ class ReplayReport:
     error: str = ''
     unpaired: list[dict[str, Any]] = field(default_factory=list)
     unpaired_by_topic: dict[str, int] = field(default_factory=dict)
+    gt_unmatched_stamps: list[int] = field(default_factory=list)
 
     def add_unpaired(self, topic: str, stamp_ns: int, why: str) -> None:
         """Record one input message that matched no pair."""
@@ -457,6 +463,7 @@ class ReplayReport:
         out['not_scored'] = self.not_scored()
         out.update({key: int(value) for key, value in self.counts.items()})
         out['unpaired_by_topic'] = dict(sorted(self.unpaired_by_topic.items()))
+        out['gt_unmatched_stamps'] = [int(stamp) for stamp in self.gt_unmatched_stamps]
         out['interrupted'] = self.interrupted
         out['error'] = self.error or None
         return {key: _clean(value) for key, value in out.items()}
@@ -810,6 +817,19 @@ def format_summary(document: dict[str, Any], max_rows: int = 200) -> str:
         lines += ['**Interrupted**: the report holds the frames done before the stop.', '']
     if summary.get('error'):
         lines += [f"**Stopped by an error**: {summary['error']}", '']
+    if summary.get('gt_unmatched'):
+        count = summary['gt_unmatched']
+        stamps = summary.get('gt_unmatched_stamps') or []
+        listed = ', '.join(str(stamp) for stamp in stamps)
+        more = ', …' if count > len(stamps) else ''
+        lines += [
+            f'Ground-truth messages that matched no processed frame: {count}'
+            + (f' (stamps {listed}{more} ns)' if stamps else '')
+            + '. No stereo pair of their stamp was processed: their images are missing, '
+            'unpaired or skipped (live: not answered), or the ground truth is not stamped '
+            'like its left image.',
+            '',
+        ]
     not_scored = summary.get('not_scored') or {}
     if not_scored:
         lines += ['Frames without metrics:', '']
