@@ -1417,10 +1417,13 @@ class ReplaySession:
             bag = f'output bag {self.options.out}'
         where = f'{bag}, report {self.paths.get("json", self.options.report)}'
         if self.report.interrupted:
+            # Live mode: frames the node may still have been working on are no dropped ones.
+            flying = counts.get('in_flight', 0)
+            waiting = f' ({flying} more were still on their way)' if flying else ''
             return ReplayOutcome(
                 self.report, self.paths, 130,
-                f'interrupted after {done} frames; {where} hold them' if done
-                else f'interrupted before the first frame; {where}',
+                f'interrupted after {done} frames{waiting}; {where} hold them' if done
+                else f'interrupted before the first frame{waiting}; {where}',
             )
         if self.report.error:
             return ReplayOutcome(

@@ -814,7 +814,11 @@ def format_summary(document: dict[str, Any], max_rows: int = 200) -> str:
         lines += [f"Unreadable messages (cannot be deserialised, skipped): "
                   f"{summary['unreadable']}", '']
     if summary.get('interrupted'):
-        lines += ['**Interrupted**: the report holds the frames done before the stop.', '']
+        text = '**Interrupted**: the report holds the frames done before the stop.'
+        if summary.get('in_flight'):
+            text += (f" {summary['in_flight']} frames published after the last one the node "
+                     'answered were still on their way (not counted as dropped).')
+        lines += [text, '']
     if summary.get('error'):
         lines += [f"**Stopped by an error**: {summary['error']}", '']
     if summary.get('gt_unmatched'):

@@ -12,6 +12,7 @@ import pytest
 from test_review31_live import _play
 
 from msg_tools import live
+from msg_tools.scoring import format_summary
 
 
 def test_frames_in_flight_at_a_ctrl_c_are_not_counted_dropped(
@@ -45,3 +46,22 @@ def test_a_run_to_its_end_counts_no_frame_in_flight(tmp_path: Path) -> None:
     assert outcome.exit_code == 0, outcome.message
     counts = outcome.report.counts
     assert counts['dropped'] == 1 and 'in_flight' not in counts
+
+
+def test_the_report_says_how_many_were_in_flight(tmp_path: Path,
+                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    bag = write_stereo_bag(tmp_path / 'in', [{}] * 3, ground_truth=False)
+    expect = live._Recorder.expect
+
+    def ctrl_c_after_pair_1(recorder: live._Recorder, matched: Any, frame: int,
+                            timestamp_ns: int) -> None:
+        expect(recorder, matched, frame, timestamp_ns)
+        if frame == 1:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(live._Recorder, 'expect', ctrl_c_after_pair_1)
+    outcome, _ = _play(tmp_path, bag, silent={1})
+    assert outcome.exit_code == 130
+    assert 'interrupted after 1 frames (1 more were still on their way)' in outcome.message
+    summary = format_summary(outcome.report.as_dict())
+    assert '1 frames published after the last one the node answered were still' in summary
