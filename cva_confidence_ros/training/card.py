@@ -207,7 +207,10 @@ def write_model_card(
         f'- epochs: {_fmt(facts.get("epochs"))} at lr {_fmt(facts.get("lr"), 12)} + '
         f'{_fmt(facts.get("epochs_low_lr"))} at lr {_fmt(facts.get("lr_low"), 12)}',
         f'- batch size: {_fmt(facts.get("batch_size"))}, samples per epoch: '
-        f'{_fmt(facts.get("samples_per_epoch"))}, samples seen: {_fmt(facts.get("samples_seen"))}'
+        # Dense crops are whole: an epoch ends with the crop that reaches the count.
+        + ('at least ' if facts.get('mode') == 'dense' else '')
+        + f'{_fmt(facts.get("samples_per_epoch"))}, samples seen: '
+        f'{_fmt(facts.get("samples_seen"))}'
         + (', arithmetic: bf16 autocast' if facts.get('precision') == 'bf16' else ''),
         *(
             [f'- {note}' for note in facts['network_notes']]
