@@ -198,12 +198,12 @@ class CloudFilterNode(Node):
             self.add_on_set_parameters_callback(self._on_set_parameters)
             # ROS 2's per-topic QoS overrides refine the presets (``qos_overrides./points2.
             # subscription.depth``, …); a bad value stops the start with the topic named.
-            with qos_override_errors('points2_filtered'):
+            with qos_override_errors(self.resolve_topic_name('points2_filtered')):
                 self._publisher = self.create_publisher(
                     PointCloud2, 'points2_filtered', qos_profile(self._config.output_qos),
                     qos_overriding_options=QOS_OVERRIDES,
                 )
-            with qos_override_errors('points2'):
+            with qos_override_errors(self.resolve_topic_name('points2')):
                 self.create_subscription(
                     PointCloud2, 'points2', self._on_cloud, qos_profile(self._config.input_qos),
                     qos_overriding_options=QOS_OVERRIDES,

@@ -21,6 +21,7 @@ import textwrap
 import threading
 import time
 from typing import NoReturn
+import warnings
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
@@ -149,9 +150,16 @@ QOS_OVERRIDES = QoSOverridingOptions.with_default_policies(callback=_check_overr
 def qos_override_errors(topic: str) -> Iterator[None]:
     """Turn rclpy's errors for a bad ``qos_overrides.<topic>.*`` value into :class:`ConfigError`
     (rclpy raises a bare ``RuntimeError`` for an unknown policy name, and its
-    ``InvalidParameterTypeException`` for a value of the wrong type: ``depth:=five``)."""
+    ``InvalidParameterTypeException`` for a value of the wrong type: ``depth:=five``).
+
+    ``topic`` is named as given: pass the resolved name (``node.resolve_topic_name``), the one
+    the ``qos_overrides.<topic>`` parameters are keyed by. rclpy's warning about a zero depth
+    is left out: the refusal that follows says it in one line."""
     try:
-        yield
+        with warnings.catch_warnings():
+            warnings.filterwarnings('ignore', message='A zero depth with KEEP_LAST',
+                                    category=UserWarning)
+            yield
     except InvalidQosOverridesError as error:
         raise ConfigError(f'QoS override of {topic}: {error}') from None
     except InvalidParameterTypeException as error:

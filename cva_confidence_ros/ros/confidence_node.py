@@ -295,7 +295,7 @@ class ConfidenceCore(Node):
             for msg_type, topic in _OUTPUTS:
                 base, _, transport = topic.rpartition('/')
                 name = self._transport_topic(base, transport) if base in outputs else topic
-                with qos_override_errors(topic):
+                with qos_override_errors(self.resolve_topic_name(name)):
                     made.append(
                         self._create_output_publisher(msg_type, name, qos_profile(output_qos))
                     )
@@ -374,7 +374,7 @@ class ConfidenceCore(Node):
                     if msg_type is CompressedImage
                     else topic
                 )
-                with qos_override_errors(topic):
+                with qos_override_errors(self.resolve_topic_name(name)):
                     self._subscriptions_in.append(self.create_subscription(
                         msg_type, name, partial(self._on_message, key), qos_profile(preset),
                         qos_overriding_options=QOS_OVERRIDES,

@@ -243,7 +243,7 @@ def test_a_bad_qos_override_stops_the_start_with_one_line() -> None:
     done = _call('cva-cloud-filter', '--ros-args',
                  '-p', 'qos_overrides./points2.subscription.reliability:=sometimes')
     assert done.returncode == EXIT_BAD_START, done.stdout + done.stderr
-    assert 'cannot start: QoS override of points2' in done.stderr
+    assert 'cannot start: QoS override of /points2' in done.stderr
     assert 'sometimes' in done.stderr and 'Traceback' not in done.stderr
 
 

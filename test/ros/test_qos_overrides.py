@@ -93,9 +93,9 @@ def test_each_topic_takes_its_own_overrides_and_the_frames_still_flow() -> None:
     ('override', 'message'),
     [
         (_override('/left/image_rect', 'subscription', 'reliability', 'sometimes'),
-         'QoS override of left/image_rect: .*reliability.*sometimes.*expected reliability'),
+         'QoS override of /left/image_rect: .*reliability.*sometimes.*expected reliability'),
         (_override('/disparity', 'publisher', 'depth', 0),
-         'QoS override of disparity: .*depth must be >= 1 with history keep_last; got 0'),
+         'QoS override of /disparity: .*depth must be >= 1 with history keep_last; got 0'),
     ],
 )
 def test_a_bad_override_stops_the_start_with_the_topic_named(override, message) -> None:
