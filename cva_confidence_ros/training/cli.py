@@ -215,7 +215,8 @@ def build_parser() -> argparse.ArgumentParser:
         '--overwrite',
         action='store_true',
         help='start afresh in an OUT that holds the checkpoint of an earlier run (its '
-        'checkpoint and history.json are removed first)',
+        'checkpoint and history.json are removed first), and let --weights-out replace '
+        'existing weights and their card',
     )
     output.add_argument('--no-progress', action='store_true', help='no progress bar')
     return parser

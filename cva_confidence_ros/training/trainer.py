@@ -979,8 +979,9 @@ def check_run_setup(config: TrainConfig) -> None:
 
     Raises:
         ConfigError: The matcher is not registered, ``resume`` and ``overwrite`` are both
-            set, ``out`` / ``weights_out`` cannot be written, or ``weights_out`` (or its
-            card) is the checkpoint or history of ``out``.
+            set, ``out`` / ``weights_out`` cannot be written, ``weights_out`` (or its card)
+            is the checkpoint or history of ``out``, or exists without ``overwrite`` (or
+            ``resume``).
     """
     from cva_confidence_ros.matching import MATCHERS
 
@@ -1009,6 +1010,16 @@ def check_run_setup(config: TrainConfig) -> None:
                     f'{run_files[target.resolve()]} of the run in --out {out}; write the '
                     'weights elsewhere or under another name'
                 )
+    if config.weights_out and not (config.resume or config.overwrite):
+        # A run was replacing the shipped models/*.pt and their cards (or an earlier run's)
+        # without a word; the node, the tools and torch.hub then loaded it.
+        existing = [t for t in (Path(config.weights_out), *card_paths(config.weights_out))
+                    if t.exists()]
+        if existing:
+            raise ConfigError(
+                f'--weights-out {config.weights_out}: {existing[0]} exists (shipped or earlier '
+                'weights, or their card): --overwrite to replace them, or another path'
+            )
     if checkpoint.exists() and not checkpoint.is_file():
         raise ConfigError(f'--out {out}: {checkpoint} is not a file; cannot keep checkpoints')
     if checkpoint.is_file() and not (config.resume or config.overwrite):
