@@ -42,7 +42,11 @@ SHIPPED = Path(__file__).resolve().parents[2] / 'models' / 'cvanet_census_bm_d64
 #: this scene, where PKRN alone is 3.4×); the share of the gap does not. Measured with those
 #: weights (seed 7, 24×160): stride 2/4/8 0.08/0.26/0.41, pkrn 0.5 → 0.40, pkrn 0.25 with
 #: stride 2 → 0.79, with stride 8 → 0.84.
-AUC_BUDGET = 0.35
+# Shares of the AUC gap between the exact network and its PKRN fallback that a sparse map may
+# lose on the fixed scene below. PKRN's column-0 rule (handcrafted) made the fallback better
+# there (AUC 0.057 → 0.043 on this 160 px wide scene at D = 64), which narrowed the gap: the
+# stride-4 map, unchanged at 0.0271 against the exact 0.0167, went from 0.26 to 0.40 of it.
+AUC_BUDGET = 0.45
 AUC_BUDGET_COARSE = 0.90
 APPROXIMATE = (
     SparseConfig(stride=2),
