@@ -364,8 +364,8 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument('--warmup', type=int, default=3, help='untimed frames per row')
     parser.add_argument('--networks', nargs='+', default=list(GPU_NETWORKS),
                         choices=list(GPU_NETWORKS))
-    parser.add_argument('--precisions', nargs='+', default=list(PRECISIONS),
-                        choices=list(PRECISIONS))
+    parser.add_argument('--precisions', nargs='+', default=None, choices=list(PRECISIONS),
+                        help='default: all on CUDA; fp32 and bf16 elsewhere (fp16 is CUDA only)')
     parser.add_argument('--no-channels-last', action='store_true',
                         help='leave out the channels-last (+cl) rows of the exact network')
     parser.add_argument('--data-root', type=Path, default=None,
@@ -374,16 +374,25 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _precisions(args: argparse.Namespace) -> list[str]:
+    """``--precisions``, or by default every one on CUDA and fp32, bf16 elsewhere (the CPU
+    smoke run of the same rows: fp16 would only be refused there)."""
+    if args.precisions is not None:
+        return list(args.precisions)
+    cuda = str(args.device).startswith('cuda')
+    return [p for p in PRECISIONS if cuda or p != 'fp16']
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``cva-benchmark --suite gpu``; returns the exit code."""
     def measure(args: argparse.Namespace, settings: BenchSettings) -> list[dict[str, Any]]:
-        return run_gpu(settings, args.networks, args.precisions, args.device, args.data_root,
+        return run_gpu(settings, args.networks, _precisions(args), args.device, args.data_root,
                        not args.no_channels_last, args.warmup)
 
     parser = _parser()
     args = parser.parse_args(argv)
     try:  # before run_suite makes the --json folder: no CUDA here leaves nothing behind
-        _check_rows(args.networks, args.precisions, args.device, args.warmup)
+        _check_rows(args.networks, _precisions(args), args.device, args.warmup)
     except ConfigError as error:
         parser.exit(2, f'cva-benchmark: error: {error}\n')
     return run_suite(parser, argv, measure, format_gpu_table, _EXTRA_KEYS)

@@ -159,3 +159,17 @@ def test_data_errors_of_a_suite_are_one_line(capsys: pytest.CaptureFixture[str])
     last = err.splitlines()[-1]
     assert last.startswith('cva-benchmark: error:') and 'is not a folder' in last
     assert 'Traceback' not in err
+
+
+def test_wide_numbers_stay_apart_in_the_table() -> None:
+    # A network 1924× slower than SGBM at 160×120 printed '2.1111924.38': its SGBM* and
+    # × SGBM cells ran together.
+    common = {'device': 'cpu', 'width': 160, 'height': 120, 'max_disparity': 32}
+    records = [
+        {**common, 'config': 'cvanet_d32', 'ms_per_frame': 4062.5, 'peak_mem_mb': 1.0,
+         'paired_sgbm_ms': 2.111},
+        {**common, 'config': 'opencv_sgbm', 'ms_per_frame': 2.1, 'peak_mem_mb': 2.0},
+    ]
+    table = benchmark.format_table(records, threads=2)
+    line = next(line for line in table.splitlines() if line.startswith('cvanet_d32'))
+    assert line.split()[-3:-1] == ['2.1', '1924.44']

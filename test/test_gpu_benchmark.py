@@ -50,3 +50,14 @@ def test_cli_writes_json(tmp_path):
     (row,) = json.loads(out.read_text())
     assert row['config'] == 'fast:fp32' and set(RECORD_KEYS) <= set(row)
     assert row['precision'] == 'fp32' and row['arch'] == 'cvanet_fast'
+
+
+def test_a_cpu_smoke_run_leaves_fp16_out_by_default(tmp_path):
+    # The README's smoke test (--device cpu, no --precisions) stopped at once: 'fp16 needs a
+    # CUDA device'. An explicit fp16 on a CPU is still refused (test_bad_rows_are_refused).
+    out = tmp_path / 'gpu.json'
+    argv = ['--suite', 'gpu', '--device', 'cpu', '--width', '40', '--height', '8',
+            '--max-disparity', '16', '--repeat', '1', '--warmup', '0', '--networks', 'fast',
+            '--no-channels-last', '--json', str(out)]
+    assert main(argv) == 0
+    assert [row['config'] for row in json.loads(out.read_text())] == ['fast:fp32', 'fast:bf16']

@@ -478,7 +478,8 @@ def run(args: argparse.Namespace) -> int:
             check = check_onnx(staging, net, size)
             height, width = size
             record['check'] = {'size': [height, width], **check}
-            print(f'{PROG}: ONNX Runtime vs PyTorch at {width}x{height}: max |difference| '
+            print(f'{PROG}: ONNX Runtime vs PyTorch at {height}x{width} (HxW, as --check-size): '
+                  'max |difference| '
                   f'{check["max_abs_diff"]:.2e}; {check["onnxruntime_ms"]:.1f} ms against '
                   f'{check["torch_ms"]:.1f} ms (median of 3, {torch.get_num_threads()} torch '
                   'threads)', file=sys.stderr)

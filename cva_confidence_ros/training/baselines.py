@@ -797,6 +797,9 @@ def _summary(
     last = history[-1] if history else {}
     title, description = NETWORK_FACTS[config.arch]
     notes = list(_CHOICES) + (list(_LGC_CHOICES) if config.arch == 'lgcnet' else [])
+    if config.arch == 'ccnn':
+        # CCNN's tower has one input plane: the image is passed and ignored.
+        notes[0] = 'inputs: WTA disparity ÷ D (NaN → 0) only (the image is passed and ignored)'
     notes.append(
         'samples: ' + ('9×9 patches, one labelled output each' if side == 1 else
                        f'crops of {side}² outputs, masked loss on the labelled ones')

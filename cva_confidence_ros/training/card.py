@@ -185,8 +185,9 @@ def write_model_card(
         '## Use',
         '',
         f'- matcher: {_code(facts.get("matcher"))}',
-        f'- cost-volume depth D: {_fmt(facts.get("max_disparity"))} (images are halved until the '
-        'disparity range fits D)',
+        f'- cost-volume depth D: {_fmt(facts.get("max_disparity"))} (training and evaluation '
+        'images were halved until their ground truth fit D; on the node choose `max_disparity` '
+        'and `downsample` so that your disparities stay below D)',
         '',
         '## Training data',
         '',

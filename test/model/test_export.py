@@ -51,7 +51,8 @@ def test_the_command_writes_the_graph_and_its_card(tmp_path: Path, capsys) -> No
     out = tmp_path / 'exported' / 'fast.onnx'
     assert main([str(weights), '--out', str(out), '--check-size', '24x40']) == 0
     err = capsys.readouterr().err
-    assert 'ONNX Runtime vs PyTorch at 40x24: max |difference|' in err
+    # 24x40 as given (HxW): it was printed as 40x24.
+    assert 'ONNX Runtime vs PyTorch at 24x40 (HxW, as --check-size): max |difference|' in err
     card = json.loads(out.with_suffix('.json').read_text())
     facts = (card['arch'], card['matcher'], card['max_disparity'])
     assert facts == ('cvanet_fast', 'census_sgm', D)

@@ -53,7 +53,9 @@ def test_each_arch_trains_through_cva_train(tmp_path, arch, title):
     markdown = weights.with_suffix('.md').read_text()
     assert markdown.startswith(title)
     assert 'CVA-Net' not in markdown.split('\n')[2]
-    assert 'grey' in markdown and 'wall time' in markdown
+    # CCNN reads the disparity alone; LFN and LGC-Net also the grey image.
+    inputs = 'disparity ÷ D (NaN → 0) only' if arch == 'ccnn' else 'grey'
+    assert inputs in markdown and 'wall time' in markdown
     if arch == 'lgcnet':
         # Two stages, each with the 1 + 1 epoch schedule; stage 1 reports both parts' AUCs.
         assert [h['stage'] for h in history] == ['parts', 'parts', 'fusion', 'fusion']
