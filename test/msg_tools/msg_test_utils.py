@@ -298,3 +298,21 @@ def live_options(tmp_path: Path, bag: Path, *extra: str) -> Any:
         '--confidence-method', 'pkrn', '--device', 'cpu', '--max-disparity', str(MAX_DISPARITY),
         '--drain-timeout', '1', *extra,
     ]))
+
+
+def truth_session(tmp_path: Path, **session: Any) -> Any:
+    """A replay session with ground truth (PKRN, D = MAX_DISPARITY), used without its output
+    bag or report writer; ``session``: further ``ReplaySession`` arguments."""
+    from cva_confidence_ros.pipeline import PipelineConfig
+    from msg_tools.replay import ReplayOptions, ReplaySession, TopicPlan
+
+    options = ReplayOptions(
+        bag=tmp_path / 'in', out=tmp_path / 'out', report=tmp_path / 'report',
+        pipeline=PipelineConfig(max_disparity=MAX_DISPARITY, confidence_method='pkrn'),
+    )
+    plan = TopicPlan(
+        inputs=options.topics.inputs(), input_types={},
+        ground_truth=options.topics.resolve('ground_truth'),
+        ground_truth_type=DISPARITY_IMAGE, pairs_expected=0,
+    )
+    return ReplaySession(options, plan, lambda _: None, **session)

@@ -12,15 +12,14 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from msg_test_utils import MAX_DISPARITY, START_NS, write_stereo_bag
+from msg_test_utils import MAX_DISPARITY, START_NS, truth_session, write_stereo_bag
 import numpy as np
 import pytest
 
-from cva_confidence_ros.pipeline import PipelineConfig
 from cva_confidence_ros.pointcloud import StereoGeometry
 from msg_tools.bag_replay import main
-from msg_tools.convert import DISPARITY_IMAGE, disparity_to_msg, jazzy_typestore
-from msg_tools.replay import FrameResult, ReplayOptions, ReplaySession, TopicPlan
+from msg_tools.convert import disparity_to_msg, jazzy_typestore
+from msg_tools.replay import FrameResult, ReplaySession
 
 FRAME_NS = 100_000_000
 SHAPE = (6, 8)
@@ -28,17 +27,7 @@ GEOMETRY = StereoGeometry(fx=50.0, fy=50.0, cx=20.0, cy=15.0, cx_right=20.0, bas
 
 
 def _session(tmp_path: Path) -> ReplaySession:
-    """A session with ground truth, used without its output bag or report writer."""
-    options = ReplayOptions(
-        bag=tmp_path / 'in', out=tmp_path / 'out', report=tmp_path / 'report',
-        pipeline=PipelineConfig(max_disparity=MAX_DISPARITY, confidence_method='pkrn'),
-    )
-    plan = TopicPlan(
-        inputs=options.topics.inputs(), input_types={},
-        ground_truth=options.topics.resolve('ground_truth'),
-        ground_truth_type=DISPARITY_IMAGE, pairs_expected=0,
-    )
-    return ReplaySession(options, plan, lambda _: None)
+    return truth_session(tmp_path)
 
 
 def _frame(index: int, stamp: int, value: float) -> FrameResult:

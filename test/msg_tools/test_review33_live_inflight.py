@@ -15,6 +15,18 @@ from msg_tools import live
 from msg_tools.scoring import format_summary
 
 
+def _ctrl_c_after(monkeypatch: pytest.MonkeyPatch, pair: int) -> None:
+    """Send SIGINT (Ctrl-C) once the replay has registered ``pair`` as published."""
+    expect = live._Recorder.expect
+
+    def ctrl_c(recorder: live._Recorder, matched: Any, frame: int, timestamp_ns: int) -> None:
+        expect(recorder, matched, frame, timestamp_ns)
+        if frame == pair:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(live._Recorder, 'expect', ctrl_c)
+
+
 def test_frames_in_flight_at_a_ctrl_c_are_not_counted_dropped(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -22,15 +34,7 @@ def test_frames_in_flight_at_a_ctrl_c_are_not_counted_dropped(
     # right after 3 went out. Pair 1 is dropped (the node answers in order and 2 came); pair 3
     # may still have been on its way: the report counted 2 dropped.
     bag = write_stereo_bag(tmp_path / 'in', [{}] * 5, ground_truth=False)
-    expect = live._Recorder.expect
-
-    def ctrl_c_after_pair_3(recorder: live._Recorder, matched: Any, frame: int,
-                            timestamp_ns: int) -> None:
-        expect(recorder, matched, frame, timestamp_ns)
-        if frame == 3:
-            os.kill(os.getpid(), signal.SIGINT)
-
-    monkeypatch.setattr(live._Recorder, 'expect', ctrl_c_after_pair_3)
+    _ctrl_c_after(monkeypatch, 3)
     outcome, _ = _play(tmp_path, bag, silent={1, 3})
     assert outcome.exit_code == 130
     counts = outcome.report.counts
@@ -51,15 +55,7 @@ def test_a_run_to_its_end_counts_no_frame_in_flight(tmp_path: Path) -> None:
 def test_the_report_says_how_many_were_in_flight(tmp_path: Path,
                                                  monkeypatch: pytest.MonkeyPatch) -> None:
     bag = write_stereo_bag(tmp_path / 'in', [{}] * 3, ground_truth=False)
-    expect = live._Recorder.expect
-
-    def ctrl_c_after_pair_1(recorder: live._Recorder, matched: Any, frame: int,
-                            timestamp_ns: int) -> None:
-        expect(recorder, matched, frame, timestamp_ns)
-        if frame == 1:
-            os.kill(os.getpid(), signal.SIGINT)
-
-    monkeypatch.setattr(live._Recorder, 'expect', ctrl_c_after_pair_1)
+    _ctrl_c_after(monkeypatch, 1)
     outcome, _ = _play(tmp_path, bag, silent={1})
     assert outcome.exit_code == 130
     assert 'interrupted after 1 frames (1 more were still on their way)' in outcome.message

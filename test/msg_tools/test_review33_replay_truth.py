@@ -14,12 +14,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from msg_test_utils import MAX_DISPARITY, START_NS, textured_pair, write_stereo_bag
+from msg_test_utils import MAX_DISPARITY, START_NS, textured_pair, truth_session, write_stereo_bag
 import numpy as np
 import pytest
 
 from cva_confidence_ros.errors import ConfigError
-from cva_confidence_ros.pipeline import PipelineConfig
 from cva_confidence_ros.pointcloud import StereoGeometry
 from msg_tools.bag_replay import main
 from msg_tools.bagio import OutputBag
@@ -38,7 +37,6 @@ from msg_tools.replay import (
     ReplayOptions,
     ReplaySession,
     TopicNames,
-    TopicPlan,
 )
 from msg_tools.scoring import ReplayReport, format_summary
 
@@ -83,17 +81,7 @@ def _bag_with_truth_offset(path: Path, count: int, offset_ns: int) -> Path:
 
 
 def _session(tmp_path: Path, truth_window: int | None = 0) -> ReplaySession:
-    """A session with ground truth, used without its output bag or report writer."""
-    options = ReplayOptions(
-        bag=tmp_path / 'in', out=tmp_path / 'out', report=tmp_path / 'report',
-        pipeline=PipelineConfig(max_disparity=MAX_DISPARITY, confidence_method='pkrn'),
-    )
-    plan = TopicPlan(
-        inputs=options.topics.inputs(), input_types={},
-        ground_truth=options.topics.resolve('ground_truth'),
-        ground_truth_type=DISPARITY_IMAGE, pairs_expected=0,
-    )
-    return ReplaySession(options, plan, lambda _: None, truth_window=truth_window)
+    return truth_session(tmp_path, truth_window=truth_window)
 
 
 def _frame(index: int, stamp: int, value: float = 3.0) -> FrameResult:
