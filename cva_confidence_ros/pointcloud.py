@@ -81,6 +81,16 @@ def _projection(matrix: Sequence[float] | np.ndarray, name: str) -> np.ndarray:
     return array
 
 
+def _unit_projection(array: np.ndarray) -> np.ndarray:
+    """A 3×4 projection scaled to ``P[2, 2] = 1`` where its third row is ``(0, 0, w, 0)``
+    with ``w > 0`` (P is homogeneous: ``w·P`` projects as P does, but fx, cx and Tx are read
+    off P as its entries); any other as it is, for the caller's checks to name."""
+    w = float(array[2, 2])
+    if w > 0 and w != 1 and not (array[2, 0] or array[2, 1] or array[2, 3]):
+        return array / w
+    return array
+
+
 @dataclass(frozen=True)
 class StereoGeometry:
     """Rectified stereo intrinsics at one resolution.
@@ -137,20 +147,44 @@ class StereoGeometry:
             p_right: Same for the right camera; ``P_right[0, 3] − P_left[0, 3] = −fx · B``
                 (``P_left[0, 3]`` is 0 where the left camera is the rectified frame's origin).
 
+        P is homogeneous: one whose third row is ``(0, 0, w, 0)`` is read as ``P / w``.
+
         Raises:
-            InputError: Wrong size or shape (a 4×3 P, say), non-finite values, fx ≤ 0, or a
-                baseline ≤ 0.
+            InputError: Wrong size or shape (a 4×3 P, say), non-finite values, a third row
+                other than ``(0, 0, w > 0, 0)``, fx ≤ 0, or a baseline ≤ 0.
         """
         left = _projection(p_left, 'P_left')
         right = _projection(p_right, 'P_right')
         if right[0, 0] <= 0:
             raise InputError(f'P_right[0, 0] (fx) must be > 0; got {right[0, 0]}')
+        if left[0, 0] <= 0 or left[1, 1] <= 0:  # (an unset P, all zeros) before its third row
+            raise InputError(f'focal lengths must be > 0; got fx={left[0, 0]}, fy={left[1, 1]}')
+        for name, matrix in (('P_left', left), ('P_right', right)):
+            # Read as entries, a P of third row (0, 0, 2, 0) gave twice the depth; one with
+            # other entries there is no rectified pinhole camera at all.
+            row = matrix[2]
+            if not (row[2] > 0 and row[0] == row[1] == row[3] == 0):
+                raise InputError(
+                    f'{name} must have the third row (0, 0, w, 0) of a rectified camera, '
+                    f'w > 0 (1 as calibrated); got {row.tolist()}'
+                )
+        left, right = _unit_projection(left), _unit_projection(right)
         # Rectification gives both cameras one focal length; images with two are not a
         # rectified pair, and the baseline (read with the right fx) would be wrong too.
         if left[0, 0] > 0 and abs(right[0, 0] - left[0, 0]) > FX_TOLERANCE * left[0, 0]:
             raise InputError(
                 f'left and right projection matrices must share fx (a rectified pair); got '
                 f'P_left[0, 0] = {left[0, 0]:g} and P_right[0, 0] = {right[0, 0]:g}'
+            )
+        baseline = float((left[0, 3] - right[0, 3]) / right[0, 0])
+        if not baseline > 0:
+            # The message of __post_init__ names P_right[0, 3] alone: with the left camera
+            # off the origin that one may well be < 0, as asked, for a baseline ≤ 0.
+            raise InputError(
+                f'baseline (P_left[0, 3] − P_right[0, 3]) / fx must be > 0 (Tx = −fx·x of '
+                f'each camera: the right one right of the left one; left and right swapped?); '
+                f'got P_left[0, 3] = {left[0, 3]:g} and P_right[0, 3] = {right[0, 3]:g}, '
+                f'{baseline:g}'
             )
         return cls(
             fx=float(left[0, 0]),
@@ -161,7 +195,7 @@ class StereoGeometry:
             # Tx = −fx · (position of the camera along x in the rectified frame): the baseline
             # is their difference, which −Tx_right alone gives only for a left camera at the
             # origin (P_left[0, 3] = 0, the usual case).
-            baseline=float((left[0, 3] - right[0, 3]) / right[0, 0]),
+            baseline=baseline,
         )
 
     @property

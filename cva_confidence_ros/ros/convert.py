@@ -564,7 +564,9 @@ def scale_camera_info(info: CameraInfo, factor: int, header: Header) -> CameraIn
     of its calibration size, :func:`~cva_confidence_ros.camera_info.image_projection`): the
     images it describes are ``roi`` divided by the binning. Binning and ROI are folded into K
     and P before the shrink, and the result has neither (binning as given when it was 0 or 1,
-    an all-zero ROI): K, P, width and height are those of the shrunk images themselves. Kept
+    an all-zero ROI): K, P, width and height are those of the shrunk images themselves, K and
+    P scaled to a third row of ``(0, 0, 1, …)`` (read as entries, as consumers read them, a
+    homogeneous ``w·P`` gives w times fx and cx). Kept
     as binning (``binning × factor``), ``image_geometry``'s ``x / binning`` would read every
     pixel ``(factor − 1) / (2 · factor)`` px off the block averages' centres, and an ROI offset
     by a non-multiple of ``factor`` cannot be written at all. Images of the calibration size
@@ -608,6 +610,9 @@ def scale_camera_info(info: CameraInfo, factor: int, header: Header) -> CameraIn
         binning_y=min(int(info.binning_y), 1),
     )
     k = fold(np.array(info.k, dtype=np.float64).reshape(3, 3), info)
+    if k[2, 2] > 0 and not (k[2, 0] or k[2, 1]):
+        # Homogeneous, as P (image_projection): consumers read fx and cx off K as entries.
+        k /= k[2, 2]
     for matrix in (k, p):
         # Rows 0 and 1 of K and P are pixel coordinates times the third row's value.
         matrix[:2] = matrix[:2] * scale + (scale - 1.0) * 0.5 * matrix[2]
