@@ -377,8 +377,10 @@ def read_kitti_calibration(
 ) -> Calibration:
     """Read a KITTI calibration with rectified projection matrices of both cameras.
 
-    KITTI 2012 ``calib/<id>.txt`` holds ``P0 … P3`` (gray: P0/P1, colour: P2/P3); KITTI 2015
-    ``calib_cam_to_cam/<id>.txt`` holds ``P_rect_02``/``P_rect_03``. The baseline is
+    KITTI 2012 ``calib/<id>.txt`` holds ``P0 … P3`` (the stereo benchmark's gray and colour
+    images both take P0/P1: its ``colored_0/1`` are aligned with the gray cameras, P2/P3 are
+    the colour cameras of the raw recordings); KITTI 2015 ``calib_cam_to_cam/<id>.txt`` holds
+    ``P_rect_02``/``P_rect_03``. The baseline is
     ``(P_left[0, 3] - P_right[0, 3]) / fx``.
 
     Args:
