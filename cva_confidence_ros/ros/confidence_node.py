@@ -224,6 +224,22 @@ class _Stats:
     # left image stamps: the previous one and the last gaps between them (ns)
     left_stamp_ns: int | None = None
     left_gaps_ns: deque[int] = field(default_factory=lambda: deque(maxlen=8))
+    # monotonic times: the subscriptions made (None while not subscribed), the last message
+    # (None before the first since then); input silent since either is a warning
+    subscribed_at: float | None = None
+    last_message_at: float | None = None
+    # left images: when the last one arrived and the last gaps between arrivals (monotonic s;
+    # a slow camera, or a bag played slowly, is not silent between its frames)
+    left_arrived_at: float | None = None
+    left_arrival_gaps_s: deque[float] = field(default_factory=lambda: deque(maxlen=8))
+
+    @property
+    def left_arrival_period_s(self) -> float | None:
+        """The median time between the recent left images' arrivals (s), once three gaps are
+        known."""
+        if len(self.left_arrival_gaps_s) < 3:
+            return None
+        return float(np.median(self.left_arrival_gaps_s))
 
     @property
     def left_period_ns(self) -> float | None:
@@ -384,6 +400,8 @@ class ConfidenceCore(Node):
                 self.destroy_subscription(subscription)
             self._subscriptions_in = []
             raise
+        with self._lock:
+            self._stats.subscribed_at, self._stats.last_message_at = time.monotonic(), None
 
     def _deactivate(self) -> None:
         """Unsubscribe; a frame waiting in the mailbox is dropped, pairing starts afresh."""
@@ -391,6 +409,8 @@ class ConfidenceCore(Node):
             self.destroy_subscription(subscription)
         self._subscriptions_in = []
         with self._lock:
+            # Not subscribed, no input is expected: no warning for its silence.
+            self._stats.subscribed_at = self._stats.last_message_at = None
             self._stats.dropped += self._mailbox.clear()
             self._stats.unmatched += sum(self._sync.pending().values())
             self._sync = self._make_sync(self._node_config)
@@ -552,7 +572,13 @@ class ConfidenceCore(Node):
 
     def _on_message(self, key: str, msg: Any) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
+        arrived = time.monotonic()
         with self._lock:
+            self._stats.last_message_at = arrived
+            if key == 'left':
+                if self._stats.left_arrived_at is not None:
+                    self._stats.left_arrival_gaps_s.append(arrived - self._stats.left_arrived_at)
+                self._stats.left_arrived_at = arrived
             self._stats.messages += 1
             self._stats.window_messages += 1
             self._stats.window_keys[key] = self._stats.window_keys.get(key, 0) + 1
@@ -676,6 +702,40 @@ class ConfidenceCore(Node):
             'that are not hardware-synchronised)'
         )
         return f'messages arrive but none pair up; newest stamps: {stamps}; {how}'
+
+    def _silent_input(self, stats: _Stats, now: float) -> str:
+        """Why no input came for a while, naming the topics; '' when it comes (lock held).
+
+        Silent means no message on any input for a whole diagnostics period, and for three
+        times the usual time between the left images once that is known (a slow camera is not
+        silent between its frames), while subscribed, and with no frame processed in the period.
+        """
+        if stats.subscribed_at is None or stats.window_messages or stats.window_processed:
+            return ''
+        since = stats.last_message_at if stats.last_message_at is not None else stats.subscribed_at
+        silent_s = now - since
+        limit = self._node_config.diagnostics_period_seconds
+        if stats.left_arrival_period_s is not None:
+            limit = max(limit, 3 * stats.left_arrival_period_s)
+        if silent_s < limit:
+            return ''
+        topics = ', '.join(self._input_names().values())
+        if stats.last_message_at is None:
+            text = (
+                f'no input: nothing on {topics} in the {silent_s:.1f} s since the node '
+                'subscribed (camera driver not running, or on other topic names?)'
+            )
+            if self._node_config.input_qos == 'reliable':
+                # rclpy says so once, when it discovers the driver; this says it every period.
+                text += (
+                    '; input_qos reliable takes nothing from a best-effort (sensor-data) '
+                    'publisher: input_qos sensor_data takes both'
+                )
+            return text
+        return (
+            f'no input for {silent_s:.1f} s: nothing on {topics} since the last message '
+            '(camera driver stopped or disconnected?)'
+        )
 
     def _old_stamps_reason(self, stats: _Stats, names: dict[str, str]) -> str:
         """Why messages no newer than the frame paired last do not pair (lock held): the
@@ -986,6 +1046,9 @@ class ConfidenceCore(Node):
             if stats.window_messages and not stats.window_pairs:
                 level = DiagnosticStatus.WARN
                 message = self._unpaired_reason(stats, elapsed)
+            silence = self._silent_input(stats, now)
+            if silence:
+                level, message = DiagnosticStatus.WARN, silence
             if stats.window_failed and not stats.window_processed:
                 level, message = DiagnosticStatus.ERROR, f'processing fails: {stats.last_failure}'
             values = {
@@ -1035,8 +1098,15 @@ class ConfidenceCore(Node):
             f'{summary["frames_throttled"]}, invalid {summary["frames_invalid"]}, failed '
             f'{summary["frames_failed"]}, frame {summary.get("mean_frame_ms", "-")} ms'
         )
-        # rclpy throttles per call site and allows one severity per site: two sites.
+        # rclpy throttles per call site and allows one severity per site: a site for each
+        # warning, so that none throttles another away. (Bad and failed frames are logged as
+        # warnings and errors where they are dropped: their status is an info line here.)
         if status.message.startswith('messages arrive but none pair up'):
+            self.get_logger().warning(line, throttle_duration_sec=LOG_THROTTLE_S)
+        elif status.message.startswith('no input'):
+            self.get_logger().warning(line, throttle_duration_sec=LOG_THROTTLE_S)
+        elif status.message.startswith(('only ', 'the confidence predicts')):
+            # min_kept_fraction / max_expected_kept_error: logged nowhere else
             self.get_logger().warning(line, throttle_duration_sec=LOG_THROTTLE_S)
         else:
             self.get_logger().info(line, throttle_duration_sec=LOG_THROTTLE_S)
