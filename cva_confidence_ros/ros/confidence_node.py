@@ -789,7 +789,8 @@ class ConfidenceCore(Node):
                     self._stats.window_invalid += 1
                     self._stats.last_invalid = str(error)
                 self._log_throttle.log(
-                    self.get_logger(), str(error), f'dropped frame {item.stamp_ns}: {error}'
+                    self.get_logger(), str(error),
+                    f'dropped frame {_seconds(item.stamp_ns)}: {error}',
                 )
             except Exception as error:  # noqa: BLE001  (the worker must outlive any frame)
                 if self._stopping(mailbox):

@@ -26,6 +26,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 
 from cva_confidence_ros.node import ConfidenceNode
+from cva_confidence_ros.ros.confidence_node import _seconds
 
 pytestmark = pytest.mark.timeout(150)
 
@@ -219,15 +220,16 @@ def test_each_kind_of_bad_frame_is_logged_and_repeats_are_counted(running: _Runn
         first_logged = stamps['yuv422']
 
         def all_logged() -> bool:
-            return all(running.warnings(f'dropped frame {s}:') for s in stamps.values())
+            return all(running.warnings(f'dropped frame {_seconds(s)}:') for s in stamps.values())
 
         assert running.client.wait_for(all_logged, 10), (
             'not every kind of bad frame was logged: '
-            + str([n for n, s in stamps.items() if not running.warnings(f'dropped frame {s}:')])
+            + str([n for n, s in stamps.items()
+                   if not running.warnings(f'dropped frame {_seconds(s)}:')])
         )
         for stamp in repeats:
-            assert not running.warnings(f'dropped frame {stamp}:')
-        (first,) = running.warnings(f'dropped frame {first_logged}:')
+            assert not running.warnings(f'dropped frame {_seconds(stamp)}:')
+        (first,) = running.warnings(f'dropped frame {_seconds(first_logged)}:')
         assert "'yuv422'" in first and 'more like it' not in first
 
         # After the period the fault is reported again, with the count of those held back.
@@ -235,9 +237,9 @@ def test_each_kind_of_bad_frame_is_logged_and_repeats_are_counted(running: _Runn
         again = running.next_stamp()
         running.send_bad(_other_bad_frames(again)['yuv422'])
         assert running.client.wait_for(
-            lambda: bool(running.warnings(f'dropped frame {again}:')), 10
+            lambda: bool(running.warnings(f'dropped frame {_seconds(again)}:')), 10
         )
-        (report,) = running.warnings(f'dropped frame {again}:')
+        (report,) = running.warnings(f'dropped frame {_seconds(again)}:')
         assert '(2 more like it' in report, report
     finally:
         throttle.period_s = period
