@@ -805,7 +805,7 @@ class ConfidenceCore(Node):
                 self._log_throttle.log(
                     self.get_logger(),
                     what,
-                    f'processing failed on frame {item.stamp_ns}: {what}',
+                    f'processing failed on frame {_seconds(item.stamp_ns)}: {what}',
                     error=True,
                 )
             if self._stopping(mailbox):
