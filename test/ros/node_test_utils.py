@@ -378,3 +378,19 @@ def rosout_reaches(context: Context, node: Node, timeout: float) -> bool:
     finally:
         spinner.stop()
         client.node.destroy_node()
+
+
+class LogRecorder:
+    """Stands in for a node's logger: keeps the lines logged as (severity, line)."""
+
+    def __init__(self) -> None:
+        self.lines: list[tuple[str, str]] = []
+
+    def info(self, message: str, **_: object) -> None:
+        self.lines.append(('info', message))
+
+    def warning(self, message: str, **_: object) -> None:
+        self.lines.append(('warning', message))
+
+    def error(self, message: str, **_: object) -> None:
+        self.lines.append(('error', message))

@@ -11,6 +11,7 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticStatus
 from node_test_utils import (
     SMALL_MLM,
+    LogRecorder,
     feed_frame,
     first_stamp,
     localhost_context,
@@ -30,22 +31,6 @@ NAMESPACE = f'review31_{os.getpid()}'
 OVERRIDES = [
     *SMALL_MLM,
 ]
-
-
-class _Logger:
-    """Stands in for the node's logger: keeps (severity, line)."""
-
-    def __init__(self) -> None:
-        self.lines: list[tuple[str, str]] = []
-
-    def info(self, msg: str, **_: Any) -> None:
-        self.lines.append(('info', msg))
-
-    def warning(self, msg: str, **_: Any) -> None:
-        self.lines.append(('warning', msg))
-
-    def error(self, msg: str, **_: Any) -> None:
-        self.lines.append(('error', msg))
 
 
 def test_image_transport_topics_follow_a_remapped_base_topic() -> None:
@@ -152,7 +137,7 @@ def test_the_status_line_counts_every_frame_received() -> None:
                 feed_frame(node, left, right, stamp + i * 10**8)
             feed_frame(node, left, right, stamp + 2 * 10**9)
             assert wait_until(lambda: node.stats()['frames_processed'] == 1, 30.0)
-            logger = _Logger()
+            logger = LogRecorder()
             node.get_logger = lambda: logger
             node._publish_diagnostics()
             ((_, line),) = logger.lines

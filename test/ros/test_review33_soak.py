@@ -9,6 +9,7 @@ import time
 from diagnostic_msgs.msg import DiagnosticStatus
 from node_test_utils import (
     SMALL_MLM,
+    LogRecorder,
     feed_frame,
     first_stamp,
     localhost_context,
@@ -45,7 +46,8 @@ def test_a_camera_that_stops_is_a_warning_naming_the_topics() -> None:
             stamp = first_stamp()
             for i in range(4):  # a burst: three gaps between left images, each of a moment
                 feed_frame(node, left, right, stamp + i * 100_000_000)
-            assert wait_until(lambda: node.stats()['frames_processed'] >= 1, 30.0)
+            done = ('frames_processed', 'frames_dropped')
+            assert wait_until(lambda: sum(node.stats()[k] for k in done) == 4, 30.0)
             node.diagnostics()  # the window with the frames
             time.sleep(0.4)  # longer than the period and three times the gaps
             status = node.diagnostics()
@@ -67,17 +69,19 @@ def test_a_slow_camera_is_silent_after_three_of_its_gaps_not_between_frames() ->
         try:
             left, right = textured_pair()
             stamp = first_stamp()
-            for i in range(4):  # 0.25 s apart: silent is 0.75 s, not one diagnostics period
+            for i in range(4):  # 0.5 s apart: silent is 1.5 s, not one diagnostics period
                 if i:
-                    time.sleep(0.25)
-                feed_frame(node, left, right, stamp + i * 250_000_000)
+                    time.sleep(0.5)
+                feed_frame(node, left, right, stamp + i * 500_000_000)
             done = ('frames_processed', 'frames_dropped')
             assert wait_until(lambda: sum(node.stats()[k] for k in done) == 4, 30.0)
+            with node._lock:  # as if the last image came now: a slow machine's processing
+                node._stats.last_message_at = time.monotonic()  # is no silence of the camera
             node.diagnostics()
             time.sleep(0.4)
             status = node.diagnostics()
             assert status.level == DiagnosticStatus.OK, status.message
-            time.sleep(0.6)  # now silent for three times its gaps
+            time.sleep(1.3)  # now silent for three times its gaps
             status = node.diagnostics()
             assert status.message.startswith('no input for '), status.message
         finally:
@@ -88,7 +92,9 @@ def test_a_camera_that_never_starts_is_a_warning() -> None:
     with localhost_context(spare_domain_id()) as context:
         node = _node(context)
         try:
-            assert node.diagnostics().level == DiagnosticStatus.OK  # just subscribed
+            with node._lock:  # subscribed just now (a slow start-up is not the camera's)
+                node._stats.subscribed_at = time.monotonic()
+            assert node.diagnostics().level == DiagnosticStatus.OK
             time.sleep(0.3)
             status = node.diagnostics()
             assert status.level == DiagnosticStatus.WARN, status.message
@@ -96,22 +102,6 @@ def test_a_camera_that_never_starts_is_a_warning() -> None:
             assert 'since the node subscribed' in status.message
         finally:
             node.destroy_node()
-
-
-class _Recorder:
-    """Stands in for the node's logger: the lines logged, with their severity."""
-
-    def __init__(self) -> None:
-        self.lines: list[tuple[str, str]] = []
-
-    def info(self, message: str, **_: object) -> None:
-        self.lines.append(('info', message))
-
-    def warning(self, message: str, **_: object) -> None:
-        self.lines.append(('warning', message))
-
-    def error(self, message: str, **_: object) -> None:
-        self.lines.append(('error', message))
 
 
 def test_a_camera_gone_blind_is_logged_as_a_warning() -> None:
@@ -127,7 +117,7 @@ def test_a_camera_gone_blind_is_logged_as_a_warning() -> None:
             node.diagnostics()  # a fresh window
             feed_frame(node, left, right, first_stamp())
             assert wait_until(lambda: node.stats()['frames_processed'] == 1, 30.0)
-            recorder = _Recorder()
+            recorder = LogRecorder()
             node.get_logger = lambda: recorder  # type: ignore[method-assign]
             node._publish_diagnostics()
             ((severity, line),) = recorder.lines
