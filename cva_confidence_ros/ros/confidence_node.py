@@ -69,11 +69,15 @@ from cva_confidence_ros.ros.transport import depth_image_to_compressed_depth, rg
 from cva_confidence_ros.scan import disparity_to_scan, scan_frame_id
 from cva_confidence_ros.sync import MatchedSet, StampSynchronizer
 
-__all__ = ['NODE_NAME', 'STOP_TIMEOUT_S', 'ConfidenceCore', 'ConfidenceNode', 'run']
+__all__ = [
+    'NODE_NAME', 'PUBLISH_WAIT_S', 'STOP_TIMEOUT_S', 'ConfidenceCore', 'ConfidenceNode', 'run',
+]
 
 NODE_NAME = 'cva_confidence'
 #: How long a stop waits for the frame in progress, in seconds.
 STOP_TIMEOUT_S = 10.0
+#: How long a deactivate waits for the outputs of a frame being published, in seconds.
+PUBLISH_WAIT_S = 1.0
 _OWN_PARAMETERS = frozenset(spec.name for spec in PARAMETERS)
 # Synchroniser key → the topic it subscribes to (named in the logs).
 _TOPICS = {
@@ -110,6 +114,11 @@ class _Mailbox:
         self._items: deque[MatchedSet] = deque()
         self._closed = False
         self._poked = False
+        #: How many times :meth:`clear` was called, and how many before the item taken last
+        #: was taken (noted under the lock: an item taken at a clear is either dropped or an
+        #: item of before it, never one of after).
+        self.clears = 0
+        self.taken_clears = 0
 
     def put(self, items: list[MatchedSet]) -> int:
         """Store ``items`` (oldest first); return how many waiting ones they replaced."""
@@ -128,6 +137,7 @@ class _Mailbox:
             if self._closed or self._poked:
                 self._poked = False
                 return None
+            self.taken_clears = self.clears
             return self._items.popleft()
 
     def poke(self) -> None:
@@ -141,6 +151,7 @@ class _Mailbox:
         with self._cond:
             dropped = len(self._items)
             self._items.clear()
+            self.clears += 1
             return dropped
 
     @property
@@ -280,6 +291,10 @@ class ConfidenceCore(Node):
     def _init_core(self) -> None:
         declare_parameters(self)
         self._lock = threading.Lock()
+        # Held by the worker while it publishes a frame and by a deactivate while it clears the
+        # mailbox (up to PUBLISH_WAIT_S): a frame's outputs all go out before the deactivate,
+        # or none do (taken before _lock where both are held).
+        self._publishing = threading.Lock()
         self._pipeline = None
         self._cold = None
         self._worker = None
@@ -408,13 +423,26 @@ class ConfidenceCore(Node):
         for subscription in self._subscriptions_in:
             self.destroy_subscription(subscription)
         self._subscriptions_in = []
-        with self._lock:
-            # Not subscribed, no input is expected: no warning for its silence.
-            self._stats.subscribed_at = self._stats.last_message_at = None
-            self._stats.dropped += self._mailbox.clear()
-            self._stats.unmatched += sum(self._sync.pending().values())
-            self._sync = self._make_sync(self._node_config)
-            self._stats.paired_stamps_ns = {}
+        # A frame being published: all of its outputs go out before (bounded: a deactivate
+        # must not hang on a publish that does not end).
+        waited = self._publishing.acquire(timeout=PUBLISH_WAIT_S)
+        try:
+            with self._lock:
+                # Not subscribed, no input is expected: no warning for its silence.
+                self._stats.subscribed_at = self._stats.last_message_at = None
+                self._stats.dropped += self._mailbox.clear()
+                self._stats.unmatched += sum(self._sync.pending().values())
+                self._sync = self._make_sync(self._node_config)
+                self._stats.paired_stamps_ns = {}
+        finally:
+            if waited:
+                self._publishing.release()
+        if not waited:
+            # Not the node's own logger: this runs in a cleanup on shutdown too.
+            rclpy.logging.get_logger(self.get_name()).warning(
+                f'a frame was still being published {PUBLISH_WAIT_S:g} s after the '
+                'unsubscribe; not waiting for it (its remaining outputs may go out late)'
+            )
 
     def _cleanup(self) -> bool:
         """Stop the worker and release the pipeline, publishers and timer.
@@ -864,22 +892,23 @@ class ConfidenceCore(Node):
         convert_ms = (time.perf_counter() - start) * 1e3
 
         result = pipeline.process(left, right)
-        if self._stopping(mailbox):
-            # Stopped or cleaned up while it ran: after a new configure, its outputs (of the
-            # old parameters) must not go out on the new publishers nor count in new stats.
-            return
-
-        tic = time.perf_counter()
-        self._publish(result, left_msg.header, geometry, config, node_config)
-        if self._pub_info.get_subscription_count():
-            info = item.items['left_info']
-            self._pub_info.publish(
-                scale_camera_info(
-                    image_camera_info(info, left.shape[1], left.shape[0]),
-                    config.downsample,
-                    left_msg.header,
+        with self._publishing:
+            if self._stopping(mailbox):
+                # Stopped or cleaned up while it ran: after a new configure, its outputs (of
+                # the old parameters) must not go out on the new publishers nor count in new
+                # stats. (The managed node: deactivated since it was taken.)
+                return
+            tic = time.perf_counter()
+            self._publish(result, left_msg.header, geometry, config, node_config)
+            if self._pub_info.get_subscription_count():
+                info = item.items['left_info']
+                self._pub_info.publish(
+                    scale_camera_info(
+                        image_camera_info(info, left.shape[1], left.shape[0]),
+                        config.downsample,
+                        left_msg.header,
+                    )
                 )
-            )
         timings = dict(result.timings_ms)
         timings['convert'] = convert_ms
         timings['publish'] = (time.perf_counter() - tic) * 1e3

@@ -13,7 +13,8 @@ over the standard transitions (``lifecycle_msgs``):
 * ``activate``: subscribes to the four inputs, and the output publishers (lifecycle publishers)
   publish;
 * ``deactivate``: unsubscribes; a frame waiting is dropped, a frame in progress finishes
-  unpublished; pairing starts afresh on the next activate;
+  unpublished (one whose outputs are being published is waited for: all of them go out before
+  the deactivate ends); pairing starts afresh on the next activate;
 * ``cleanup``: stops the worker and releases the pipeline, back to *unconfigured*;
 * ``shutdown``: all of the above from any state, to *finalized*, where no transition is left
   and the node is only to be destroyed.
@@ -94,10 +95,9 @@ class ManagedConfidenceNode(ConfidenceCore, LifecycleNode):
         service = getattr(self, '_service_change_state', None)  # None: no lifecycle services
         if service is not None:
             service.callback = partial(self._on_change_state, service.callback)
-        # Deactivations so far, and on the worker the count when its frame was taken: a frame
-        # in progress at a deactivate finishes unpublished, even if activate follows before it
-        # ends (it would go out then, an old frame, after pairing started afresh).
-        self._deactivations = 0
+        # On the worker, the mailbox's clears (one a deactivate) when its frame was taken: a
+        # frame in progress at a deactivate finishes unpublished, even if activate follows
+        # before it ends (it would go out then, an old frame, after pairing started afresh).
         self._frame = threading.local()
         try:
             self._init_core()
@@ -259,7 +259,8 @@ class ManagedConfidenceNode(ConfidenceCore, LifecycleNode):
         return result
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._deactivations += 1  # the frame in progress, if any, is not published
+        # The frame in progress, if any, is not published (its outputs being published are
+        # waited for: they all go out before, not some after a quick activate).
         self._deactivate()
         self.get_logger().info('inactive: unsubscribed from the stereo inputs')
         return super().on_deactivate(state)
@@ -282,14 +283,10 @@ class ManagedConfidenceNode(ConfidenceCore, LifecycleNode):
 
     # Worker side ---------------------------------------------------------------------------
 
-    def _warm_up_new_pipeline(self, mailbox: Any) -> None:
-        # Called by the worker right after it takes a frame from the mailbox (before a warm-up
-        # that may take seconds): the frame belongs to the activation of that moment.
-        self._frame.taken = self._deactivations
-        super()._warm_up_new_pipeline(mailbox)
-
     def _process(self, item: Any, mailbox: Any) -> None:
-        self._frame.current = getattr(self._frame, 'taken', self._deactivations)
+        # The frame belongs to the activation it was taken in (noted by the mailbox as it was
+        # taken, not here after it: a deactivate in between made it the next activation's).
+        self._frame.current = mailbox.taken_clears
         try:
             super()._process(item, mailbox)
         finally:
@@ -305,7 +302,7 @@ class ManagedConfidenceNode(ConfidenceCore, LifecycleNode):
         deactivated since the frame was taken (no lock taken: the core calls it with the lock
         held)."""
         current = getattr(self._frame, 'current', None)
-        if current is not None and current != self._deactivations:
+        if current is not None and current != mailbox.clears:
             return True
         return super()._stopping(mailbox)
 
