@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from cva_confidence_ros.errors import InputError
-from cva_confidence_ros.pointcloud import FX_TOLERANCE, _unit_projection
+from cva_confidence_ros.pointcloud import FX_TOLERANCE, unit_projection
 
 #: Largest difference of cy between the left and right projection matrices, pixels: a
 #: rectified pair has one cy; this only absorbs float and text round-off.
@@ -65,7 +65,7 @@ def image_projection(
     full_w, full_h = int(info.width), int(info.height)
     projection = _projection(info.p, f'{name} p')
     if image_size is not None and tuple(image_size) == (full_w, full_h):
-        return (full_w, full_h), _unit_projection(projection)
+        return (full_w, full_h), unit_projection(projection)
     if full_w <= 0 or full_h <= 0:
         raise InputError(
             f'{name}: calibration size (width × height) must be > 0; got {full_w}×{full_h} '
@@ -106,7 +106,7 @@ def image_projection(
             f'{info.binning_x}×{info.binning_y} and region of interest {roi.width}×'
             f'{roi.height} at ({x0}, {y0}) of its {full_w}×{full_h})'
         )
-    return size, _unit_projection(fold(projection, info))
+    return size, unit_projection(fold(projection, info))
 
 
 def check_rows(p_left: Any, p_right: Any) -> None:
@@ -117,8 +117,8 @@ def check_rows(p_left: Any, p_right: Any) -> None:
     Raises:
         InputError: Not 12 values, values that are not finite, or rows that do not correspond.
     """
-    left = _unit_projection(_projection(p_left, 'P_left'))
-    right = _unit_projection(_projection(p_right, 'P_right'))
+    left = unit_projection(_projection(p_left, 'P_left'))
+    right = unit_projection(_projection(p_right, 'P_right'))
     if not (np.all(np.isfinite(left)) and np.all(np.isfinite(right))):
         raise InputError(
             f'projection matrices must be finite; got P_left = {left.tolist()} and '

@@ -39,6 +39,7 @@ __all__ = [
     'make_cloud',
     'pack_rgb',
     'stereo_cloud',
+    'unit_projection',
     'unpack_rgb',
 ]
 
@@ -81,12 +82,13 @@ def _projection(matrix: Sequence[float] | np.ndarray, name: str) -> np.ndarray:
     return array
 
 
-def _unit_projection(array: np.ndarray) -> np.ndarray:
-    """A 3×4 projection scaled to ``P[2, 2] = 1`` where its third row is ``(0, 0, w, 0)``
-    with ``w > 0`` (P is homogeneous: ``w·P`` projects as P does, but fx, cx and Tx are read
-    off P as its entries); any other as it is, for the caller's checks to name."""
+def unit_projection(array: np.ndarray) -> np.ndarray:
+    """A 3×4 projection P (or 3×3 intrinsics K) scaled to ``[2, 2] = 1`` where its third row
+    is ``(0, 0, w, 0)`` (``(0, 0, w)``) with ``w > 0`` (homogeneous: ``w·P`` projects as P
+    does, but fx, cx and Tx are read off it as its entries); any other as it is, for the
+    caller's checks to name."""
     w = float(array[2, 2])
-    if w > 0 and w != 1 and not (array[2, 0] or array[2, 1] or array[2, 3]):
+    if w > 0 and w != 1 and not np.delete(array[2], 2).any():
         return array / w
     return array
 
@@ -168,7 +170,7 @@ class StereoGeometry:
                     f'{name} must have the third row (0, 0, w, 0) of a rectified camera, '
                     f'w > 0 (1 as calibrated); got {row.tolist()}'
                 )
-        left, right = _unit_projection(left), _unit_projection(right)
+        left, right = unit_projection(left), unit_projection(right)
         # Rectification gives both cameras one focal length; images with two are not a
         # rectified pair, and the baseline (read with the right fx) would be wrong too.
         if left[0, 0] > 0 and abs(right[0, 0] - left[0, 0]) > FX_TOLERANCE * left[0, 0]:

@@ -41,6 +41,7 @@ from cva_confidence_ros.pointcloud import (
     CLOUD_CONFIDENCE_DTYPE,
     CLOUD_DTYPE,
     StereoGeometry,
+    unit_projection,
 )
 from cva_confidence_ros.ros.transport import MAX_PNG_PIXELS, png_header
 from cva_confidence_ros.scan import Scan
@@ -609,10 +610,8 @@ def scale_camera_info(info: CameraInfo, factor: int, header: Header) -> CameraIn
         binning_x=min(int(info.binning_x), 1),
         binning_y=min(int(info.binning_y), 1),
     )
-    k = fold(np.array(info.k, dtype=np.float64).reshape(3, 3), info)
-    if k[2, 2] > 0 and not (k[2, 0] or k[2, 1]):
-        # Homogeneous, as P (image_projection): consumers read fx and cx off K as entries.
-        k /= k[2, 2]
+    # Homogeneous, as P (image_projection): consumers read fx and cx off K as entries.
+    k = unit_projection(fold(np.array(info.k, dtype=np.float64).reshape(3, 3), info))
     for matrix in (k, p):
         # Rows 0 and 1 of K and P are pixel coordinates times the third row's value.
         matrix[:2] = matrix[:2] * scale + (scale - 1.0) * 0.5 * matrix[2]
