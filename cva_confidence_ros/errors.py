@@ -25,7 +25,23 @@ class CVAError(Exception):
 
 
 class ConfigError(CVAError, ValueError):
-    """A configuration value (matcher name, parameter, option) is invalid."""
+    """A configuration value (matcher name, parameter, option) is invalid.
+
+    Args:
+        message: What was expected and what came; ``str(error)`` is this message.
+        *fields: Names of the values at fault as the raising class knows them — a dataclass
+            field or node parameter — so that a front end that set them under other names,
+            e.g. command-line options, can name those.
+
+    Attributes:
+        fields: Those names, in the order given; empty when not known.
+    """
+
+    def __init__(self, message: str, *fields: str) -> None:
+        # Only the message in args: str() and pickling stay as they were (pickle restores
+        # fields from the instance's __dict__).
+        super().__init__(message)
+        self.fields: tuple[str, ...] = fields
 
 
 class InputError(CVAError, ValueError):

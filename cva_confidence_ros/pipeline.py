@@ -88,6 +88,10 @@ class PipelineConfig:
             size, black where the camera sees the robot's own body (or anything else never to
             be judged); there, as outside the region of interest, nothing is published, and
             rows black from edge to edge at the top and bottom are not processed. ``''`` = none.
+
+    Raises:
+        ConfigError: An invalid value, named by its field (also in ``fields``: the node
+            parameter of the same name).
     """
 
     matcher: str = 'census_bm'
@@ -122,52 +126,57 @@ class PipelineConfig:
             value = getattr(self, name)
             if not isinstance(value, str):
                 hint = '; pass str(path)' if isinstance(value, os.PathLike) else ''
-                raise ConfigError(f'{name} must be a string{what}; got {value!r}{hint}')
+                raise ConfigError(f'{name} must be a string{what}; got {value!r}{hint}', name)
         # bool('false') is True: a flag given as a string would silently switch the check on.
         if not isinstance(self.lr_check, (bool, np.bool_)):
-            raise ConfigError(f'lr_check must be True or False; got {self.lr_check!r}')
+            raise ConfigError(f'lr_check must be True or False; got {self.lr_check!r}', 'lr_check')
         if self.matcher not in MATCHERS:
             raise ConfigError(
-                f'unknown matcher {self.matcher!r}; expected one of {MATCHERS.names()}'
+                f'unknown matcher {self.matcher!r}; expected one of {MATCHERS.names()}', 'matcher'
             )
         if self.confidence_method not in CONFIDENCE_METHODS:
             raise ConfigError(
                 f'unknown confidence_method {self.confidence_method!r}; '
-                f'expected one of {CONFIDENCE_METHODS.names()}'
+                f'expected one of {CONFIDENCE_METHODS.names()}', 'confidence_method',
             )
         if not is_int(self.max_disparity) or not 1 <= self.max_disparity <= 1024:
             raise ConfigError(
-                f'max_disparity must be an integer in [1, 1024]; got {self.max_disparity!r}'
+                f'max_disparity must be an integer in [1, 1024]; got {self.max_disparity!r}',
+                'max_disparity',
             )
         if self.device not in _DEVICES:
-            raise ConfigError(f'device must be one of {_DEVICES}; got {self.device!r}')
+            raise ConfigError(f'device must be one of {_DEVICES}; got {self.device!r}', 'device')
         if not is_real(self.confidence_threshold) or not 0 <= self.confidence_threshold <= 1:
             raise ConfigError(
                 f'confidence_threshold must be a number in [0, 1]; '
-                f'got {self.confidence_threshold!r}'
+                f'got {self.confidence_threshold!r}', 'confidence_threshold',
             )
         if not is_int(self.downsample) or self.downsample not in (1, 2, 4):
-            raise ConfigError(f'downsample must be 1, 2 or 4; got {self.downsample!r}')
+            raise ConfigError(
+                f'downsample must be 1, 2 or 4; got {self.downsample!r}', 'downsample'
+            )
         from cva_confidence_ros.matching import SUBPIXEL_METHODS
 
         if self.subpixel not in SUBPIXEL_METHODS:
             raise ConfigError(
-                f'subpixel must be one of {SUBPIXEL_METHODS}; got {self.subpixel!r}'
+                f'subpixel must be one of {SUBPIXEL_METHODS}; got {self.subpixel!r}', 'subpixel'
             )
         if not is_int(self.speckle_size) or not 0 <= self.speckle_size <= _MAX_SPECKLE_SIZE:
             raise ConfigError(
                 f'speckle_size must be an integer in [0, {_MAX_SPECKLE_SIZE}]; '
-                f'got {self.speckle_size!r}'
+                f'got {self.speckle_size!r}', 'speckle_size',
             )
         if not is_real(self.speckle_range) or not 0 <= self.speckle_range <= 1024:
             raise ConfigError(
-                f'speckle_range must be a number in [0, 1024]; got {self.speckle_range!r}'
+                f'speckle_range must be a number in [0, 1024]; got {self.speckle_range!r}',
+                'speckle_range',
             )
         if not is_real(self.tile_budget_mb) or not (
             math.isfinite(self.tile_budget_mb) and self.tile_budget_mb > 0
         ):
             raise ConfigError(
-                f'tile_budget_mb must be a finite number > 0; got {self.tile_budget_mb!r}'
+                f'tile_budget_mb must be a finite number > 0; got {self.tile_budget_mb!r}',
+                'tile_budget_mb',
             )
         from cva_confidence_ros.model import SparseConfig
 
@@ -181,16 +190,18 @@ class PipelineConfig:
         from cva_confidence_ros.model.sparse import BACKENDS
 
         if self.cva_backend not in BACKENDS:
-            raise ConfigError(f'cva_backend must be one of {BACKENDS}; got {self.cva_backend!r}')
+            raise ConfigError(
+                f'cva_backend must be one of {BACKENDS}; got {self.cva_backend!r}', 'cva_backend'
+            )
         for name in ('roi_top', 'roi_bottom'):
             value = getattr(self, name)
             if not is_real(value) or not 0 <= value <= 1:
-                raise ConfigError(f'{name} must be a number in [0, 1]; got {value!r}')
+                raise ConfigError(f'{name} must be a number in [0, 1]; got {value!r}', name)
         if self.roi_top >= self.roi_bottom:
             raise ConfigError(
                 f'roi_top must be smaller than roi_bottom (the region of interest runs from '
                 f'roi_top to roi_bottom of the image height); got roi_top = {self.roi_top!r}, '
-                f'roi_bottom = {self.roi_bottom!r}'
+                f'roi_bottom = {self.roi_bottom!r}', 'roi_top', 'roi_bottom',
             )
         # Numpy integers are taken but kept as Python ints: np.uint8(250) + 16 wraps to 10
         # (the warm-up pair's width), and 1 / np.int64(2) makes a numpy scale.

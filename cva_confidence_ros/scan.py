@@ -80,7 +80,8 @@ def bearing_range(
 class ScanConfig:
     """Which points make the scan (metres and radians, like ``pointcloud_to_laserscan``).
 
-    The node's parameters are these names with ``scan_`` in front (``scan_min_height``, …).
+    The node's parameters are these names with ``scan_`` in front (``scan_min_height``, …);
+    errors name the values by them (in the message and :attr:`ConfigError.fields`).
 
     Attributes:
         min_height: Lowest point taken, metres above the camera's centre (negative = below).
@@ -104,20 +105,22 @@ class ScanConfig:
             if not is_real(value) or not math.isfinite(value):
                 raise ConfigError(
                     f'scan_{field.name} must be a finite number; '
-                    f'got {type(value).__name__} {value!r}'
+                    f'got {type(value).__name__} {value!r}', f'scan_{field.name}',
                 )
         if not self.min_height < self.max_height:
             raise ConfigError(
                 f'scan_min_height must be < scan_max_height; got {self.min_height} and '
-                f'{self.max_height}'
+                f'{self.max_height}', 'scan_min_height', 'scan_max_height',
             )
         if not 0.0 <= self.range_min < self.range_max:
             raise ConfigError(
                 f'scan ranges must satisfy 0 <= scan_range_min < scan_range_max; got '
-                f'{self.range_min} and {self.range_max}'
+                f'{self.range_min} and {self.range_max}', 'scan_range_min', 'scan_range_max',
             )
         if not abs(self.pitch) < math.pi / 2:
-            raise ConfigError(f'scan_pitch must be in (-pi/2, pi/2) radians; got {self.pitch}')
+            raise ConfigError(
+                f'scan_pitch must be in (-pi/2, pi/2) radians; got {self.pitch}', 'scan_pitch'
+            )
 
 
 @dataclass(frozen=True)

@@ -46,12 +46,12 @@ from cva_confidence_ros.pipeline import PipelineConfig
 from cva_confidence_ros.scan import ScanConfig
 from msg_tools.bagio import STORAGES
 from msg_tools.progress import GracefulInterrupt
-from msg_tools.replay import STOPPING, CompressionConfig, OptionError, ReplayOptions, TopicNames
+from msg_tools.replay import STOPPING, CompressionConfig, ReplayOptions, TopicNames
 
 #: ``--sync-tolerance`` unless given: the node's ``approximate_sync_tolerance_seconds`` default.
 SYNC_TOLERANCE_S = 0.01
 
-__all__ = ['build_parser', 'main', 'options_from_args']
+__all__ = ['build_parser', 'main', 'name_options', 'options_from_args']
 
 _DEFAULTS = PipelineConfig.__dataclass_fields__
 _SCAN = ScanConfig()
@@ -63,9 +63,12 @@ _COMPRESSION_OPTIONS = {
     'compressed_depth_quantization': '--compressed-depth-quantization',
     'compressed_depth_png_level': '--compressed-depth-png-level',
 }
-#: Fields of ReplayOptions and TopicNames a command line value sets → its option, to name
-#: in their errors (``replay.OptionError``) what the user typed.
+#: Every name under which a configuration error (``ConfigError.fields``) can name a value the
+#: command line sets → its option, to name what the user typed: the fields of ReplayOptions,
+#: TopicNames and PipelineConfig, and the node parameters live mode sets (the scan's included).
 _FIELD_OPTIONS = {
+    'mode': '--mode',
+    'storage': '--storage',
     'queue_size': '--queue-size',
     'sync_tolerance_s': '--sync-tolerance',
     'max_pixels': '--max-pixels',
@@ -80,6 +83,37 @@ _FIELD_OPTIONS = {
     'left_info': '--left-info-topic',
     'right_info': '--right-info-topic',
     'ground_truth': '--gt-topic',
+    'matcher': '--matcher',
+    'confidence_method': '--confidence-method',
+    'model_path': '--weights',
+    'max_disparity': '--max-disparity',
+    'downsample': '--downsample',
+    'confidence_threshold': '--confidence-threshold',
+    'device': '--device',
+    'lr_check': '--lr-check',
+    'subpixel': '--subpixel',
+    'speckle_size': '--speckle-size',
+    'speckle_range': '--speckle-range',
+    'tile_budget_mb': '--tile-budget-mb',
+    'roi_top': '--roi',
+    'roi_bottom': '--roi',
+    'mask_path': '--mask',
+    'approximate_sync': '--approximate-sync',
+    'approximate_sync_tolerance_seconds': '--sync-tolerance',
+    'publish_points': '--no-points',
+    'points_organized': '--points-unorganized',
+    'points_confidence': '--points-confidence',
+    'publish_depth': '--no-depth',
+    'publish_overlay': '--overlay',
+    'depth_encoding': '--depth-encoding',
+    'publish_scan': '--scan',
+    'scan_frame_id': '--scan-frame-id',
+    'scan_min_height': '--scan-height',
+    'scan_max_height': '--scan-height',
+    'scan_range_min': '--scan-range',
+    'scan_range_max': '--scan-range',
+    'scan_pitch': '--scan-pitch',
+    **_COMPRESSION_OPTIONS,
 }
 
 
@@ -241,13 +275,41 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def name_options(err: ConfigError) -> ConfigError:
+    """``err`` with the command-line options of its ``fields`` in front of its message.
+
+    The library names a value by its dataclass field or node parameter (``rate_scale``,
+    ``scan_min_height``); the user typed an option (``--rate-scale``, ``--scan-height``).
+    Each option is named once, in the order of the fields.
+
+    Returns:
+        A new :class:`ConfigError` (``'--scan-height: scan_min_height must be ...'``), or
+        ``err`` itself when it names no fields or one the command line does not set.
+    """
+    if not err.fields or not all(name in _FIELD_OPTIONS for name in err.fields):
+        return err
+    options = dict.fromkeys(_FIELD_OPTIONS[name] for name in err.fields)
+    return ConfigError(f'{", ".join(options)}: {err}')
+
+
 def options_from_args(args: argparse.Namespace) -> ReplayOptions:
     """Turn parsed arguments into :class:`msg_tools.replay.ReplayOptions`.
 
     Raises:
-        ConfigError: An invalid value (unknown matcher or method, range errors, ...; a
-            compression, replay or topic value names its option).
+        ConfigError: An invalid value (unknown matcher or method, range errors, ...), named
+            by its option (:func:`name_options`).
     """
+    try:
+        return _options(args)
+    except ConfigError as err:
+        named = name_options(err)
+        if named is err:
+            raise
+        raise named from None
+
+
+def _options(args: argparse.Namespace) -> ReplayOptions:
+    """:func:`options_from_args`, its errors named by the library's field names."""
     if args.mask is not None:
         # A missing or unreadable mask is named before any bag is opened.
         load_mask(args.mask, '--mask')
@@ -275,12 +337,7 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
         range_max=args.scan_range[1],
         pitch=args.scan_pitch,
     )
-    # Checked with or without --compressed, one by one so that the error names the option.
-    for name, option in _COMPRESSION_OPTIONS.items():
-        try:
-            CompressionConfig(**{name: getattr(args, name)})
-        except ConfigError as err:
-            raise ConfigError(f'{option}: {err}') from None
+    # Checked with or without --compressed: a bad value is a mistake either way.
     compression = CompressionConfig(**{name: getattr(args, name) for name in _COMPRESSION_OPTIONS})
     # A tolerance exact sync would ignore is refused rather than ignored.
     if args.sync_tolerance is not None and not args.approximate_sync:
@@ -295,53 +352,46 @@ def options_from_args(args: argparse.Namespace) -> ReplayOptions:
             f"--scan-frame-id must not start with '/' (tf2 refuses such frames); got "
             f'{args.scan_frame_id!r}'
         )
-    try:
-        topics = TopicNames(
-            prefix=args.topic_prefix,
-            left=args.left_topic,
-            right=args.right_topic,
-            left_info=args.left_info_topic,
-            right_info=args.right_info_topic,
-            # An empty --gt-topic is refused by name like the other topics, not taken as the
-            # default (which it would then require).
-            ground_truth='ground_truth/disparity' if args.gt_topic is None else args.gt_topic,
-        )
-        return ReplayOptions(
-            bag=args.bag,
-            out=args.out,
-            report=args.report,
-            pipeline=pipeline,
-            topics=topics,
-            gt_required=args.gt_topic is not None,
-            mode=args.mode,
-            storage=args.storage,
-            approximate_sync=args.approximate_sync,
-            sync_tolerance_s=tolerance if args.approximate_sync else 0.0,
-            queue_size=args.queue_size,
-            max_pixels=args.max_pixels,
-            seed=args.seed,
-            max_plots=args.max_plots,
-            publish_points=not args.no_points,
-            points_organized=not args.points_unorganized,
-            points_confidence=args.points_confidence,
-            publish_depth=not args.no_depth,
-            depth_encoding=args.depth_encoding,
-            publish_overlay=args.overlay,
-            compressed=compression if args.compressed else None,
-            scan=scan if args.scan else None,
-            scan_frame_id=args.scan_frame_id,
-            overwrite=args.overwrite,
-            rate_scale=args.rate_scale,
-            start_node=not args.no_start_node,
-            startup_timeout_s=args.startup_timeout,
-            drain_timeout_s=args.drain_timeout,
-        )
-    except OptionError as err:
-        # Named by their dataclass fields; the user typed the options.
-        given = [_FIELD_OPTIONS[name] for name in err.fields if name in _FIELD_OPTIONS]
-        if not given:
-            raise
-        raise ConfigError(f'{", ".join(given)}: {err}') from None
+    topics = TopicNames(
+        prefix=args.topic_prefix,
+        left=args.left_topic,
+        right=args.right_topic,
+        left_info=args.left_info_topic,
+        right_info=args.right_info_topic,
+        # An empty --gt-topic is refused by name like the other topics, not taken as the
+        # default (which it would then require).
+        ground_truth='ground_truth/disparity' if args.gt_topic is None else args.gt_topic,
+    )
+    return ReplayOptions(
+        bag=args.bag,
+        out=args.out,
+        report=args.report,
+        pipeline=pipeline,
+        topics=topics,
+        gt_required=args.gt_topic is not None,
+        mode=args.mode,
+        storage=args.storage,
+        approximate_sync=args.approximate_sync,
+        sync_tolerance_s=tolerance if args.approximate_sync else 0.0,
+        queue_size=args.queue_size,
+        max_pixels=args.max_pixels,
+        seed=args.seed,
+        max_plots=args.max_plots,
+        publish_points=not args.no_points,
+        points_organized=not args.points_unorganized,
+        points_confidence=args.points_confidence,
+        publish_depth=not args.no_depth,
+        depth_encoding=args.depth_encoding,
+        publish_overlay=args.overlay,
+        compressed=compression if args.compressed else None,
+        scan=scan if args.scan else None,
+        scan_frame_id=args.scan_frame_id,
+        overwrite=args.overwrite,
+        rate_scale=args.rate_scale,
+        start_node=not args.no_start_node,
+        startup_timeout_s=args.startup_timeout,
+        drain_timeout_s=args.drain_timeout,
+    )
 
 
 def _is_ros_module(name: str) -> bool:
@@ -373,6 +423,10 @@ def main(argv: list[str] | None = None) -> int:
                 interrupts.check()
                 outcome = run_offline(options, interrupts=interrupts)
     except CVAError as err:
+        if isinstance(err, ConfigError):
+            # Every configuration value comes from the command line, so the node parameters
+            # live mode checks (node_arguments) are named by their options too.
+            err = name_options(err)
         print(f'cva-bag-replay: error: {err}', file=sys.stderr)
         return 2
     except ModuleNotFoundError as err:

@@ -63,7 +63,6 @@ __all__ = [
     'GT_WAIT_FRAMES',
     'Logger',
     'NodeOutputs',
-    'OptionError',
     'ReplayOptions',
     'ReplayOutcome',
     'ReplaySession',
@@ -124,16 +123,6 @@ _MAX_REMEMBERED = 1000
 MAX_LISTED_UNMATCHED_TRUTH = 5
 
 
-class OptionError(ConfigError):
-    """A :class:`ConfigError` of :class:`ReplayOptions` or :class:`TopicNames` about given
-    fields: the message names the fields, ``fields`` holds them for a caller that knows them
-    by other names (the command line's options, ``bag_replay``)."""
-
-    def __init__(self, message: str, *fields: str) -> None:
-        super().__init__(message)
-        self.fields = fields
-
-
 def log_stderr(message: str) -> None:
     """Print one ``[cva-bag-replay]`` line on stderr."""
     # Above a progress line on a terminal, not glued to its end.
@@ -181,16 +170,16 @@ class TopicNames:
             try:
                 check_topic_name(f'/{prefix}', 'topic prefix')
             except ConfigError as err:
-                raise OptionError(str(err), 'prefix') from None
+                raise ConfigError(str(err), 'prefix') from None
         for name, value in asdict(self).items():
             if name == 'prefix':
                 continue
             if not str(value).strip('/'):
-                raise OptionError(f'topic {name} must be a non-empty name; got {value!r}', name)
+                raise ConfigError(f'topic {name} must be a non-empty name; got {value!r}', name)
             try:
                 check_topic_name(self.resolve(name), f'topic {name}')
             except ConfigError as err:
-                raise OptionError(str(err), name) from None
+                raise ConfigError(str(err), name) from None
         # The replay tells its inputs apart by topic: two on one topic would leave one of
         # them without messages (every frame unpaired, or the images read as ground truth).
         named: dict[str, str] = {}
@@ -247,7 +236,7 @@ class CompressionConfig:
         compressed_depth_png_level: zlib level (0–9) of the ``depth/compressedDepth`` PNG.
 
     Raises:
-        ConfigError: A value the node would refuse (naming the parameter).
+        ConfigError: A value the node would refuse (naming the parameter, also in ``fields``).
     """
 
     # The node's defaults (NodeConfig's; a test keeps them equal without importing rclpy here).
@@ -271,7 +260,7 @@ class CompressionConfig:
             elif isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
                 # rclpy refuses these by the descriptor's integer range.
                 raise ConfigError(
-                    f'{name} must be an integer in [{low:g}, {high:g}]; got {value!r}'
+                    f'{name} must be an integer in [{low:g}, {high:g}]; got {value!r}', name
                 )
             object.__setattr__(self, name, value)
         NodeConfig(**asdict(self))
@@ -320,6 +309,11 @@ class ReplayOptions:
         startup_timeout_s: Live mode: wait this long for the node's topics to connect.
         drain_timeout_s: Live mode: after the last input, wait this long without any output
             before giving up on the frames not answered yet.
+
+    Raises:
+        ConfigError: An invalid value or path; one of given fields (or topics) carries their
+            names in ``fields``, for a caller that set them under other names (the command
+            line's options, :mod:`msg_tools.bag_replay`).
     """
 
     bag: Path
@@ -353,39 +347,42 @@ class ReplayOptions:
 
     def __post_init__(self) -> None:
         if self.mode not in ('offline', 'live'):
-            raise ConfigError(f"mode must be 'offline' or 'live'; got {self.mode!r}")
+            raise ConfigError(f"mode must be 'offline' or 'live'; got {self.mode!r}", 'mode')
         if self.storage not in STORAGES:
-            raise ConfigError(f'storage must be one of {STORAGES}; got {self.storage!r}')
+            raise ConfigError(
+                f'storage must be one of {STORAGES}; got {self.storage!r}', 'storage'
+            )
         if self.queue_size < 1:
-            raise OptionError(f'queue_size must be >= 1; got {self.queue_size}', 'queue_size')
+            raise ConfigError(f'queue_size must be >= 1; got {self.queue_size}', 'queue_size')
         from cva_confidence_ros.ros.convert import DEPTH_ENCODINGS
 
         if self.depth_encoding not in DEPTH_ENCODINGS:
             raise ConfigError(
-                f'depth encoding must be one of {DEPTH_ENCODINGS}; got {self.depth_encoding!r}'
+                f'depth encoding must be one of {DEPTH_ENCODINGS}; got {self.depth_encoding!r}',
+                'depth_encoding',
             )
         if not 0 <= self.sync_tolerance_s <= _MAX_SPAN_S:
-            raise OptionError(
+            raise ConfigError(
                 f'sync tolerance must be a finite number of seconds >= 0 (at most '
                 f'{_MAX_SPAN_S:.3g}, the span of int64 ns stamps); got {self.sync_tolerance_s}',
                 'sync_tolerance_s',
             )
         if self.max_pixels is not None and self.max_pixels < 1:
-            raise OptionError(f'max_pixels must be >= 1; got {self.max_pixels}', 'max_pixels')
+            raise ConfigError(f'max_pixels must be >= 1; got {self.max_pixels}', 'max_pixels')
         if self.max_plots < 0:
-            raise OptionError(f'max_plots must be >= 0; got {self.max_plots}', 'max_plots')
+            raise ConfigError(f'max_plots must be >= 0; got {self.max_plots}', 'max_plots')
         if self.seed < 0:
             # numpy's generators take no negative seed; the run would fail at its first frame.
-            raise OptionError(f'seed must be an integer >= 0; got {self.seed}', 'seed')
+            raise ConfigError(f'seed must be an integer >= 0; got {self.seed}', 'seed')
         if not (math.isfinite(self.rate_scale) and self.rate_scale > 0):
-            raise OptionError(
+            raise ConfigError(
                 f'rate_scale must be a finite number > 0; got {self.rate_scale}', 'rate_scale'
             )
         timeouts = {'startup_timeout_s': self.startup_timeout_s,
                     'drain_timeout_s': self.drain_timeout_s}
         bad = [name for name, t in timeouts.items() if not (math.isfinite(t) and t > 0)]
         if bad:
-            raise OptionError(
+            raise ConfigError(
                 f'timeouts must be a finite number of seconds > 0; got startup '
                 f'{self.startup_timeout_s}, drain {self.drain_timeout_s}', *bad,
             )

@@ -101,6 +101,9 @@ class NodeConfig:
         compressed_depth_quantization: Inverse-depth quantisation of a 32FC1
             ``depth/compressedDepth`` (> 0): larger = finer near depths.
         compressed_depth_png_level: zlib level (0–9) of the ``depth/compressedDepth`` PNG.
+
+    Raises:
+        ConfigError: A value the node refuses, named by its parameter (also in ``fields``).
     """
 
     publish_points: bool = True
@@ -138,28 +141,32 @@ class NodeConfig:
             value = getattr(self, item.name)
             if isinstance(item.default, bool):
                 if not isinstance(value, bool):
-                    raise ConfigError(f'{item.name} must be True or False; got {value!r}')
+                    raise ConfigError(
+                        f'{item.name} must be True or False; got {value!r}', item.name
+                    )
             elif isinstance(item.default, int):
                 if not is_int(value):
-                    raise ConfigError(f'{item.name} must be an integer; got {value!r}')
+                    raise ConfigError(f'{item.name} must be an integer; got {value!r}', item.name)
             elif isinstance(item.default, float):
                 # (the scan_* numbers: ScanConfig checks them, below)
                 if not is_real(value) and not item.name.startswith('scan_'):
-                    raise ConfigError(f'{item.name} must be a number; got {value!r}')
+                    raise ConfigError(f'{item.name} must be a number; got {value!r}', item.name)
             elif not isinstance(value, str):
-                raise ConfigError(f'{item.name} must be a string; got {value!r}')
+                raise ConfigError(f'{item.name} must be a string; got {value!r}', item.name)
         if self.depth_encoding not in DEPTH_ENCODINGS:
             raise ConfigError(
-                f'depth_encoding must be one of {DEPTH_ENCODINGS}; got {self.depth_encoding!r}'
+                f'depth_encoding must be one of {DEPTH_ENCODINGS}; got {self.depth_encoding!r}',
+                'depth_encoding',
             )
         if self.image_transport not in TRANSPORT_CHOICES:
             raise ConfigError(
-                f'image_transport must be one of {TRANSPORT_CHOICES}; got {self.image_transport!r}'
+                f'image_transport must be one of {TRANSPORT_CHOICES}; got '
+                f'{self.image_transport!r}', 'image_transport',
             )
         for name in ('input_qos', 'output_qos'):
             if getattr(self, name) not in QOS_CHOICES:
                 raise ConfigError(
-                    f'{name} must be one of {QOS_CHOICES}; got {getattr(self, name)!r}'
+                    f'{name} must be one of {QOS_CHOICES}; got {getattr(self, name)!r}', name
                 )
         if not (
             math.isfinite(self.approximate_sync_tolerance_seconds)
@@ -168,33 +175,39 @@ class NodeConfig:
             # (inf made tolerance_ns raise OverflowError on the first message)
             raise ConfigError(
                 'approximate_sync_tolerance_seconds must be a finite number >= 0; '
-                f'got {self.approximate_sync_tolerance_seconds}'
+                f'got {self.approximate_sync_tolerance_seconds}',
+                'approximate_sync_tolerance_seconds',
             )
         if self.queue_size < 1:
-            raise ConfigError(f'queue_size must be >= 1; got {self.queue_size}')
+            raise ConfigError(f'queue_size must be >= 1; got {self.queue_size}', 'queue_size')
         if not (math.isfinite(self.max_rate_hz) and self.max_rate_hz >= 0):
             raise ConfigError(
-                f'max_rate_hz must be a finite number >= 0 (0 = no limit); got {self.max_rate_hz}'
+                f'max_rate_hz must be a finite number >= 0 (0 = no limit); got {self.max_rate_hz}',
+                'max_rate_hz',
             )
         if self.max_rate_hz and not 0.98e9 / self.max_rate_hz < 2**63:
             # A period beyond int64 nanoseconds (inf for 1e-300 Hz) made min_period_ns raise
             # OverflowError on the first set of messages.
             raise ConfigError(
                 f'max_rate_hz must be 0 (no limit) or at least {0.98e9 / 2**63:.3g} Hz (a '
-                f'period that int64 nanoseconds hold); got {self.max_rate_hz}'
+                f'period that int64 nanoseconds hold); got {self.max_rate_hz}', 'max_rate_hz',
             )
         if not 0.0 <= self.min_kept_fraction <= 1.0:
-            raise ConfigError(f'min_kept_fraction must be in [0, 1]; got {self.min_kept_fraction}')
+            raise ConfigError(
+                f'min_kept_fraction must be in [0, 1]; got {self.min_kept_fraction}',
+                'min_kept_fraction',
+            )
         if not 0.0 <= self.max_expected_kept_error <= 1.0:
             raise ConfigError(
-                f'max_expected_kept_error must be in [0, 1]; got {self.max_expected_kept_error}'
+                f'max_expected_kept_error must be in [0, 1]; got {self.max_expected_kept_error}',
+                'max_expected_kept_error',
             )
         if not (
             math.isfinite(self.diagnostics_period_seconds) and self.diagnostics_period_seconds > 0
         ):
             raise ConfigError(
                 'diagnostics_period_seconds must be a finite number > 0; '
-                f'got {self.diagnostics_period_seconds}'
+                f'got {self.diagnostics_period_seconds}', 'diagnostics_period_seconds',
             )
         self.scan_config()  # building it checks the scan_* values
         if self.scan_frame_id.startswith('/'):
@@ -202,16 +215,17 @@ class NodeConfig:
             # place the scan.
             raise ConfigError(
                 f"scan_frame_id must not start with '/' (tf2 refuses such frames); got "
-                f'{self.scan_frame_id!r}'
+                f'{self.scan_frame_id!r}', 'scan_frame_id',
             )
         if not 1 <= self.overlay_jpeg_quality <= 100:
             raise ConfigError(
-                f'overlay_jpeg_quality must be in [1, 100]; got {self.overlay_jpeg_quality}'
+                f'overlay_jpeg_quality must be in [1, 100]; got {self.overlay_jpeg_quality}',
+                'overlay_jpeg_quality',
             )
         for name in ('compressed_depth_max', 'compressed_depth_quantization'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
-                raise ConfigError(f'{name} must be a finite number > 0; got {value}')
+                raise ConfigError(f'{name} must be a finite number > 0; got {value}', name)
         if self.depth_encoding == '32FC1':
             # A pair float32 cannot hold in the header would drop every frame once a
             # compressedDepth subscriber came: refused here, at start-up.
@@ -227,12 +241,13 @@ class NodeConfig:
                 )
             except InputError as error:
                 raise ConfigError(
-                    f'compressed_depth_quantization and compressed_depth_max: {error}'
+                    f'compressed_depth_quantization and compressed_depth_max: {error}',
+                    'compressed_depth_quantization', 'compressed_depth_max',
                 ) from None
         if not 0 <= self.compressed_depth_png_level <= 9:
             raise ConfigError(
                 'compressed_depth_png_level must be in [0, 9]; '
-                f'got {self.compressed_depth_png_level}'
+                f'got {self.compressed_depth_png_level}', 'compressed_depth_png_level',
             )
 
     def scan_config(self) -> ScanConfig:
@@ -633,16 +648,16 @@ def double_value(
 
     Raises:
         ConfigError: Not a number (a string, a bool, an array), NaN, or outside
-            [``low``, ``high``].
+            [``low``, ``high``]; ``fields`` is ``(name,)``.
     """
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(f'{name} must be a number; got {value!r}')
+        raise ConfigError(f'{name} must be a number; got {value!r}', name)
     number = float(value)
     if math.isnan(number) or (low is not None and number < low) or (
         high is not None and number > high
     ):
         bounds = f'[{low:g}, {high:g}]' if low is not None and high is not None else 'range'
-        raise ConfigError(f'{name} must be a number in {bounds}; got {value!r}')
+        raise ConfigError(f'{name} must be a number in {bounds}; got {value!r}', name)
     return number
 
 
@@ -657,7 +672,8 @@ def check_declared_ranges(values: Mapping[str, Any]) -> None:
     them (``-p`` overrides outside its range end the node's start-up).
 
     Raises:
-        ConfigError: The first value outside its range, named with the range.
+        ConfigError: The first value outside its range, named with the range (and in
+            ``fields``).
     """
     for spec in PARAMETERS:
         value = values.get(spec.name)
@@ -666,7 +682,7 @@ def check_declared_ranges(values: Mapping[str, Any]) -> None:
         if isinstance(value, (int, float)) and not spec.low <= value <= spec.high:
             raise ConfigError(
                 f'{spec.name} must be in [{spec.low:g}, {spec.high:g}] (the range the node '
-                f'declares); got {value!r}'
+                f'declares); got {value!r}', spec.name,
             )
 
 
