@@ -165,8 +165,8 @@ class _Dist:
         gloo's worker threads let go of a finished work a moment after the caller saw it done;
         one that still held the last all_reduce's tensors when the interpreter shut down took
         the GIL of a finalising interpreter and aborted the process (``terminate called
-        without an active exception``, SIGABRT after every file was written: 1 run in about
-        70 under load). A group that nothing holds any more joins those threads as it ends.
+        without an active exception``, SIGABRT after every file was written: about 1 run in
+        100 under load). A group that nothing holds any more joins those threads as it ends.
         """
         if self.world > 1:
             gc.collect()  # the wrapper and its reducer sit in reference cycles
