@@ -100,6 +100,9 @@ _OUTPUTS: tuple[tuple[type, str], ...] = (
     (CompressedImage, 'confidence_overlay/compressed'),
     (CompressedImage, 'depth/compressedDepth'),
 )
+#: The share by which the left-image period must move from the one named in the "tolerance too
+#: wide" warning for the warning to be logged again (the median of a few gaps jitters less).
+_PERIOD_CHANGE = 0.25
 
 
 class _Mailbox:
@@ -178,6 +181,16 @@ def _seconds(stamp_ns: int) -> str:
 
 def _fraction(value: float | None) -> str:
     return '' if value is None else f'{value:.4f}'
+
+
+def _wide_tolerance_message(tolerance_ns: int, period_ns: float) -> str:
+    """The warning (log and ``/diagnostics``) of an approximate-sync tolerance of half the
+    left images' period or more."""
+    return (
+        f'approximate_sync_tolerance_seconds = {tolerance_ns / 1e9:g} is at least half the '
+        f'frame period ({period_ns / 1e9:.3f} s between left images): images of different '
+        f'frames can pair; set it below {period_ns / 2e9:.3f}'
+    )
 
 
 @dataclass
@@ -287,6 +300,10 @@ class ConfidenceCore(Node):
     _worker: threading.Thread | None
     # A pipeline a parameter change swapped in, which the worker has yet to warm up.
     _cold: StereoPipeline | None
+    # Whether the approximate-sync tolerance was too wide at the last left image, and
+    # (tolerance ns, period ns, monotonic s) of the warning logged last (guarded by _lock).
+    _wide_holds: bool
+    _wide_logged: tuple[int, float, float] | None
 
     def _init_core(self) -> None:
         declare_parameters(self)
@@ -352,6 +369,7 @@ class ConfidenceCore(Node):
             self._input_size: tuple[int, int] | None = None
             self._sync = self._make_sync(node_config)
             self._stats = _Stats()
+            self._reset_wide_tolerance()
         self._log_throttle = ReasonThrottle()
         self._mailbox = _Mailbox()
         (
@@ -590,6 +608,12 @@ class ConfidenceCore(Node):
                 self._stats.unmatched += sum(self._sync.pending().values())
                 self._sync = self._make_sync(node_config)
                 self._stats.paired_stamps_ns = {}
+            if (old.approximate_sync, old.tolerance_ns) != (
+                node_config.approximate_sync, node_config.tolerance_ns
+            ):
+                # A user's change is judged afresh: still too wide, it is logged with its new
+                # value; set back to a value logged a moment ago, it is logged again too.
+                self._reset_wide_tolerance()
         self.get_logger().info(f'parameters set: {asked}')
         if pipeline is not None:
             self._mailbox.poke()
@@ -614,8 +638,7 @@ class ConfidenceCore(Node):
             paired = self._stats.paired_stamps_ns.get(key)
             if paired is not None and stamp <= paired:
                 self._stats.window_old += 1
-            loose_period = self._note_left_stamp(stamp) if key == 'left' else None
-            tolerance_ns = self._node_config.tolerance_ns
+            too_wide = self._note_left_stamp(stamp, arrived) if key == 'left' else None
             sync = self._sync
             before = sync.dropped
             matched = sync.add(key, stamp, msg)
@@ -637,14 +660,10 @@ class ConfidenceCore(Node):
                     taken.append(item)
             if taken:  # both sets of a short jump back are processed, oldest first
                 self._stats.dropped += self._mailbox.put(taken)
-        if loose_period is not None:
-            self._log_throttle.log(
-                self.get_logger(),
-                'approximate sync tolerance too wide',
-                f'approximate_sync_tolerance_seconds = {tolerance_ns / 1e9:g} is at least '
-                f'half the frame period ({loose_period / 1e9:.3f} s between left images): images '
-                f'of different frames can pair; set it below {loose_period / 2e9:.3f}',
-            )
+        if too_wide is not None:
+            # Once as it starts or changes, not every throttle period: /diagnostics shows it
+            # as a warning for as long as it holds.
+            self.get_logger().warning(too_wide)
         for previous, now in jumps:
             if previous == now:
                 # Not back at all: the frame paired last came again (a bag of one frame played
@@ -678,21 +697,60 @@ class ConfidenceCore(Node):
         self._stats.last_taken_ns = item.stamp_ns
         return False
 
-    def _note_left_stamp(self, stamp: int) -> float | None:
-        """Track the spacing of the left images (call with the lock held).
+    def _note_left_stamp(self, stamp: int, now: float) -> str | None:
+        """Track the spacing of the left images and whether the approximate-sync tolerance is
+        too wide for it (call with the lock held).
+
+        Args:
+            stamp: The left image's stamp (ns).
+            now: Its arrival (monotonic s).
 
         Returns:
-            The frame period (ns) when approximate sync is on with a tolerance of half of it or
-            more, so that an image can pair with its neighbour's partner; else None.
+            The warning to log when the tolerance is too wide (:meth:`_wide_tolerance_period`)
+            and that has not been logged yet: it just began, the tolerance changed, or the
+            period moved by more than :data:`_PERIOD_CHANGE`; a return to the values logged
+            within the throttle period (a period on the border, in and out) is not logged
+            again. Else None.
         """
         stats = self._stats
         previous, stats.left_stamp_ns = stats.left_stamp_ns, stamp
         config = self._node_config
-        if not config.approximate_sync or previous is None or stamp <= previous:
+        if config.approximate_sync and previous is not None and stamp > previous:
+            stats.left_gaps_ns.append(stamp - previous)
+        elif config.approximate_sync:
+            return None  # no new spacing (the first image, stamps gone back): as it was
+        period = self._wide_tolerance_period()
+        if period is None:
+            self._wide_holds = False
             return None
-        stats.left_gaps_ns.append(stamp - previous)
-        period = stats.left_period_ns
-        return period if period is not None and 2 * config.tolerance_ns >= period else None
+        tolerance = config.tolerance_ns
+        last = self._wide_logged
+        if (
+            last is not None
+            and last[0] == tolerance
+            and abs(period - last[1]) <= _PERIOD_CHANGE * last[1]
+            and (self._wide_holds or now - last[2] < LOG_THROTTLE_S)
+        ):
+            self._wide_holds = True
+            return None
+        self._wide_holds = True
+        self._wide_logged = (tolerance, period, now)
+        return _wide_tolerance_message(tolerance, period)
+
+    def _wide_tolerance_period(self) -> float | None:
+        """The left images' period (ns) when approximate sync is on with a tolerance of half
+        of it or more, so that an image can pair with its neighbour's partner; else None
+        (lock held)."""
+        config = self._node_config
+        period = self._stats.left_period_ns
+        if not config.approximate_sync or period is None:
+            return None
+        return period if 2 * config.tolerance_ns >= period else None
+
+    def _reset_wide_tolerance(self) -> None:
+        """Forget the "tolerance too wide" warning logged (lock held): judged afresh."""
+        self._wide_holds = False
+        self._wide_logged = None
 
     def _input_names(self) -> dict[str, str]:
         """Synchroniser key → the input's topic as the logs name it: the relative name, or
@@ -1065,6 +1123,12 @@ class ConfidenceCore(Node):
                     f'kept pixels (max_expected_kept_error {ceiling:g}): blur, fog, or a '
                     'rectification gone wrong?'
                 )
+            # Logged once where it is seen; here for as long as it holds (while subscribed:
+            # no input comes to pair otherwise).
+            wide = self._wide_tolerance_period() if stats.subscribed_at is not None else None
+            if wide is not None:
+                level = DiagnosticStatus.WARN
+                message = _wide_tolerance_message(self._node_config.tolerance_ns, wide)
             if stats.window_invalid:
                 level = DiagnosticStatus.WARN
                 message = f'{stats.window_invalid} bad frame(s) dropped: {stats.last_invalid}'
@@ -1130,7 +1194,8 @@ class ConfidenceCore(Node):
         )
         # rclpy throttles per call site and allows one severity per site: a site for each
         # warning, so that none throttles another away. (Bad and failed frames are logged as
-        # warnings and errors where they are dropped: their status is an info line here.)
+        # warnings and errors where they are dropped, a too wide approximate-sync tolerance
+        # where it is first seen: their status is an info line here.)
         if status.message.startswith('messages arrive but none pair up'):
             self.get_logger().warning(line, throttle_duration_sec=LOG_THROTTLE_S)
         elif status.message.startswith('no input'):
