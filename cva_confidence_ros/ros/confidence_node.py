@@ -715,10 +715,12 @@ class ConfidenceCore(Node):
         stats = self._stats
         previous, stats.left_stamp_ns = stats.left_stamp_ns, stamp
         config = self._node_config
-        if config.approximate_sync and previous is not None and stamp > previous:
-            stats.left_gaps_ns.append(stamp - previous)
-        elif config.approximate_sync:
+        if not config.approximate_sync:
+            self._wide_holds = False
+            return None
+        if previous is None or stamp <= previous:
             return None  # no new spacing (the first image, stamps gone back): as it was
+        stats.left_gaps_ns.append(stamp - previous)
         period = self._wide_tolerance_period()
         if period is None:
             self._wide_holds = False

@@ -11,6 +11,8 @@ import time
 from typing import Any
 
 import numpy as np
+from rcl_interfaces.msg import SetParametersResult
+from rcl_interfaces.srv import SetParameters
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
@@ -117,6 +119,23 @@ def info_msgs(
         info.p = [fx, 0.0, cx, tx, 0.0, fx, cy, 0.0, 0.0, 0.0, 1.0, 0.0]
         infos.append(info)
     return infos[0], infos[1]
+
+
+def set_parameters_by_service(
+    client: Node, node_name: str = '/cva_confidence', **values: object
+) -> list[SetParametersResult]:
+    """Set parameters of the node ``node_name`` over its ``set_parameters`` service, as
+    ``ros2 param set`` does, from ``client`` (spun by someone else); its answers in order."""
+    service = client.create_client(SetParameters, f'{node_name}/set_parameters')
+    try:
+        assert service.wait_for_service(timeout_sec=20.0), 'no parameter service'
+        future = service.call_async(SetParameters.Request(
+            parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()]
+        ))
+        assert wait_until(future.done, 20.0), 'no answer from the parameter service'
+        return list(future.result().results)
+    finally:
+        client.destroy_client(service)
 
 
 class StereoClient:

@@ -20,12 +20,12 @@ from node_test_utils import (
     image_msg,
     info_msgs,
     running_nodes,
+    set_parameters_by_service,
     textured_pair,
 )
 import numpy as np
 import pytest
 from rcl_interfaces.msg import Log, SetParametersResult
-from rcl_interfaces.srv import SetParameters
 import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
@@ -93,20 +93,7 @@ class _Running:
 
     def set_by_service(self, **values: object) -> list[SetParametersResult]:
         """Set parameters over the node's ``set_parameters`` service (``ros2 param set``)."""
-        service = self.client.node.create_client(SetParameters, '/cva_confidence/set_parameters')
-        try:
-            assert service.wait_for_service(timeout_sec=20.0)
-            request = SetParameters.Request(
-                parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()]
-            )
-            future = service.call_async(request)
-            deadline = time.monotonic() + 20.0
-            while not future.done() and time.monotonic() < deadline:
-                time.sleep(0.02)
-            assert future.done(), 'no answer from the parameter service'
-            return list(future.result().results)
-        finally:
-            self.client.node.destroy_client(service)
+        return set_parameters_by_service(self.client.node, **values)
 
     def logged(self, text: str, level: int = Log.WARN) -> list[str]:
         """The node's ``/rosout`` messages of ``level`` that contain ``text``."""
@@ -389,18 +376,9 @@ def test_invalid_parameter_changes_are_rejected_with_a_reason(running: _Running)
 
 def test_parameter_service_rebuilds_the_pipeline(running: _Running) -> None:
     client = running.client
-    service = client.node.create_client(SetParameters, '/cva_confidence/set_parameters')
     try:
-        assert service.wait_for_service(timeout_sec=20.0)
-        request = SetParameters.Request(
-            parameters=[Parameter('max_disparity', value=24).to_parameter_msg()]
-        )
-        future = service.call_async(request)
-        deadline = time.monotonic() + 20.0
-        while not future.done() and time.monotonic() < deadline:
-            time.sleep(0.02)
-        assert future.done()
-        assert [r.successful for r in future.result().results] == [True]
+        answers = set_parameters_by_service(client.node, max_disparity=24)
+        assert [r.successful for r in answers] == [True]
         assert running.node.pipeline_config.max_disparity == 24
         left, right = textured_pair(seed=3)
         out = client.send_until_output(left, right, running.next_stamp(), topics=('disparity',))
@@ -408,7 +386,6 @@ def test_parameter_service_rebuilds_the_pipeline(running: _Running) -> None:
     finally:
         result = running.set(max_disparity=MAX_DISPARITY)
         assert result.successful
-        client.node.destroy_client(service)
 
 
 def test_a_new_pipeline_is_warmed_up_on_the_worker_before_its_first_frame(

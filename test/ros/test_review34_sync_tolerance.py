@@ -18,12 +18,12 @@ from node_test_utils import (
     first_stamp,
     image_msg,
     localhost_context,
+    set_parameters_by_service,
     spare_domain_id,
     textured_pair,
 )
 import pytest
 from rcl_interfaces.msg import Log
-from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 
@@ -82,20 +82,8 @@ class _Setup:
 
     def set_by_service(self, **values: object) -> None:
         """Set parameters over the node's ``set_parameters`` service (``ros2 param set``)."""
-        service = self.client.node.create_client(SetParameters, '/cva_confidence/set_parameters')
-        try:
-            assert service.wait_for_service(timeout_sec=20.0)
-            request = SetParameters.Request(
-                parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()]
-            )
-            future = service.call_async(request)
-            deadline = time.monotonic() + 20.0
-            while not future.done() and time.monotonic() < deadline:
-                time.sleep(0.02)
-            assert future.done(), 'no answer from the parameter service'
-            assert all(result.successful for result in future.result().results)
-        finally:
-            self.client.node.destroy_client(service)
+        answers = set_parameters_by_service(self.client.node, **values)
+        assert all(answer.successful for answer in answers)
 
 
 @pytest.fixture
