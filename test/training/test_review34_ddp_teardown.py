@@ -16,7 +16,8 @@ import sys
 
 from train_test_utils import TINY
 
-# Runs cva-train's main in each process, then lists the threads the process still has.
+# Runs cva-train's main in each process, then writes the threads the process still has to a
+# file of its own (torchrun runs python -u: lines of two processes on one pipe can interleave).
 _SCRIPT = """
 import os, sys
 from cva_confidence_ros.training.cli import main
@@ -24,7 +25,9 @@ from cva_confidence_ros.training.cli import main
 code = main(sys.argv[1:])
 names = sorted(open(f'/proc/self/task/{tid}/comm').read().strip()
                for tid in os.listdir('/proc/self/task'))
-print(f'rank {os.environ["RANK"]} exit {code} threads {names}', flush=True)
+rank = os.environ['RANK']
+with open(os.path.join(os.environ['THREADS_OUT'], f'rank{rank}.txt'), 'w') as out:
+    out.write(f'rank {rank} exit {code} threads {names}')
 """
 
 
@@ -37,10 +40,10 @@ def test_gloo_threads_end_with_the_run(tmp_path):
         str(script), *TINY, '--samples-per-epoch', '64', '--epochs', '1', '--epochs-low-lr', '0',
         '--out', str(out), '--weights-out', str(out / 'w.pt'),
     ]  # fmt: skip
-    env = {**os.environ, 'OMP_NUM_THREADS': '1'}
+    env = {**os.environ, 'OMP_NUM_THREADS': '1', 'THREADS_OUT': str(tmp_path)}
     done = subprocess.run(command, capture_output=True, text=True, timeout=300, env=env)
     assert done.returncode == 0, done.stdout + done.stderr
-    lines = sorted(line for line in done.stdout.splitlines() if line.startswith('rank '))
+    lines = [(tmp_path / f'rank{rank}.txt').read_text() for rank in (0, 1)]
     assert [line.split(' threads ')[0] for line in lines] == ['rank 0 exit 0', 'rank 1 exit 0']
     for line in lines:
         # While the group lives: gloo_tcp_loop and two pt_gloo_runloop threads.
