@@ -148,8 +148,9 @@ class _Dist:
         if self.world > 1:
             failed = self.sum([float(error is not None)])[0] > 0
             if failed:
-                # Every process took part in the exchange: the group can end on each.
-                torch.distributed.destroy_process_group()
+                # The group is left as it is: ended here, DDP's reducer would hold its last
+                # reference, and freeing that with the GIL held (as the error unwinds) waits
+                # for a gloo thread that needs the GIL to let go of this exchange's tensor.
                 if error is None:
                     raise ModelError(
                         f'process 0 of {self.world} stopped with an error (its message is in '
