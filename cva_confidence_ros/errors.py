@@ -6,13 +6,17 @@ Every message says what was expected and what came, e.g.
 
 from __future__ import annotations
 
+import os
 import re
+import sys
+from typing import NoReturn
 
 __all__ = [
     'BagError',
     'CVAError',
     'ConfigError',
     'DataError',
+    'end_process',
     'InputError',
     'ModelError',
     'from_interrupt',
@@ -97,3 +101,18 @@ def from_interrupt(exc: BaseException) -> bool:
         seen.add(id(current))
         current = current.__cause__ or current.__context__
     return False
+
+
+def end_process(code: int) -> NoReturn:
+    """End the process with ``code`` at once: output flushed, no interpreter finalisation.
+
+    For exits with C++ threads still running (a worker inside torch, gloo's threads of a
+    process group): finalising the interpreter under them can end one in ``std::terminate``
+    (SIGABRT, after everything else went right).
+    """
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)

@@ -25,8 +25,9 @@ import argparse
 from collections.abc import Sequence
 import shlex
 import sys
+import traceback
 
-from cva_confidence_ros.errors import CVAError, from_interrupt
+from cva_confidence_ros.errors import CVAError, end_process, from_interrupt
 from cva_confidence_ros.training.config import (
     FUSION_SPLITS,
     MODES,
@@ -263,12 +264,30 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run ``cva-train``; returns the exit code (0 = done, 2 = bad input)."""
+    """Run ``cva-train``; returns the exit code (0 = done, 2 = bad input).
+
+    Under torchrun a run that failed ends its process here, with the code: its process group
+    is left as it was (see ``_Dist.settle``), and finalising the interpreter under gloo's
+    threads could turn the error's exit into a SIGABRT.
+    """
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
     from cva_confidence_ros.memory import keep_freed_memory
 
     keep_freed_memory()
+    try:
+        code = _train(args, argv)
+    except Exception:
+        if not _group_left():
+            raise
+        traceback.print_exc()
+        code = 1
+    if _group_left():
+        end_process(code)
+    return code
+
+
+def _train(args: argparse.Namespace, argv: list[str]) -> int:
     try:
         config = config_from_args(args)
         from cva_confidence_ros.training.trainer import train
@@ -284,6 +303,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f'{PROG}: interrupted; continue with --resume', file=sys.stderr)
         return 130
     return 0
+
+
+def _group_left() -> bool:
+    """Whether a torchrun process group outlived the run (it ends with a finished one)."""
+    distributed = sys.modules.get('torch.distributed')
+    return distributed is not None and distributed.is_available() and distributed.is_initialized()
 
 
 if __name__ == '__main__':
