@@ -174,13 +174,12 @@ class InputBag:
             reader = Reader(self.path)
             reader.open()
         except FileNotFoundError as err:
-            raise BagError(
-                f'{self.path} is not a rosbag2 (no metadata.yaml): {reason(err)}'
-            ) from None
+            raise BagError(_no_metadata(self.path, err)) from None
         except (ReaderError, *_STORAGE_FAULTS) as err:
             # One clause: a YAML parser explains a bad metadata.yaml over several lines.
             raise BagError(
                 f'cannot open bag {self.path} (corrupt or truncated?): {reason(err)}'
+                f'{_unfinished_mcap(self.path)}'
             ) from None
         for conn in reader.connections:
             count = conn.msgcount
@@ -349,6 +348,51 @@ class InputBag:
                     f'that failed?)'
                 )
             self._found.add(conn.id)
+
+
+def _no_metadata(path: Path, err: Exception) -> str:
+    """Why a folder is no bag, and what to do: a recording that was killed before it wrote
+    its metadata.yaml (rosbag2 writes it last) still holds its storage files."""
+    text = f'{path} is not a rosbag2 (no metadata.yaml): {reason(err)}'
+    try:
+        files = sorted(p for p in path.iterdir() if p.suffix in _STORAGE_MAGIC and p.is_file())
+    except OSError:
+        return text
+    if not files:
+        return text
+    listing = ', '.join(str(p) for p in files[:5]) + (', ...' if len(files) > 5 else '')
+    # Split recordings: one file is one part of the recording.
+    each = ', each a part of the recording' if len(files) > 1 else ''
+    return (
+        f'{path} has no metadata.yaml (a recording that was killed?), but holds the storage '
+        f'file{"s" if len(files) > 1 else ""} {listing}: give one as the bag (a .mcap or .db3 '
+        f'file is read without metadata.yaml{each}), or write the metadata with '
+        f'`ros2 bag reindex {path}`'
+    )
+
+
+def _unfinished_mcap(path: Path) -> str:
+    """A hint for an MCAP file that starts as one but does not end with its magic: a
+    recording that was killed (no summary, no footer), which ``rosbags`` cannot read."""
+    magic = _STORAGE_MAGIC['.mcap']
+    if path.suffix != '.mcap' or not path.is_file():
+        return ''
+    try:
+        with path.open('rb') as stream:
+            head = stream.read(len(magic))
+            stream.seek(0, os.SEEK_END)
+            size = stream.tell()
+            stream.seek(max(size - len(magic), 0))
+            tail = stream.read()
+    except OSError:
+        return ''
+    if head != magic or tail == magic:
+        return ''
+    return (
+        f'; the file does not end like an MCAP file (a recording that was killed, or a copy '
+        f'cut short): recover its messages with the mcap CLI, `mcap recover {path} -o '
+        f'{path.with_name(path.stem + "_recovered.mcap")}`, and replay that'
+    )
 
 
 def deserialize(store: Any, data: bytes, msgtype: str, where: str) -> Any:

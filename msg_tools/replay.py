@@ -68,6 +68,7 @@ __all__ = [
     'ReplaySession',
     'TopicNames',
     'TopicPlan',
+    'TRUTH_JUMP_NS',
     'check_output_bag_folder',
     'log_stderr',
     'make_synchronizer',
@@ -118,6 +119,10 @@ _MAX_SPAN_S = (2**63 - 1) / 1e9
 GT_WAIT_FRAMES = 100
 # Stamps remembered to say why a frame went unscored (plain integers: cheap to keep).
 _MAX_REMEMBERED = 1000
+#: How far back a ground-truth stamp must go to be a jump back at once (the synchroniser's
+#: ``min_jump_ns`` default); a shorter step back is one message out of order (a ground-truth
+#: node whose latency varies) unless the next one goes back too (a short loop).
+TRUTH_JUMP_NS = 1_000_000_000
 #: Stamps of ground-truth messages that matched no processed frame listed in the report and
 #: the closing line (all are counted).
 MAX_LISTED_UNMATCHED_TRUTH = 5
@@ -529,7 +534,12 @@ def plan_topics(bag: InputBag, options: ReplayOptions, log: Logger = log_stderr)
     inputs = options.topics.inputs()
     types = {}
     for key, topic in inputs.items():
-        types[topic] = bag.require(topic, _INPUT_TYPES[key], key.replace('_', ' '))
+        try:
+            types[topic] = bag.require(topic, _INPUT_TYPES[key], key.replace('_', ' '))
+        except BagError as err:
+            if topic in bag.topics:
+                raise
+            raise BagError(f'{err}{_camera_hint(bag.topics, options.topics)}') from None
     gt_topic = options.topics.resolve('ground_truth')
     gt_type = ''
     ground_truth: str | None = gt_topic
@@ -559,6 +569,30 @@ def plan_topics(bag: InputBag, options: ReplayOptions, log: Logger = log_stderr)
         pairs_expected=counts.get(inputs['left'], 0),
         input_counts={topic: counts.get(topic, 0) for topic in inputs.values()},
     )
+
+
+def _camera_hint(topics: dict[str, str], names: TopicNames) -> str:
+    """The stereo cameras a bag holds under other namespaces than the options name, as the
+    ``--topic-prefix`` of each (a robot's bag lists a hundred topics or more)."""
+    if names.left.startswith('/') or names.right.startswith('/'):
+        return ''
+    left, right = names.left.strip('/'), names.right.strip('/')
+    found = []
+    for topic, kind in sorted(topics.items()):
+        for transport in ('', '/compressed'):
+            if not topic.endswith(f'/{left}{transport}') or kind not in _INPUT_TYPES['left']:
+                continue
+            prefix = topic[: -len(f'/{left}{transport}')]
+            if f'{prefix}/{right}{transport}' not in topics:
+                continue
+            option = f'--topic-prefix {prefix or "/"}'
+            if transport:
+                option += (f' --left-topic {left}{transport} --right-topic '
+                           f'{right}{transport}')
+            found.append(option)
+    if not found:
+        return ''
+    return f'; stereo cameras in the bag: {" | ".join(found)}'
 
 
 def stereo_inputs(
@@ -847,13 +881,15 @@ class ReplaySession:
     logged with the reason (the first few times per reason).
 
     Stamps that go back on either stream (a looped bag, a simulator reset; on the frames,
-    the synchroniser lets a frame go back only where the stamps jumped) start a new ordering
-    epoch of that stream, and the n-th jump of the frames and of the ground truth are taken
-    as the same one: only ground truth of a frame's own epoch tells that its ground truth can
-    no longer come. Frames from before a jump still wait for theirs (it may lag); one that a
-    frame of the same stamp after the jump finds waiting is reported unscored. Ground truth
-    does not score a frame of an earlier epoch, nor does ground truth left from an earlier
-    epoch (a skipped frame's) score a frame after a jump.
+    the synchroniser lets a frame go back only where the stamps jumped; on the ground truth,
+    :data:`TRUTH_JUMP_NS` or more, or two messages in a row before the last, or one while the
+    frames jump: one message a little out of order is taken in the epoch it belongs to) start
+    a new ordering epoch of that stream, and the n-th jump of the frames and of the ground
+    truth are taken as the same one: only ground truth of a frame's own epoch tells that its
+    ground truth can no longer come. Frames from before a jump still wait for theirs (it may
+    lag); one that a frame of the same stamp after the jump finds waiting is reported
+    unscored. Ground truth does not score a frame of an earlier epoch, nor does ground truth
+    left from an earlier epoch (a skipped frame's) score a frame after a jump.
 
     The synchroniser records the input messages it lets go without a pair
     (:meth:`report_drops`): each is logged (the first few) and recorded in the report with its
@@ -898,6 +934,9 @@ class ReplaySession:
         self._frame_epoch = self._truth_epoch = 0
         self._last_frame: int | None = None
         self._last_truth: int | None = None
+        # A ground-truth message a little before the last: out of order or the first after a
+        # short jump back, told apart by what comes next (see add_ground_truth).
+        self._truth_held: tuple[int, Any] | None = None
         # Stamps (→ epoch) of frames that stopped waiting after GT_WAIT_FRAMES, and of ground
         # truth that waited longer than truth_window for its frame: to tell why a frame went
         # unscored. A dropped ground truth's epoch is kept while it counts as matching no
@@ -907,6 +946,8 @@ class ReplaySession:
         # (Stamp, epoch) of the processed frames, to tell a second ground-truth message of a
         # frame's stamp from one that matched no frame.
         self._processed: OrderedDict[tuple[int, int], None] = OrderedDict()
+        # Stamps (→ epoch) of left images the synchroniser let go as late (out of order).
+        self._late_frames: OrderedDict[int, int] = OrderedDict()
         self._late_truth_logged = False
         self._skip_logs = 0
         # Ground-truth messages that could not be read (their stamps are unknown).
@@ -995,6 +1036,9 @@ class ReplaySession:
         lie further on in the bag).
         """
         for drop in sync.take_drops():
+            if drop.kind == 'late' and drop.key == 'left':
+                # A frame out of order: its ground truth may come out of order too.
+                _remember(self._late_frames, drop.stamp_ns, self._frame_epoch)
             why = self._why(drop)
             if stopped and drop.kind == 'unmatched':
                 why = 'still waiting for its partners when the run stopped'
@@ -1057,10 +1101,48 @@ class ReplaySession:
     def add_ground_truth(self, stamp_ns: int, msg: Any) -> None:
         """Offer a ground-truth message; scores the frame that waits for it, if any, and
         gives up on the frames of older stamps of its epoch that still wait (theirs can no
-        longer come). A stamp before the last one starts a new epoch (see the class)."""
-        if self._last_truth is not None and stamp_ns < self._last_truth:
-            self._truth_epoch += 1
-        self._last_truth = stamp_ns
+        longer come). A stamp :data:`TRUTH_JUMP_NS` or more before the last one starts a new
+        epoch; one less before it waits for the next message (or frame): when that goes back
+        too, the stamps jumped; else it was out of order if a frame of its stamp came before
+        it, or the frames have not reached its stamp yet (see the class)."""
+        if self._truth_held is not None:
+            assert self._last_truth is not None
+            self._release_truth(jumped=True if stamp_ns < self._last_truth else None)
+        last = self._last_truth
+        if last is not None and 0 < last - stamp_ns < TRUTH_JUMP_NS:
+            self._truth_held = (stamp_ns, msg)
+            return
+        self._take_truth(stamp_ns, msg)
+
+    def _release_truth(self, jumped: bool | None = None) -> None:
+        """Take the ground-truth message held aside: as the first after a jump back, or as
+        one out of order (its epoch, the last stamp unchanged); None: out of order when a
+        frame of its stamp was processed (or waits, or came late) in the ground truth's epoch,
+        or the frames of that epoch have not come as far as its stamp, else a jump (a
+        reset)."""
+        held, self._truth_held = self._truth_held, None
+        if held is None:
+            return
+        if jumped is None:
+            stamp, epoch = held[0], self._truth_epoch
+            seen = (
+                (stamp, epoch) in self._processed
+                or self._late_frames.get(stamp) == epoch
+                or (stamp in self._pending and self._pending[stamp][0] == epoch)
+            )
+            ahead = epoch == self._frame_epoch and (
+                self._last_frame is None or stamp > self._last_frame
+            )
+            jumped = not (seen or ahead)
+        self._take_truth(*held, in_order=jumped)
+
+    def _take_truth(self, stamp_ns: int, msg: Any, in_order: bool = True) -> None:
+        """:meth:`add_ground_truth` proper; ``in_order`` False: a message out of order, taken
+        in the current epoch without moving the last stamp."""
+        if in_order:
+            if self._last_truth is not None and stamp_ns < self._last_truth:
+                self._truth_epoch += 1
+            self._last_truth = stamp_ns
         epoch = self._truth_epoch
         self._give_up_before(stamp_ns, epoch)
         waiting = self._pending.get(stamp_ns)
@@ -1130,6 +1212,10 @@ class ReplaySession:
             return
         stamp = result.stamp_ns
         epoch = self.frame_epoch(stamp)
+        held = self._truth_held
+        if held is not None and held[0] == stamp and epoch == self._truth_epoch:
+            # Its ground truth came out of order, before it: not the first after a jump.
+            self._release_truth(jumped=False)
         _remember(self._processed, (stamp, epoch))
         self._truth_found(stamp, epoch)
         truth = self._truth.pop(stamp, None)
@@ -1171,6 +1257,9 @@ class ReplaySession:
         if self._last_frame is not None and stamp_ns < self._last_frame:
             self._frame_epoch += 1
         self._last_frame = stamp_ns
+        if self._truth_held is not None and self._frame_epoch > self._truth_epoch:
+            # The frames jumped back where the held ground truth went back: so did it.
+            self._release_truth(jumped=True)
         return self._frame_epoch
 
     def _give_up_before(self, stamp_ns: int, epoch: int) -> None:
@@ -1368,6 +1457,8 @@ class ReplaySession:
         stopped = self.report.interrupted or bool(self.report.error)
         failure: ConfigError | None = None
         try:
+            # The last ground truth went back a little and nothing came after it.
+            self._release_truth()
             while self._pending:
                 stamp, (_, result) = self._pending.popitem(last=False)
                 try:
