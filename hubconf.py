@@ -105,15 +105,20 @@ cvanet_fast = _entry('cvanet_fast', """CVA-Net-Fast, the network the node runs b
     CPU (D = 64, 128, 256 shipped); otherwise as :func:`cvanet`.""")
 cvanet_lite = _entry('cvanet_lite', """CVA-Net-Lite, the light network (D = 64 shipped);
     otherwise as :func:`cvanet`.""")
+# The baselines' modules take other inputs than CVA-Net's (their help said "as cvanet").
 ccnn = _entry('ccnn', """CCNN (Poggi & Mattoccia 2016), a baseline of the paper's Table 1,
     trained by this project (D = 64 shipped): it judges the disparity map,
-    ``.predict(disparity, image)``; otherwise as :func:`cvanet`.""")
+    ``.predict(disparity, image)`` ((H, W) disparity in px, uint8 image → (H, W)). The
+    module: ``net(disparity / D, grey / 255)``, each (B, 1, h + 8, w + 8) → (B, 1, h, w)
+    probabilities (the image is ignored); options as :func:`cvanet`.""")
 lfn = _entry('lfn', """LFN (Fu et al. 2017), a baseline of the paper's Table 1 (D = 64
-    shipped): disparity and image, ``.predict(disparity, image)``; otherwise as
-    :func:`cvanet`.""")
+    shipped): disparity and image, ``.predict(disparity, image)`` → (H, W). The module:
+    ``net(disparity / D, grey / 255)``, each (B, 1, h + 8, w + 8) → (B, 1, h, w)
+    probabilities; options as :func:`cvanet`.""")
 lgcnet = _entry('lgcnet', """LGC-Net (Tosi et al. 2018), a baseline of the paper's Table 1
-    (D = 64 shipped): disparity and image, ``.predict(disparity, image)``; otherwise as
-    :func:`cvanet`.""")
+    (D = 64 shipped): disparity and image, ``.predict(disparity, image)`` → (H, W). The
+    module: ``net(disparity / D, grey / 255)``, whole (B, 1, H, W) images → (B, 1, H, W)
+    probabilities; options as :func:`cvanet`.""")
 
 
 def pipeline(

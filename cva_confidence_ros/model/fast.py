@@ -47,6 +47,7 @@ from cva_confidence_ros.model.network import (
     FUSION_LAYERS,
     check_network_options,
     conv_bias,
+    reset_batchnorm,
 )
 
 __all__ = [
@@ -88,8 +89,9 @@ def aligned_curve(costs: torch.Tensor) -> torch.Tensor:
     d_WTA / D. d_WTA is the smallest d of the lowest cost (ties as ``argmin``). Float32 CPU
     tensors without gradient go through a compiled one-pass kernel (6× faster than the
     torch ops here), everything else (CUDA, autograd, tracing for an ONNX or TorchScript
-    export) through torch; both give the same values (tested).
+    export, ``torch.func.vmap``) through torch; both give the same values (tested).
     """
+    source: np.ndarray | None = None
     if (
         costs.device.type == 'cpu'
         and costs.dtype == torch.float32
@@ -97,7 +99,13 @@ def aligned_curve(costs: torch.Tensor) -> torch.Tensor:
         and not torch.jit.is_tracing()
         and not torch.compiler.is_exporting()
     ):
-        source = costs.detach().contiguous().numpy()
+        try:
+            source = costs.detach().contiguous().numpy()
+        except RuntimeError:
+            # A tensor without storage (torch.func.vmap's batched ones): the kernel cannot
+            # read it, and its output would drop the vmap batch ("Cannot access data pointer").
+            source = None
+    if source is not None:
         out = np.empty((costs.shape[0], FAST_INPUTS, *costs.shape[2:]), np.float32)
         for index in range(costs.shape[0]):
             _aligned_kernel(source[index], FAST_ALIGN, out[index])
@@ -226,7 +234,9 @@ class CVANetFast(nn.Module):
 
     def reset_parameters(self) -> None:
         """As CVA-Net-Lite (:func:`~cva_confidence_ros.model.lite.init_light_network`): the
-        per-pixel layers and the plane fusion He-normal, the classification Glorot."""
+        per-pixel layers and the plane fusion He-normal, the classification Glorot; batch
+        normalisation back to its defaults."""
+        reset_batchnorm(self)
         init_light_network(
             (self.encoder.fc_curve, self.encoder.squeeze, *self.fusion.convs),
             (self.classification.fc1, self.classification.fc2),

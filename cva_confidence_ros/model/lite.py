@@ -42,6 +42,7 @@ from cva_confidence_ros.model.network import (
     conv_bias,
     glorot_limit,
     pad_depth,
+    reset_batchnorm,
     to_curves,
 )
 
@@ -146,7 +147,7 @@ class LiteClassification(nn.Module):
 def init_light_network(convs: Iterable[nn.Module], fully_connected: Iterable[nn.Module]) -> None:
     """Initialise a light cost-volume network: convolutions He-normal (narrow layers: CVA-Net's
     σ = 0.05 would start them almost silent; never below it), fully-connected layers Glorot as in
-    CVA-Net, zero biases; BN layers keep their defaults."""
+    CVA-Net, zero biases; BN layers are left to the caller (``reset_batchnorm``)."""
     for module in convs:
         assert isinstance(module, nn.modules.conv._ConvNd)
         fan_in = module.weight[0].numel()
@@ -190,7 +191,8 @@ class CVANetLite(nn.Module):
         self.reset_parameters()
 
     def reset_parameters(self) -> None:
-        """See :func:`init_light_network`."""
+        """See :func:`init_light_network`; batch normalisation back to its defaults."""
+        reset_batchnorm(self)
         init_light_network(
             (*self.fusion.convs, *self.depth.convs),
             (self.classification.fc1, self.classification.fc2),

@@ -177,8 +177,10 @@ class CVANet(nn.Module):
     def reset_parameters(self) -> None:
         """Initialise as the paper: convolutions N(0, σ=0.05), fully-connected layers Glorot.
 
-        Biases start at zero (the Keras default); batch normalisation keeps its defaults.
+        Biases start at zero (the Keras default); batch normalisation gets its defaults
+        (:func:`reset_batchnorm`), so that loaded weights are reset completely.
         """
+        reset_batchnorm(self)
         for module in (*self.fusion.convs, *self.depth.convs):
             assert isinstance(module, nn.modules.conv._ConvNd)
             nn.init.normal_(module.weight, mean=0.0, std=CONV_INIT_STD)
@@ -298,6 +300,17 @@ def keras_parameter_count(module: nn.Module) -> int:
             assert sub.running_mean is not None and sub.running_var is not None
             count += sub.running_mean.numel() + sub.running_var.numel()
     return int(count)
+
+
+def reset_batchnorm(net: nn.Module) -> None:
+    """Every batch normalisation of ``net`` back to γ = 1, β = 0 and running statistics 0 / 1.
+
+    Part of each network's ``reset_parameters``: without it, a reset of loaded weights kept
+    the trained statistics (running variances up to 183) under freshly drawn convolutions.
+    """
+    for module in net.modules():
+        if isinstance(module, nn.modules.batchnorm._BatchNorm):
+            module.reset_parameters()
 
 
 def conv_bias(conv: nn.modules.conv._ConvNd) -> torch.Tensor:

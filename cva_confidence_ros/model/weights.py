@@ -62,6 +62,9 @@ def weights_file_name(matcher: str, max_disparity: int, arch: str = ARCH) -> str
 
 
 def _unwrap(net: nn.Module) -> nn.Module:
+    # torch.compile's wrapper: save_weights refused a compiled network ("got OptimizedModule").
+    compiled = getattr(net, '_orig_mod', None)
+    net = compiled if isinstance(compiled, nn.Module) else net
     inner = getattr(net, 'module', None)  # DistributedDataParallel
     return inner if isinstance(inner, nn.Module) else net
 
