@@ -10,6 +10,7 @@ before the node is up). :func:`check_arguments` answers the rest of a node's com
 
 from __future__ import annotations
 
+import atexit
 from collections import OrderedDict
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -83,11 +84,15 @@ EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a Ctrl-C
 def diagnostic_status(
     node: Node, what: str, level: bytes, message: str, values: dict[str, object]
 ) -> DiagnosticStatus:
-    """A node's ``DiagnosticStatus``: named ``<node name>: <what>``, the node's full name as
-    hardware id, every value as a string."""
+    """A node's ``DiagnosticStatus``: named ``<namespace/node name>: <what>`` (the namespace
+    without its leading slash, none in the root one), the node's full name as hardware id,
+    every value as a string."""
+    # Named with the namespace: two cameras' nodes of one name in their own namespaces would
+    # otherwise give one status name, which diagnostic_aggregator and rqt_robot_monitor key
+    # by, so that one camera's warning is overwritten by the other's OK.
     return DiagnosticStatus(
         level=level,
-        name=f'{node.get_name()}: {what}',
+        name=f'{node.get_fully_qualified_name().lstrip("/")}: {what}',
         message=message,
         hardware_id=node.get_fully_qualified_name(),
         values=[KeyValue(key=key, value=str(value)) for key, value in values.items()],
@@ -542,8 +547,16 @@ def run_node(factory: Callable[[], Node], name: str, argv: Sequence[str] | None 
             raise
         code = 0 if up else EXIT_INTERRUPTED
     finally:
-        # A second Ctrl-C while a worker finishes its frame must not print a traceback.
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        # A second Ctrl-C while a worker finishes its frame must not print a traceback. A
+        # SIGTERM now is ros2 launch's next step after its SIGINT (SIGKILL follows 5 s later):
+        # the stop waits no longer for a long frame (interrupt.hurry). Both stay ignored up to
+        # the end of the process (_ignore_stop_signals): a terminal's Ctrl-C reaches the node
+        # and then ros2 launch's own SIGINT, and one that came while the interpreter shut down
+        # killed the node (exit -2) or printed a KeyboardInterrupt traceback.
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, interrupt.hurry)
+            _ignore_stop_signals_at_exit()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
@@ -552,6 +565,27 @@ def run_node(factory: Callable[[], Node], name: str, argv: Sequence[str] | None 
         # thread there that cannot be ended (std::terminate: the process aborts, SIGABRT).
         _end_process(code)
     return code
+
+
+_IGNORE_AT_EXIT: list[bool] = []
+
+
+def _ignore_stop_signals() -> None:
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+
+
+def _ignore_stop_signals_at_exit() -> None:
+    """Ignore SIGINT and SIGTERM from the interpreter's exit on (once registered).
+
+    Registered last, it runs among the first exit handlers; set to "ignore", the two stay so
+    through the interpreter's shutdown, which otherwise puts the default action back (a signal
+    then kills the process) before the slow part of it (torch, rclpy).
+    """
+    if not _IGNORE_AT_EXIT:
+        _IGNORE_AT_EXIT.append(True)
+        atexit.register(_ignore_stop_signals)
 
 
 def _end_process(code: int) -> NoReturn:

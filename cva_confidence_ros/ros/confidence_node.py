@@ -32,6 +32,7 @@ from cva_confidence_ros.errors import ConfigError, CVAError
 from cva_confidence_ros.pipeline import PipelineConfig, PipelineResult, StereoPipeline
 from cva_confidence_ros.plots import confidence_overlay
 from cva_confidence_ros.pointcloud import StereoGeometry, disparity_to_depth, stereo_cloud
+from cva_confidence_ros.ros import interrupt
 from cva_confidence_ros.ros.common import (
     LARGE_MESSAGES_HINT,
     LOG_THROTTLE_S,
@@ -456,8 +457,9 @@ class ConfidenceCore(Node):
             if waited:
                 self._publishing.release()
         if not waited:
-            # Not the node's own logger: this runs in a cleanup on shutdown too.
-            rclpy.logging.get_logger(self.get_name()).warning(
+            # Not the node's own logger: this runs in a cleanup on shutdown too. Its name all
+            # the same, namespace included: two cameras' nodes of one name are told apart.
+            rclpy.logging.get_logger(self.get_logger().name).warning(
                 f'a frame was still being published {PUBLISH_WAIT_S:g} s after the '
                 'unsubscribe; not waiting for it (its remaining outputs may go out late)'
             )
@@ -486,9 +488,13 @@ class ConfidenceCore(Node):
             return True
         self.frame_left_running = True
         device = self._pipeline.device if self._pipeline is not None else 'its device'
-        # Not the node's own logger: its /rosout publisher dies with the context.
-        rclpy.logging.get_logger(f'{self.get_name()}.stop').warning(
-            f'a frame was still being processed {STOP_TIMEOUT_S:g} s after the stop '
+        # Not the node's own logger: its /rosout publisher dies with the context. Named after
+        # it, namespace included (robot1.front.cva_confidence.stop), as its own lines are.
+        when = f'{STOP_TIMEOUT_S:g} s after'
+        if interrupt.hurried():
+            when = 'at the SIGTERM that followed'
+        rclpy.logging.get_logger(f'{self.get_logger().name}.stop').warning(
+            f'a frame was still being processed {when} the stop '
             f'(confidence_method {self._pipeline_config.confidence_method} on '
             f'{device}); stopping without it'
         )
@@ -775,6 +781,13 @@ class ConfidenceCore(Node):
             images_only = all(not key.endswith('_info') for key in names if names[key] in silent)
             if images_only and large_messages_unset():
                 text += f' while the camera infos come: {LARGE_MESSAGES_HINT}'
+            elif all(key.endswith('_info') for key in names if names[key] in silent):
+                # A driver that publishes its camera_info once, latched (transient local):
+                # `ros2 topic echo` shows it, and a volatile subscriber gets none.
+                text += (
+                    ' while the images come: every image pairs with the camera_info of its '
+                    'stamp, so one published once (latched) is not enough'
+                )
             return text
         # (A new synchroniser, after a parameter change, forgets what was paired.)
         paired = stats.paired_stamps_ns
@@ -790,6 +803,24 @@ class ConfidenceCore(Node):
             'that are not hardware-synchronised)'
         )
         return f'messages arrive but none pair up; newest stamps: {stamps}; {how}'
+
+    def _few_paired_reason(self, stats: _Stats, elapsed: float) -> str:
+        """Why most left images of the period paired with nothing, naming each input's count;
+        '' when most pair (lock held). A camera_info at a lower rate than the images pairs only
+        the images of its stamps: the node then processed a tenth of a camera's frames with an
+        OK status."""
+        lefts = stats.window_keys.get('left', 0)
+        if not stats.window_pairs or lefts < 4 or 2 * stats.window_pairs >= lefts:
+            return ''
+        counts = ', '.join(
+            f'{topic} {stats.window_keys.get(key, 0)}'
+            for key, topic in self._input_names().items()
+        )
+        return (
+            f'only {stats.window_pairs} of {lefts} left images paired in the last {elapsed:.1f} '
+            f's (messages: {counts}): a frame needs all four inputs with its stamp (a '
+            'camera_info published less often than the images pairs only those of its stamps)'
+        )
 
     def _silent_input(self, stats: _Stats, now: float) -> str:
         """Why no input came for a while, naming the topics; '' when it comes (lock held).
@@ -1131,6 +1162,9 @@ class ConfidenceCore(Node):
             if wide is not None:
                 level = DiagnosticStatus.WARN
                 message = _wide_tolerance_message(self._node_config.tolerance_ns, wide)
+            few = self._few_paired_reason(stats, elapsed)
+            if few:
+                level, message = DiagnosticStatus.WARN, few
             if stats.window_invalid:
                 level = DiagnosticStatus.WARN
                 message = f'{stats.window_invalid} bad frame(s) dropped: {stats.last_invalid}'
@@ -1244,7 +1278,14 @@ class ConfidenceCore(Node):
         if worker is None:
             return True
         if worker.is_alive() and worker is not threading.current_thread():
-            worker.join(timeout)
+            # In slices: a SIGTERM during the wait (ros2 launch's, 5 s after its SIGINT and 5 s
+            # before its SIGKILL) ends it (interrupt.hurry), the frame left running.
+            deadline = time.monotonic() + timeout
+            while worker.is_alive() and not interrupt.hurried():
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    break
+                worker.join(min(remaining, 0.1))
         return not worker.is_alive()
 
     def destroy_node(self) -> None:

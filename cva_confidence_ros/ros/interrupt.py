@@ -13,6 +13,9 @@ shuts the context down on the same signal and so ends the executor's spin.
 The handler replaces an inherited "ignore SIGINT" too (a background job of a script), as
 ``rclpy.init`` does with its own: a node takes SIGINT as a request to stop from its first line,
 not only once rclpy is up. No rclpy here: this is installed before anything heavy is imported.
+
+Once the stop has begun, SIGTERM means "stop now" (:func:`hurry`): ``ros2 launch`` sends it 5 s
+after its SIGINT and SIGKILL 5 s later, so a stop that waits for a long frame must not wait on.
 """
 
 from __future__ import annotations
@@ -21,9 +24,10 @@ import signal
 import threading
 from types import FrameType
 
-__all__ = ['install', 'requested', 'restore']
+__all__ = ['hurried', 'hurry', 'install', 'requested', 'restore']
 
 _requested = threading.Event()
+_hurried = threading.Event()
 _previous: list[object] = []
 
 
@@ -40,6 +44,7 @@ def install() -> bool:
     if threading.current_thread() is not threading.main_thread():
         return False
     _requested.clear()
+    _hurried.clear()
     _previous.append(signal.signal(signal.SIGINT, _note))
     return True
 
@@ -53,3 +58,14 @@ def restore() -> None:
 def requested() -> bool:
     """Whether a SIGINT came since :func:`install`."""
     return _requested.is_set()
+
+
+def hurry(signum: int | None = None, frame: FrameType | None = None) -> None:
+    """Ask a stop in progress not to wait for the frame being processed any longer (a signal
+    handler: SIGTERM once the stop has begun)."""
+    _hurried.set()
+
+
+def hurried() -> bool:
+    """Whether :func:`hurry` was called since :func:`install`."""
+    return _hurried.is_set()
