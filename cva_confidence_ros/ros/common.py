@@ -21,7 +21,6 @@ import sys
 import textwrap
 import threading
 import time
-from typing import NoReturn
 import warnings
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -49,7 +48,7 @@ from rclpy.qos import (
 from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
 from rclpy.utilities import remove_ros_args
 
-from cva_confidence_ros.errors import ConfigError, CVAError, reason
+from cva_confidence_ros.errors import ConfigError, CVAError, end_process, reason
 from cva_confidence_ros.ros import interrupt
 from cva_confidence_ros.ros.dds_profile import PROFILE_VARIABLES
 
@@ -563,7 +562,7 @@ def run_node(factory: Callable[[], Node], name: str, argv: Sequence[str] | None 
     if getattr(node, 'frame_left_running', False):
         # Finalising the interpreter under a worker thread that is inside torch's C++ ends a
         # thread there that cannot be ended (std::terminate: the process aborts, SIGABRT).
-        _end_process(code)
+        end_process(code)
     return code
 
 
@@ -587,12 +586,3 @@ def _ignore_stop_signals_at_exit() -> None:
         _IGNORE_AT_EXIT.append(True)
         atexit.register(_ignore_stop_signals)
 
-
-def _end_process(code: int) -> NoReturn:
-    """End the process with ``code`` at once, output flushed, no interpreter finalisation."""
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except (OSError, ValueError):
-            pass
-    os._exit(code)

@@ -81,8 +81,9 @@ _ENCODINGS: dict[str, tuple[int, int, tuple[int, ...] | None]] = {
     'bgr8': (3, 1, (2, 1, 0)),
     'rgba8': (4, 1, (0, 1, 2)),
     'bgra8': (4, 1, (2, 1, 0)),
-    # The OpenCV spelling some camera drivers give their mono images (compared lower-cased).
+    # The OpenCV spellings some camera drivers give their mono images (compared lower-cased).
     '8uc1': (1, 1, None),
+    '16uc1': (1, 2, None),
 }
 #: Image encodings accepted on ``left/image_rect`` and ``right/image_rect``.
 SUPPORTED_ENCODINGS: tuple[str, ...] = tuple(_ENCODINGS)
@@ -111,11 +112,12 @@ def image_to_array(msg: Image, name: str = 'image') -> np.ndarray:
 
     Args:
         msg: An image with one of :data:`SUPPORTED_ENCODINGS`; row padding (``step`` larger
-            than a row) and big-endian mono16 are handled.
+            than a row) and big-endian mono16 / 16UC1 are handled.
         name: What the error messages call the image (e.g. ``'left image'``).
 
     Returns:
-        (H, W) uint8 for mono8 (and 8UC1), (H, W) uint16 for mono16 (see :func:`pair_to_uint8`), or
+        (H, W) uint8 for mono8 (and 8UC1), (H, W) uint16 for mono16 (and 16UC1; see
+        :func:`pair_to_uint8`), or
         (H, W, 3) uint8 in RGB order for the colour encodings (alpha dropped). A fresh array
         that does not alias the message buffer.
 

@@ -74,3 +74,18 @@ def test_an_8uc1_image_reads_as_mono8() -> None:
     pixels = np.arange(12, dtype=np.uint8).reshape(3, 4)
     msg = Image(height=3, width=4, encoding='8UC1', step=4, data=pixels.tobytes())
     np.testing.assert_array_equal(image_to_array(msg), pixels)
+
+
+def test_a_16uc1_image_reads_as_mono16_in_both_byte_orders() -> None:
+    # Review 35: the OpenCV spelling of mono16 (some drivers) was refused on every frame.
+    from sensor_msgs.msg import Image
+
+    from cva_confidence_ros.ros.convert import image_to_array
+
+    pixels = np.arange(12, dtype=np.uint16).reshape(3, 4) * 5000
+    for order, big in (('<u2', 0), ('>u2', 1)):
+        data = pixels.astype(order).tobytes()
+        msg = Image(height=3, width=4, encoding='16UC1', is_bigendian=big, step=8, data=data)
+        out = image_to_array(msg)
+        assert out.dtype == np.uint16
+        np.testing.assert_array_equal(out, pixels)

@@ -89,7 +89,7 @@ def test_mono16_endianness(big: bool) -> None:
 
 def test_supported_encodings() -> None:
     assert set(SUPPORTED_ENCODINGS) == {'mono8', 'mono16', 'rgb8', 'bgr8', 'rgba8', 'bgra8',
-                                        '8uc1'}
+                                        '8uc1', '16uc1'}
 
 
 @pytest.mark.parametrize(
