@@ -11,8 +11,8 @@ Parameters: ``threshold`` ([0, 1], 0.5), ``organized`` (true: keep the grid, NaN
 points; false: kept points only), ``confidence_field`` ('confidence'), ``input_qos``
 (sensor_data, the default: best effort, receives from any publisher | reliable),
 ``output_qos`` (reliable, the default | sensor_data), ``diagnostics_period_seconds``. A cloud it
-cannot read (no such field, truncated data, big-endian) is logged and skipped; counts go to
-``/diagnostics``.
+cannot read (no such field, truncated data, big-endian, a confidence outside [0, 1]) is logged
+and skipped; counts go to ``/diagnostics``.
 
 The node itself lives in :mod:`cva_confidence_ros.ros.cloud_filter_node`. ``-h``/``--help``
 lists the topics and the parameters with their defaults (:func:`usage`) and exits; any other

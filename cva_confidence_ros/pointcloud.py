@@ -566,7 +566,7 @@ def filter_cloud(
     Args:
         cloud: (H, W) organised or (N,) structured point array.
         threshold: In [0, 1], compared in the precision of the field (a float32 0.7 is
-            ≥ 0.7); 0 keeps every finite point whose confidence is not NaN or negative.
+            ≥ 0.7); 0 keeps every finite point whose confidence is not NaN.
         organized: Keep the input's shape and set x, y, z of the dropped points to NaN
             (``stereo_image_proc`` style); if False, return only the kept points as (N,).
         field: Name of the confidence field.
@@ -576,7 +576,8 @@ def filter_cloud(
 
     Raises:
         InputError: ``cloud`` is not a structured array with float x, y, z and a real
-            ``field``.
+            ``field``, or a point with finite x, y, z has a confidence outside [0, 1] (NaN is
+            allowed: never kept).
         ConfigError: ``threshold`` is not a real number in [0, 1], ``organized`` not a bool.
     """
     if not is_real(threshold) or not 0.0 <= threshold <= 1.0:
@@ -607,14 +608,25 @@ def filter_cloud(
             f'got {cloud.dtype[field]}'
         )
     values = _confidence_fraction(cloud[field])
+    finite = np.isfinite(cloud['x']) & np.isfinite(cloud['y']) & np.isfinite(cloud['z'])
+    with np.errstate(invalid='ignore'):
+        outside = finite & ((values < 0) | (values > 1))
+    if outside.any():
+        # Another producer's scale (a confidence in percent, say) passed every point above 1
+        # at any threshold: the cut did nothing, silently.
+        wrong = values[outside]
+        hint = ': another scale, such as percent?' if wrong.max() > 1 else ''
+        raise InputError(
+            f'confidence field {field!r} must hold fractions in [0, 1] (an integer field: of '
+            f'its full scale); {int(outside.sum())} points with finite x, y, z do not (from '
+            f'{float(wrong.min()):g} to {float(wrong.max()):g}){hint}'
+        )
     # Compare in the field's own precision, whatever type the threshold has: a float32 0.7
     # is the closest float32 to 0.7 and counts as equal to a threshold of 0.7 (np.float64 or
     # Python float alike), as in the node's own confidence ≥ threshold test.
     limit = values.dtype.type(threshold)
     with np.errstate(invalid='ignore'):
-        keep = values >= limit
-    for name in ('x', 'y', 'z'):
-        keep &= np.isfinite(cloud[name])
+        keep = (values >= limit) & finite
     if not organized:
         return cloud[keep]
     filtered = cloud.copy()
