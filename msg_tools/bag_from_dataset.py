@@ -386,7 +386,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--dataset', required=True,
                         help='data set name: kitti2012, kitti2015, middlebury2014, '
                         'middlebury2003, middlebury2001, middlebury2005, middlebury2006, '
-                        'eth3d, flyingthings3d, sceneflow_extra, tartanair, motorcycle')
+                        'eth3d, flyingthings3d, sceneflow_extra, tartanair, motorcycle, '
+                        'stereo_folder (your own pairs: <scene>/left.png, right.png, '
+                        'disparity.pfm|npy|png; calib.txt for the camera infos)')
     parser.add_argument('--split', default=None, help='data set split (e.g. trainingQ)')
     parser.add_argument('--out', type=Path, required=True, help='bag folder to create')
     parser.add_argument('--storage', choices=STORAGES, default='mcap',

@@ -9,6 +9,8 @@ Train / develop split (see :data:`TRAIN_DATASETS`, :data:`DEVELOP_DATASETS`): ne
 develop sets. ``motorcycle`` is in neither: it is the Middlebury 2014 Motorcycle scene, so it
 must not be trained on either. Middlebury 2014 ``ArtL`` and ``Teddy`` derive from the 2005 Art
 and 2003 Teddy scenes: drop 2005 Art from training data when reporting on Middlebury 2014.
+``stereo_folder`` (a user's own pairs, see :class:`StereoFolder`) is in neither: it may be
+trained on and evaluated; keeping its training and evaluation scenes apart is the user's part.
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ __all__ = [
     'DEVELOP_DATASETS',
     'TRAIN_DATASETS',
     'StereoDataset',
+    'StereoFolder',
     'StereoSample',
     'list_scenes',
     'load_dataset',
@@ -152,16 +155,34 @@ def _sample(files: dict[str, Path | None], **fields: Any) -> StereoSample:
         raise DataError(f'{exc} (files: {read})') from None
 
 
+def _visible_mask(path: Path) -> np.ndarray:
+    """A non-occlusion mask image as bool (H, W): True where it is 255 (every channel)."""
+    nonocc = read_image(path) == 255
+    return nonocc.all(axis=2) if nonocc.ndim == 3 else nonocc
+
+
+def _read_npy(path: Path) -> np.ndarray:
+    """An (H, W) real-valued ``.npy`` array as float32 (no pickles).
+
+    Raises:
+        DataError: The file cannot be read, or holds no (H, W) real-valued array.
+    """
+    try:
+        raw = np.load(path)
+    except (OSError, ValueError, EOFError) as exc:  # EOFError: an empty or cut file
+        raise DataError(f'cannot read {path} as a float array ({reason(exc)})') from exc
+    if not isinstance(raw, np.ndarray) or raw.dtype.kind not in 'fiu' or raw.ndim != 2:
+        got = f'{raw.dtype} {raw.shape}' if isinstance(raw, np.ndarray) else type(raw).__name__
+        raise DataError(f'{path}: expected an (H, W) real-valued array; got {got}')
+    return raw.astype(np.float32)
+
+
 def _im0_im1_sample(
     dataset: str, scene: str, folder: Path, gt: Path, mask: Path | None
 ) -> StereoSample:
     """The MiddEval3 / ETH3D layout: im0.png, im1.png, a PFM ground truth, optional
     non-occlusion mask (255 = visible) and calib.txt."""
-    nonocc = None
-    if mask is not None:
-        nonocc = read_image(mask) == 255
-        if nonocc.ndim == 3:
-            nonocc = nonocc.all(axis=2)
+    nonocc = _visible_mask(mask) if mask is not None else None
     calib = None
     if (folder / 'calib.txt').is_file():
         calib = read_middlebury_calibration(folder / 'calib.txt')
@@ -469,12 +490,8 @@ class _FolderPerScene(StereoDataset):
                 )
         else:
             scale = self._width_scale(left.shape[1])
-        nonocc = None
         mask_path = folder / 'nonocc.png'
-        if mask_path.is_file():
-            nonocc = read_image(mask_path) == 255
-            if nonocc.ndim == 3:
-                nonocc = nonocc.all(axis=2)
+        nonocc = _visible_mask(mask_path) if mask_path.is_file() else None
         return _sample(
             {
                 'left': left_path,
@@ -824,14 +841,7 @@ class TartanAir(StereoDataset):
         if files is None:
             raise self.missing(root, scene)
         left, right, gt, is_depth = files
-        try:
-            raw = np.load(gt)
-        except (OSError, ValueError, EOFError) as exc:  # EOFError: an empty or cut file
-            raise DataError(f'cannot read {gt} as a float array ({reason(exc)})') from exc
-        if not isinstance(raw, np.ndarray) or raw.dtype.kind not in 'fiu' or raw.ndim != 2:
-            got = f'{raw.dtype} {raw.shape}' if isinstance(raw, np.ndarray) else type(raw).__name__
-            raise DataError(f'{gt}: expected an (H, W) real-valued array; got {got}')
-        values = raw.astype(np.float32)
+        values = _read_npy(gt)
         if is_depth:
             with np.errstate(divide='ignore'):
                 values = np.float32(_TARTANAIR_CALIB.fx * _TARTANAIR_CALIB.baseline) / values
@@ -843,6 +853,158 @@ class TartanAir(StereoDataset):
             right=read_image(right),
             disparity=_clean_disparity(values),
             calib=_TARTANAIR_CALIB,
+        )
+
+
+class StereoFolder(StereoDataset):
+    """A user's own rectified pairs with ground truth (a lidar projection, a simulator): one
+    folder per scene at any depth under the root (or the root itself), scene id = the folder's
+    path relative to the root (``.`` for the root), holding
+
+    * ``left.png`` and ``right.png`` (or ``.jpg``, ``.jpeg``, ``.ppm``, ``.pgm``; 8- or 16-bit,
+      grey or colour, as :func:`read_image` reads them),
+    * the left image's disparity (``left[y, x] ≈ right[y, x - d]``) as exactly one of
+      ``disparity.pfm`` (float; inf and NaN = unknown, 0 is a disparity: a point at infinity,
+      e.g. a simulator's sky), ``disparity.npy`` (float or integer (H, W); 0, NaN and inf =
+      unknown, the lidar convention) or ``disparity.png`` (16-bit, d = value / 256, 0 =
+      unknown, as KITTI; an 8-bit PNG is refused: its scale is unknown). Negative values are
+      unknown too (a ``-1`` marker); a map whose only known values are negative is refused
+      (the other sign convention). Two disparity files in one folder are refused rather than
+      one of them picked,
+    * optionally ``nonocc.png`` (255 = visible in both views; one marking no pixel 255, e.g.
+      a 0/1 mask, is refused) and ``calib.txt`` in Middlebury form (``cam0=[f 0 cx; 0 f cy;
+      0 0 1]``, ``baseline`` in mm, ``doffs``) for metric depth.
+
+    A folder with a left image but no right image or no disparity is not a scene (the error
+    for a root without scenes names such folders)."""
+
+    name = 'stereo_folder'
+    layout = (
+        '<root>/<scene, any depth, or the root itself>/ with left.png + right.png (or .jpg, '
+        '.ppm, .pgm) and one of disparity.pfm (float, inf/NaN = unknown), disparity.npy '
+        '(float (H, W), 0/NaN/inf = unknown) or disparity.png (16-bit, d = value / 256, '
+        '0 = unknown) (+ nonocc.png, 255 = visible; calib.txt, Middlebury form)'
+    )
+    image_suffixes = ('.png', '.jpg', '.jpeg', '.ppm', '.pgm')
+    disparity_names = ('disparity.pfm', 'disparity.npy', 'disparity.png')
+
+    @staticmethod
+    def _existing(folder: Path, names: tuple[str, ...]) -> list[Path]:
+        return [folder / name for name in names if (folder / name).is_file()]
+
+    def _image_names(self, side: str) -> tuple[str, ...]:
+        return tuple(side + suffix for suffix in self.image_suffixes)
+
+    def _lacks(self, folder: Path) -> list[str]:
+        """What keeps ``folder`` from being a scene (empty if it is one)."""
+        wanted = (
+            ('left image', self._image_names('left')),
+            ('right image', self._image_names('right')),
+            ('disparity', self.disparity_names),
+        )
+        return [
+            f'{what} ({", ".join(names)})'
+            for what, names in wanted
+            if not self._existing(folder, names)
+        ]
+
+    def _candidates(self, root: Path) -> list[Path]:
+        """Folders under ``root`` (and ``root``) holding a left image, sorted."""
+        if not root.is_dir():
+            return []
+        lefts = set(self._image_names('left'))
+        return sorted(
+            {path.parent for path in root.rglob('left.*') if path.name in lefts and path.is_file()}
+        )
+
+    def list_scenes(self, root: Path, split: str | None) -> list[str]:
+        return sorted(
+            folder.relative_to(root).as_posix()
+            for folder in self._candidates(root)
+            if not self._lacks(folder)
+        )
+
+    def no_pairs(self, folder: Path, split: str | None = None) -> DataError:
+        error = super().no_pairs(folder, split)
+        partial = [(path, self._lacks(path)) for path in self._candidates(folder)]
+        if not partial:
+            return error
+        shown = '; '.join(
+            f'{path.relative_to(folder).as_posix()} has no {" and no ".join(lacks)}'
+            for path, lacks in partial[:3]
+        )
+        more = f' (and {len(partial) - 3} more)' if len(partial) > 3 else ''
+        return DataError(f'{error}; folders with a left image: {shown}{more}')
+
+    def _one(self, folder: Path, scene: str, what: str, names: tuple[str, ...]) -> Path:
+        found = self._existing(folder, names)
+        if len(found) > 1:
+            # Which one holds the truth (a stale conversion, another convention) is not guessed.
+            raise DataError(
+                f'{self.name} scene {scene!r} holds {len(found)} {what} files '
+                f'({", ".join(path.name for path in found)}) in {folder}; keep one'
+            )
+        return found[0]
+
+    def _disparity(self, path: Path) -> np.ndarray:
+        """The ground truth of ``path`` in the package convention (NaN = unknown)."""
+        if path.suffix == '.png':
+            try:
+                return read_disparity_png(path, 256.0, bits=16)
+            except DataError as exc:
+                raise DataError(
+                    f'{exc}; {self.name} reads disparity.png as 16-bit d = value / 256 (0 = '
+                    'unknown, as KITTI): save other maps as disparity.npy or disparity.pfm '
+                    '(float, in pixels)'
+                ) from None
+        values = read_pfm(path) if path.suffix == '.pfm' else _read_npy(path)
+        finite = values[np.isfinite(values)]
+        if (finite < 0).any() and not (finite > 0).any():
+            # Right-to-left disparities would be read as all unknown: no pixel scored.
+            raise DataError(
+                f'{path}: every known disparity is negative (min {finite.min():g}); '
+                "expected the left image's disparity, d ≥ 0 with left[y, x] ≈ right[y, x - d]"
+            )
+        if path.suffix == '.npy':
+            with np.errstate(invalid='ignore'):
+                values = np.where(values > 0, values, np.float32(np.nan))
+        return _clean_disparity(values)
+
+    def _mask(self, path: Path, scene: str) -> np.ndarray:
+        nonocc = _visible_mask(path)
+        if nonocc.size and not nonocc.any():
+            # A 0/1 mask read as 'nothing visible' would score every pixel as occluded.
+            values = np.unique(read_image(path))
+            raise DataError(
+                f'{self.name} scene {scene!r}: {path} marks no pixel visible; expected 255 = '
+                f'visible in both views; got values {values[:8].tolist()}'
+            )
+        return nonocc
+
+    def load_scene(self, root: Path, scene: str, split: str | None) -> StereoSample:
+        folder = root / scene
+        outside = Path(scene).is_absolute() or '..' in Path(scene).parts
+        if outside or not folder.is_dir() or self._lacks(folder):
+            raise self.missing(root, scene)
+        left = self._one(folder, scene, 'left image', self._image_names('left'))
+        right = self._one(folder, scene, 'right image', self._image_names('right'))
+        gt = self._one(folder, scene, 'disparity', self.disparity_names)
+        mask = folder / 'nonocc.png'
+        calib = folder / 'calib.txt'
+        return _sample(
+            {
+                'left': left,
+                'right': right,
+                'disparity': gt,
+                'nonocc': mask if mask.is_file() else None,
+            },
+            dataset=self.name,
+            scene=scene,
+            left=read_image(left),
+            right=read_image(right),
+            disparity=self._disparity(gt),
+            nonocc=self._mask(mask, scene) if mask.is_file() else None,
+            calib=read_middlebury_calibration(calib) if calib.is_file() else None,
         )
 
 
@@ -896,6 +1058,7 @@ for _dataset in (
     SceneFlowExtra(),
     TartanAir(),
     Motorcycle(),
+    StereoFolder(),
 ):
     DATASETS.add(_dataset.name, _dataset)
 del _dataset

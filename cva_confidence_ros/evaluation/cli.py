@@ -188,7 +188,9 @@ def _build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--data-root', type=Path, default=None,
                         help='folder holding the data sets (not needed for motorcycle)')
     parser.add_argument('--dataset', required=True,
-                        help='data set name(s), comma-separated, or "develop"')
+                        help='data set name(s), comma-separated, or "develop"; '
+                        'stereo_folder reads your own pairs (<scene>/left.png, right.png, '
+                        'disparity.pfm|npy|png)')
     parser.add_argument('--split', default=None,
                         help='data set split (default per data set, e.g. trainingQ): SPLIT '
                         'for every data set that has it, or NAME=SPLIT[,NAME=SPLIT...]')

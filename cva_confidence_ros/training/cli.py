@@ -94,7 +94,9 @@ def build_parser() -> argparse.ArgumentParser:
         '--datasets',
         type=_names,
         default=(),
-        help="training data sets, comma-separated, each 'name' or 'name:split'",
+        help="training data sets, comma-separated, each 'name' or 'name:split'; "
+        "stereo_folder reads your own pairs (<scene>/left.png, right.png, "
+        'disparity.pfm|npy|png)',
     )
     data.add_argument(
         '--max-scenes', type=int, default=None, help='at most N scenes per data set (default: all)'

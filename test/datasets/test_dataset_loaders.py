@@ -365,13 +365,15 @@ def test_registry_and_splits() -> None:
     expected = {
         'kitti2012', 'kitti2015', 'middlebury2014', 'middlebury2003', 'middlebury2001',
         'middlebury2005', 'middlebury2006', 'eth3d', 'flyingthings3d', 'sceneflow_extra',
-        'tartanair', 'motorcycle',
+        'tartanair', 'motorcycle', 'stereo_folder',
     }
     assert set(DATASETS.names()) == expected
     assert set(DEVELOP_DATASETS) == {'kitti2015', 'middlebury2003', 'middlebury2014'}
     assert not set(TRAIN_DATASETS) & set(DEVELOP_DATASETS)
     assert 'motorcycle' not in TRAIN_DATASETS  # it is the Middlebury 2014 Motorcycle scene
-    assert set(TRAIN_DATASETS) | set(DEVELOP_DATASETS) == expected - {'motorcycle'}
+    # stereo_folder is the user's own data: in neither.
+    neither = {'motorcycle', 'stereo_folder'}
+    assert set(TRAIN_DATASETS) | set(DEVELOP_DATASETS) == expected - neither
     assert DATASETS.get('middlebury2014').default_split == 'trainingQ'
 
 
