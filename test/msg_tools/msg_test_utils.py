@@ -316,3 +316,21 @@ def truth_session(tmp_path: Path, **session: Any) -> Any:
         ground_truth_type=DISPARITY_IMAGE, pairs_expected=0,
     )
     return ReplaySession(options, plan, lambda _: None, **session)
+
+
+def replay_offline(bag: Path, tmp_path: Path, capsys: Any, *extra: str) -> tuple[int, str, dict]:
+    """``cva-bag-replay`` offline with PKRN at D = MAX_DISPARITY and no plots: (exit code,
+    stderr, report.json or {} when none was written); stderr holds no traceback."""
+    import json
+
+    from msg_tools.bag_replay import main
+
+    code = main([
+        str(bag), '--out', str(tmp_path / 'out'), '--report', str(tmp_path / 'report'),
+        '--max-disparity', str(MAX_DISPARITY), '--confidence-method', 'pkrn',
+        '--max-plots', '0', *extra,
+    ])  # fmt: skip
+    captured = capsys.readouterr()
+    assert 'Traceback' not in captured.err
+    report = tmp_path / 'report' / 'report.json'
+    return code, captured.err, json.loads(report.read_text()) if report.exists() else {}

@@ -10,15 +10,12 @@ naming both sizes, at every ``--downsample``.
 from __future__ import annotations
 
 from collections.abc import Sequence
-import json
 from pathlib import Path
 from typing import Any
 
-from msg_test_utils import MAX_DISPARITY, START_NS, write_stereo_bag
+from msg_test_utils import START_NS, replay_offline, write_stereo_bag
 import numpy as np
 import pytest
-
-from msg_tools.bag_replay import main
 
 FRAME_NS = 100_000_000
 JUMP_NS = 10 * 10**9
@@ -32,18 +29,6 @@ def _bag(path: Path, frames: Sequence[dict[str, Any]]) -> Path:
         path, [{**frame, 'logged': START_NS + index * FRAME_NS}
                for index, frame in enumerate(frames)]
     )
-
-
-def _run(bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], *extra: str
-         ) -> tuple[int, str, dict]:
-    code = main([
-        str(bag), '--out', str(tmp_path / 'out'), '--report', str(tmp_path / 'report'),
-        '--max-disparity', str(MAX_DISPARITY), '--confidence-method', 'pkrn',
-        '--max-plots', '0', *extra,
-    ])
-    captured = capsys.readouterr()
-    assert 'Traceback' not in captured.err
-    return code, captured.err, json.loads((tmp_path / 'report' / 'report.json').read_text())
 
 
 def _notes(report: dict) -> dict[int, str | None]:
@@ -65,7 +50,7 @@ def test_ground_truth_kept_from_before_a_jump_does_not_stop_later_frames(
     # the jump give up at once ('no ground truth with this stamp in the bag').
     frames = [{'stamp': stamp} for stamp in _stamps(2, 4)]
     frames[1]['encoding'] = 'yuv422'
-    code, err, report = _run(_bag(tmp_path / 'in', frames), tmp_path, capsys)
+    code, err, report = replay_offline(_bag(tmp_path / 'in', frames), tmp_path, capsys)
     assert code == 0
     assert report['summary']['processed'] == 5 and report['summary']['skipped'] == 1
     assert _notes(report) == {0: None, 2: None, 3: None, 4: None, 5: None}
@@ -83,7 +68,7 @@ def test_late_ground_truth_from_before_a_jump_does_not_stop_later_frames(
     # the fix, as soon as the ground truth of frame 2 comes (the report is in that order).
     frames = [{'stamp': stamp, 'gt_lag': 250_000_000} for stamp in _stamps(4, 4)]
     frames[1]['no_gt'] = True
-    code, err, report = _run(_bag(tmp_path / 'in', frames), tmp_path, capsys)
+    code, err, report = replay_offline(_bag(tmp_path / 'in', frames), tmp_path, capsys)
     assert code == 0
     notes = _notes(report)
     assert sorted(notes) == list(range(8))
@@ -102,7 +87,7 @@ def test_a_jump_right_after_a_skipped_frame_is_seen(
     # late ground truth of the skipped frame, of a later stamp, gave up frames 1 and 2.
     frames = [{'stamp': stamp, 'gt_lag': 250_000_000} for stamp in _stamps(1, 3)]
     frames[0]['encoding'] = 'yuv422'
-    code, err, report = _run(_bag(tmp_path / 'in', frames), tmp_path, capsys)
+    code, err, report = replay_offline(_bag(tmp_path / 'in', frames), tmp_path, capsys)
     assert code == 0
     assert report['summary']['skipped'] == 1
     assert _notes(report) == {1: None, 2: None, 3: None}
@@ -117,7 +102,7 @@ def test_a_looped_bag_keeps_every_frame_in_the_report(
     # frame 2 vanished from the report.
     frames = [{'stamp': START_NS + (i % 3) * FRAME_NS} for i in range(6)]
     frames[2]['no_gt'] = True
-    code, err, report = _run(_bag(tmp_path / 'in', frames), tmp_path, capsys)
+    code, err, report = replay_offline(_bag(tmp_path / 'in', frames), tmp_path, capsys)
     assert code == 0
     assert report['summary']['processed'] == 6
     notes = _notes(report)
@@ -136,7 +121,7 @@ def test_ground_truth_larger_than_the_input_is_refused(
     # reporting tests check). Frame 1's ground truth of the input size is still scored.
     frames = [{'stamp': stamp} for stamp in _stamps(2, 0)]
     frames[0]['gt'] = np.full((31, 41), 4.0, np.float32)
-    code, err, report = _run(_bag(tmp_path / 'in', frames), tmp_path, capsys,
+    code, err, report = replay_offline(_bag(tmp_path / 'in', frames), tmp_path, capsys,
                              '--downsample', str(factor), '--max-disparity', '8')
     assert code == 0
     reason = (f'ground truth is 41×31 but the input is 40×30 (the output '

@@ -7,28 +7,12 @@ which no later frame was scored.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-from msg_test_utils import MAX_DISPARITY, START_NS, write_stereo_bag
+from msg_test_utils import START_NS, replay_offline, write_stereo_bag
 import pytest
 
-from msg_tools.bag_replay import main
-
 FRAME_NS = 100_000_000
-
-
-def _run(bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], *extra: str
-         ) -> tuple[int, str, dict]:
-    code = main([
-        str(bag), '--out', str(tmp_path / 'out'), '--report', str(tmp_path / 'report'),
-        '--max-disparity', str(MAX_DISPARITY), '--confidence-method', 'pkrn',
-        '--max-plots', '0', *extra,
-    ])
-    captured = capsys.readouterr()
-    assert 'Traceback' not in captured.err
-    report = tmp_path / 'report' / 'report.json'
-    return code, captured.err, json.loads(report.read_text()) if report.exists() else {}
 
 
 def _scored(report: dict) -> dict[int, bool]:
@@ -44,7 +28,7 @@ def test_ground_truth_a_little_out_of_order_does_not_unscore_the_rest(
     # stays unscored (the ground truth of frame 2 came first), the rest are scored.
     frames = [{'gt_lag': 150_000_000} if i == 1 else {} for i in range(8)]
     bag = write_stereo_bag(tmp_path / 'in', frames)
-    code, err, report = _run(bag, tmp_path, capsys)
+    code, err, report = replay_offline(bag, tmp_path, capsys)
     assert code == 0
     assert _scored(report) == {i: i != 1 for i in range(8)}
     assert report['summary']['gt_unmatched'] == 0
@@ -61,7 +45,7 @@ def test_ground_truth_of_a_late_frame_does_not_unscore_the_rest(
     frames = [{'stamp': START_NS + s * FRAME_NS, 'logged': START_NS + i * FRAME_NS}
               for i, s in enumerate(stamps)]
     bag = write_stereo_bag(tmp_path / 'in', frames)
-    code, err, report = _run(bag, tmp_path, capsys)
+    code, err, report = replay_offline(bag, tmp_path, capsys)
     assert code == 0
     assert [f['stamp_ns'] for f in report['frames']] == [
         START_NS + s * FRAME_NS for s in (0, 2, 3)]
@@ -80,12 +64,12 @@ def test_a_folder_without_metadata_names_its_storage_files(
     (bag / 'metadata.yaml').unlink()
     (bag / 'in.mcap').rename(bag / 'rec_0.mcap')
     (bag / 'rec_1.mcap').write_bytes((bag / 'rec_0.mcap').read_bytes())
-    code, err, _ = _run(bag, tmp_path, capsys)
+    code, err, _ = replay_offline(bag, tmp_path, capsys)
     assert code == 2
     assert f'holds the storage files {bag / "rec_0.mcap"}, {bag / "rec_1.mcap"}' in err
     assert f'ros2 bag reindex {bag}' in err
     # As it says: one file given as the bag replays.
-    code, err, report = _run(bag / 'rec_0.mcap', tmp_path, capsys)
+    code, err, report = replay_offline(bag / 'rec_0.mcap', tmp_path, capsys)
     assert code == 0 and report['summary']['processed'] == 2
 
 
@@ -98,7 +82,7 @@ def test_an_mcap_file_cut_short_says_how_to_recover_it(
     data = (bag / 'in.mcap').read_bytes()
     cut = tmp_path / 'cut.mcap'
     cut.write_bytes(data[: len(data) * 2 // 3])
-    code, err, _ = _run(cut, tmp_path, capsys)
+    code, err, _ = replay_offline(cut, tmp_path, capsys)
     assert code == 2
     assert 'does not end like an MCAP file' in err
     assert f'mcap recover {cut} -o {tmp_path / "cut_recovered.mcap"}' in err
@@ -113,12 +97,12 @@ def test_a_missing_input_topic_names_the_stereo_cameras_of_the_bag(
     # namespace; now it names the options of each stereo camera it holds, and they work.
     frame = {} if transport == 'raw' else {'transport': transport}
     bag = write_stereo_bag(tmp_path / 'in', [frame, frame], prefix='/robot1/front_stereo')
-    code, err, _ = _run(bag, tmp_path, capsys)
+    code, err, _ = replay_offline(bag, tmp_path, capsys)
     assert code == 2
     option = '--topic-prefix /robot1/front_stereo'
     if transport != 'raw':
         option += (' --left-topic left/image_rect/compressed '
                    '--right-topic right/image_rect/compressed')
     assert err.rstrip().endswith(f'; stereo cameras in the bag: {option}')
-    code, err, report = _run(bag, tmp_path, capsys, *option.split())
+    code, err, report = replay_offline(bag, tmp_path, capsys, *option.split())
     assert code == 0 and report['summary']['processed'] == 2
