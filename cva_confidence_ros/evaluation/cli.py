@@ -22,19 +22,27 @@ values (as many "confident" pixels as correct ones). With ``--max-pixels`` only 
 pixels are coloured, and CVA-Net's confidence map (computed only there) shows its values at
 those pixels, the rest in ``plots.UNKNOWN_RGB``; the hand-crafted maps stay dense.
 
-Progress goes to stderr. Bad input (unknown names, empty data root, weights for another
-matcher or depth) ends with a one-line message and exit code 2.
+Progress goes to stderr: per scene ``[i/N]``, the time so far and an estimate of the time
+left. ``--json`` is rewritten (atomically) after every scene, so a run that ends early (Ctrl-C,
+SIGTERM, a kill or a crash) keeps the scenes done; ``--resume`` continues it (see
+:func:`run`). A scene whose data cannot be used is reported and left out (of every method
+alike); the others go on, and the run ends with exit code 2. Bad input (unknown names, empty
+data root, weights for another matcher or depth) ends with a one-line message and exit code 2;
+Ctrl-C with 130, SIGTERM with 143, after writing what was done.
 """
 
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+import contextlib
 from dataclasses import dataclass, field
 import math
 import os
 from pathlib import Path
+import signal
 import sys
+import threading
 import time
 from typing import Any, cast
 
@@ -218,6 +226,11 @@ def _build_parser() -> argparse.ArgumentParser:
                         help='device of learned methods')
     parser.add_argument('--tile-budget-mb', type=float, default=512.0,
                         help='memory budget of one network tile')
+    parser.add_argument('--resume', action='store_true',
+                        help='continue a run that ended early: take over the scenes whose '
+                        'records --json already holds (written after every scene) and score '
+                        'the rest; the first such scene is scored again and must agree (same '
+                        'D, --max-pixels, --seed, --downsample, weights)')
     return parser
 
 
@@ -274,24 +287,53 @@ class SceneRun:
         return 0
 
 
+def _duration(seconds: float) -> str:
+    seconds = round(seconds)
+    return f'{seconds // 3600}:{seconds // 60 % 60:02d}:{seconds % 60:02d}'
+
+
 def run_scenes(
     jobs: Sequence[Any],
     label: Callable[[Any], str],
     work: Callable[[int, Any], list[Any]],
+    after: Callable[[SceneRun], None] | None = None,
+    held: Callable[[Any], list[Any] | None] | None = None,
 ) -> SceneRun:
     """Run ``work(number, job)`` for each scene and keep what finished.
 
     A scene whose data cannot be used (:class:`DataError`, :class:`InputError`: an unreadable
     image, a ground truth that does not fit) is logged and skipped, and the loop goes on; Ctrl-C
-    ends it after the records so far. Either way the caller writes what finished, so an hour of
-    evaluation is not lost to one bad file or a late Ctrl-C. Option faults (:class:`ConfigError`,
-    :class:`ModelError`) end the run as before: they would fail every scene alike.
+    (and SIGTERM, under :func:`exit_code`) ends it after the records so far. Either way the
+    caller writes what finished, so an hour of evaluation is not lost to one bad file or a late
+    Ctrl-C. Option faults (:class:`ConfigError`, :class:`ModelError`) end the run as before:
+    they would fail every scene alike. After each scene a line gives the time so far and an
+    estimate of the time left (from the scenes computed in this loop).
+
+    Args:
+        jobs: The scenes, in order.
+        label: A scene's name for the log.
+        work: Computes the records of scene ``job``, the ``number``-th.
+        after: Called with the result so far after each scene that finished (to write the
+            records as they come: a SIGKILL or a crash then loses one scene, not the run).
+        held: Records of a scene already scored (``--resume``) or None; such a scene is taken
+            over without calling ``work``.
 
     Returns:
         The records and what was left out.
     """
     result = SceneRun(total=len(jobs))
+    started = time.perf_counter()
+    computed, spent = 0, 0.0
     for number, job in enumerate(jobs, start=1):
+        taken = held(job) if held is not None else None
+        if taken is not None:
+            _log(f'[{number}/{len(jobs)}] {label(job)} taken over from the earlier run')
+            result.records.extend(taken)
+            result.done += 1
+            if after is not None:
+                after(result)
+            continue
+        tic = time.perf_counter()
         try:
             records = work(number, job)
         except (DataError, InputError) as error:
@@ -307,6 +349,13 @@ def run_scenes(
             break
         result.records.extend(records)
         result.done += 1
+        computed += 1
+        spent += time.perf_counter() - tic
+        left = spent / computed * (len(jobs) - number)
+        _log(f'[{number}/{len(jobs)}] {label(job)} done; '
+             f'{_duration(time.perf_counter() - started)} so far, about {_duration(left)} left')
+        if after is not None:
+            after(result)
     if not result.records and result.failed:
         scene, reason = result.failed[0]
         more = f' (and {len(result.failed) - 1} more)' if len(result.failed) > 1 else ''
@@ -383,8 +432,79 @@ def _scene_lists(
     return jobs
 
 
+#: How far a record of ``--resume``'s file may be from the same scene scored again: the
+#: networks' AUC moves in the last digits between devices and thread counts; other settings
+#: (D, pixels, seed, downsampling, weights) move it far more.
+RESUME_TOLERANCE = 1e-5
+
+
+def _previous_records(
+    path: Path, jobs: Sequence[tuple[str, str]], matchers: Sequence[str], methods: Sequence[str]
+) -> dict[tuple[str, str], list[Any]]:
+    """(data set, scene) → the records ``path`` holds of it, for ``--resume``.
+
+    Raises:
+        DataError, InputError: As :func:`read_records`.
+        ConfigError: A record of a scene, matcher or method this run does not score: it would
+            be dropped from the file, or its scene left out of the table.
+    """
+    from cva_confidence_ros.evaluation.records import read_records
+
+    if not path.exists():
+        _log(f'--resume: no {path} yet; starting from the first scene')
+        return {}
+    wanted = set(jobs)
+    held: dict[tuple[str, str], list[Any]] = {}
+    for record in read_records(path):
+        if ((record.dataset, record.scene) not in wanted or record.matcher not in matchers
+                or record.method not in methods):
+            raise ConfigError(
+                f'--resume: {path} holds a record of {record.dataset}/{record.scene} '
+                f'{record.matcher} {record.method}, which this run does not score; resume with '
+                'the data sets, --max-scenes, --matchers and --methods of the earlier run, or '
+                'write to another --json'
+            )
+        held.setdefault((record.dataset, record.scene), []).append(record)
+    return held
+
+
+def _check_resumed(path: Path, old: Sequence[Any], new: Sequence[Any]) -> None:
+    """Refuse the ``--resume`` file when a scene scored again disagrees with its records.
+
+    Raises:
+        ConfigError: The message names the record and both values.
+    """
+    fresh = {(r.matcher, r.method): r for r in new}
+    for r in old:
+        now = fresh.get((r.matcher, r.method))
+        if now is None:
+            continue
+        same = (now.n_pixels == r.n_pixels
+                and abs(now.error_rate - r.error_rate) <= 1e-9
+                and abs(now.auc - r.auc) <= RESUME_TOLERANCE)
+        if not same:
+            raise ConfigError(
+                f'--resume: {path} was written with other settings or data: '
+                f'{r.dataset}/{r.scene} {r.matcher} {r.method} has auc {r.auc}, error_rate '
+                f'{r.error_rate}, n_pixels {r.n_pixels} there and auc {now.auc}, error_rate '
+                f'{now.error_rate}, n_pixels {now.n_pixels} now; use the same D, --max-pixels, '
+                '--seed, --downsample and --weights, or write to another --json'
+            )
+
+
 def run(args: argparse.Namespace) -> int:
-    """Run the evaluation for parsed arguments; raises ``CVAError`` on bad input."""
+    """Run the evaluation for parsed arguments; raises ``CVAError`` on bad input.
+
+    ``--json`` is rewritten after every scene: the records of the scenes done, in scene order.
+    With ``--resume`` the records it already holds are read first (every one must belong to
+    this run's scenes, matchers and methods); a scene held for every matcher and method is
+    taken over without being loaded, the others are scored. The first held scene is scored
+    again all the same and must agree (``n_pixels`` and ``error_rate`` exactly, ``auc`` within
+    :data:`RESUME_TOLERANCE`): a file of another D, pixel subset, seed, downsampling or weights
+    is refused, and nothing is written before. The finished file is the one a run without
+    interruption writes. Calibration outputs need every scene scored in one run: they are not
+    written when scenes were taken over.
+    """
     from cva_confidence_ros.calibration import add_table
     from cva_confidence_ros.confidence import CONFIDENCE_METHODS
     from cva_confidence_ros.datasets import load_scene, resize_sample
@@ -406,6 +526,29 @@ def run(args: argparse.Namespace) -> int:
     built = _build_methods(args, matchers, methods)
     jobs = _scene_lists(datasets, args.data_root, splits, args.max_scenes)
     calibration: dict[tuple[str, str, str], Any] = {}
+    previous = _previous_records(args.json, jobs, matchers, methods) if args.resume else {}
+    whole = len(matchers) * len(methods)
+    # Until a scene of the file has been scored again and agreed with it, its scenes are
+    # scored, not taken over, and nothing is written: the file of a run with other settings
+    # is refused as it was.
+    unchecked = [bool(previous)]
+    taken: list[tuple[str, str]] = []
+
+    def held(job: tuple[str, str]) -> list[Any] | None:
+        old = previous.get(job, [])
+        if unchecked[0] or len(old) != whole:
+            return None
+        taken.append(job)
+        order = {(m, k): i for i, (m, k) in enumerate(
+            (m, k) for m in matchers for k in methods)}
+        return sorted(old, key=lambda r: order[(r.matcher, r.method)])  # as if scored now
+
+    def merged(outcome: SceneRun) -> list[Any]:
+        """This run's records and, for scenes it has not (yet) done, those of the file."""
+        done: dict[tuple[str, str], list[Any]] = {}
+        for record in outcome.records:
+            done.setdefault((record.dataset, record.scene), []).append(record)
+        return [r for job in jobs for r in done.get(job, previous.get(job, []))]
 
     def work(index: int, job: tuple[str, str]) -> list[Any]:
         dataset, scene = job
@@ -438,25 +581,43 @@ def run(args: argparse.Namespace) -> int:
                     reliability=tables,
                 )
             )
+        if previous.get(job):
+            _check_resumed(args.json, previous[job], records)
+            unchecked[0] = False
         # Only a scene that finished counts, as for its records.
         for key, table in tables.items():
             add_table(calibration, key, table)
         return records
 
-    outcome = run_scenes(jobs, lambda job: f'{job[0]}/{job[1]}', work)
+    # The file is rewritten (atomically) after every scene: a SIGKILL, an out-of-memory kill
+    # or a crash loses the scene under way, not the run; --resume continues from it.
+    def save(so_far: SceneRun) -> None:
+        if not unchecked[0]:
+            write_records(merged(so_far), args.json)
+
+    outcome = run_scenes(jobs, lambda job: f'{job[0]}/{job[1]}', work, after=save, held=held)
     if not outcome.records:
         return outcome.ending(PROG, 'nothing written')
     records = outcome.records
-    write_records(records, args.json)
+    save(outcome)
     table = format_table(records, methods=methods)
     if outcome.partial:
         table += f'\n{outcome.note()}\n'
     if args.out is not None:
         write_text_atomic(args.out / 'table.md', table)
-        _write_calibration(calibration, args.out)
+        if taken and calibration:
+            # The scenes taken over left no reliability tables: a summary of the rest would
+            # pass for one of every scene.
+            _log(f'calibration not written: {len(taken)} scene(s) were taken over from '
+                 f'{args.json}; run without --resume for it')
+        else:
+            _write_calibration(calibration, args.out)
     sys.stdout.write(table)
     sys.stdout.flush()
-    _log(f'wrote {len(records)} records to {args.json}')
+    if unchecked[0]:
+        _log(f'{args.json} left as it was: no scene of it could be scored again to check it')
+    else:
+        _log(f'wrote {len(merged(outcome))} records to {args.json}')
     return outcome.ending(PROG, f'the records of the {outcome.done} done are in {args.json}')
 
 
@@ -496,19 +657,46 @@ def exit_code(prog: str, command: Callable[[], int]) -> int:
     from cva_confidence_ros.memory import keep_freed_memory
 
     keep_freed_memory()
+    with _sigterm_as_interrupt() as terminated:
+        try:
+            code = command()
+        except CVAError as exc:
+            print(f'{prog}: error: {exc}', file=sys.stderr)
+            return 2
+        except OSError as exc:
+            print(f'{prog}: error: {exc}', file=sys.stderr)
+            return 1
+        except (KeyboardInterrupt, SystemError) as exc:
+            if not from_interrupt(exc):
+                raise
+            print(f'{prog}: interrupted', file=sys.stderr)
+            code = 130
+        # 128 + 15, as a shell reports a process that SIGTERM ended.
+        return 143 if terminated and code == 130 else code
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt() -> Iterator[list[int]]:
+    """Treat SIGTERM (a batch system's time limit, ``timeout``, ``kill``) as Ctrl-C meanwhile:
+    its default action ended the process at once, without writing the scenes done. Yields a
+    list that holds the signal once it came. Only in the main thread, only over the default
+    action."""
+    came: list[int] = []
+    if threading.current_thread() is not threading.main_thread() or (
+        signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL
+    ):
+        yield came
+        return
+
+    def interrupt(signum: int, _frame: object) -> None:
+        came.append(signum)
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, interrupt)
     try:
-        return command()
-    except CVAError as exc:
-        print(f'{prog}: error: {exc}', file=sys.stderr)
-        return 2
-    except OSError as exc:
-        print(f'{prog}: error: {exc}', file=sys.stderr)
-        return 1
-    except (KeyboardInterrupt, SystemError) as exc:
-        if not from_interrupt(exc):
-            raise
-        print(f'{prog}: interrupted', file=sys.stderr)
-        return 130
+        yield came
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 if __name__ == '__main__':

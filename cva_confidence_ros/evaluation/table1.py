@@ -38,7 +38,6 @@ import json
 import math
 from pathlib import Path
 import sys
-import time
 from typing import Any, cast
 
 from cva_confidence_ros.errors import ConfigError, DataError, InputError, ModelError, reason
@@ -563,7 +562,7 @@ def run(args: argparse.Namespace) -> int:
     """Score every method on every row; write the outputs. Raises ``CVAError`` on bad input."""
     from cva_confidence_ros.confidence import CONFIDENCE_METHODS
     from cva_confidence_ros.datasets import list_scenes, load_scene
-    from cva_confidence_ros.evaluation.cli import run_scenes
+    from cva_confidence_ros.evaluation.cli import SceneRun, run_scenes
     from cva_confidence_ros.evaluation.scene import evaluate_scene
     from cva_confidence_ros.matching import MATCHERS
 
@@ -657,7 +656,17 @@ def run(args: argparse.Namespace) -> int:
             continue
         scenes = list_scenes(row.dataset, args.data_root, row.split)[row.first :]
         jobs.extend((row, scene) for scene in scenes[: args.max_scenes])
-    started = time.perf_counter()
+    # Once one scene of --reuse has been scored again and agreed with it, a scene it holds
+    # for every matcher and method is taken over as it is: an interrupted run's table1.json
+    # continues where it stopped instead of scoring every scene again.
+    checked = [False]
+
+    def held(job: tuple[TableRow, str]) -> list[dict[str, Any]] | None:
+        row, scene = job
+        found = [reusable.get((row.dataset, scene, matcher), {}) for matcher in matchers]
+        if not checked[0] or not all(m in old for old in found for m in methods):
+            return None
+        return [{'row': row.label, **old[m], 'reused': True} for old in found for m in methods]
 
     def work(number: int, job: tuple[TableRow, str]) -> list[dict[str, Any]]:
         row, scene = job
@@ -667,8 +676,10 @@ def run(args: argparse.Namespace) -> int:
         for matcher in matchers:
             old = reusable.get((row.dataset, scene, matcher), {})
             todo = [m for m in methods if m not in old]
-            if len(todo) == len(methods) or not todo:
-                old, todo = {}, list(methods)  # nothing to check reused records against
+            if len(todo) == len(methods):
+                old = {}
+            elif not todo:
+                todo = list(methods)  # scored again to check the file's records against
             fresh = {
                 record.method: {'row': row.label, **record.as_dict()}
                 for record in evaluate_scene(
@@ -692,11 +703,44 @@ def run(args: argparse.Namespace) -> int:
                     )
                 fresh[method] = {'row': row.label, **item, 'reused': True}
                 _log(f'{prefix} {matcher} {method} reused: AUC {100 * item["auc"]:.2f}')
+                checked[0] = True
             records.extend(fresh[m] for m in methods)
-        _log(f'{prefix} done, {time.perf_counter() - started:.0f} s so far')
         return records
 
-    outcome = run_scenes(jobs, lambda job: f'{job[0].dataset}/{job[1]}', work)
+    def summary_text(records: list[dict[str, Any]], partial: str | None) -> str:
+        """The text of ``table1.json``."""
+        cells = _cells(records)
+        summary = {
+            'protocol': protocol,
+            'max_disparity': args.max_disparity,
+            'max_pixels': args.max_pixels,
+            'seed': args.seed,
+            'matchers': matchers,
+            'methods': methods,
+            'rows': [{'label': r.label, 'dataset': r.dataset, 'split': r.split,
+                      'first': r.first, 'missing': r.missing} for r in rows],
+            'weights': {f'{m}/{k}': str(p) for (m, k), p in weights.items()},
+            'cells_are': 'AUC x 10^2 (and Opt.), mean of the per-scene values over the scenes '
+                         'of the row',
+            'cells': [{'row': label, 'matcher': matcher, **values}
+                      for (label, matcher), values in cells.items()],
+            'records': records,
+            'partial': partial,
+            'paper': {label: {m: dict(zip(['opt', 'ccnn', 'lfn', 'lgc_net', 'cva_net'], v,
+                                          strict=True)) for m, v in block.items()}
+                      for label, block in PAPER_TABLE1.items()},
+        }
+        return json.dumps(summary, indent=2, allow_nan=False) + '\n'
+
+    def save(so_far: SceneRun) -> None:
+        """``table1.json`` after every scene: a kill or a crash keeps the scenes done, and
+        ``--reuse`` of it continues the run."""
+        args.out.mkdir(parents=True, exist_ok=True)
+        note = f'in progress: {so_far.done} of {so_far.total} scenes done'
+        write_text_atomic(args.out / 'table1.json', summary_text(so_far.records, note))
+
+    outcome = run_scenes(jobs, lambda job: f'{job[0].dataset}/{job[1]}', work, after=save,
+                         held=held)
     if not outcome.records:
         return outcome.ending(PROG, 'nothing written')
     records = outcome.records
@@ -724,28 +768,7 @@ def run(args: argparse.Namespace) -> int:
     ])
     args.out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(args.out / 'table1.md', markdown)
-    cells = _cells(records)
-    summary = {
-        'protocol': protocol,
-        'max_disparity': args.max_disparity,
-        'max_pixels': args.max_pixels,
-        'seed': args.seed,
-        'matchers': matchers,
-        'methods': methods,
-        'rows': [{'label': r.label, 'dataset': r.dataset, 'split': r.split, 'first': r.first,
-                  'missing': r.missing} for r in rows],
-        'weights': {f'{m}/{k}': str(p) for (m, k), p in weights.items()},
-        'cells_are': 'AUC x 10^2 (and Opt.), mean of the per-scene values over the scenes '
-                     'of the row',
-        'cells': [{'row': label, 'matcher': matcher, **values}
-                  for (label, matcher), values in cells.items()],
-        'records': records,
-        'partial': outcome.note() or None,
-        'paper': {label: {m: dict(zip(['opt', 'ccnn', 'lfn', 'lgc_net', 'cva_net'], v,
-                                      strict=True)) for m, v in block.items()}
-                  for label, block in PAPER_TABLE1.items()},
-    }
-    write_text_atomic(args.out / 'table1.json', json.dumps(summary, indent=2) + '\n')
+    write_text_atomic(args.out / 'table1.json', summary_text(records, outcome.note() or None))
     save_table_png(records, rows, matchers, args.out / 'table1.png',
                    f'Table 1 reproduction ({protocol}, D = {args.max_disparity}): AUC × 10², '
                    'mean over scenes',
