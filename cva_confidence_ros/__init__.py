@@ -17,6 +17,16 @@ from cva_confidence_ros.errors import (
     InputError,
     ModelError,
 )
+from cva_confidence_ros.jit import ensure_jit_cache as _ensure_jit_cache
+
+try:
+    # Before any numba kernel is defined: a read-only install with no writable home made
+    # every import of a kernel module fail (numba's 'cannot cache function').
+    _ensure_jit_cache()
+except ConfigError as _error:
+    import warnings
+
+    warnings.warn(str(_error), RuntimeWarning, stacklevel=2)
 
 __version__ = '0.1.0'
 

@@ -41,8 +41,13 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 import importlib
+import os
+from pathlib import Path
 import sys
 from typing import TYPE_CHECKING, Any
+
+from cva_confidence_ros.errors import ConfigError
+from cva_confidence_ros.jit import ensure_jit_cache
 
 if TYPE_CHECKING:
     from cva_confidence_ros.ros.confidence_node import NODE_NAME, ConfidenceNode
@@ -52,9 +57,12 @@ __all__ = [
     'NODE_NAME',
     'ConfidenceNode',
     'ManagedConfidenceNode',
+    'cpu_quota',
+    'ensure_jit_cache',
     'lifecycle_main',
     'lifecycle_usage',
     'main',
+    'match_threads_to_cpu_quota',
     'run_entry',
     'usage',
 ]
@@ -205,11 +213,17 @@ def run_entry(
 
     keep_freed_memory()  # before the first frame's allocations (see cva_confidence_ros.memory)
     try:
-        from cva_confidence_ros.ros.common import check_arguments
+        from cva_confidence_ros.ros.common import EXIT_BAD_START, check_arguments
 
         code = check_arguments(sys.argv if argv is None else argv, usage, example)
         if code is not None:
             return code
+        try:
+            ensure_jit_cache()  # before the node module defines its numba kernels
+        except ConfigError as error:
+            print(f'cannot start: {error}', file=sys.stderr)
+            return EXIT_BAD_START
+        match_threads_to_cpu_quota()  # before torch and numba are imported
         if interrupt.requested():
             return _EXIT_INTERRUPTED
         run = importlib.import_module(module).run
@@ -218,6 +232,82 @@ def run_entry(
         return run(argv)
     finally:
         interrupt.restore()
+
+
+#: The thread-count variables of torch (OpenMP) and of numba, set by
+#: :func:`match_threads_to_cpu_quota`.
+THREAD_VARIABLES = ('OMP_NUM_THREADS', 'NUMBA_NUM_THREADS')
+
+
+def match_threads_to_cpu_quota(
+    root: Path = Path('/sys/fs/cgroup'), cgroup_file: Path = Path('/proc/self/cgroup')
+) -> int | None:
+    """Run torch's and numba's threads no more than a cgroup CPU quota lets run at once.
+
+    Both start a thread per CPU the process may run on (its affinity, ``taskset``); a
+    container's quota (``docker run --cpus``, Kubernetes' CPU limit) is not among what they
+    look at, so under ``--cpus 1`` on two cores each frame ran two threads that the quota
+    then stalled (320×240, Census-BM + CVA-Net-Fast: 7.4 fps against 9.0 with one thread),
+    and a many-core robot fares worse. When the quota allows fewer whole CPUs than the
+    affinity has, ``OMP_NUM_THREADS`` and ``NUMBA_NUM_THREADS`` are set to it (at least 1);
+    either one already set is left as it is. Call it before torch and numba are imported.
+
+    Returns:
+        The thread count set, or None when there is no smaller quota.
+    """
+    limit = cpu_quota(root, cgroup_file)
+    if limit is None:
+        return None
+    threads = max(1, int(limit))
+    if threads >= len(os.sched_getaffinity(0)):
+        return None
+    for name in THREAD_VARIABLES:
+        os.environ.setdefault(name, str(threads))
+    return threads
+
+
+def cpu_quota(
+    root: Path = Path('/sys/fs/cgroup'), cgroup_file: Path = Path('/proc/self/cgroup')
+) -> float | None:
+    """CPUs the process's cgroup quota allows (the smallest along its cgroup's path), or None.
+
+    Reads cgroup v2's ``cpu.max`` and v1's ``cpu.cfs_quota_us`` / ``cpu.cfs_period_us`` of
+    the cgroup ``cgroup_file`` names under ``root``, and of the root there (a container sees
+    its own cgroup as the root).
+    """
+    try:
+        lines = cgroup_file.read_text().splitlines()
+    except OSError:
+        return None
+    limits = []
+    for line in lines:
+        _, controllers, path = (line.split(':', 2) + ['', ''])[:3]
+        if controllers:
+            if 'cpu' not in controllers.split(','):
+                continue
+            bases = [root / controllers, root / 'cpu']
+        else:
+            bases = [root]
+        relative = Path(path.lstrip('/'))
+        for base in bases:
+            for folder in (base / relative, *(base / parent for parent in relative.parents)):
+                limit = _quota(folder, v2=not controllers)
+                if limit is not None:
+                    limits.append(limit)
+    return min(limits, default=None)
+
+
+def _quota(folder: Path, *, v2: bool) -> float | None:
+    try:
+        if v2:
+            quota, period = (folder / 'cpu.max').read_text().split()[:2]
+        else:
+            quota = (folder / 'cpu.cfs_quota_us').read_text().strip()
+            period = (folder / 'cpu.cfs_period_us').read_text().strip()
+        cpus = int(quota) / int(period)
+    except (OSError, ValueError, ZeroDivisionError):  # 'max' or -1: no quota
+        return None
+    return cpus if cpus > 0 else None
 
 
 def __getattr__(name: str) -> Any:
