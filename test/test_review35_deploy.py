@@ -203,3 +203,30 @@ def test_node_start_up_compiles_the_scan_kernel(monkeypatch: pytest.MonkeyPatch)
     geometry = StereoGeometry(fx=4.0, fy=4.0, cx=4.0, cy=3.0, cx_right=4.0, baseline=0.1)
     disparity_to_scan(disparity, geometry, disparity > 1, np.ones_like(disparity))
     assert len(scan_kernel.signatures) == compiled
+
+
+@pytest.mark.parametrize('layout', ['target', 'prefix'])
+def test_shipped_weights_are_found_beside_a_target_or_prefix_install(
+    tmp_path: Path, layout: str
+) -> None:
+    # pip install --target DIR puts the models in DIR/share/..., --user / --prefix in
+    # <prefix>/share/...; both were searched only under sys.prefix ('no shipped ... weights').
+    site = tmp_path / 'target' if layout == 'target' else tmp_path / 'lib/python3/site-packages'
+    shutil.copytree(
+        PACKAGE, site / PACKAGE.name, ignore=shutil.ignore_patterns('__pycache__', '*.nb*')
+    )
+    share = (site if layout == 'target' else tmp_path) / 'share' / PACKAGE.name / 'models'
+    share.mkdir(parents=True)
+    (share / 'cvanet_fast_census_bm_d64.pt').write_bytes(b'stand-in')
+    env = {k: v for k, v in os.environ.items() if k != 'PYTHONPATH'}
+    env.update(PYTHONPATH=str(site), PYTHONDONTWRITEBYTECODE='1')
+    script = (
+        'from cva_confidence_ros.model.weights import default_weights_path; '
+        "print(default_weights_path('census_bm', 64, 'cvanet_fast'))"
+    )
+    done = subprocess.run(
+        [sys.executable, '-c', script], env=env, cwd=tmp_path, capture_output=True, text=True,
+        timeout=60,
+    )
+    assert done.returncode == 0, done.stderr
+    assert Path(done.stdout.strip()) == share / 'cvanet_fast_census_bm_d64.pt'

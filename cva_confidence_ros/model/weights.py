@@ -315,13 +315,19 @@ def weights_search_dirs() -> list[Path]:
 
     1. ``models/`` of the source tree (editable installs and checkouts);
     2. ``<sys.prefix>/share/cva_confidence_ros/models`` (pip install);
-    3. the ament index share directory of the package (colcon install), when
+    3. ``share/cva_confidence_ros/models`` beside the installed package: in the folder of a
+       ``pip install --target DIR`` and in the prefix of a ``<prefix>/lib/pythonX.Y/
+       site-packages`` install (``pip install --user``, ``--prefix``, a colcon install tree)
+       used through ``PYTHONPATH``, where ``sys.prefix`` is another one;
+    4. the ament index share directory of the package (colcon install), when
        ``ament_index_python`` is importable and knows the package.
     """
-    dirs = [
-        Path(__file__).resolve().parents[2] / 'models',
-        Path(sys.prefix) / 'share' / PACKAGE / 'models',
-    ]
+    here = Path(__file__).resolve().parents  # model, cva_confidence_ros, site-packages, ...
+    dirs = [here[2] / 'models', Path(sys.prefix) / 'share' / PACKAGE / 'models']
+    for base in (here[2], here[5] if len(here) > 5 else None):
+        folder = base / 'share' / PACKAGE / 'models' if base is not None else None
+        if folder is not None and folder not in dirs:
+            dirs.append(folder)
     try:
         from ament_index_python.packages import (
             PackageNotFoundError,
