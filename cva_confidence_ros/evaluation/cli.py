@@ -531,16 +531,17 @@ def run(args: argparse.Namespace) -> int:
     # Until a scene of the file has been scored again and agreed with it, its scenes are
     # scored, not taken over, and nothing is written: the file of a run with other settings
     # is refused as it was.
-    unchecked = [bool(previous)]
+    unchecked = bool(previous)
     taken: list[tuple[str, str]] = []
+    # A scene's records in the order a run scores them: matcher by matcher, method by method.
+    order = {pair: index for index, pair in enumerate(
+        (matcher, method) for matcher in matchers for method in methods)}
 
     def held(job: tuple[str, str]) -> list[Any] | None:
         old = previous.get(job, [])
-        if unchecked[0] or len(old) != whole:
+        if unchecked or len(old) != whole:
             return None
         taken.append(job)
-        order = {(m, k): i for i, (m, k) in enumerate(
-            (m, k) for m in matchers for k in methods)}
         return sorted(old, key=lambda r: order[(r.matcher, r.method)])  # as if scored now
 
     def merged(outcome: SceneRun) -> list[Any]:
@@ -551,6 +552,7 @@ def run(args: argparse.Namespace) -> int:
         return [r for job in jobs for r in done.get(job, previous.get(job, []))]
 
     def work(index: int, job: tuple[str, str]) -> list[Any]:
+        nonlocal unchecked
         dataset, scene = job
         prefix = f'[{index}/{len(jobs)}] {dataset}/{scene}'
         tic = time.perf_counter()
@@ -583,7 +585,7 @@ def run(args: argparse.Namespace) -> int:
             )
         if previous.get(job):
             _check_resumed(args.json, previous[job], records)
-            unchecked[0] = False
+            unchecked = False
         # Only a scene that finished counts, as for its records.
         for key, table in tables.items():
             add_table(calibration, key, table)
@@ -592,7 +594,7 @@ def run(args: argparse.Namespace) -> int:
     # The file is rewritten (atomically) after every scene: a SIGKILL, an out-of-memory kill
     # or a crash loses the scene under way, not the run; --resume continues from it.
     def save(so_far: SceneRun) -> None:
-        if not unchecked[0]:
+        if not unchecked:
             write_records(merged(so_far), args.json)
 
     outcome = run_scenes(jobs, lambda job: f'{job[0]}/{job[1]}', work, after=save, held=held)
@@ -614,7 +616,7 @@ def run(args: argparse.Namespace) -> int:
             _write_calibration(calibration, args.out)
     sys.stdout.write(table)
     sys.stdout.flush()
-    if unchecked[0]:
+    if unchecked:
         _log(f'{args.json} left as it was: no scene of it could be scored again to check it')
     else:
         _log(f'wrote {len(merged(outcome))} records to {args.json}')

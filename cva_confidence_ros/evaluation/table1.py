@@ -659,16 +659,17 @@ def run(args: argparse.Namespace) -> int:
     # Once one scene of --reuse has been scored again and agreed with it, a scene it holds
     # for every matcher and method is taken over as it is: an interrupted run's table1.json
     # continues where it stopped instead of scoring every scene again.
-    checked = [False]
+    checked = False
 
     def held(job: tuple[TableRow, str]) -> list[dict[str, Any]] | None:
         row, scene = job
         found = [reusable.get((row.dataset, scene, matcher), {}) for matcher in matchers]
-        if not checked[0] or not all(m in old for old in found for m in methods):
+        if not checked or not all(m in old for old in found for m in methods):
             return None
         return [{'row': row.label, **old[m], 'reused': True} for old in found for m in methods]
 
     def work(number: int, job: tuple[TableRow, str]) -> list[dict[str, Any]]:
+        nonlocal checked
         row, scene = job
         sample = load_scene(row.dataset, args.data_root, scene, split=row.split)
         prefix = f'[{number}/{len(jobs)}] {row.dataset}/{scene}'
@@ -703,7 +704,7 @@ def run(args: argparse.Namespace) -> int:
                     )
                 fresh[method] = {'row': row.label, **item, 'reused': True}
                 _log(f'{prefix} {matcher} {method} reused: AUC {100 * item["auc"]:.2f}')
-                checked[0] = True
+                checked = True
             records.extend(fresh[m] for m in methods)
         return records
 

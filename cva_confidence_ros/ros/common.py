@@ -566,7 +566,7 @@ def run_node(factory: Callable[[], Node], name: str, argv: Sequence[str] | None 
     return code
 
 
-_IGNORE_AT_EXIT: list[bool] = []
+_ignoring_at_exit = False  # _ignore_stop_signals registered with atexit
 
 
 def _ignore_stop_signals() -> None:
@@ -582,7 +582,8 @@ def _ignore_stop_signals_at_exit() -> None:
     through the interpreter's shutdown, which otherwise puts the default action back (a signal
     then kills the process) before the slow part of it (torch, rclpy).
     """
-    if not _IGNORE_AT_EXIT:
-        _IGNORE_AT_EXIT.append(True)
+    global _ignoring_at_exit
+    if not _ignoring_at_exit:
+        _ignoring_at_exit = True
         atexit.register(_ignore_stop_signals)
 
