@@ -562,7 +562,7 @@ def run(args: argparse.Namespace) -> int:
     """Score every method on every row; write the outputs. Raises ``CVAError`` on bad input."""
     from cva_confidence_ros.confidence import CONFIDENCE_METHODS
     from cva_confidence_ros.datasets import list_scenes, load_scene
-    from cva_confidence_ros.evaluation.cli import SceneRun, run_scenes
+    from cva_confidence_ros.evaluation.cli import RESUME_TOLERANCE, SceneRun, run_scenes
     from cva_confidence_ros.evaluation.scene import evaluate_scene
     from cva_confidence_ros.matching import MATCHERS
 
@@ -658,18 +658,18 @@ def run(args: argparse.Namespace) -> int:
         jobs.extend((row, scene) for scene in scenes[: args.max_scenes])
     # Once one scene of --reuse has been scored again and agreed with it, a scene it holds
     # for every matcher and method is taken over as it is: an interrupted run's table1.json
-    # continues where it stopped instead of scoring every scene again.
-    checked = False
+    # continues where it stopped instead of scoring every scene again. Per matcher: each
+    # matcher has weights of its own.
+    checked: set[str] = set()
 
     def held(job: tuple[TableRow, str]) -> list[dict[str, Any]] | None:
         row, scene = job
         found = [reusable.get((row.dataset, scene, matcher), {}) for matcher in matchers]
-        if not checked or not all(m in old for old in found for m in methods):
+        if checked != set(matchers) or not all(m in old for old in found for m in methods):
             return None
         return [{'row': row.label, **old[m], 'reused': True} for old in found for m in methods]
 
     def work(number: int, job: tuple[TableRow, str]) -> list[dict[str, Any]]:
-        nonlocal checked
         row, scene = job
         sample = load_scene(row.dataset, args.data_root, scene, split=row.split)
         prefix = f'[{number}/{len(jobs)}] {row.dataset}/{scene}'
@@ -702,9 +702,20 @@ def run(args: argparse.Namespace) -> int:
                         f'{item["error_rate"]:.6f}; now {check["n_pixels"]} px, '
                         f'{check["error_rate"]:.6f}): use the same D, --max-pixels and --seed'
                     )
+                now = fresh.get(method)
+                if now is not None and abs(now['auc'] - item['auc']) > RESUME_TOLERANCE:
+                    raise ConfigError(
+                        f'--reuse {args.reuse}: {row.dataset}/{scene} {matcher} {method} has '
+                        f'AUC {item["auc"]:.6f} there, {now["auc"]:.6f} scored now on the same '
+                        f'pixels: it was scored with other weights or settings; give the '
+                        f'weights it was scored with, or leave --reuse out'
+                    )
+                if now is not None:
+                    # Records of other weights have the same pixels and error rate: only a
+                    # scene held in full and scored again (its AUC compared) checks them.
+                    checked.add(matcher)
                 fresh[method] = {'row': row.label, **item, 'reused': True}
                 _log(f'{prefix} {matcher} {method} reused: AUC {100 * item["auc"]:.2f}')
-                checked = True
             records.extend(fresh[m] for m in methods)
         return records
 
