@@ -89,6 +89,10 @@ _ENCODINGS: dict[str, tuple[int, int, tuple[int, ...] | None]] = {
 SUPPORTED_ENCODINGS: tuple[str, ...] = tuple(_ENCODINGS)
 #: Encodings of the ``depth`` output (REP 118): float metres or integer millimetres.
 DEPTH_ENCODINGS: tuple[str, ...] = ('32FC1', '16UC1')
+#: The baselines camera infos are taken with, metres: from a stereo endoscope's few millimetres
+#: to a wide vehicle rig. One outside is a Tx of another unit (B or B in mm instead of −fx·B).
+MIN_BASELINE_M = 1e-3
+MAX_BASELINE_M = 10.0
 # 16UC1 holds 1 mm … 65.535 m; 0 means no depth.
 _UINT16_MM_MAX = float(np.iinfo(np.uint16).max)
 
@@ -132,6 +136,7 @@ def image_to_array(msg: Image, name: str = 'image') -> np.ndarray:
     if encoding not in _ENCODINGS:
         raise InputError(
             f'{name} encoding must be one of {SUPPORTED_ENCODINGS}; got {msg.encoding!r}'
+            + _encoding_hint(encoding)
         )
     channels, depth, order = _ENCODINGS[encoding]
     height, width = int(msg.height), int(msg.width)
@@ -143,6 +148,33 @@ def image_to_array(msg: Image, name: str = 'image') -> np.ndarray:
     if order is None:
         return pixels[..., 0].copy()
     return np.ascontiguousarray(pixels[..., list(order)])
+
+
+def _encoding_hint(encoding: str) -> str:
+    """What to do about an unsupported ``encoding`` (lower-case) that cameras are known to send,
+    as the end of the error; '' for any other."""
+    if encoding.startswith('bayer_'):
+        # A camera's raw output: neither debayered nor rectified, so no rectified pair either.
+        return (
+            ': a raw Bayer (colour filter) image, neither debayered nor rectified; run '
+            'image_proc on the camera (debayer, then rectify: stereo_image_proc does both) and '
+            'give the node its image_rect (mono8) or image_rect_color (bgr8)'
+        )
+    if encoding in ('yuv422', 'yuv422_yuy2', 'uyvy', 'yuyv', 'nv21', 'nv24'):
+        # What USB cameras send as their raw image; image_proc converts and rectifies it.
+        return (
+            ': a YUV camera format (a raw image, as USB cameras send it); run image_proc on '
+            'the camera (debayer converts YUV, then rectify: stereo_image_proc does both) and '
+            'give the node its image_rect (mono8) or image_rect_color (bgr8)'
+        )
+    if encoding in ('8uc3', '8uc4'):
+        # cv_bridge's cv2_to_imgmsg(image) without an encoding ("passthrough") names OpenCV's
+        # BGR image 8UC3: the channel order is not in the message, so it is not guessed.
+        return (
+            ': an OpenCV type that does not say the channel order; publish the image as bgr8 '
+            "or bgra8 (cv_bridge: cv2_to_imgmsg(image, 'bgr8')) or rgb8 / rgba8"
+        )
+    return ''
 
 
 def compressed_image_to_array(msg: Any, name: str = 'image') -> np.ndarray:
@@ -479,13 +511,50 @@ def camera_info_to_geometry(
         InputError: A camera info whose size (after binning and region of interest) is not
             the images', a region of interest outside its calibration size, a degenerate
             projection matrix, fx, fy or cy that differ between left and right, a vertical
-            baseline (Ty of the two projections differing: rows that do not line up), or a
-            baseline ≤ 0.
+            baseline (Ty of the two projections differing: rows that do not line up), an
+            all-zero P (uncalibrated), a baseline ≤ 0 (the same Tx on both: the left info
+            twice; a positive right Tx), or one outside [:data:`MIN_BASELINE_M`,
+            :data:`MAX_BASELINE_M`] (a Tx in another unit than −fx·B with B in metres).
     """
     _, left = image_projection(left_info, 'left camera info', (width, height))
     _, right = image_projection(right_info, 'right camera info', (width, height))
+    for side, projection in (('left', left), ('right', right)):
+        if not projection.any():
+            # What an uncalibrated camera, or a driver that leaves P unset, publishes.
+            raise InputError(
+                f'{side} camera info has an all-zero projection matrix P: the camera is not '
+                'calibrated, or its driver does not fill P (the rectified projection, which '
+                'the node needs; K alone is the unrectified camera)'
+            )
+    if np.isfinite(left).all() and np.isfinite(right).all() and left[0, 3] == right[0, 3]:
+        # The left info sent twice, a mono camera's, or a driver that leaves the right Tx
+        # unset: from_projections would suggest a swapped pair.
+        raise InputError(
+            'left and right camera infos have the same Tx (P[0, 3] = '
+            f'{float(left[0, 3]):g}): a baseline of 0; the right camera info must carry the '
+            'stereo calibration, Tx = −fx·B (the left camera info published on both topics, '
+            'a mono camera, or a driver that does not fill the right Tx?)'
+        )
+    if left[0, 3] < right[0, 3] and left[2, 2] > 0 and right[2, 2] > 0 and right[0, 0] > 0:
+        # Some drivers write +fx·B: from_projections would only suggest a swapped pair.
+        raise InputError(
+            f'the right camera info has P[0, 3] = {float(right[0, 3]):g} above the left '
+            f"one's ({float(left[0, 3]):g}): a negative baseline; Tx must be −fx·B < 0 "
+            '(REP 104: the right camera right of the left one); a driver that writes +fx·B, '
+            'or left and right swapped?'
+        )
     geometry = StereoGeometry.from_projections(left, right)  # shapes and finite values
     check_rows(left, right)
+    if not MIN_BASELINE_M <= geometry.baseline <= MAX_BASELINE_M:
+        # Tx = −fx·B in pixels × metres (REP 104); a driver that writes B itself, or B in
+        # millimetres, gives a baseline fx times too small or 1000 times too large, and
+        # every depth as wrong.
+        raise InputError(
+            f'baseline (P_left[0, 3] − P_right[0, 3]) / fx = {geometry.baseline:g} m is '
+            f'outside [{MIN_BASELINE_M:g}, {MAX_BASELINE_M:g}] m: Tx must be −fx·B with B in '
+            f'metres (got P_right[0, 3] = {float(right[0, 3]):g} at fx = {geometry.fx:g}; '
+            'B itself, or B in millimetres?)'
+        )
     return geometry
 
 
