@@ -77,6 +77,8 @@ _FIELD_OPTIONS = {
     'rate_scale': '--rate-scale',
     'startup_timeout_s': '--startup-timeout',
     'drain_timeout_s': '--drain-timeout',
+    'start_s': '--start',
+    'duration_s': '--duration',
     'prefix': '--topic-prefix',
     'left': '--left-topic',
     'right': '--right-topic',
@@ -134,6 +136,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--mode', choices=('offline', 'live'), default='offline',
                         help='offline: as fast as possible; live: over DDS to the node')
 
+    part = parser.add_argument_group('part of the bag (bag time, both modes)')
+    part.add_argument('--start', type=float, default=0.0, metavar='SECONDS',
+                      help="replay from this many seconds after the bag's first message "
+                           '(as ros2 bag play --start-offset; default 0)')
+    part.add_argument('--duration', type=float, default=None, metavar='SECONDS',
+                      help='replay this many seconds from there (default: to the end)')
     node = parser.add_argument_group('pipeline (the node parameters of the same names)')
     node.add_argument('--matcher', default=_default('matcher'), help='census_bm, census_sgm, '
                       'mccnn_fast (default %(default)s)')
@@ -391,6 +399,8 @@ def _options(args: argparse.Namespace) -> ReplayOptions:
         start_node=not args.no_start_node,
         startup_timeout_s=args.startup_timeout,
         drain_timeout_s=args.drain_timeout,
+        start_s=args.start,
+        duration_s=args.duration,
     )
 
 

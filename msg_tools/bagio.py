@@ -259,10 +259,16 @@ class InputBag:
             )
         return topics[topic]
 
+    @property
+    def time_range(self) -> tuple[int, int]:
+        """Bag time (ns) of the first message and just after the last one."""
+        return int(self.reader.start_time), int(self.reader.end_time)
+
     def messages(
-        self, topics: Sequence[str], start: int | None = None
+        self, topics: Sequence[str], start: int | None = None, stop: int | None = None
     ) -> Iterator[tuple[str, str, int, bytes]]:
-        """Raw messages of ``topics`` in bag-time order, from bag time ``start`` (ns) on.
+        """Raw messages of ``topics`` in bag-time order, from bag time ``start`` (ns) on and
+        before ``stop``.
 
         ``topics`` is a list of topic names; a single name (a ``str``) is one topic, not a
         list of its characters.
@@ -272,8 +278,8 @@ class InputBag:
 
         Raises:
             BagError: The storage fails part-way (truncated or corrupt data), holds no
-                message of a topic that the bag's metadata lists messages of, or, read to
-                its end from the start, fewer messages of a topic than the metadata lists
+                message of a topic that the bag's metadata lists messages of, or, read
+                whole, fewer messages of a topic than the metadata lists
                 (records lost to damage: raised after the messages it holds).
         """
         from rosbags.rosbag2 import ReaderError
@@ -285,12 +291,12 @@ class InputBag:
         self._check_storage(wanted)
         count = 0
         counts: dict[int, int] = {}  # connection id → messages read
-        iterator = self.reader.messages(connections=wanted, start=start)
+        iterator = self.reader.messages(connections=wanted, start=start, stop=stop)
         while True:
             try:
                 item = next(iterator)
             except StopIteration:
-                if start is None:
+                if start is None and stop is None:
                     self._check_counts(wanted, counts)
                 return
             except (ReaderError, *_STORAGE_FAULTS) as err:

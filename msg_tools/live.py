@@ -573,7 +573,7 @@ def _play(
         try:
             start_bag: int | None = None
             start_wall = 0.0
-            for topic, msgtype, timestamp, raw in bag.messages(plan.topics):
+            for topic, msgtype, timestamp, raw in bag.messages(plan.topics, *plan.window):
                 interrupts.check()
                 position = timestamp
                 if start_bag is None:
@@ -603,6 +603,9 @@ def _play(
             sync.drain()
             session.report_drops(sync)
             recorder.finish(node, progress)
+            if plan.window[1] is not None:
+                # As offline: the ground truth of the last frames may lie past the part played.
+                session.read_ahead_ground_truth(bag, plan.window[1], store)
         finally:
             try:
                 if interrupts.requested:

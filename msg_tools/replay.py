@@ -112,10 +112,11 @@ COMPRESSED_OUTPUTS = {
 # Longest span rosbag2 timestamps (int64 nanoseconds) can express, in seconds.
 _MAX_SPAN_S = (2**63 - 1) / 1e9
 #: Most processed frames that wait for their ground truth at once, and most ground-truth
-#: messages that wait for their frame. A frame stops waiting as soon as ground truth of a later
-#: stamp is read (the topic comes in stamp order, so its own cannot come any more); this bound
-#: is for ground truth that lags its images (a ground-truth node's latency) and keeps the
-#: memory bounded. It does not depend on --queue-size, the synchroniser's setting.
+#: messages that wait for their frame. A frame stops waiting as soon as ground truth of a stamp
+#: :data:`TRUTH_JUMP_NS` or more later is read (the topic comes in stamp order but for messages
+#: a little out of order, so its own cannot come any more); this bound is for ground truth that
+#: lags its images (a ground-truth node's latency) and keeps the memory bounded. It does not
+#: depend on --queue-size, the synchroniser's setting.
 GT_WAIT_FRAMES = 100
 # Stamps remembered to say why a frame went unscored (plain integers: cheap to keep).
 _MAX_REMEMBERED = 1000
@@ -314,6 +315,9 @@ class ReplayOptions:
         startup_timeout_s: Live mode: wait this long for the node's topics to connect.
         drain_timeout_s: Live mode: after the last input, wait this long without any output
             before giving up on the frames not answered yet.
+        start_s: Replay from this many seconds after the bag's first message (bag time, as
+            ``ros2 bag play --start-offset``).
+        duration_s: Replay this many seconds of the bag from there; None = to its end.
 
     Raises:
         ConfigError: An invalid value or path; one of given fields (or topics) carries their
@@ -349,6 +353,8 @@ class ReplayOptions:
     start_node: bool = True
     startup_timeout_s: float = 60.0
     drain_timeout_s: float = 30.0
+    start_s: float = 0.0
+    duration_s: float | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in ('offline', 'live'):
@@ -391,7 +397,37 @@ class ReplayOptions:
                 f'timeouts must be a finite number of seconds > 0; got startup '
                 f'{self.startup_timeout_s}, drain {self.drain_timeout_s}', *bad,
             )
+        if not (math.isfinite(self.start_s) and 0 <= self.start_s <= _MAX_SPAN_S):
+            raise ConfigError(
+                f'start must be a finite number of seconds >= 0; got {self.start_s}', 'start_s'
+            )
+        if self.duration_s is not None and not (
+            math.isfinite(self.duration_s) and 0 < self.duration_s <= _MAX_SPAN_S
+        ):
+            raise ConfigError(
+                f'duration must be a finite number of seconds > 0; got {self.duration_s}',
+                'duration_s',
+            )
         self._check_paths()
+
+    def bag_window(self, bag: InputBag) -> tuple[int | None, int | None]:
+        """The bag times (ns) to replay, ``[start, stop)``, from ``start_s`` and
+        ``duration_s``; (None, None) = the whole bag.
+
+        Raises:
+            ConfigError: ``start_s`` at or past the bag's end (naming the bag's length).
+        """
+        if self.start_s == 0 and self.duration_s is None:
+            return None, None
+        first, end = bag.time_range
+        start = first + int(round(self.start_s * 1e9))
+        if start >= end:
+            raise ConfigError(
+                f'start {self.start_s:g} s lies at or past the end of bag {self.bag}, which '
+                f'spans {(end - first) / 1e9:.3f} s of bag time', 'start_s',
+            )
+        stop = None if self.duration_s is None else start + int(round(self.duration_s * 1e9))
+        return start, stop
 
     def _check_paths(self) -> None:
         """Refuse outputs that would write over the input or over each other, an output bag
@@ -467,6 +503,8 @@ class ReplayOptions:
         }
         if self.mode == 'live':
             record.update(rate_scale=self.rate_scale, start_node=self.start_node)
+        if self.start_s or self.duration_s is not None:
+            record.update(start_s=self.start_s, duration_s=self.duration_s)
         return record
 
 
@@ -482,6 +520,8 @@ class TopicPlan:
         pairs_expected: Number of left images in the bag (for the progress line).
         input_counts: Absolute input topic → number of messages (as the bag's metadata
             states).
+        window: Bag times (ns) replayed, ``[start, stop)`` (:meth:`ReplayOptions.bag_window`);
+            the counts are those within it.
     """
 
     inputs: dict[str, str]
@@ -490,6 +530,7 @@ class TopicPlan:
     ground_truth_type: str
     pairs_expected: int
     input_counts: dict[str, int] = field(default_factory=dict)
+    window: tuple[int | None, int | None] = (None, None)
 
     @property
     def key_of(self) -> dict[str, str]:
@@ -528,6 +569,7 @@ def plan_topics(bag: InputBag, options: ReplayOptions, log: Logger = log_stderr)
         BagError: An empty bag (no topic at all), a missing input topic, one of the wrong
             type, or a ground-truth topic that was asked for explicitly and is missing or of
             another type.
+        ConfigError: A ``start_s`` past the bag's end.
     """
     if not bag.topics:
         raise BagError(f'bag {bag.path} is empty (0 messages)')
@@ -561,6 +603,10 @@ def plan_topics(bag: InputBag, options: ReplayOptions, log: Logger = log_stderr)
     else:
         gt_type = found
     counts = bag.message_counts
+    window = options.bag_window(bag)
+    if window != (None, None):
+        # Counted in the part replayed (the metadata counts the whole bag).
+        counts = Counter(topic for topic, *_ in bag.messages(list(inputs.values()), *window))
     return TopicPlan(
         inputs=inputs,
         input_types=types,
@@ -568,6 +614,7 @@ def plan_topics(bag: InputBag, options: ReplayOptions, log: Logger = log_stderr)
         ground_truth_type=gt_type,
         pairs_expected=counts.get(inputs['left'], 0),
         input_counts={topic: counts.get(topic, 0) for topic in inputs.values()},
+        window=window,
     )
 
 
@@ -874,8 +921,10 @@ class ReplaySession:
     is full) is recorded in the report too, and raised further.
 
     Ground truth and results meet by stamp: whichever comes first waits. The ground-truth
-    topic comes in stamp order, so a result stops waiting once ground truth of a later stamp
-    has been read (its own can no longer come), or when :data:`GT_WAIT_FRAMES` results wait
+    topic comes in stamp order but for messages a little out of order (a ground-truth node
+    whose latency varies: less than :data:`TRUTH_JUMP_NS`), so a result stops waiting once
+    ground truth of a stamp that much later has been read (its own can no longer come), or
+    when the truth stamps jump back past it, or when :data:`GT_WAIT_FRAMES` results wait
     (ground truth that lags its images by more is not waited for); it is then reported
     unscored, with the reason. A frame that cannot be scored (no usable ground truth) is
     logged with the reason (the first few times per reason).
@@ -1141,6 +1190,8 @@ class ReplaySession:
         in the current epoch without moving the last stamp."""
         if in_order:
             if self._last_truth is not None and stamp_ns < self._last_truth:
+                # The frames of the epoch that ends whose ground truth was passed get none.
+                self._give_up_before(self._last_truth, self._truth_epoch, window=0)
                 self._truth_epoch += 1
             self._last_truth = stamp_ns
         epoch = self._truth_epoch
@@ -1224,7 +1275,7 @@ class ReplaySession:
             # skipped frame, a second message of one stamp): not this frame's.
             self._truth_unused(stamp, truth[0])
             truth = None
-        if truth is None and not any(s > stamp and e == epoch
+        if truth is None and not any(s - stamp >= TRUTH_JUMP_NS and e == epoch
                                      for s, (e, _) in self._truth.items()):
             earlier = self._pending.pop(stamp, None)
             if earlier is not None:
@@ -1244,8 +1295,8 @@ class ReplaySession:
                     'came (ground truth later than that is not waited for)'
                 )
             return
-        # Ground truth of this or a later stamp was read: older waiting frames of its epoch
-        # get none.
+        # Ground truth of this or a later stamp was read: waiting frames of its epoch older by
+        # TRUTH_JUMP_NS or more get none.
         self._give_up_before(stamp, epoch if truth is None else truth[0])
         msg = None if truth is None else truth[1]
         self._score(result, msg, note='' if msg is not None else self._no_truth(stamp))
@@ -1262,10 +1313,12 @@ class ReplaySession:
             self._release_truth(jumped=True)
         return self._frame_epoch
 
-    def _give_up_before(self, stamp_ns: int, epoch: int) -> None:
-        """Score the waiting frames of ``epoch`` older than ``stamp_ns`` without ground
-        truth."""
-        for stamp in [s for s, (e, _) in self._pending.items() if s < stamp_ns and e == epoch]:
+    def _give_up_before(self, stamp_ns: int, epoch: int, window: int = TRUTH_JUMP_NS) -> None:
+        """Score the waiting frames of ``epoch`` that are ``window`` or more older than
+        ``stamp_ns`` without ground truth (theirs can come a little after a later one: a
+        ground-truth node whose latency varies reorders neighbouring messages)."""
+        for stamp in [s for s, (e, _) in self._pending.items()
+                      if stamp_ns - s >= window and e == epoch]:
             self._score(self._pending.pop(stamp)[1], None, note=self._no_truth(stamp))
 
     def _no_truth(self, stamp_ns: int, stopped: bool = False) -> str:
@@ -1744,7 +1797,7 @@ def run_offline(
         position: int | None = None  # bag time of the last message read
         with session, progress:
             try:
-                for topic, msgtype, timestamp, raw in bag.messages(plan.topics):
+                for topic, msgtype, timestamp, raw in bag.messages(plan.topics, *plan.window):
                     interrupts.check()
                     position = timestamp
                     try:
@@ -1764,6 +1817,9 @@ def run_offline(
                     session.report_drops(sync)
                 sync.drain()
                 session.report_drops(sync)
+                if plan.window[1] is not None:
+                    # The ground truth of the last frames may lie just past the part replayed.
+                    session.read_ahead_ground_truth(bag, plan.window[1], store)
             finally:
                 session.stop_pairing(sync, bag, position, store)  # also on Ctrl-C, a bag fault
     return session.outcome()
