@@ -74,10 +74,21 @@ def _as_volume(name: str, volume: Any) -> np.ndarray:
     with np.errstate(over='ignore'):
         inside = _COST_LOW <= np.float32(low) and np.float32(high) <= _COST_HIGH
     if not inside:
-        raise InputError(
-            f'{name} must hold finite costs in [0, 1]; got values in '
-            f'[{float(low):g}, {float(high):g}]'
-        )
+        # min and max are NaN as soon as one entry is: '[nan, nan]' told nothing about the
+        # others. The hint says how a volume of another matcher goes in (class docstring).
+        nans = int(np.count_nonzero(np.isnan(volume))) if volume.dtype.kind == 'f' else 0
+        if nans:
+            got = f'{nans} NaN entries of {volume.size}'
+        else:
+            got = f'values in [{float(low):g}, {float(high):g}]'
+        hint = ''
+        if nans or np.float64(high) == np.inf:
+            hint = ' (give impossible disparities, such as x < d, the worst cost 1.0)'
+        elif -1.0 - _COST_TOLERANCE <= np.float64(low) < 0:
+            hint = ' (a similarity s in [-1, 1], higher = better, goes in as (1 - s) / 2)'
+        elif np.float64(low) >= 0:
+            hint = ' (divide the costs by the largest one the matcher can give)'
+        raise InputError(f'{name} must hold finite costs in [0, 1]; got {got}{hint}')
     return np.ascontiguousarray(volume, dtype=np.float32)
 
 
@@ -124,6 +135,12 @@ class ConfidenceInputs:
     Arrays are checked on construction and converted to float32 (no copy if they already are).
     Cost volumes must be real (float or int) and lie in [0, 1] (a rounding slack of 1e-4 is
     allowed), which also excludes NaN and ±inf; disparities must be real (NaN = invalid).
+    A volume of another matcher goes in as such costs, lower = better: raw costs divided by
+    the largest one the matcher can give (a fixed bound, not the frame's maximum, so that
+    ``mlm``'s sigma and a threshold mean the same on every frame), impossible disparities
+    (``x < d``) at 1.0, and a similarity ``s`` (higher = better, NCC or a cosine in [-1, 1])
+    as ``(1 - s) / 2``, or ``1 - s`` for one in [0, 1]: nothing here can tell a similarity in
+    [0, 1] from a cost, and taken as a cost it ranks every pixel the wrong way round.
 
     Attributes:
         cost_volume: (D, H, W) float32 left-reference costs in [0, 1], 0 = perfect match;
@@ -157,6 +174,16 @@ class ConfidenceInputs:
     def __post_init__(self) -> None:
         volume = _as_volume('cost_volume', self.cost_volume)
         shape = (volume.shape[1], volume.shape[2])
+        # An (H, W, D) volume (the layout of many matchers and networks) read as (D, H, W)
+        # fails the disparity's or the image's shape below; say why.
+        for field in ('disparity', 'image'):
+            value = getattr(self, field)
+            found = value.shape[:2] if isinstance(value, np.ndarray) else None
+            if found is not None and found != shape and found == volume.shape[:2]:
+                raise InputError(
+                    f'cost_volume must be (D, H, W); got shape {volume.shape}, which is '
+                    f"(H, W, D) for the {field}'s {found}: pass volume.transpose(2, 0, 1)"
+                )
         object.__setattr__(self, 'cost_volume', volume)
         object.__setattr__(self, 'disparity', _as_disparity('disparity', self.disparity, shape))
         image = self.image
