@@ -62,6 +62,7 @@ from cva_confidence_ros.ros.params import (
     PARAMETERS,
     NodeConfig,
     build_configs,
+    change_fault,
     declare_parameters,
     parameter_values,
     restore_types,
@@ -275,6 +276,10 @@ class _Stats:
 
     def record_timings(self, timings: dict[str, float]) -> None:
         self.last_timings_ms = dict(timings)
+        # A stage the frame did not run (speckle_size or subpixel switched off at run time)
+        # has no mean any more: /diagnostics kept its old one for good.
+        for key in set(self.mean_timings_ms) - set(timings):
+            del self.mean_timings_ms[key]
         for key, value in timings.items():
             previous = self.mean_timings_ms.get(key)
             # Exponential moving average: recent frames dominate, one spike does not.
@@ -573,13 +578,25 @@ class ConfidenceCore(Node):
         asked = ', '.join(f'{p.name}={p.value!r}' for p in params)
         if not self.configured:
             # The managed node before configure (or after cleanup): the next configure builds
-            # the pipeline; here the values only have to make a valid configuration.
+            # the pipeline; here the values only have to make a valid configuration, but for
+            # faults of other parameters (start-up values, checked first at configure), which
+            # are left to their own changes.
+            fault: CVAError | None
+            try:
+                fault = change_fault(parameter_values(self), params)
+            except CVAError as error:
+                fault = error
+            if fault is not None:
+                self.get_logger().warning(f'parameter change refused ({asked}): {fault}')
+                return SetParametersResult(successful=False, reason=str(fault))
             try:
                 build_configs(parameter_values(self), params)
             except CVAError as error:
-                self.get_logger().warning(f'parameter change refused ({asked}): {error}')
-                return SetParametersResult(successful=False, reason=str(error))
-            self.get_logger().info(f'parameters set: {asked}')
+                self.get_logger().warning(
+                    f'parameters set: {asked}; configure still refuses the configuration: {error}'
+                )
+            else:
+                self.get_logger().info(f'parameters set: {asked}')
             return SetParametersResult(successful=True)
         try:
             pipeline_config, node_config = build_configs(parameter_values(self), params)
@@ -1248,7 +1265,7 @@ class ConfidenceCore(Node):
 
         ``frames_received`` counts synchronised sets; each is then throttled (skipped under
         ``max_rate_hz``), processed, dropped (replaced by a newer one before the worker took
-        it), invalid (bad input) or failed.
+        it, or left by a deactivate of the managed node), invalid (bad input) or failed.
         ``messages_unmatched`` counts single messages the synchroniser evicted unpaired;
         ``stamp_jumps`` the times the input stamps went back and pairing started over.
         """

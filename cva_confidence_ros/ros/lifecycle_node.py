@@ -287,10 +287,16 @@ class ManagedConfidenceNode(ConfidenceCore, LifecycleNode):
         # The frame belongs to the activation it was taken in (noted by the mailbox as it was
         # taken, not here after it: a deactivate in between made it the next activation's).
         self._frame.current = mailbox.taken_clears
+        self._frame.deactivated = False
         try:
             super()._process(item, mailbox)
         finally:
             self._frame.current = None
+            if self._frame.deactivated and not super()._stopping(mailbox):
+                # Left unpublished by a deactivate: dropped, as the frame waiting then was
+                # (counted nowhere, received ran ahead of the sum of the other counters).
+                with self._lock:
+                    self._stats.dropped += 1
 
     def _publish(self, *args: Any) -> None:
         super()._publish(*args)
@@ -303,6 +309,7 @@ class ManagedConfidenceNode(ConfidenceCore, LifecycleNode):
         held)."""
         current = getattr(self._frame, 'current', None)
         if current is not None and current != mailbox.clears:
+            self._frame.deactivated = True
             return True
         return super()._stopping(mailbox)
 

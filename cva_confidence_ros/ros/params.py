@@ -36,6 +36,7 @@ __all__ = [
     'NodeConfig',
     'ParamSpec',
     'build_configs',
+    'change_fault',
     'check_declared_ranges',
     'scan_parameters',
     'declare_parameters',
@@ -799,3 +800,32 @@ def build_configs(
     pipeline = {spec.name: merged[spec.name] for spec in PIPELINE_PARAMETERS}
     node = {spec.name: merged[spec.name] for spec in NODE_PARAMETERS}
     return PipelineConfig(**pipeline), NodeConfig(**node)
+
+
+def change_fault(values: Mapping[str, Any], changes: Iterable[Parameter]) -> ConfigError | None:
+    """The fault of ``changes`` themselves on top of ``values``, or None.
+
+    For a node that is not configured (the managed one before ``configure``), whose values may
+    already hold faults: start-up values are only checked at ``configure``. A fault that names
+    none of the changed parameters is such an earlier one; it is taken at its parameters'
+    defaults for the check, so that faults in two parameters can be fixed one ``param set`` at a
+    time (each used to be refused for the other's fault, and only a restart got out).
+
+    Raises:
+        ConfigError: An unknown parameter name (as :func:`build_configs`).
+    """
+    changes = list(changes)
+    changed = {param.name for param in changes}
+    defaults = {spec.name: spec.default for spec in PARAMETERS}
+    merged = dict(values)
+    for _ in range(len(PARAMETERS) + 1):
+        try:
+            build_configs(merged, changes)
+        except ConfigError as error:
+            earlier = [name for name in error.fields if name in defaults and name not in changed]
+            if not earlier or len(earlier) < len(error.fields):
+                return error  # the changes' own fault (or one naming no parameter)
+            merged.update((name, defaults[name]) for name in earlier)
+            continue
+        return None
+    return None
