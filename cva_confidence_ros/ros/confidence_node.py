@@ -688,7 +688,20 @@ class ConfidenceCore(Node):
             # Once as it starts or changes, not every throttle period: /diagnostics shows it
             # as a warning for as long as it holds.
             self.get_logger().warning(too_wide)
+        if stamp == 0:
+            # A driver that leaves its header stamps at zero: frames pair by stamp, so every
+            # frame after the first looked like the first one again ('a bag on a loop?').
+            self._log_throttle.log(
+                self.get_logger(),
+                'header stamp 0',
+                f'{self._input_names()[key]} has header stamp 0: its driver does not stamp its '
+                'messages; frames pair by stamp (left, right and both camera infos of a frame '
+                'need the time of its exposure), so most frames are lost: set the stamps in the '
+                'driver',
+            )
         for previous, now in jumps:
+            if previous == now == 0:
+                continue  # said above
             if previous == now:
                 # Not back at all: the frame paired last came again (a bag of one frame played
                 # again, or on a loop).
