@@ -16,11 +16,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import cv2
 import numpy as np
 
+from cva_confidence_ros.datasets.io import decode_image_file
 from cva_confidence_ros.datasets.resize import check_factor
-from cva_confidence_ros.errors import ConfigError, InputError
+from cva_confidence_ros.errors import ConfigError, DataError, InputError
 
 __all__ = ['check_mask_size', 'load_mask', 'mask_rows', 'reduce_mask']
 
@@ -37,15 +37,21 @@ def load_mask(path: str | Path, option: str = 'mask_path') -> np.ndarray:
         (H, W) bool, True where pixels are judged.
 
     Raises:
-        ConfigError: The file is missing, empty or not an image, holds NaN (a float image),
-            or it ignores every pixel.
+        ConfigError: The file is missing, empty or not an image, a truncated JPEG, declares
+            more pixels than :data:`~cva_confidence_ros.datasets.io.MAX_IMAGE_PIXELS`, holds
+            NaN (a float image), or it ignores every pixel.
     """
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f'{option} {str(path)!r} is not a file')
     if path.stat().st_size == 0:
         raise ConfigError(f'{option} {str(path)!r} is an empty file')
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    try:
+        # Not cv2.imread: the size in the header is checked before decoding, and a truncated
+        # JPEG (its missing rows decode grey = judged) is refused.
+        image = decode_image_file(path)
+    except DataError as exc:
+        raise ConfigError(f'{option} {str(path)!r} cannot be used as a mask: {exc}') from None
     if image is None or image.size == 0:
         raise ConfigError(f'{option} {str(path)!r} cannot be read as an image')
     # Colour: a pixel is ignored where every colour channel is 0 (alpha is not looked at).

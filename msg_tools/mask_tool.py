@@ -29,7 +29,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from cva_confidence_ros.errors import BagError, ConfigError, CVAError, InputError
+from cva_confidence_ros.datasets.io import decode_image_file
+from cva_confidence_ros.errors import BagError, ConfigError, CVAError, DataError, InputError
 from cva_confidence_ros.mask import load_mask, mask_rows
 from cva_confidence_ros.outputs import check_output_file
 
@@ -317,7 +318,11 @@ def main(argv: list[str] | None = None) -> int:
             height, width = start.shape
         else:
             if args.image is not None:
-                frame = cv2.imread(str(args.image), cv2.IMREAD_UNCHANGED)
+                try:
+                    # Header size checked before decoding; a truncated JPEG refused.
+                    frame = decode_image_file(args.image)
+                except DataError as exc:
+                    raise InputError(f'--image {args.image} cannot be used: {exc}') from None
                 if frame is None or frame.size == 0:
                     raise InputError(f'--image {args.image} cannot be read as an image')
                 if frame.dtype not in (np.uint8, np.uint16):  # what the node takes

@@ -12,14 +12,17 @@ from dataclasses import dataclass
 import math
 from pathlib import Path
 import re
+import warnings
 
 import cv2
 import numpy as np
 
-from cva_confidence_ros.errors import ConfigError, DataError
+from cva_confidence_ros.errors import ConfigError, DataError, reason
 
 __all__ = [
     'Calibration',
+    'MAX_IMAGE_PIXELS',
+    'decode_image_file',
     'read_disparity_png',
     'read_image',
     'read_kitti_calibration',
@@ -30,6 +33,10 @@ __all__ = [
 
 #: Bytes at the end of a JPEG searched for its end-of-image marker (some writers pad after it).
 _JPEG_TAIL = 4096
+#: Most pixels an image file may declare (8192 × 8192; ETH3D's largest is 6048 × 4032): a
+#: small file can declare far more (a 2.6 MB PNG of 30000 × 30000 decodes to 2.7 GB), and
+#: OpenCV's own limit (2^30 pixels) lets that through.
+MAX_IMAGE_PIXELS = 2**26
 
 
 @dataclass(frozen=True)
@@ -72,6 +79,10 @@ class Calibration:
         return depth.astype(np.float32)
 
 
+def _short(text: str, limit: int = 60) -> str:
+    return text[:limit] + '…' if len(text) > limit else text
+
+
 def read_pfm(path: str | Path) -> np.ndarray:
     """Read a Portable Float Map.
 
@@ -101,15 +112,15 @@ def read_pfm(path: str | Path) -> np.ndarray:
     except OSError as exc:
         raise DataError(f'cannot read PFM file {path}: {exc}') from exc
     if magic not in (b'PF', b'Pf') or len(tokens) != 3:
-        got = repr(magic) + ' ' + repr(tokens)
         raise DataError(
             f'{path} is not a PFM file; expected header "PF|Pf", "W H", "scale"; '
-            f'got {got[:60] + "…" if len(got) > 60 else got}'
+            f'got {_short(repr(magic) + " " + repr(tokens))}'
         )
     try:
         width, height, scale = int(tokens[0]), int(tokens[1]), float(tokens[2])
     except ValueError as exc:
-        raise DataError(f'{path}: bad PFM size or scale {tokens!r}') from exc
+        # Shortened: a corrupt header line can be the whole (binary) file.
+        raise DataError(f'{path}: bad PFM size or scale {_short(repr(tokens))}') from exc
     channels = 3 if magic == b'PF' else 1
     count = width * height * channels
     # The sign of the scale is the byte order: a NaN one has none (a corrupt header).
@@ -121,8 +132,8 @@ def read_pfm(path: str | Path) -> np.ndarray:
         or len(data) < 4 * count
     ):
         raise DataError(
-            f'{path}: expected {width}×{height}×{channels} float32 values and a finite, '
-            f'non-zero scale; got {len(data) // 4} values, scale {scale}'
+            f'{path}: expected {_short(str(width))}×{_short(str(height))}×{channels} float32 '
+            f'values and a finite, non-zero scale; got {len(data) // 4} values, scale {scale}'
         )
     if len(data) >= 4 * (count + 1):
         # A whole value or more past the end: the header does not describe the data (a colour
@@ -200,9 +211,50 @@ def _quiet_opencv() -> Iterator[None]:
         logging.setLogLevel(level)
 
 
-def _imread(path: str | Path) -> np.ndarray | None:
+def _declared_size(path: Path) -> tuple[int, int] | None:
+    """(width, height) from the file's header without decoding it; None when Pillow does
+    not know the format (OpenCV then decides) or is not installed (it comes with
+    scikit-image)."""
+    try:
+        from PIL import Image
+    except ImportError:
+        return None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')  # Pillow's own warning for large images
+            with Image.open(path) as image:
+                return int(image.size[0]), int(image.size[1])
+    except Image.DecompressionBombError as exc:  # beyond Pillow's limit, which is above ours
+        raise DataError(
+            f'{path} declares more than {MAX_IMAGE_PIXELS} pixels, the most read (a corrupt '
+            f'header, or a decompression bomb): {reason(exc)}'
+        ) from None
+    except (OSError, ValueError, SyntaxError, EOFError):
+        return None  # not a format Pillow reads, or a damaged header: OpenCV decides
+
+
+def decode_image_file(path: str | Path) -> np.ndarray | None:
+    """The image of ``path`` as OpenCV decodes it (``IMREAD_UNCHANGED``: BGR order, any
+    dtype), without OpenCV's log lines; None when it is no image that OpenCV reads.
+
+    Raises:
+        DataError: The header declares more than :data:`MAX_IMAGE_PIXELS` pixels (checked
+            before any decoding), or the file is a truncated JPEG.
+    """
+    path = Path(path)
+    if not path.is_file():
+        return None
+    size = _declared_size(path)
+    if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:
+        raise DataError(
+            f'{path} declares {size[0]}×{size[1]} pixels, more than {MAX_IMAGE_PIXELS}, the '
+            f'most read (a corrupt header, or a decompression bomb)'
+        )
     with _quiet_opencv():
-        return cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is not None:
+        _check_jpeg_complete(path)
+    return image
 
 
 def _check_jpeg_complete(path: Path) -> None:
@@ -223,12 +275,12 @@ def read_image(path: str | Path) -> np.ndarray:
     Alpha channels are dropped; 16-bit images are reduced to 8 bits.
 
     Raises:
-        DataError: The file is missing or not an image, or a truncated JPEG.
+        DataError: The file is missing or not an image, a truncated JPEG, or declares more
+            than :data:`MAX_IMAGE_PIXELS` pixels.
     """
-    image = _imread(path)
+    image = decode_image_file(path)
     if image is None:
         raise DataError(f'cannot read image {path}; expected a PNG/JPEG/PPM/PGM file')
-    _check_jpeg_complete(Path(path))
     if image.dtype == np.uint16:
         image = np.right_shift(image, 8).astype(np.uint8)
     elif image.dtype != np.uint8:
@@ -253,8 +305,8 @@ def read_disparity_png(path: str | Path, scale: float, bits: int | None = None) 
 
     Raises:
         ConfigError: ``scale`` is not finite and > 0, or ``bits`` is not 8, 16 or None.
-        DataError: The file is missing, not a single-channel integer image, or not of
-            ``bits`` bits.
+        DataError: The file is missing, not a single-channel integer image, not of
+            ``bits`` bits, or declares more than :data:`MAX_IMAGE_PIXELS` pixels.
     """
     # A scale of 0 gave inf, a negative one negative disparities, NaN no ground truth at all.
     if (
@@ -265,7 +317,7 @@ def read_disparity_png(path: str | Path, scale: float, bits: int | None = None) 
         raise ConfigError(f'disparity PNG scale must be finite and > 0; got {scale!r}')
     if bits not in (None, 8, 16):
         raise ConfigError(f'disparity PNG bits must be 8, 16 or None; got {bits!r}')
-    raw = _imread(path)
+    raw = decode_image_file(path)
     if raw is None:
         raise DataError(f'cannot read disparity image {path}')
     if raw.ndim == 3:

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from cva_confidence_ros.datasets.io import (
+    MAX_IMAGE_PIXELS,
     Calibration,
     read_disparity_png,
     read_image,
@@ -168,13 +169,24 @@ def _read_npy(path: Path) -> np.ndarray:
         DataError: The file cannot be read, or holds no (H, W) real-valued array.
     """
     try:
-        raw = np.load(path)
+        # Mapped, not read: a header that declares more data than the file holds is refused
+        # by its length before anything is allocated (read, a 100-byte file declaring
+        # 100000 × 100000 floats raised MemoryError, or allocated gigabytes).
+        raw = np.load(path, mmap_mode='r')
     except (OSError, ValueError, EOFError) as exc:  # EOFError: an empty or cut file
-        raise DataError(f'cannot read {path} as a float array ({reason(exc)})') from exc
+        why = reason(exc)
+        if 'mmap length' in why:
+            why = 'it holds less data than its header declares: cut short, or a corrupt header'
+        raise DataError(f'cannot read {path} as a float array ({why})') from exc
     if not isinstance(raw, np.ndarray) or raw.dtype.kind not in 'fiu' or raw.ndim != 2:
         got = f'{raw.dtype} {raw.shape}' if isinstance(raw, np.ndarray) else type(raw).__name__
         raise DataError(f'{path}: expected an (H, W) real-valued array; got {got}')
-    return raw.astype(np.float32)
+    if raw.size > MAX_IMAGE_PIXELS:
+        raise DataError(
+            f'{path}: a {raw.shape[1]}×{raw.shape[0]} array is more than {MAX_IMAGE_PIXELS} '
+            f'pixels, the most an image may have'
+        )
+    return np.array(raw, dtype=np.float32, order='C')
 
 
 def _im0_im1_sample(
