@@ -17,7 +17,7 @@ exported graph against PyTorch on a random volume.
 from __future__ import annotations
 
 import argparse
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 import contextlib
 import copy
 import json
@@ -37,9 +37,14 @@ import torch.nn.functional as F
 from cva_confidence_ros.checks import is_int
 from cva_confidence_ros.errors import ConfigError, InputError, ModelError, reason
 from cva_confidence_ros.model.fast import FoldedCVANetFast
-from cva_confidence_ros.model.inference import PAD, FoldedCVANet, _unwrap
+from cva_confidence_ros.model.inference import PAD, FoldedCVANet
 from cva_confidence_ros.model.lite import FoldedCVANetLite, check_volume_tensor
-from cva_confidence_ros.model.weights import architecture_of, default_weights_path, load_weights
+from cva_confidence_ros.model.weights import (
+    _unwrap,
+    architecture_of,
+    default_weights_path,
+    load_weights,
+)
 
 __all__ = ['EXPORTABLE', 'CostVolumeModel', 'OnnxRuntimeNet', 'check_onnx', 'export_onnx', 'main']
 
@@ -101,8 +106,10 @@ def _deployable(net: nn.Module) -> tuple[CostVolumeModel, str, int]:
             'input is a disparity map and an image)'
         )
     # A (Distributed)DataParallel wrapper, which architecture_of accepts, has no
-    # fold_batchnorm and no max_disparity. Folding reads the BN running statistics whatever
-    # the mode, so the caller's network need not be switched to eval mode.
+    # fold_batchnorm and no max_disparity; torch.compile's wrapper cannot be traced ("FX to
+    # torch.jit.trace a dynamo-optimized function"): the module inside either is exported.
+    # Folding reads the BN running statistics whatever the mode, so the caller's network need
+    # not be switched to eval mode.
     typed: Any = _unwrap(net)  # each of the three has max_disparity and folds itself
     if folded_arch:  # already folded (fold_batchnorm): a copy, the caller's is left as it is
         folded = copy.deepcopy(typed)
@@ -172,9 +179,10 @@ def _trace_to_onnx(
     opset: int,
     input_name: str,
     input_axes: dict[int, str],
+    metadata: dict[str, str] | None = None,
 ) -> None:
     """Trace ``module`` on ``example`` into an ONNX file with dynamic ``input_axes`` (the output
-    ``confidence`` (B, H, W) dynamic throughout).
+    ``confidence`` (B, H, W) dynamic throughout) and ``metadata`` as its metadata_props.
 
     The graph is written beside ``path`` and moved there once whole: a failed export (a full
     disk, an opset too old) leaves an older file at ``path`` as it was.
@@ -209,6 +217,12 @@ def _trace_to_onnx(
                     'confidence': {0: 'batch', 1: 'height', 2: 'width'},
                 },
             )
+        if metadata:
+            import onnx
+
+            graph = onnx.load(str(partial))
+            onnx.helper.set_model_props(graph, metadata)
+            onnx.save(graph, str(partial))
         with open(partial, 'rb') as handle:  # on the disk before it replaces an older graph
             os.fsync(handle.fileno())
         os.replace(partial, path)
@@ -229,15 +243,22 @@ def export_onnx(
     path: str | os.PathLike[str],
     opset: int = DEFAULT_OPSET,
     example_size: tuple[int, int] = (32, 48),
+    metadata: Mapping[str, object] | None = None,
 ) -> Path:
     """Write ``net`` as an ONNX graph with dynamic batch, height and width.
 
+    The graph's metadata_props (ONNX Runtime: ``session.get_modelmeta().custom_metadata_map``)
+    hold ``arch`` and ``max_disparity``, and ``metadata`` (e.g. ``matcher``, as ``cva-export``
+    writes it from the weights' meta) as strings: the graph says what it is for without the
+    ``.json`` beside it.
+
     Args:
         net: A CVA-Net, CVA-Net-Lite or CVA-Net-Fast (e.g. from :func:`load_weights`), or
-            its folded form (``fold_batchnorm``).
+            its folded form (``fold_batchnorm``); either may be under ``torch.compile``.
         path: The ``.onnx`` file to write.
         opset: ONNX opset version.
         example_size: (H, W) of the volume traced through the network (any size works later).
+        metadata: More metadata_props (values written as ``str``; None values left out).
 
     Returns:
         ``path`` as a :class:`~pathlib.Path` (missing folders made, as :func:`save_weights`
@@ -250,7 +271,10 @@ def export_onnx(
         ConfigError: ``example_size`` not two integers >= 1.
     """
     example_size = _check_size(example_size, 'example_size')
-    model, _, depth = _deployable(net)
+    model, arch, depth = _deployable(net)
+    # A deployed graph travels without its card: a consumer can still check matcher and D.
+    props = {key: str(value) for key, value in (metadata or {}).items() if value is not None}
+    props.update(arch=arch, max_disparity=str(depth))
     path = Path(path)
     if path.is_dir():
         raise ModelError(f'cannot write the ONNX graph to {path}: it is a folder')
@@ -262,6 +286,7 @@ def export_onnx(
         model, torch.rand(1, depth, *example_size, dtype=torch.float32), path, opset,
         'cost_volume',
         {0: 'batch', 2: 'height', 3: 'width'},
+        props,
     )
     return path
 
@@ -364,6 +389,8 @@ class OnnxRuntimeNet:
             raise ModelError(
                 "cva_backend 'onnxruntime' needs onnxruntime: pip install onnx onnxruntime"
             ) from exc
+        # The module inside torch.compile's wrapper: the tracer refuses a compiled one.
+        net = _unwrap(net)
         typed: Any = net
         depth = int(typed.max_disparity)
         self.max_disparity = depth
@@ -457,7 +484,8 @@ def run(args: argparse.Namespace) -> int:
     staging = out.with_name(f'.{out.stem}.unchecked.onnx')
     try:
         tic = time.perf_counter()
-        export_onnx(net, staging, opset=args.opset)
+        export_onnx(net, staging, opset=args.opset,
+                    metadata={'matcher': meta.get('matcher'), 'weights': weights.name})
         seconds = time.perf_counter() - tic
         record: dict[str, Any] = {
             'arch': arch,

@@ -46,6 +46,7 @@ from cva_confidence_ros.model.lite import check_volume_tensor, init_light_networ
 from cva_confidence_ros.model.network import (
     FUSION_LAYERS,
     check_network_options,
+    confidence_from_logits,
     conv_bias,
     reset_batchnorm,
 )
@@ -255,7 +256,7 @@ class CVANetFast(nn.Module):
 
     def forward(self, volume: torch.Tensor) -> torch.Tensor:
         """Confidence in (0, 1) of shape (B, H, W)."""
-        return torch.sigmoid(self.forward_logits(volume))
+        return confidence_from_logits(self.forward_logits(volume))
 
     @property
     def activations_per_pixel(self) -> int:
@@ -348,7 +349,7 @@ class FoldedCVANetFast(nn.Module):
 
     def forward(self, volume: torch.Tensor) -> torch.Tensor:
         """Confidence in (0, 1), (B, H, W)."""
-        return torch.sigmoid(self.forward_logits(volume))
+        return confidence_from_logits(self.forward_logits(volume))
 
 
 def _folded_conv2d(

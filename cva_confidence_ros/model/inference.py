@@ -28,6 +28,7 @@ from cva_confidence_ros.model.network import (
     FUSION_LAYERS,
     PATCH_SIZE,
     CVANet,
+    confidence_from_logits,
     conv_bias,
 )
 
@@ -134,7 +135,7 @@ class FoldedCVANet(nn.Module):
 
     def forward(self, volume: torch.Tensor) -> torch.Tensor:
         """Confidence in (0, 1), (B, H, W)."""
-        return torch.sigmoid(self.forward_logits(volume))
+        return confidence_from_logits(self.forward_logits(volume))
 
 
 def _bn_affine(norm: nn.Module) -> tuple[torch.Tensor, torch.Tensor]:

@@ -39,6 +39,7 @@ from cva_confidence_ros.model.network import (
     FUSION_LAYERS,
     PATCH_SIZE,
     check_network_options,
+    confidence_from_logits,
     conv_bias,
     glorot_limit,
     pad_depth,
@@ -215,7 +216,7 @@ class CVANetLite(nn.Module):
 
     def forward(self, volume: torch.Tensor) -> torch.Tensor:
         """Confidence in (0, 1) of shape (B, H, W)."""
-        return torch.sigmoid(self.forward_logits(volume))
+        return confidence_from_logits(self.forward_logits(volume))
 
     @property
     def activations_per_pixel(self) -> int:
@@ -360,7 +361,7 @@ class FoldedCVANetLite(nn.Module):
 
     def forward(self, volume: torch.Tensor) -> torch.Tensor:
         """Confidence in (0, 1), (B, H, W)."""
-        return torch.sigmoid(self.forward_logits(volume))
+        return confidence_from_logits(self.forward_logits(volume))
 
 
 def _banded_matrix(weight: torch.Tensor, depth: int, before: int) -> torch.Tensor:

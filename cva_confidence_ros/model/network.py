@@ -43,6 +43,7 @@ __all__ = [
     'DepthProcessing',
     'NeighbourhoodFusion',
     'check_network_options',
+    'confidence_from_logits',
     'keras_parameter_count',
 ]
 
@@ -138,6 +139,17 @@ class Classification(nn.Module):
     def forward(self, curves: torch.Tensor) -> torch.Tensor:
         x = self.dropout(F.relu(self.fc1(curves)))
         return self.fc2(x).reshape(-1)
+
+
+def confidence_from_logits(logits: torch.Tensor) -> torch.Tensor:
+    """``sigmoid(logits)``, in float32 under autocast: a bfloat16 sigmoid rounds every
+    confidence above 0.998 to exactly 1.0 and keeps 8 bits below it (``cva_precision: bf16``
+    gave 1.0 to half of the pixels of a real volume, and ties that cost the ranking AUC)."""
+    if logits.dtype in (torch.bfloat16, torch.float16) and torch.is_autocast_enabled(
+        logits.device.type
+    ):
+        logits = logits.float()
+    return torch.sigmoid(logits)
 
 
 class CVANet(nn.Module):
@@ -244,7 +256,7 @@ class CVANet(nn.Module):
 
     def forward(self, volume: torch.Tensor) -> torch.Tensor:
         """Confidence in (0, 1) of shape (B, H, W) for an input (B, 1, D, H + 12, W + 12)."""
-        return torch.sigmoid(self.forward_logits(volume))
+        return confidence_from_logits(self.forward_logits(volume))
 
     def fold_batchnorm(self) -> nn.Module:
         """The inference form, as CVA-Net-Lite and -Fast fold themselves:

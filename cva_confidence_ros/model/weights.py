@@ -235,6 +235,12 @@ def load_weights(
     try:
         blob = torch.load(path, map_location='cpu', weights_only=True)
     except Exception as exc:  # torch raises many unrelated types for a damaged file
+        if path.suffix.lower() == '.onnx':  # cva-export's graph given as model_path / weights
+            raise ModelError(
+                f'{path} is an ONNX graph, not a weights file: give the .pt weights it was '
+                "exported from (cva_backend 'onnxruntime' exports them itself at start; an "
+                'ONNX graph is run with ONNX Runtime, TensorRT or OpenVINO directly)'
+            ) from exc
         raise ModelError(
             f'cannot read weights file {path} ({reason(exc)}); '
             'expected a torch.save dict with state_dict and meta'
@@ -342,6 +348,26 @@ def weights_search_dirs() -> list[Path]:
     return dirs
 
 
+def _shipped(arch: str, dirs: list[Path]) -> str:
+    """What ``dirs`` hold for ``arch``, e.g. ``census_bm D = 64, 256; census_sgm D = 64``
+    (a D or matcher that is not shipped was refused with a training command alone, although
+    the weights asked for were often shipped for another D)."""
+    # The longest registered name that prefixes a file is its architecture: cvanet_fast_*.pt
+    # is no cvanet file for matcher 'fast_...'.
+    names = sorted(ARCHITECTURES.names(), key=len, reverse=True)
+    depths: dict[str, set[int]] = {}
+    for folder in dirs:
+        with contextlib.suppress(OSError):
+            for file in folder.glob(f'{arch}_*_d*.pt'):
+                owner = next((n for n in names if file.name.startswith(f'{n}_')), None)
+                matcher, _, depth = file.stem[len(arch) + 1:].rpartition('_d')
+                if owner == arch and matcher and depth.isdigit():
+                    depths.setdefault(matcher, set()).add(int(depth))
+    return '; '.join(
+        f'{m} D = {", ".join(str(d) for d in sorted(ds))}' for m, ds in sorted(depths.items())
+    ) or 'none'
+
+
 def default_weights_path(matcher: str, max_disparity: int, arch: str = ARCH) -> Path:
     """Path of the shipped weights ``<arch>_<matcher>_d<D>.pt``.
 
@@ -365,7 +391,8 @@ def default_weights_path(matcher: str, max_disparity: int, arch: str = ARCH) -> 
             raise ModelError(f'no {arch} network for D = {max_disparity}: {error}') from None
     raise ModelError(
         f'no shipped {arch} weights {name} for matcher {matcher!r} and D = {max_disparity}; '
-        f'looked in: {looked}. Train them with: cva-train --arch {arch} --matcher {matcher} '
+        f'looked in: {looked}; {arch} weights there: {_shipped(arch, dirs)}. '
+        f'Train them with: cva-train --arch {arch} --matcher {matcher} '
         f'--max-disparity {max_disparity} --data-root DATA --datasets kitti2012 '
         f'--weights-out models/{name}'
     )
