@@ -513,6 +513,7 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
     """
     from cva_confidence_ros.training.trainer import (
         CHECKPOINT_NAME,
+        SamePairs,
         _load_checkpoint,
         _load_samples,
         _Log,
@@ -523,6 +524,8 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
         _write_history,
         check_finite_loss,
         check_run_setup,
+        training_pairs,
+        weights_out_path,
     )
 
     if int(os.environ.get('WORLD_SIZE', '1')) > 1:
@@ -569,7 +572,9 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
     if config.arch == 'lgcnet':
         crop_side(config, [])  # sparse mode or too small a --crop-size: refused now
     pairs: dict[str, str] = {}  # the pairs taken, to take each once
-    scenes = _prepare(loaders, config, False, log, prepare_disparity_scene, pairs)
+    same = None if state is None else SamePairs(checkpoint, state)
+    scenes = _prepare(loaders, config, False, log, prepare_disparity_scene, pairs, same)
+    train_pairs = training_pairs(pairs)
     index = sample_index(scenes)
     parts_at, fusion_at = split_scenes([s.name for s in scenes], split)
     stage_scenes = {
@@ -733,6 +738,8 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
                 'best_fusion': best,
                 'config': config.to_dict(),
                 'wall_time_s': wall,
+                'train_pairs': train_pairs,
+                'weights_out_path': weights_out_path(config),
             },
         )
         _write_history(out, history)

@@ -266,6 +266,7 @@ def _prepare(
     log: _Log,
     prepare: Callable[[StereoSample, str, int], _Scene],
     seen: dict[str, str] | None = None,
+    same: SamePairs | None = None,
 ) -> list[_Scene]:
     """The scenes of ``loaders`` (:func:`_load_samples`), each prepared by ``prepare`` (the
     cost-volume networks' :func:`prepare_scene`; the disparity-map networks'
@@ -274,10 +275,11 @@ def _prepare(
     A pair met before (the same images and ground truth under another name, here or in
     ``seen``, which collects the pairs across calls: pass the training call's to the
     validation call) is taken once, and said so: data sets that ship one another's frames
-    would weigh it twice, or validate on a training scene.
+    would weigh it twice, or validate on a training scene. ``same`` (a resume) checks each
+    pair taken against the run's before it is matched.
     """
     seen = {} if seen is None else seen
-    scenes = []
+    scenes: list[_Scene] = []
     for label, loader in loaders:
         tic = time.perf_counter()
         sample = loader()
@@ -289,6 +291,8 @@ def _prepare(
                 'once)'
             )
             continue
+        if same is not None:
+            same.take(len(scenes), label, fingerprint)
         scene = prepare(sample, config.matcher, config.max_disparity)
         scenes.append(scene)
         log(
@@ -297,7 +301,74 @@ def _prepare(
             f'{scene.n_wrong / max(1, scene.n_labelled):.1%} wrong, '
             f'{time.perf_counter() - tic:.1f} s'
         )
+    if same is not None:
+        same.done(len(scenes))
     return scenes
+
+
+def training_pairs(seen: dict[str, str]) -> list[list[str]]:
+    """[label, fingerprint] of the training pairs taken, in order: ``seen`` of
+    :func:`_prepare`'s training call, kept in the checkpoint for :class:`SamePairs`."""
+    return [[label, fingerprint] for fingerprint, label in seen.items()]
+
+
+class SamePairs:
+    """A resume's check that its training pairs are the run's (``train_pairs`` of the
+    checkpoint), scene by scene before each is matched.
+
+    The data sets are read from ``--data-root``, which a resume may change (the data moved):
+    another root of ``stereo_folder`` (or a data set whose scenes were added, removed or
+    re-recorded) was taken with a note that 'the same data sets are read from the new
+    place', and the run went on with other samples than its finished epochs; the card then
+    listed only the new scenes. Synthetic pairs are compared by name (their seeds and size
+    are settings the resume keeps): their pixels may differ by rounding between machines.
+    """
+
+    def __init__(self, checkpoint: Path, state: dict[str, Any]) -> None:
+        self.checkpoint = checkpoint
+        self.recorded = [tuple(pair) for pair in state.get('train_pairs') or []]
+        self.root = state['config'].get('data_root')
+
+    def _refuse(self, what: str) -> ConfigError:
+        return ConfigError(
+            f"cannot resume from {self.checkpoint}: the training data differ from the run's "
+            f'({what}); its finished epochs trained on the others: resume with those scenes '
+            f'(the run read --data-root {self.root}) or start over in another --out folder'
+        )
+
+    def take(self, position: int, label: str, fingerprint: str) -> None:
+        """Refuse pair ``position`` (0-based) of this resume if the run's was another.
+
+        Raises:
+            ConfigError: Another scene there, or the same one with other pixels.
+        """
+        if not self.recorded:
+            return  # a checkpoint from before the pairs were kept
+        if position >= len(self.recorded):
+            raise self._refuse(
+                f'{label} is new: the run trained on {len(self.recorded)} scenes'
+            )
+        was, digest = self.recorded[position]
+        if was != label:
+            raise self._refuse(f"scene {position + 1} is {label}, the run's was {was}")
+        if digest != fingerprint and not label.startswith('synthetic/'):
+            raise self._refuse(
+                f'{label} holds other images or ground truth than when the run started'
+            )
+
+    def done(self, count: int) -> None:
+        """Refuse a resume that took fewer pairs than the run.
+
+        Raises:
+            ConfigError: Naming the first pairs missing.
+        """
+        if self.recorded and count < len(self.recorded):
+            missing = [label for label, _ in self.recorded[count:]]
+            more = f' and {len(missing) - 3} more' if len(missing) > 3 else ''
+            raise self._refuse(
+                f'{", ".join(missing[:3])}{more} missing: the run trained on '
+                f'{len(self.recorded)} scenes, this one finds {count}'
+            )
 
 
 def _pair_fingerprint(sample: StereoSample) -> str:
@@ -350,10 +421,14 @@ def _check_finite_network(
     epoch: int,
     lr: float,
     out: Path,
-) -> None:
+) -> str | None:
     """Stop a run whose last steps left weights that give non-finite logits: the loss of an
     epoch is that of the weights before each step, so it stays finite when only the last step
     diverged, and the checkpoint and weights file would take the broken weights.
+
+    Returns what is wrong with a network that gives one confidence at every probed pixel,
+    correct and wrong ones (a collapse, which later epochs may undo: the caller refuses the
+    final weights of one), or None.
 
     The network runs as inference runs it (eval mode) on up to :data:`_PROBE_PIXELS` labelled
     training pixels spread over the index; the count is summed over the processes, so that
@@ -364,7 +439,7 @@ def _check_finite_network(
     """
     count = min(_PROBE_PIXELS, len(index))
     chosen = np.linspace(0, len(index) - 1, count).round().astype(np.int64)
-    volumes, _ = gather_extracts(scenes, index, chosen)
+    volumes, targets = gather_extracts(scenes, index, chosen)
     training = net.training
     net.eval()
     try:
@@ -372,15 +447,32 @@ def _check_finite_network(
             logits = _Logits(net)(volumes.to(dist.device)).float()
     finally:
         net.train(training)
-    bad = int(dist.sum([float((~torch.isfinite(logits)).sum())])[0])
+    # A too-high --lr mostly leaves finite weights that give one confidence for any input
+    # (dead ReLUs: one logit; or logits of 1e5 and more: all 1.0), which the NaN checks let
+    # into the checkpoint and the weights file (lr 1: loss 21, val AUC that of a constant).
+    # Not where the probe is of one input or one class: one answer may then be right.
+    confidence = torch.sigmoid(logits.flatten())
+    constant = (
+        bool((confidence == confidence[0]).all())
+        and bool((volumes != volumes[0]).any())
+        and bool((targets != targets[0]).any())
+    )
+    bad, same = dist.sum([float((~torch.isfinite(logits)).sum()), float(constant)])
     if bad:
         raise _diverged(
-            f'after epoch {epoch + 1}, {bad} of {count * dist.world} logits of the network '
+            f'after epoch {epoch + 1}, {int(bad)} of {count * dist.world} logits of the network '
             'at training pixels are NaN or infinite',
             epoch,
             lr,
             out,
         )
+    if same:
+        return (
+            f'after epoch {epoch + 1}, the network gives one confidence '
+            f'({float(confidence[0]):g}) at all of {count} training pixels, correct and '
+            'wrong ones: it no longer depends on its input'
+        )
+    return None
 
 
 def _save_checkpoint(path: Path, state: dict[str, Any]) -> None:
@@ -804,7 +896,9 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         lambda: _load_samples(config, True), []
     )
     pairs: dict[str, str] = {}  # the pairs taken, to take each once
-    scenes = _prepare(loaders, config, False, log, prepare_scene, pairs)
+    same = None if state is None else SamePairs(checkpoint, state)
+    scenes = _prepare(loaders, config, False, log, prepare_scene, pairs, same)
+    train_pairs = training_pairs(pairs)
     index = sample_index(scenes)
     val_scenes: list[PreparedScene] = dist.on_main(
         lambda: _prepare(val_loaders, config, True, log, prepare_scene, pairs), []
@@ -816,6 +910,13 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         f'{index.fraction_wrong:.1%} labelled wrong; {n_samples} samples per epoch '
         f'({config.mode} mode); {len(val_scenes)} validation scenes'
     )
+    if index.fraction_wrong in (0.0, 1.0):
+        # Ground truth made by the matcher itself (no lidar) labels every pixel correct: the
+        # run went on without a word and taught the network to trust everything.
+        kind = 'wrong' if index.fraction_wrong else 'correct'
+        log(f'warning: every labelled training pixel is {kind} for {config.matcher}: the '
+            "network cannot learn to tell correct from wrong (is the ground truth the "
+            "matcher's own disparity?)")
 
     torch.manual_seed(config.seed)
     net = ARCHITECTURES.get(config.arch)({'max_disparity': config.max_disparity}).to(dist.device)
@@ -891,6 +992,8 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
                 'wall_time_s': wall,
                 'init_meta': _weights_facts(init_meta) if init_meta else None,
                 'teacher_sha256': teacher_digest,
+                'train_pairs': train_pairs,
+                'weights_out_path': weights_out_path(config),
             },
         )
         _write_history(out, history)
@@ -917,7 +1020,11 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
             config, model, optimiser, scenes, index, n_samples, epoch, dist, teacher
         )
         check_finite_loss(loss, epoch, config.lr_at(epoch), out)
-        _check_finite_network(net, scenes, index, dist, epoch, lr, out)
+        collapsed = _check_finite_network(net, scenes, index, dist, epoch, lr, out)
+        if collapsed and epoch + 1 == config.total_epochs:
+            raise _diverged(collapsed, epoch, lr, out)  # no such weights as the final ones
+        if collapsed:
+            log(f'warning: {collapsed} (lr {lr:g}); lower --lr unless later epochs undo it')
         record: dict[str, Any] = {
             'epoch': epoch + 1,
             'lr': lr,
@@ -1002,7 +1109,7 @@ def check_run_setup(config: TrainConfig) -> None:
         ConfigError: The matcher is not registered, ``resume`` and ``overwrite`` are both
             set, ``out`` / ``weights_out`` cannot be written, ``weights_out`` (or its card)
             is the checkpoint or history of ``out``, or exists without ``overwrite`` (or
-            ``resume``).
+            ``resume`` of the run in ``out`` started with that ``weights_out``).
     """
     from cva_confidence_ros.matching import MATCHERS
 
@@ -1031,15 +1138,24 @@ def check_run_setup(config: TrainConfig) -> None:
                     f'{run_files[target.resolve()]} of the run in --out {out}; write the '
                     'weights elsewhere or under another name'
                 )
-    if config.weights_out and not (config.resume or config.overwrite):
+    if config.weights_out and not config.overwrite:
         # A run was replacing the shipped models/*.pt and their cards (or an earlier run's)
-        # without a word; the node, the tools and torch.hub then loaded it.
+        # without a word; the node, the tools and torch.hub then loaded it. A resume replaces
+        # only what its own run wrote: with a bare --resume (scripts pass it always, and with
+        # no checkpoint it starts afresh) any existing weights were replaced too.
         existing = [t for t in (Path(config.weights_out), *card_paths(config.weights_out))
                     if t.exists()]
-        if existing:
+        own = config.resume and _same_path(_run_weights_out(checkpoint), config.weights_out)
+        if existing and not own:
             raise ConfigError(
                 f'--weights-out {config.weights_out}: {existing[0]} exists (shipped or earlier '
                 'weights, or their card): --overwrite to replace them, or another path'
+                + (
+                    f' (--resume replaces only the weights of its own run, and the run in '
+                    f'{out} was not started with this --weights-out)'
+                    if config.resume
+                    else ''
+                )
             )
     if checkpoint.exists() and not checkpoint.is_file():
         raise ConfigError(f'--out {out}: {checkpoint} is not a file; cannot keep checkpoints')
@@ -1061,6 +1177,33 @@ def check_run_setup(config: TrainConfig) -> None:
         # numba's OpenMP layer resets the OpenMP thread count that torch also uses: numba first.
         _limit_numba_threads(config.threads)
         torch.set_num_threads(config.threads)
+
+
+def weights_out_path(config: TrainConfig) -> str | None:
+    """``weights_out`` resolved, for the checkpoint (see :func:`_run_weights_out`)."""
+    return str(Path(config.weights_out).resolve()) if config.weights_out else None
+
+
+def _run_weights_out(checkpoint: Path) -> list[str]:
+    """The --weights-out of the run whose checkpoint is ``checkpoint``, as given and resolved
+    when it was started (empty where there is none, or no readable checkpoint: its resume
+    then fails with the reason)."""
+    if not checkpoint.is_file():
+        return []
+    try:
+        state = torch.load(checkpoint, map_location='cpu', weights_only=True, mmap=True)
+        values = [state['config'].get('weights_out'), state.get('weights_out_path')]
+    except Exception:  # torch raises many unrelated types for a damaged file
+        return []
+    return [value for value in values if isinstance(value, str)]
+
+
+def _same_path(paths: list[str], path: str) -> bool:
+    """Whether ``path`` names a file of ``paths`` (spelled alike, or alike once resolved;
+    a resolved one of ``paths`` also holds from another working folder)."""
+    return any(
+        known == path or Path(known).resolve() == Path(path).resolve() for known in paths
+    )
 
 
 def _limit_numba_threads(threads: int) -> None:
