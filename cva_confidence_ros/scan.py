@@ -25,7 +25,8 @@ of the 523 beams across a wall).
 
 Beams follow REP 117: a range where the nearest point lies in ``[range_min, range_max]``;
 ``+inf`` where the kept points in the band all lie beyond ``range_max`` (nothing within range);
-``−inf`` where they all lie closer than ``range_min`` (too close); NaN where no kept point
+``−inf`` where none lies in range and one or more lie closer than ``range_min`` (too close,
+whatever lies beyond ``range_max``); NaN where no kept point
 of the band falls in the beam at all (no measurement: the camera saw nothing it trusts there,
 or only above or below the band, which is not free space — consumers should not clear along
 it).
