@@ -48,6 +48,10 @@ DECLARATIONS: dict[str, tuple[str | None, str | None]] = {
     'apsw': (None, None),
     # optional, cva-export's check: setup.py's extras_require['export'], the Makefile installs it
     'onnxruntime': (None, None),
+    'onnx': (None, None),  # the exporter's writer (torch.onnx needs it), the same extra
+    # optional, the image readers' header check (scikit-image and matplotlib depend on Pillow;
+    # without it OpenCV reads as before)
+    'PIL': (None, None),
     'setuptools': (None, 'setuptools'),
 }
 
