@@ -19,6 +19,8 @@ from cva_confidence_ros.datasets.loaders import (
     list_scenes,
     load_dataset,
     load_scene,
+    skipped_notice,
+    skipped_scenes,
 )
 from cva_confidence_ros.datasets.resize import (
     fit_disparity_range,
@@ -41,5 +43,7 @@ __all__ = [
     'read_pfm',
     'resize_disparity',
     'resize_sample',
+    'skipped_notice',
+    'skipped_scenes',
     'write_pfm',
 ]

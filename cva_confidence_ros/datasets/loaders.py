@@ -18,6 +18,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass
 from numbers import Integral
+import os
 from pathlib import Path
 import re
 from typing import Any
@@ -46,6 +47,8 @@ __all__ = [
     'list_scenes',
     'load_dataset',
     'load_scene',
+    'skipped_notice',
+    'skipped_scenes',
 ]
 
 PathLike = str | Path
@@ -218,6 +221,49 @@ def _first_existing(folder: Path, names: tuple[str, ...]) -> Path | None:
     return None
 
 
+def _absent(path: Path, base: Path, also: tuple[str, ...] = ()) -> str:
+    """``path`` relative to ``base`` (or the names ``also``), naming the files beside it that
+    look meant for it (another case, another suffix, ``im1E.png`` beside a missing ``im1.png``):
+    on a case-sensitive file system ``IM0.PNG`` or ``000005_10.jpg`` is not the file looked
+    for."""
+    stem = path.stem.lower()
+    try:
+        near = sorted(
+            p.name
+            for p in path.parent.iterdir()
+            if p.name.lower().startswith(stem) and p.is_file()
+        )
+    except OSError:
+        near = []
+    found = f' (found {", ".join(near[:3])})' if near else ''
+    alternatives = f' (or {", ".join(also)})' if also else ''
+    return f'{path.relative_to(base).as_posix()}{alternatives}{found}'
+
+
+def _describe(skipped: list[tuple[str, str]], limit: int = 3) -> str:
+    """``'<scene> has no <file>; …'`` for the first ``limit`` of ``skipped``."""
+    shown = '; '.join(f'{scene} has {why}' for scene, why in skipped[:limit])
+    more = f' (and {len(skipped) - limit} more)' if len(skipped) > limit else ''
+    return shown + more
+
+
+def _rglob(root: Path, pattern: str) -> Iterator[Path]:
+    """``root.rglob(pattern)`` that also goes into symlinked folders (rglob does not: scene
+    folders linked in from another disk were not found), each real folder once."""
+    seen: set[tuple[int, int]] = set()
+    for folder, dirs, _ in os.walk(root, followlinks=True):
+        dirs.sort()
+        try:
+            info = os.stat(folder)
+        except OSError:
+            continue
+        if (info.st_dev, info.st_ino) in seen:  # a link back up the tree, or a second link
+            dirs.clear()
+            continue
+        seen.add((info.st_dev, info.st_ino))
+        yield from Path(folder).glob(pattern)
+
+
 def _scale_by_width(width: int, steps: tuple[tuple[int, float], ...], last: float) -> float:
     """Divisor of stored disparities, chosen by the image width (the file name has no size)."""
     for min_width, scale in steps:
@@ -242,6 +288,10 @@ class StereoDataset:
     splits: tuple[str, ...] = ()
     default_split: str | None = None
     needs_root = True
+    #: What :meth:`skipped` lists, for messages.
+    skipped_what = 'scenes missing a file'
+    #: Scenes at any depth under the root: a root one level off is no mistake to point out.
+    any_depth = False
 
     def resolve_split(self, split: str | None) -> str | None:
         """Validate ``split`` and apply the default.
@@ -265,6 +315,34 @@ class StereoDataset:
         """Load one scene; raise :class:`DataError` if its files are missing or unreadable."""
         raise NotImplementedError
 
+    def skipped(self, root: Path, split: str | None) -> list[tuple[str, str]]:
+        """``(scene, 'no <file> …')`` of each scene under ``root`` that :meth:`list_scenes`
+        leaves out for a missing file although it has ground truth (or, where a split holds
+        only scenes with ground truth, an image); sorted by scene."""
+        return []
+
+    def _elsewhere(self, folder: Path, split: str | None) -> Path | None:
+        """The nearest folder up to two levels above or below ``folder`` that holds pairs in
+        this layout (an archive extracted with its top folder, a root one level too deep)."""
+        if self.any_depth or not folder.is_dir():
+            return None
+        near = [folder.absolute().parent, folder.absolute().parent.parent]
+        try:
+            children = sorted(p for p in folder.iterdir() if p.is_dir())
+            near += children[:50]
+            for child in children[:50]:
+                near += sorted(p for p in child.iterdir() if p.is_dir())[:50]
+        except OSError:
+            pass
+        return next(
+            (
+                path
+                for path in dict.fromkeys(near)
+                if path.absolute() != folder.absolute() and self.list_scenes(path, split)
+            ),
+            None,
+        )
+
     def no_pairs(self, folder: Path, split: str | None = None) -> DataError:
         """The error for a root without a single pair in this layout (for ``split``, named
         with the splits that do hold pairs: a default split the root lacks gave no hint; for no
@@ -280,14 +358,45 @@ class StereoDataset:
             others = [s for s in self.splits if self.list_scenes(folder, s)]
             if others:
                 where = f' without a split; split(s) {others} hold pairs there'
-        return DataError(
+        message = (
             f'no {self.name} stereo pairs found under {folder}{where}; expected {self.layout}'
         )
+        # A download without its ground-truth part, or without the right images, said only
+        # 'no pairs found'.
+        skipped = self.skipped(folder, split)
+        if skipped:
+            message += f'; {self.skipped_what}: {_describe(skipped)}'
+        elif elsewhere := self._elsewhere(folder, split):
+            message += f'; pairs found under {elsewhere}: use that as root'
+        else:
+            # KITTI 2015 given as kitti2012, Scene Flow samples as flyingthings3d.
+            others = [
+                other
+                for other in DATASETS
+                if other != self.name
+                and DATASETS.get(other).needs_root
+                and not DATASETS.get(other).any_depth
+                and DATASETS.get(other).list_scenes(folder, DATASETS.get(other).default_split)
+            ]
+            if others:
+                message += f'; pairs of data set(s) {others} found there'
+        return DataError(message)
 
-    def missing(self, root: Path, scene: str) -> DataError:
-        """The error for an unknown scene."""
+    def missing(self, root: Path, scene: str, split: str | None = None) -> DataError:
+        """The error for an unknown scene: what it lacks if it misses a file, else some of
+        the scenes there are."""
+        for name, why in self.skipped(root, split):
+            if name == scene:
+                return DataError(
+                    f'{self.name} scene {scene!r} not found under {root}: it has {why}'
+                )
+        scenes = self.list_scenes(root, split)
+        there = f'{len(scenes)} scene(s) there: {", ".join(scenes[:5])}'
+        if len(scenes) > 5:
+            there += ', …'
         return DataError(
-            f'{self.name} scene {scene!r} not found under {root}; expected {self.layout}'
+            f'{self.name} scene {scene!r} not found under {root}; '
+            + (there if scenes else f'expected {self.layout}')
         )
 
 
@@ -324,12 +433,37 @@ class _Kitti(StereoDataset):
                 scenes.append(scene)
         return sorted(scenes)
 
+    def skipped(self, root: Path, split: str | None) -> list[tuple[str, str]]:
+        base = self._base(root, split)
+        folder = base / self.occ_dir
+        if not folder.is_dir():
+            return []
+        skipped = []
+        for path in sorted(folder.glob('*_10.png')):
+            scene = path.name[: -len('_10.png')]
+            if not re.fullmatch(r'\d{6}', scene) or self._images(base, scene):
+                continue
+            name = f'{scene}_10.png'
+            # The pair of which one image is there (KITTI 2012: colour or gray), else all.
+            pairs = [p for p in self.image_dirs if any((base / d / name).is_file() for d in p)]
+            if not pairs and len(self.image_dirs) > 1:
+                dirs = ' or '.join(f'{left},{right}' for left, right in self.image_dirs)
+                skipped.append((scene, f'no images ({{{dirs}}}/{name})'))
+                continue
+            absent = [
+                _absent(base / d / name, base)
+                for d in (pairs or self.image_dirs)[0]
+                if not (base / d / name).is_file()
+            ]
+            skipped.append((scene, 'no ' + ' and no '.join(absent)))
+        return skipped
+
     def load_scene(self, root: Path, scene: str, split: str | None) -> StereoSample:
         base = self._base(root, split)
         gt_path = base / self.occ_dir / f'{scene}_10.png'
         found = self._images(base, scene)
         if found is None or not gt_path.is_file():
-            raise self.missing(root, scene)
+            raise self.missing(root, scene, split)
         image_dir, left_path, right_path = found
         noc_path = base / self.noc_dir / f'{scene}_10.png'
         nonocc = None
@@ -408,9 +542,14 @@ class Middlebury2014(StereoDataset):
                 return base
         return root
 
-    @staticmethod
-    def _is_scene(folder: Path) -> bool:
-        return all((folder / name).is_file() for name in ('im0.png', 'im1.png', 'disp0GT.pfm'))
+    #: disp0.pfm: the full-size 2014 downloads (``<Scene>-perfect|-imperfect/``), which
+    #: have no disp0GT.pfm.
+    gt_names = ('disp0GT.pfm', 'disp0.pfm')
+
+    def _is_scene(self, folder: Path) -> bool:
+        return (folder / 'im0.png').is_file() and (folder / 'im1.png').is_file() and bool(
+            _first_existing(folder, self.gt_names)
+        )
 
     def list_scenes(self, root: Path, split: str | None) -> list[str]:
         base = self._base(root, split)
@@ -418,14 +557,35 @@ class Middlebury2014(StereoDataset):
             return []
         return sorted(p.name for p in base.iterdir() if p.is_dir() and self._is_scene(p))
 
+    def skipped(self, root: Path, split: str | None) -> list[tuple[str, str]]:
+        base = self._base(root, split)
+        if not base.is_dir():
+            return []
+        wanted = {'im0', 'im1', 'disp0gt', 'disp0'}
+        skipped = []
+        for folder in sorted(p for p in base.iterdir() if p.is_dir()):
+            # Names in any case count: IM0.PNG is named as found, not left out unsaid.
+            if self._is_scene(folder) or not any(
+                p.stem.lower() in wanted for p in folder.iterdir()
+            ):
+                continue
+            absent = [
+                _absent(folder / name, folder)
+                for name in ('im0.png', 'im1.png')
+                if not (folder / name).is_file()
+            ]
+            if not _first_existing(folder, self.gt_names):
+                absent.append(_absent(folder / 'disp0GT.pfm', folder, self.gt_names[1:]))
+            skipped.append((folder.name, 'no ' + ' and no '.join(absent)))
+        return skipped
+
     def load_scene(self, root: Path, scene: str, split: str | None) -> StereoSample:
         folder = self._base(root, split) / scene
         if not self._is_scene(folder):
-            raise self.missing(root, scene)
+            raise self.missing(root, scene, split)
         mask = folder / 'mask0nocc.png'
-        return _im0_im1_sample(
-            self.name, scene, folder, folder / 'disp0GT.pfm', mask if mask.is_file() else None
-        )
+        gt = _first_existing(folder, self.gt_names) or folder / 'disp0GT.pfm'
+        return _im0_im1_sample(self.name, scene, folder, gt, mask if mask.is_file() else None)
 
 
 @dataclass(frozen=True)
@@ -477,11 +637,37 @@ class _FolderPerScene(StereoDataset):
             return []
         return sorted(p.name for p in base.iterdir() if p.is_dir() and self._match(p))
 
+    def skipped(self, root: Path, split: str | None) -> list[tuple[str, str]]:
+        base = self._base(root, split)
+        if not base.is_dir():
+            return []
+        skipped = []
+        for folder in sorted(p for p in base.iterdir() if p.is_dir() and not self._match(p)):
+            # The naming of which most files are there.
+            best: list[str] = []
+            most = 0
+            for pattern in self.patterns:
+                groups = [
+                    tuple(n.format(scene=folder.name) for n in group)
+                    for group in (pattern.left, pattern.right, pattern.gt)
+                ]
+                there = sum(_first_existing(folder, group) is not None for group in groups)
+                if there > most:
+                    most = there
+                    best = [
+                        _absent(folder / group[0], folder, group[1:])
+                        for group in groups
+                        if _first_existing(folder, group) is None
+                    ]
+            if best:
+                skipped.append((folder.name, 'no ' + ' and no '.join(best)))
+        return skipped
+
     def load_scene(self, root: Path, scene: str, split: str | None) -> StereoSample:
         folder = self._base(root, split) / scene
         found = self._match(folder) if folder.is_dir() else None
         if found is None:
-            raise self.missing(root, scene)
+            raise self.missing(root, scene, split)
         pattern, (left_path, right_path, gt_path) = found
         left = read_image(left_path)
         if pattern.scale is not None:
@@ -645,7 +831,10 @@ class Eth3d(StereoDataset):
         base = root / str(split)
         return base if base.is_dir() else root
 
-    def _files(self, root: Path, split: str | None, scene: str) -> tuple[Path, Path | None]:
+    def _files(
+        self, root: Path, split: str | None, scene: str
+    ) -> tuple[Path | None, Path | None]:
+        """(ground truth, mask) of ``scene``, each None where not found."""
         base = self._base(root, split)
         folder = base / scene
         gt, mask = (
@@ -657,26 +846,45 @@ class Eth3d(StereoDataset):
         for gt_folder in dict.fromkeys((root / f'{split}_gt', base.parent / f'{split}_gt')):
             gt = gt or _first_existing(gt_folder / scene, ('disp0GT.pfm',))
             mask = mask or _first_existing(gt_folder / scene, ('mask0nocc.png',))
-        if gt is None or not ((folder / 'im0.png').is_file() and (folder / 'im1.png').is_file()):
-            raise self.missing(root, scene)
         return gt, mask
+
+    def _lacks(self, root: Path, split: str | None, folder: Path) -> list[str]:
+        """What keeps ``folder`` from being a scene (empty if it is one)."""
+        absent = [
+            _absent(folder / name, folder)
+            for name in ('im0.png', 'im1.png')
+            if not (folder / name).is_file()
+        ]
+        if self._files(root, split, folder.name)[0] is None:
+            # two_view_training_gt is a download of its own.
+            absent.append(f'disp0GT.pfm (here or in {split}_gt/{folder.name}/)')
+        return absent
 
     def list_scenes(self, root: Path, split: str | None) -> list[str]:
         base = self._base(root, split)
         if not base.is_dir():
             return []
-        scenes = []
-        for folder in base.iterdir():
-            try:
-                self._files(root, split, folder.name)
-            except DataError:
-                continue
-            scenes.append(folder.name)
-        return sorted(scenes)
+        return sorted(
+            p.name for p in base.iterdir() if p.is_dir() and not self._lacks(root, split, p)
+        )
+
+    def skipped(self, root: Path, split: str | None) -> list[tuple[str, str]]:
+        base = self._base(root, split)
+        if not base.is_dir():
+            return []
+        skipped = []
+        for folder in sorted(p for p in base.iterdir() if p.is_dir()):
+            lacks = self._lacks(root, split, folder)
+            if lacks and len(lacks) < 3:  # a folder without any of the three is no scene
+                skipped.append((folder.name, 'no ' + ' and no '.join(lacks)))
+        return skipped
 
     def load_scene(self, root: Path, scene: str, split: str | None) -> StereoSample:
+        folder = self._base(root, split) / scene
         gt, mask = self._files(root, split, scene)
-        return _im0_im1_sample(self.name, scene, self._base(root, split) / scene, gt, mask)
+        if gt is None or self._lacks(root, split, folder):
+            raise self.missing(root, scene, split)
+        return _im0_im1_sample(self.name, scene, folder, gt, mask)
 
 
 class FlyingThings3D(StereoDataset):
@@ -714,6 +922,18 @@ class FlyingThings3D(StereoDataset):
                     scenes.append(scene)
         return sorted(scenes)
 
+    def skipped(self, root: Path, split: str | None) -> list[tuple[str, str]]:
+        skipped = []
+        for part in (split,) if split else self.splits:
+            folder = root / 'disparity' / part
+            for pfm in sorted(folder.glob('*/*/left/*.pfm')) if folder.is_dir() else ():
+                letter, sequence = pfm.parent.parent.parent.name, pfm.parent.parent.name
+                scene = f'{part}/{letter}/{sequence}/{pfm.stem}'
+                if not self._images(root, scene):
+                    where = f'{part}/{letter}/{sequence}/{{left,right}}/{pfm.stem}.png'
+                    skipped.append((scene, f'no images ({"|".join(self.image_roots)})/{where}'))
+        return skipped
+
     def load_scene(self, root: Path, scene: str, split: str | None) -> StereoSample:
         parts = scene.split('/')
         if split is not None and len(parts) == 4 and parts[0] != split:
@@ -724,7 +944,7 @@ class FlyingThings3D(StereoDataset):
         found = self._images(root, scene) if len(parts) == 4 else None
         gt = root.joinpath('disparity', *parts[:3], 'left', f'{parts[-1]}.pfm')
         if found is None or not gt.is_file():
-            raise self.missing(root, scene)
+            raise self.missing(root, scene, split)
         return _sample(
             {'left': found[0], 'right': found[1], 'disparity': gt},
             dataset=self.name,
@@ -780,7 +1000,7 @@ class SceneFlowExtra(StereoDataset):
         folder_name, _, stem = scene.partition('/')
         files = self._files(root / folder_name, stem) if stem else None
         if files is None:
-            raise self.missing(root, scene)
+            raise self.missing(root, scene, split)
         left, right, gt, occlusion = files
         nonocc = None
         if occlusion is not None:
@@ -809,6 +1029,7 @@ class TartanAir(StereoDataset):
     ``<relative folder>/<id>``."""
 
     name = 'tartanair'
+    any_depth = True
     layout = (
         '<root>/<...>/<id>_left.png + <id>_right.png + <id>_left_disp.npy, or '
         '<root>/<...>/{image_left,image_right,depth_left}/<id>_left.png, <id>_right.png, '
@@ -837,11 +1058,11 @@ class TartanAir(StereoDataset):
         if not root.is_dir():
             return []
         scenes = []
-        for path in root.rglob('*_left_disp.npy'):
+        for path in _rglob(root, '*_left_disp.npy'):
             frame = path.name[: -len('_left_disp.npy')]
             if self._files(path.parent, frame):
                 scenes.append(f'{path.parent.relative_to(root).as_posix()}/{frame}')
-        for path in root.rglob('depth_left/*_left_depth.npy'):
+        for path in _rglob(root, 'depth_left/*_left_depth.npy'):
             frame = path.name[: -len('_left_depth.npy')]
             if self._files(path.parent.parent, frame):
                 scenes.append(f'{path.parent.parent.relative_to(root).as_posix()}/{frame}')
@@ -851,7 +1072,7 @@ class TartanAir(StereoDataset):
         folder, _, frame = scene.rpartition('/')
         files = self._files(root / folder, frame) if frame else None
         if files is None:
-            raise self.missing(root, scene)
+            raise self.missing(root, scene, split)
         left, right, gt, is_depth = files
         values = _read_npy(gt)
         if is_depth:
@@ -897,6 +1118,8 @@ class StereoFolder(StereoDataset):
         '(float (H, W), 0/NaN/inf = unknown) or disparity.png (16-bit, d = value / 256, '
         '0 = unknown) (+ nonocc.png, 255 = visible; calib.txt, Middlebury form)'
     )
+    skipped_what = 'folders with a left image'
+    any_depth = True
     image_suffixes = ('.png', '.jpg', '.jpeg', '.ppm', '.pgm')
     disparity_names = ('disparity.pfm', 'disparity.npy', 'disparity.png')
 
@@ -926,7 +1149,11 @@ class StereoFolder(StereoDataset):
             return []
         lefts = set(self._image_names('left'))
         return sorted(
-            {path.parent for path in root.rglob('left.*') if path.name in lefts and path.is_file()}
+            {
+                path.parent
+                for path in _rglob(root, 'left.*')
+                if path.name in lefts and path.is_file()
+            }
         )
 
     def list_scenes(self, root: Path, split: str | None) -> list[str]:
@@ -936,17 +1163,12 @@ class StereoFolder(StereoDataset):
             if not self._lacks(folder)
         )
 
-    def no_pairs(self, folder: Path, split: str | None = None) -> DataError:
-        error = super().no_pairs(folder, split)
-        partial = [(path, self._lacks(path)) for path in self._candidates(folder)]
-        if not partial:
-            return error
-        shown = '; '.join(
-            f'{path.relative_to(folder).as_posix()} has no {" and no ".join(lacks)}'
-            for path, lacks in partial[:3]
-        )
-        more = f' (and {len(partial) - 3} more)' if len(partial) > 3 else ''
-        return DataError(f'{error}; folders with a left image: {shown}{more}')
+    def skipped(self, root: Path, split: str | None) -> list[tuple[str, str]]:
+        return [
+            (path.relative_to(root).as_posix(), 'no ' + ' and no '.join(lacks))
+            for path in self._candidates(root)
+            if (lacks := self._lacks(path))
+        ]
 
     def _one(self, folder: Path, scene: str, what: str, names: tuple[str, ...]) -> Path:
         found = self._existing(folder, names)
@@ -997,7 +1219,7 @@ class StereoFolder(StereoDataset):
         folder = root / scene
         outside = Path(scene).is_absolute() or '..' in Path(scene).parts
         if outside or not folder.is_dir() or self._lacks(folder):
-            raise self.missing(root, scene)
+            raise self.missing(root, scene, split)
         left = self._one(folder, scene, 'left image', self._image_names('left'))
         right = self._one(folder, scene, 'right image', self._image_names('right'))
         gt = self._one(folder, scene, 'disparity', self.disparity_names)
@@ -1128,6 +1350,31 @@ def list_scenes(name: str, root: PathLike | None, split: str | None = None) -> l
     if not scenes:
         raise dataset.no_pairs(path, resolved)
     return scenes
+
+
+def skipped_scenes(
+    name: str, root: PathLike | None, split: str | None = None
+) -> list[tuple[str, str]]:
+    """``(scene, 'no <file> …')`` of each scene that :func:`list_scenes` leaves out because a
+    file is missing (a KITTI ground truth without its right image, a Middlebury folder without
+    im1.png, a stereo_folder scene without a right image), sorted; empty if none. Folders
+    that are no scene to score in the layout (KITTI ``testing/``, the ``_11`` frames) are not
+    listed.
+
+    Raises:
+        ConfigError: Unknown name or split, or a missing root.
+    """
+    dataset, path = _resolve(name, root)
+    return dataset.skipped(path, dataset.resolve_split(split))
+
+
+def skipped_notice(name: str, root: PathLike | None, split: str | None = None) -> str:
+    """One line naming the scenes :func:`skipped_scenes` finds, for a command to print where
+    it lists scenes (a partial download is then no silently smaller evaluation); '' if none."""
+    skipped = skipped_scenes(name, root, split)
+    if not skipped:
+        return ''
+    return f'{name}: {len(skipped)} scene(s) left out, a file missing: {_describe(skipped, 5)}'
 
 
 def load_scene(

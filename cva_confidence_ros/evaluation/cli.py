@@ -420,7 +420,7 @@ def _scene_lists(
     splits: dict[str, str | None],
     max_scenes: int | None,
 ) -> list[tuple[str, str]]:
-    from cva_confidence_ros.datasets import list_scenes
+    from cva_confidence_ros.datasets import list_scenes, skipped_notice
 
     jobs: list[tuple[str, str]] = []
     for name in datasets:
@@ -428,6 +428,9 @@ def _scene_lists(
         if not scenes:
             where = root if root is not None else '(no --data-root)'
             raise DataError(f'no stereo pairs of data set {name!r} found under {where}')
+        # A partial download (a scene without its right image) ran on fewer scenes unsaid.
+        if notice := skipped_notice(name, root, split=splits[name]):
+            _log(notice)
         jobs.extend((name, scene) for scene in scenes[:max_scenes])
     return jobs
 

@@ -561,7 +561,7 @@ def _load_reusable(
 def run(args: argparse.Namespace) -> int:
     """Score every method on every row; write the outputs. Raises ``CVAError`` on bad input."""
     from cva_confidence_ros.confidence import CONFIDENCE_METHODS
-    from cva_confidence_ros.datasets import list_scenes, load_scene
+    from cva_confidence_ros.datasets import list_scenes, load_scene, skipped_notice
     from cva_confidence_ros.evaluation.cli import RESUME_TOLERANCE, SceneRun, run_scenes
     from cva_confidence_ros.evaluation.scene import evaluate_scene
     from cva_confidence_ros.matching import MATCHERS
@@ -651,10 +651,17 @@ def run(args: argparse.Namespace) -> int:
             )
 
     jobs: list[tuple[TableRow, str]] = []
+    noticed: set[tuple[str, str | None]] = set()
     for row in rows:
         if row.missing:
             continue
         scenes = list_scenes(row.dataset, args.data_root, row.split)[row.first :]
+        # A partial download (a scene without its right image) ran on fewer scenes unsaid;
+        # said once for a data set that fills two rows.
+        if (row.dataset, row.split) not in noticed:
+            noticed.add((row.dataset, row.split))
+            if notice := skipped_notice(row.dataset, args.data_root, row.split):
+                _log(notice)
         jobs.extend((row, scene) for scene in scenes[: args.max_scenes])
     # Once one scene of --reuse has been scored again and agreed with it, a scene it holds
     # for every matcher and method is taken over as it is: an interrupted run's table1.json
