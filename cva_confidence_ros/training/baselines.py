@@ -457,7 +457,7 @@ def _step_loss(
 def _check_finite_outputs(
     net: nn.Module, stage: str, scenes: list[DisparityScene], index: SampleIndex, side: int,
     device: Any, epoch: int, lr: float, out: Path,
-) -> None:
+) -> str | None:
     """Stop a run whose last steps left weights with non-finite outputs, as CVA-Net's trainer
     does: the loss of an epoch is that of the weights before each step, so it stays finite
     when only the last step diverged, and the checkpoint and weights file would take the
@@ -467,10 +467,19 @@ def _check_finite_outputs(
     ``_PROBE_PIXELS`` labelled pixels spread over the stage's index (one crop per
     ``_PROBE_PIXELS`` outputs at the most); their labelled outputs are checked.
 
+    Returns what is wrong with a network that gives one confidence at every probed pixel,
+    correct and wrong ones (a collapse, as CVA-Net's trainer finds one: see
+    ``trainer.one_confidence``; the caller refuses to write such weights), or None.
+
     Raises:
         ModelError: Some logit is NaN or infinite.
     """
-    from cva_confidence_ros.training.trainer import _PROBE_PIXELS, _diverged
+    from cva_confidence_ros.training.trainer import (
+        _PROBE_PIXELS,
+        _diverged,
+        collapse_message,
+        one_confidence,
+    )
 
     count = min(len(index), max(1, _PROBE_PIXELS // side**2))
     chosen = np.linspace(0, len(index) - 1, count).round().astype(np.int64)
@@ -486,7 +495,7 @@ def _check_finite_outputs(
     net.eval()
     try:
         with torch.no_grad():
-            logits, _, mask = _stage_logits(
+            logits, targets, mask = _stage_logits(
                 net, stage, scenes, crops, np.arange(count), side, device
             )
     finally:
@@ -503,6 +512,19 @@ def _check_finite_outputs(
             lr,
             out,
         )
+    # Whether the probe's inputs vary: the disparity (CCNN reads nothing else), and the
+    # parts' maps that the fusion reads too.
+    names = ('disparity', 'local', 'global_') if stage == 'fusion' else ('disparity',)
+    planes, _, _ = gather_planes(scenes, crops, np.arange(count), side, TOWER_MARGIN, names)
+    vary = any(bool((plane != plane.flatten()[0]).any()) for plane in planes)
+    parts = {'parts': ['CCNN', 'ConfNet'], 'fusion': ['the fusion network']}.get(
+        stage, ['the network']
+    )
+    for name, part in zip(parts, logits, strict=True):
+        confidence = torch.sigmoid(part[:, 0][mask].float())
+        if one_confidence(confidence, targets[mask], vary):
+            return collapse_message(epoch, name, float(confidence[0]), confidence.numel())
+    return None
 
 
 def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
@@ -514,10 +536,12 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
     from cva_confidence_ros.training.trainer import (
         CHECKPOINT_NAME,
         SamePairs,
+        _diverged,
         _load_checkpoint,
         _load_samples,
         _Log,
         _prepare,
+        _prepare_validation,
         _progress,
         _save_checkpoint,
         _scene_facts,
@@ -591,7 +615,10 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
         log(f'fusion split {split}: parts on {len(parts_at)} scenes '
             f'({len(stage_index["parts"])} labelled px), fusion on {len(fusion_at)} scenes '
             f'({len(stage_index["fusion"])} labelled px)')
-    val_scenes = _prepare(val_loaders, config, True, log, prepare_disparity_scene, pairs)
+    same_val = None if state is None else SamePairs(checkpoint, state, validation=True)
+    val_scenes, val_pairs = _prepare_validation(
+        val_loaders, config, log, prepare_disparity_scene, pairs, same_val
+    )
     val_subsets = validation_subset(val_scenes, config.val_pixels, config.seed)
     side = crop_side(config, scenes)
     # An epoch of a stage draws as many samples as that stage has labelled pixels (half of
@@ -614,6 +641,7 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
     previous_wall = 0.0
     saved_optimiser: tuple[str, Any] | None = None
     best: dict[str, Any] | None = None  # LGC-Net: the fusion epoch with the best val AUC
+    collapsed_at: dict[int, str] = {}  # run epoch → how its network collapsed
     if state is not None:
         try:
             net.load_state_dict(state['model'])
@@ -687,9 +715,11 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
                 bar.set_postfix(loss=f'{loss_sum / max(1, seen):.4f}', sps=f'{seen / elapsed:.0f}')
         seconds = time.perf_counter() - tic
         check_finite_loss(loss_sum / max(1, seen), epoch, lr, out)
-        _check_finite_outputs(
+        collapsed = _check_finite_outputs(
             net, stage, stage_scenes[stage], stage_index[stage], side, device, epoch, lr, out
         )
+        if collapsed:
+            collapsed_at[epoch + 1] = collapsed
         record: dict[str, Any] = {
             'epoch': epoch + 1,
             'lr': lr,
@@ -725,6 +755,13 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
                 'fusion': {k: v.detach().cpu().clone()
                            for k, v in net.fusion.state_dict().items()},
             }
+        # The weights written are the last epoch's (LGC-Net: its best fusion epoch's): not
+        # those of a collapsed network, as CVA-Net's trainer refuses them.
+        kept = epoch + 1 if best is None else int(best['epoch'])
+        if epoch + 1 == epochs_total and kept in collapsed_at:
+            raise _diverged(collapsed_at[kept], epoch, lr, out)
+        if collapsed:
+            log(f'warning: {collapsed} (lr {lr:g}); lower --lr unless later epochs undo it')
         wall = previous_wall + time.perf_counter() - started
         _save_checkpoint(
             checkpoint,
@@ -739,6 +776,7 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
                 'config': config.to_dict(),
                 'wall_time_s': wall,
                 'train_pairs': train_pairs,
+                'val_pairs': val_pairs,
                 'weights_out_path': weights_out_path(config),
             },
         )
@@ -833,6 +871,7 @@ def _summary(
         'labelled_pixels': len(index),
         'fraction_wrong': index.fraction_wrong,
         'val_datasets': list(config.val_datasets),
+        'val_data_root': config.val_data_root,
         'val_synthetic': config.val_synthetic,
         'val_scenes': scene_facts(val_scenes),
         'val_pixels': int(sum(ys.size for ys, _ in val_subsets)),

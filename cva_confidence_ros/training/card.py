@@ -198,7 +198,11 @@ def write_model_card(
         f'- labelled pixels: {_fmt(facts.get("labelled_pixels"))}, '
         f'wrong-label fraction: {_fmt(facts.get("fraction_wrong"))}',
         f'- validation scenes: {_fmt([s["name"] for s in facts.get("val_scenes", [])])} '
-        f'({_fmt(facts.get("val_pixels"))} pixels)',
+        f'({_fmt(facts.get("val_pixels"))} pixels)'
+        # Held-out scenes of your own share the training names (stereo_folder/scene0): the
+        # folder tells them apart.
+        + (f'; data sets read from --val-data-root {_code(facts["val_data_root"])}'
+           if facts.get('val_data_root') else ''),
         '',
         '## Procedure',
         '',

@@ -15,8 +15,12 @@ A resume must keep what the finished epochs were trained with: data, matcher, D,
 sampling, batch size (and number of processes), seed, teacher and warm start, and the learning
 rate (and LGC-Net stage) of every finished epoch. It may train longer: ``--epochs`` and
 ``--epochs-low-lr`` may grow as long as no finished epoch changes its learning rate (raise
-``--epochs-low-lr`` once low-rate epochs are finished). Validation data, device, precision,
-threads and outputs may change.
+``--epochs-low-lr`` once low-rate epochs are finished). The validation scenes must be the
+run's too (compared by content: the history compares its epochs on them; a moved
+``--val-data-root`` is fine). ``--val-pixels``, device, precision, threads and outputs may change.
+
+Own data with held-out scenes: ``--data-root my/train --datasets stereo_folder
+--val-data-root my/val --val-datasets stereo_folder``.
 """
 
 from __future__ import annotations
@@ -109,7 +113,20 @@ def build_parser() -> argparse.ArgumentParser:
         help='HxW of synthetic pairs (default: max(128, D) x max(256, 2D))',
     )
     data.add_argument('--synthetic-seed', type=int, default=0, help='seed of the first pair')
-    data.add_argument('--val-datasets', type=_names, default=(), help='held-apart data sets')
+    data.add_argument(
+        '--val-datasets',
+        type=_names,
+        default=(),
+        help="held-apart validation data sets, comma-separated, each 'name' or 'name:split' "
+        '(read from --val-data-root if given, else --data-root)',
+    )
+    data.add_argument(
+        '--val-data-root',
+        default=None,
+        help='folder holding the validation data sets (default: --data-root); e.g. your own '
+        'held-out stereo_folder scenes: --val-data-root my/val --val-datasets stereo_folder; '
+        'refused where its scenes are the training pairs (same images and ground truth)',
+    )
     data.add_argument('--val-synthetic', type=int, default=0, help='synthetic validation pairs')
     data.add_argument(
         '--val-pixels',
@@ -210,8 +227,9 @@ def build_parser() -> argparse.ArgumentParser:
         '--resume',
         action='store_true',
         help='continue from OUT/checkpoint.pt after its last finished epoch; refused unless the '
-        'data, matcher, D, arch, mode, sampling, batch size, processes, seed, teacher and warm '
-        'start are those of the run and every finished epoch keeps its learning rate; '
+        'data (validation scenes included), matcher, D, arch, mode, sampling, batch size, '
+        'processes, seed, teacher and warm start are those of the run and every finished '
+        'epoch keeps its learning rate; '
         '--epochs / --epochs-low-lr may grow to train longer',
     )
     restart.add_argument(
@@ -238,6 +256,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         synthetic_size=args.synthetic_size,
         synthetic_seed=args.synthetic_seed,
         val_datasets=args.val_datasets,
+        val_data_root=args.val_data_root,
         val_synthetic=args.val_synthetic,
         val_pixels=args.val_pixels,
         mode=args.mode,

@@ -166,6 +166,10 @@ class TrainConfig:
         synthetic_size: (H, W) of the synthetic pairs; None = :func:`default_synthetic_size`.
         synthetic_seed: Seed of the first synthetic training pair (pair i has seed + i).
         val_datasets: Held-apart validation data sets (``name`` or ``name:split``).
+        val_data_root: Folder holding the validation data sets; None = ``data_root``. Another
+            root than ``data_root`` may hold data sets of the training names (your own
+            ``stereo_folder`` scenes held apart): its scenes are then refused only where every
+            one is a training pair (same images and ground truth).
         val_synthetic: Number of synthetic validation pairs (seeds disjoint from training).
         val_pixels: Size of the fixed pixel subset the validation AUC is computed on.
         mode: ``sparse`` or ``dense`` (see :data:`MODES`).
@@ -211,6 +215,7 @@ class TrainConfig:
     synthetic_size: tuple[int, int] | None = None
     synthetic_seed: int = 0
     val_datasets: tuple[str, ...] = ()
+    val_data_root: str | None = None
     val_synthetic: int = 0
     val_pixels: int = 2000
     mode: str = 'sparse'
@@ -266,7 +271,8 @@ class TrainConfig:
                     f'{name} must be True or False; got {type(value).__name__} {value!r}'
                 )
             object.__setattr__(self, name, bool(value))
-        for name in ('data_root', 'out', 'weights_out', 'teacher', 'init_weights'):
+        for name in ('data_root', 'val_data_root', 'out', 'weights_out', 'teacher',
+                     'init_weights'):
             # A Path is kept as a str: checkpoints are read with weights_only, which refuses a
             # pickled Path (a resume would fail with 'cannot read checkpoint').
             value = getattr(self, name)
@@ -370,11 +376,20 @@ class TrainConfig:
             )
         if not self.datasets and self.synthetic == 0:
             raise ConfigError('no training data: give --datasets and/or --synthetic N (N > 0)')
-        if (self.datasets or self.val_datasets) and not self.data_root:
-            raise ConfigError('--datasets / --val-datasets need --data-root')
+        if self.datasets and not self.data_root:
+            raise ConfigError('--datasets need --data-root')
+        if self.val_data_root and not self.val_datasets:
+            raise ConfigError(
+                f'--val-data-root {self.val_data_root} needs --val-datasets (the data sets to '
+                'validate on there, e.g. stereo_folder)'
+            )
+        if self.val_datasets and not (self.val_data_root or self.data_root):
+            raise ConfigError('--val-datasets need --data-root or --val-data-root')
         train = check_training_datasets(self.datasets)
         val = check_training_datasets(self.val_datasets, validation=True)
-        overlap = _overlap(train, val)
+        # Data sets of one name under two roots are other scenes (or copies, which the
+        # trainer refuses by content): only one root makes a name the same scenes.
+        overlap = _overlap(train, val) if self.same_val_root else []
         if overlap:
             raise ConfigError(
                 'validation data must be held apart from the training data; both use '
@@ -387,6 +402,18 @@ class TrainConfig:
                     f'synthetic pairs must be at least 16 px high and 2·D = '
                     f'{2 * self.max_disparity} px wide; got {height}×{width}'
                 )
+
+    @property
+    def val_root(self) -> str | None:
+        """The folder the validation data sets are read from."""
+        return self.val_data_root or self.data_root
+
+    @property
+    def same_val_root(self) -> bool:
+        """Whether training and validation data sets are read from one folder."""
+        if not self.val_data_root or not self.data_root:
+            return True
+        return Path(self.val_data_root).resolve() == Path(self.data_root).resolve()
 
     @property
     def synthetic_hw(self) -> tuple[int, int]:

@@ -242,7 +242,7 @@ def _load_samples(
     """(label, loader) per scene, loaded lazily so that only one pair is in memory at a time."""
     specs = config.val_datasets if validation else config.datasets
     loaders: list[tuple[str, Callable[[], StereoSample]]] = []
-    root = config.data_root
+    root = config.val_root if validation else config.data_root
     for spec in specs:
         name, split = parse_dataset_spec(spec)
         for scene in list_scenes(name, root, split)[: config.max_scenes]:
@@ -267,6 +267,7 @@ def _prepare(
     prepare: Callable[[StereoSample, str, int], _Scene],
     seen: dict[str, str] | None = None,
     same: SamePairs | None = None,
+    repeats: list[tuple[str, str]] | None = None,
 ) -> list[_Scene]:
     """The scenes of ``loaders`` (:func:`_load_samples`), each prepared by ``prepare`` (the
     cost-volume networks' :func:`prepare_scene`; the disparity-map networks'
@@ -276,7 +277,8 @@ def _prepare(
     ``seen``, which collects the pairs across calls: pass the training call's to the
     validation call) is taken once, and said so: data sets that ship one another's frames
     would weigh it twice, or validate on a training scene. ``same`` (a resume) checks each
-    pair taken against the run's before it is matched.
+    pair taken against the run's before it is matched. ``repeats`` collects (label, label of
+    the pair met before) of the pairs not taken.
     """
     seen = {} if seen is None else seen
     scenes: list[_Scene] = []
@@ -284,13 +286,18 @@ def _prepare(
         tic = time.perf_counter()
         sample = loader()
         fingerprint = _pair_fingerprint(sample)
-        first = seen.setdefault(fingerprint, label)
-        if first != label:
+        # Met before also under its own name: a validation root (--val-data-root) names its
+        # scenes as the training root does (stereo_folder/scene0 in both).
+        first = seen.get(fingerprint)
+        if first is not None:
             log(
                 f'{"val " if validation else ""}scene {label}: the same pair as {first} (taken '
                 'once)'
             )
+            if repeats is not None:
+                repeats.append((label, first))
             continue
+        seen[fingerprint] = label
         if same is not None:
             same.take(len(scenes), label, fingerprint)
         scene = prepare(sample, config.matcher, config.max_disparity)
@@ -312,9 +319,45 @@ def training_pairs(seen: dict[str, str]) -> list[list[str]]:
     return [[label, fingerprint] for fingerprint, label in seen.items()]
 
 
+def _prepare_validation(
+    loaders: list[tuple[str, Callable[[], StereoSample]]],
+    config: TrainConfig,
+    log: _Log,
+    prepare: Callable[[StereoSample, str, int], _Scene],
+    seen: dict[str, str],
+    same: SamePairs | None = None,
+) -> tuple[list[_Scene], list[list[str]]]:
+    """The validation scenes (:func:`_prepare` after the training call, with its ``seen``)
+    and their [label, fingerprint] pairs, kept in the checkpoint for :class:`SamePairs`.
+
+    Raises:
+        ConfigError: Every scene of the validation data sets is a training pair (the same
+            images and ground truth): ``--val-data-root`` lets them share a data set name
+            with the training data, so only their content tells.
+    """
+    before = len(seen)
+    repeats: list[tuple[str, str]] = []
+    scenes = _prepare(loaders, config, True, log, prepare, seen, same, repeats)
+    taken = training_pairs(seen)[before:]
+    own = [label for label, _ in loaders if not label.startswith('synthetic/')]
+    if own and not any(not label.startswith('synthetic/') for label, _ in taken):
+        val, first = repeats[0]
+        root = '--val-data-root' if config.val_data_root else '--data-root'
+        raise ConfigError(
+            f'validation data must be held apart from the training data; every scene of '
+            f'--val-datasets {",".join(config.val_datasets)} in {root} {config.val_root} is a '
+            f'training pair (the same images and ground truth): {val} there is {first}'
+            + ('' if first.startswith('synthetic/') else f' of --data-root {config.data_root}')
+            + (f' ({len(repeats)} such scenes)' if len(repeats) > 1 else '')
+            + '; validate on scenes held out of training'
+        )
+    return scenes, taken
+
+
 class SamePairs:
     """A resume's check that its training pairs are the run's (``train_pairs`` of the
-    checkpoint), scene by scene before each is matched.
+    checkpoint), scene by scene before each is matched; with ``validation``, that its
+    validation pairs are (``val_pairs``): the history compares the epochs on them.
 
     The data sets are read from ``--data-root``, which a resume may change (the data moved):
     another root of ``stereo_folder`` (or a data set whose scenes were added, removed or
@@ -322,18 +365,27 @@ class SamePairs:
     place', and the run went on with other samples than its finished epochs; the card then
     listed only the new scenes. Synthetic pairs are compared by name (their seeds and size
     are settings the resume keeps): their pixels may differ by rounding between machines.
+    A run that recorded no validation pairs (none, or a checkpoint from before they were
+    kept) may gain them.
     """
 
-    def __init__(self, checkpoint: Path, state: dict[str, Any]) -> None:
+    def __init__(self, checkpoint: Path, state: dict[str, Any], validation: bool = False) -> None:
         self.checkpoint = checkpoint
-        self.recorded = [tuple(pair) for pair in state.get('train_pairs') or []]
-        self.root = state['config'].get('data_root')
+        key = 'val_pairs' if validation else 'train_pairs'
+        self.recorded = [tuple(pair) for pair in state.get(key) or []]
+        config = state['config']
+        own_root = validation and bool(config.get('val_data_root'))
+        self.option = '--val-data-root' if own_root else '--data-root'
+        self.root = config.get('val_data_root' if own_root else 'data_root')
+        self.what = 'validation' if validation else 'training'
+        self.did = 'validated' if validation else 'trained'
 
     def _refuse(self, what: str) -> ConfigError:
+        verb = 'were validated' if self.did == 'validated' else 'trained'
         return ConfigError(
-            f"cannot resume from {self.checkpoint}: the training data differ from the run's "
-            f'({what}); its finished epochs trained on the others: resume with those scenes '
-            f'(the run read --data-root {self.root}) or start over in another --out folder'
+            f"cannot resume from {self.checkpoint}: the {self.what} data differ from the run's "
+            f'({what}); its finished epochs {verb} on the others: resume with those scenes '
+            f'(the run read {self.option} {self.root}) or start over in another --out folder'
         )
 
     def take(self, position: int, label: str, fingerprint: str) -> None:
@@ -346,7 +398,7 @@ class SamePairs:
             return  # a checkpoint from before the pairs were kept
         if position >= len(self.recorded):
             raise self._refuse(
-                f'{label} is new: the run trained on {len(self.recorded)} scenes'
+                f'{label} is new: the run {self.did} on {len(self.recorded)} scenes'
             )
         was, digest = self.recorded[position]
         if was != label:
@@ -366,7 +418,7 @@ class SamePairs:
             missing = [label for label, _ in self.recorded[count:]]
             more = f' and {len(missing) - 3} more' if len(missing) > 3 else ''
             raise self._refuse(
-                f'{", ".join(missing[:3])}{more} missing: the run trained on '
+                f'{", ".join(missing[:3])}{more} missing: the run {self.did} on '
                 f'{len(self.recorded)} scenes, this one finds {count}'
             )
 
@@ -447,16 +499,8 @@ def _check_finite_network(
             logits = _Logits(net)(volumes.to(dist.device)).float()
     finally:
         net.train(training)
-    # A too-high --lr mostly leaves finite weights that give one confidence for any input
-    # (dead ReLUs: one logit; or logits of 1e5 and more: all 1.0), which the NaN checks let
-    # into the checkpoint and the weights file (lr 1: loss 21, val AUC that of a constant).
-    # Not where the probe is of one input or one class: one answer may then be right.
     confidence = torch.sigmoid(logits.flatten())
-    constant = (
-        bool((confidence == confidence[0]).all())
-        and bool((volumes != volumes[0]).any())
-        and bool((targets != targets[0]).any())
-    )
+    constant = one_confidence(confidence, targets, bool((volumes != volumes[0]).any()))
     bad, same = dist.sum([float((~torch.isfinite(logits)).sum()), float(constant)])
     if bad:
         raise _diverged(
@@ -467,12 +511,34 @@ def _check_finite_network(
             out,
         )
     if same:
-        return (
-            f'after epoch {epoch + 1}, the network gives one confidence '
-            f'({float(confidence[0]):g}) at all of {count} training pixels, correct and '
-            'wrong ones: it no longer depends on its input'
-        )
+        return collapse_message(epoch, 'the network', float(confidence[0]), count)
     return None
+
+
+def one_confidence(confidence: torch.Tensor, targets: torch.Tensor, inputs_vary: bool) -> bool:
+    """Whether a network collapsed: one ``confidence`` at every probed training pixel
+    although their inputs vary and their ``targets`` hold correct and wrong ones.
+
+    A too-high --lr mostly leaves finite weights that give one confidence for any input
+    (dead ReLUs: one logit; or logits of 1e5 and more: all 1.0), which the NaN checks let
+    into the checkpoint and the weights file (lr 1: loss 21, val AUC that of a constant).
+    Not where the probe is of one input or one class: one answer may then be right.
+    """
+    flat, labels = confidence.flatten(), targets.flatten()
+    return (
+        flat.numel() > 1
+        and bool((flat == flat[0]).all())
+        and inputs_vary
+        and bool((labels != labels[0]).any())
+    )
+
+
+def collapse_message(epoch: int, name: str, value: float, count: int) -> str:
+    """What :func:`one_confidence` found after ``epoch`` (0-based) in network ``name``."""
+    return (
+        f'after epoch {epoch + 1}, {name} gives one confidence ({value:g}) at all of {count} '
+        'training pixels, correct and wrong ones: it no longer depends on its input'
+    )
 
 
 def _save_checkpoint(path: Path, state: dict[str, Any]) -> None:
@@ -900,8 +966,11 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
     scenes = _prepare(loaders, config, False, log, prepare_scene, pairs, same)
     train_pairs = training_pairs(pairs)
     index = sample_index(scenes)
-    val_scenes: list[PreparedScene] = dist.on_main(
-        lambda: _prepare(val_loaders, config, True, log, prepare_scene, pairs), []
+    same_val = None if state is None else SamePairs(checkpoint, state, validation=True)
+    nothing: tuple[list[PreparedScene], list[list[str]]] = ([], [])  # on the other processes
+    val_scenes, val_pairs = dist.on_main(
+        lambda: _prepare_validation(val_loaders, config, log, prepare_scene, pairs, same_val),
+        nothing,
     )
     val_subsets = validation_subset(val_scenes, config.val_pixels, config.seed)
     n_samples = config.samples_per_epoch or len(index)
@@ -993,6 +1062,7 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
                 'init_meta': _weights_facts(init_meta) if init_meta else None,
                 'teacher_sha256': teacher_digest,
                 'train_pairs': train_pairs,
+                'val_pairs': val_pairs,
                 'weights_out_path': weights_out_path(config),
             },
         )
@@ -1052,6 +1122,7 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         'labelled_pixels': len(index),
         'fraction_wrong': index.fraction_wrong,
         'val_datasets': list(config.val_datasets),
+        'val_data_root': config.val_data_root,
         'val_synthetic': config.val_synthetic,
         'val_scenes': _scene_facts(val_scenes),
         'val_pixels': int(sum(ys.size for ys, _ in val_subsets)),
