@@ -429,7 +429,7 @@ def main(argv: list[str] | None = None) -> int:
             left_frame=args.left_frame,
             right_frame=args.right_frame,
         )
-        from cva_confidence_ros.datasets import DATASETS, load_dataset
+        from cva_confidence_ros.datasets import DATASETS, load_dataset, skipped_notice
 
         DATASETS.get(args.dataset)  # a misspelt name is that, not a missing --data-root
         root = args.data_root
@@ -443,6 +443,9 @@ def main(argv: list[str] | None = None) -> int:
                     f'pick another'
                 )
             check_replaceable(args.out)
+        notice = skipped_notice(args.dataset, root, split=args.split)
+        if notice:
+            _log_stderr(notice)  # a partial download: fewer frames than scenes in the folder
         samples = load_dataset(args.dataset, root, split=args.split, max_scenes=args.max_frames)
         summary = write_dataset_bag(samples, args.out, spec, overwrite=args.overwrite)
     except CVAError as err:

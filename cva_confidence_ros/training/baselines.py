@@ -590,7 +590,7 @@ def train_baseline(config: TrainConfig, command: str = '') -> dict[str, Any]:
             )
 
     # Both listed before either is prepared: a missing validation scene costs no matching.
-    loaders, val_loaders = _load_samples(config, False), _load_samples(config, True)
+    loaders, val_loaders = _load_samples(config, False, log), _load_samples(config, True, log)
     split = config.fusion_split if config.arch == 'lgcnet' else 'none'
     split_scenes([label for label, _ in loaders], split)  # refused now, not after preparing
     if config.arch == 'lgcnet':

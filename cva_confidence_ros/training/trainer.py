@@ -26,7 +26,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from cva_confidence_ros.datasets import StereoSample, list_scenes, load_scene
+from cva_confidence_ros.datasets import StereoSample, list_scenes, load_scene, skipped_notice
 from cva_confidence_ros.datasets.synthetic import synthetic_pair
 from cva_confidence_ros.errors import ConfigError, DataError, ModelError, reason
 from cva_confidence_ros.model import (
@@ -237,14 +237,18 @@ class _Log:
 
 
 def _load_samples(
-    config: TrainConfig, validation: bool
+    config: TrainConfig, validation: bool, log: Callable[[str], None] | None = None
 ) -> list[tuple[str, Callable[[], StereoSample]]]:
-    """(label, loader) per scene, loaded lazily so that only one pair is in memory at a time."""
+    """(label, loader) per scene, loaded lazily so that only one pair is in memory at a time;
+    scenes left out for a missing file (a partial download) are named through ``log``."""
     specs = config.val_datasets if validation else config.datasets
     loaders: list[tuple[str, Callable[[], StereoSample]]] = []
     root = config.val_root if validation else config.data_root
     for spec in specs:
         name, split = parse_dataset_spec(spec)
+        notice = skipped_notice(name, root, split) if log is not None else ''
+        if notice and log is not None:
+            log(notice)
         for scene in list_scenes(name, root, split)[: config.max_scenes]:
             loaders.append((f'{name}/{scene}', partial(load_scene, name, root, scene, split)))
     count = config.val_synthetic if validation else config.synthetic
@@ -957,9 +961,9 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
             _check_teacher(checkpoint, state, config.teacher, teacher_digest)
 
     # Both listed before either is prepared: a missing validation scene costs no matching.
-    loaders = _load_samples(config, False)
+    loaders = _load_samples(config, False, log)
     val_loaders: list[tuple[str, Callable[[], StereoSample]]] = dist.on_main(
-        lambda: _load_samples(config, True), []
+        lambda: _load_samples(config, True, log), []
     )
     pairs: dict[str, str] = {}  # the pairs taken, to take each once
     same = None if state is None else SamePairs(checkpoint, state)
