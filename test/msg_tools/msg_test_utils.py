@@ -334,3 +334,27 @@ def replay_offline(bag: Path, tmp_path: Path, capsys: Any, *extra: str) -> tuple
     assert 'Traceback' not in captured.err
     report = tmp_path / 'report' / 'report.json'
     return code, captured.err, json.loads(report.read_text()) if report.exists() else {}
+
+
+#: The frames of the replay-session tests (no bag): size and geometry of their ground truth.
+SESSION_SHAPE = (6, 8)
+SESSION_GEOMETRY = StereoGeometry(fx=50.0, fy=50.0, cx=20.0, cy=15.0, cx_right=20.0,
+                                  baseline=0.1)
+
+
+def session_frame(index: int, stamp: int, value: float = 3.0) -> Any:
+    """A processed frame for a replay session: disparity ``value`` everywhere, a random
+    confidence (seeded by ``index``)."""
+    from msg_tools.replay import FrameResult
+
+    confidence = np.random.default_rng(index).random(SESSION_SHAPE).astype(np.float32)
+    return FrameResult(
+        frame=index, stamp_ns=stamp, disparity=np.full(SESSION_SHAPE, value, np.float32),
+        confidence=confidence, kept=confidence > 0.5,
+    )
+
+
+def session_truth(stamp: int, value: float = 3.0) -> Any:
+    """A ground-truth DisparityImage of ``value`` everywhere, stamped ``stamp``."""
+    return disparity_to_msg(np.full(SESSION_SHAPE, value, np.float32), stamp, 'l',
+                            SESSION_GEOMETRY, typestore=jazzy_typestore())

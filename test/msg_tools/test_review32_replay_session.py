@@ -12,37 +12,24 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from msg_test_utils import MAX_DISPARITY, START_NS, truth_session, write_stereo_bag
-import numpy as np
+from msg_test_utils import (
+    MAX_DISPARITY,
+    START_NS,
+    session_frame,
+    session_truth,
+    truth_session,
+    write_stereo_bag,
+)
 import pytest
 
-from cva_confidence_ros.pointcloud import StereoGeometry
 from msg_tools.bag_replay import main
-from msg_tools.convert import disparity_to_msg, jazzy_typestore
-from msg_tools.replay import FrameResult, ReplaySession
+from msg_tools.replay import ReplaySession
 
 FRAME_NS = 100_000_000
-SHAPE = (6, 8)
-GEOMETRY = StereoGeometry(fx=50.0, fy=50.0, cx=20.0, cy=15.0, cx_right=20.0, baseline=0.1)
 
 
 def _session(tmp_path: Path) -> ReplaySession:
     return truth_session(tmp_path)
-
-
-def _frame(index: int, stamp: int, value: float) -> FrameResult:
-    """A processed frame whose disparity is ``value`` everywhere."""
-    confidence = np.random.default_rng(index).random(SHAPE).astype(np.float32)
-    return FrameResult(
-        frame=index, stamp_ns=stamp, disparity=np.full(SHAPE, value, np.float32),
-        confidence=confidence, kept=confidence > 0.5,
-    )
-
-
-def _truth(stamp: int, value: float) -> object:
-    return disparity_to_msg(
-        np.full(SHAPE, value, np.float32), stamp, 'l', GEOMETRY, typestore=jazzy_typestore()
-    )
 
 
 def _errors(session: ReplaySession) -> dict[int, float | None]:
@@ -87,16 +74,16 @@ def test_a_second_ground_truth_of_one_stamp_is_not_used_after_a_reset(tmp_path: 
     # The ground truth of stamp 100 comes twice: the second stays stored. After the reset the
     # frame of stamp 100 (disparity 7) was scored against it (error rate 1.0), not its own.
     session = _session(tmp_path)
-    session.add_result(_frame(0, 100, 3.0))
-    session.add_ground_truth(100, _truth(100, 3.0))
-    session.add_ground_truth(100, _truth(100, 3.0))
-    session.add_result(_frame(1, 200, 3.0))
-    session.add_ground_truth(200, _truth(200, 3.0))
+    session.add_result(session_frame(0, 100, 3.0))
+    session.add_ground_truth(100, session_truth(100, 3.0))
+    session.add_ground_truth(100, session_truth(100, 3.0))
+    session.add_result(session_frame(1, 200, 3.0))
+    session.add_ground_truth(200, session_truth(200, 3.0))
     # The reset: both streams start over at stamp 100, with another scene.
-    session.add_result(_frame(2, 100, 7.0))
-    session.add_ground_truth(100, _truth(100, 7.0))
-    session.add_result(_frame(3, 200, 7.0))
-    session.add_ground_truth(200, _truth(200, 7.0))
+    session.add_result(session_frame(2, 100, 7.0))
+    session.add_ground_truth(100, session_truth(100, 7.0))
+    session.add_result(session_frame(3, 200, 7.0))
+    session.add_ground_truth(200, session_truth(200, 7.0))
     assert _errors(session) == {0: 0.0, 1: 0.0, 2: 0.0, 3: 0.0}
 
 
@@ -107,13 +94,13 @@ def test_ground_truth_after_a_reset_does_not_score_a_frame_from_before_it(
     # ahead of the frames: that of stamp 100 (disparity 7) comes before frame 3. Before: it
     # scored frame 1 (disparity 3; error rate 1.0) and frame 3 was left without one.
     session = _session(tmp_path)
-    session.add_result(_frame(0, 50, 3.0))
-    session.add_ground_truth(50, _truth(50, 3.0))
-    session.add_result(_frame(1, 100, 3.0))
-    session.add_ground_truth(20, _truth(20, 7.0))
-    session.add_ground_truth(100, _truth(100, 7.0))
-    session.add_result(_frame(2, 20, 7.0))
-    session.add_result(_frame(3, 100, 7.0))
+    session.add_result(session_frame(0, 50, 3.0))
+    session.add_ground_truth(50, session_truth(50, 3.0))
+    session.add_result(session_frame(1, 100, 3.0))
+    session.add_ground_truth(20, session_truth(20, 7.0))
+    session.add_ground_truth(100, session_truth(100, 7.0))
+    session.add_result(session_frame(2, 20, 7.0))
+    session.add_result(session_frame(3, 100, 7.0))
     errors = _errors(session)
     assert errors == {0: 0.0, 1: None, 2: 0.0, 3: 0.0}
     [unscored] = [f for f in session.report.frames if f.frame == 1]

@@ -14,12 +14,20 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from msg_test_utils import MAX_DISPARITY, START_NS, textured_pair, truth_session, write_stereo_bag
+from msg_test_utils import (
+    MAX_DISPARITY,
+    SESSION_GEOMETRY,
+    START_NS,
+    session_frame,
+    session_truth,
+    textured_pair,
+    truth_session,
+    write_stereo_bag,
+)
 import numpy as np
 import pytest
 
 from cva_confidence_ros.errors import ConfigError
-from cva_confidence_ros.pointcloud import StereoGeometry
 from msg_tools.bag_replay import main
 from msg_tools.bagio import OutputBag
 from msg_tools.convert import (
@@ -32,7 +40,6 @@ from msg_tools.convert import (
     jazzy_typestore,
 )
 from msg_tools.replay import (
-    FrameResult,
     ReplayOptions,
     ReplaySession,
     TopicNames,
@@ -40,8 +47,7 @@ from msg_tools.replay import (
 from msg_tools.scoring import ReplayReport, format_summary
 
 FRAME_NS = 100_000_000
-SHAPE = (6, 8)
-GEOMETRY = StereoGeometry(fx=50.0, fy=50.0, cx=20.0, cy=15.0, cx_right=20.0, baseline=0.1)
+GEOMETRY = SESSION_GEOMETRY
 
 
 def _argv(bag: Path, tmp_path: Path, *extra: str) -> list[str]:
@@ -81,20 +87,6 @@ def _bag_with_truth_offset(path: Path, count: int, offset_ns: int) -> Path:
 
 def _session(tmp_path: Path, truth_window: int | None = 0) -> ReplaySession:
     return truth_session(tmp_path, truth_window=truth_window)
-
-
-def _frame(index: int, stamp: int, value: float = 3.0) -> FrameResult:
-    confidence = np.random.default_rng(index).random(SHAPE).astype(np.float32)
-    return FrameResult(
-        frame=index, stamp_ns=stamp, disparity=np.full(SHAPE, value, np.float32),
-        confidence=confidence, kept=confidence > 0.5,
-    )
-
-
-def _truth(stamp: int, value: float = 3.0) -> object:
-    return disparity_to_msg(
-        np.full(SHAPE, value, np.float32), stamp, 'l', GEOMETRY, typestore=jazzy_typestore()
-    )
 
 
 # --- ground truth that matches no frame -------------------------------------------------------
@@ -156,21 +148,21 @@ def test_ground_truth_waiting_at_an_early_stop_is_not_counted(tmp_path: Path) ->
     # Ground truth read ahead of its frames when the run stops (Ctrl-C) may be of frames
     # further on in the bag: only that which the frames have passed matched none.
     session = _session(tmp_path)
-    session.add_ground_truth(100, _truth(100))
-    session.add_result(_frame(0, 100))
-    session.add_ground_truth(150, _truth(150))  # its frame was skipped, unpaired, ...
-    session.add_ground_truth(300, _truth(300))
-    session.add_ground_truth(400, _truth(400))
-    session.add_result(_frame(1, 200))
+    session.add_ground_truth(100, session_truth(100))
+    session.add_result(session_frame(0, 100))
+    session.add_ground_truth(150, session_truth(150))  # its frame was skipped, unpaired, ...
+    session.add_ground_truth(300, session_truth(300))
+    session.add_ground_truth(400, session_truth(400))
+    session.add_result(session_frame(1, 200))
     session.report.interrupted = True
     session.finish()
     assert session.counts['gt_unmatched'] == 1
     assert session.report.gt_unmatched_stamps == [150]
     # The same at the end of the bag: none of them can find its frame any more.
     session = _session(tmp_path)
-    session.add_ground_truth(100, _truth(100))
-    session.add_result(_frame(0, 100))
-    session.add_ground_truth(300, _truth(300))
+    session.add_ground_truth(100, session_truth(100))
+    session.add_result(session_frame(0, 100))
+    session.add_ground_truth(300, session_truth(300))
     session.finish()
     assert session.counts['gt_unmatched'] == 1
     assert session.report.gt_unmatched_stamps == [300]
@@ -181,14 +173,14 @@ def test_looped_bag_counts_per_pass(tmp_path: Path) -> None:
     # stamp (the frame was scored with the first) is no unmatched one; the ground truth of a
     # frame skipped in the second pass is, although the first pass processed that stamp.
     session = _session(tmp_path)
-    session.add_ground_truth(100, _truth(100))
-    session.add_ground_truth(100, _truth(100))
-    session.add_result(_frame(0, 100))
-    session.add_ground_truth(200, _truth(200))
-    session.add_result(_frame(1, 200))
-    session.add_ground_truth(100, _truth(100, 7.0))  # second pass
-    session.add_result(_frame(2, 100, 7.0))
-    session.add_ground_truth(200, _truth(200, 7.0))
+    session.add_ground_truth(100, session_truth(100))
+    session.add_ground_truth(100, session_truth(100))
+    session.add_result(session_frame(0, 100))
+    session.add_ground_truth(200, session_truth(200))
+    session.add_result(session_frame(1, 200))
+    session.add_ground_truth(100, session_truth(100, 7.0))  # second pass
+    session.add_result(session_frame(2, 100, 7.0))
+    session.add_ground_truth(200, session_truth(200, 7.0))
     session.frame_epoch(200)  # frame 3 was skipped
     session.finish()
     scored = {f.frame: f.error_rate for f in session.report.frames}
@@ -204,11 +196,11 @@ def test_ground_truth_let_go_for_waiting_too_long_is_taken_back_when_its_frame_c
     # comes after all it did match one.
     session = _session(tmp_path, truth_window=2)
     for stamp in (100, 200, 300):
-        session.add_ground_truth(stamp, _truth(stamp))
+        session.add_ground_truth(stamp, session_truth(stamp))
     assert session.counts['gt_unmatched'] == 1
-    session.add_result(_frame(0, 100))
-    session.add_result(_frame(1, 200))
-    session.add_result(_frame(2, 300))
+    session.add_result(session_frame(0, 100))
+    session.add_result(session_frame(1, 200))
+    session.add_result(session_frame(2, 300))
     session.finish()
     assert session.counts['gt_unmatched'] == 0
     assert session.report.gt_unmatched_stamps == []
@@ -218,9 +210,9 @@ def test_ground_truth_let_go_for_waiting_too_long_is_taken_back_when_its_frame_c
 
 def test_unmatched_ground_truth_is_counted_with_bounded_memory(tmp_path: Path) -> None:
     session = _session(tmp_path)
-    session.add_result(_frame(0, 0))
+    session.add_result(session_frame(0, 0))
     for index in range(1, 3001):
-        session.add_ground_truth(index * 10 + 1, _truth(index * 10 + 1))
+        session.add_ground_truth(index * 10 + 1, session_truth(index * 10 + 1))
     session.finish()
     assert session.counts['gt_unmatched'] == 3000
     assert session.report.gt_unmatched_stamps == [11, 21, 31, 41, 51]

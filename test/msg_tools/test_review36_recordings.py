@@ -13,37 +13,20 @@ from pathlib import Path
 from msg_test_utils import (
     START_NS,
     replay_offline,
+    session_frame,
+    session_truth,
     truth_session,
     write_stereo_bag,
 )
-import numpy as np
 import pytest
 
-from cva_confidence_ros.pointcloud import StereoGeometry
-from msg_tools.convert import disparity_to_msg, jazzy_typestore
-from msg_tools.replay import TRUTH_JUMP_NS, FrameResult
+from msg_tools.replay import TRUTH_JUMP_NS
 
 FRAME_NS = 100_000_000
-SHAPE = (6, 8)
-GEOMETRY = StereoGeometry(fx=50.0, fy=50.0, cx=20.0, cy=15.0, cx_right=20.0, baseline=0.1)
 
 
 def _scored(report: dict) -> dict[int, bool]:
     return {f['frame']: f['auc'] is not None for f in report['frames']}
-
-
-def _frame(index: int, stamp: int) -> FrameResult:
-    confidence = np.random.default_rng(index).random(SHAPE).astype(np.float32)
-    return FrameResult(
-        frame=index, stamp_ns=stamp, disparity=np.full(SHAPE, 3.0, np.float32),
-        confidence=confidence, kept=confidence > 0.5,
-    )
-
-
-def _truth(stamp: int) -> object:
-    return disparity_to_msg(
-        np.full(SHAPE, 3.0, np.float32), stamp, 'l', GEOMETRY, typestore=jazzy_typestore()
-    )
 
 
 def test_ground_truth_after_that_of_the_next_frame_scores_its_frame(
@@ -68,16 +51,16 @@ def test_a_frame_waits_for_its_ground_truth_only_within_the_window(tmp_path: Pat
     # Ground truth a frame later than the frame's own does not end its wait (before it did);
     # ground truth TRUTH_JUMP_NS later does, so the memory stays bounded.
     session = truth_session(tmp_path)
-    session.add_result(_frame(0, START_NS))
-    session.add_result(_frame(1, START_NS + FRAME_NS))
-    session.add_ground_truth(START_NS + FRAME_NS, _truth(START_NS + FRAME_NS))
+    session.add_result(session_frame(0, START_NS))
+    session.add_result(session_frame(1, START_NS + FRAME_NS))
+    session.add_ground_truth(START_NS + FRAME_NS, session_truth(START_NS + FRAME_NS))
     assert [f.frame for f in session.report.frames] == [1]
-    session.add_ground_truth(START_NS, _truth(START_NS))  # out of order
-    session.add_result(_frame(2, START_NS + 2 * FRAME_NS))  # no ground truth of its own
-    session.add_ground_truth(START_NS + 3 * FRAME_NS, _truth(START_NS + 3 * FRAME_NS))
+    session.add_ground_truth(START_NS, session_truth(START_NS))  # out of order
+    session.add_result(session_frame(2, START_NS + 2 * FRAME_NS))  # no ground truth of its own
+    session.add_ground_truth(START_NS + 3 * FRAME_NS, session_truth(START_NS + 3 * FRAME_NS))
     assert {f.frame: f.auc is not None for f in session.report.frames} == {0: True, 1: True}
     late = START_NS + 2 * FRAME_NS + TRUTH_JUMP_NS
-    session.add_ground_truth(late, _truth(late))
+    session.add_ground_truth(late, session_truth(late))
     scores = {f.frame: f for f in session.report.frames}
     assert scores[2].auc is None
     assert scores[2].note == 'no ground truth with this stamp in the bag'

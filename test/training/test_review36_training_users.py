@@ -31,11 +31,13 @@ OWN = [
 ]  # fmt: skip
 
 
-def _scenes(root: Path, seeds: list[int], matcher_truth: bool = False) -> Path:
-    """stereo_folder scenes ``scene<i>`` of 24×40 synthetic pairs (ground truth: the pair's,
-    or the matcher's own winner-takes-all disparity)."""
+def _scenes(
+    root: Path, seeds: list[int], matcher_truth: bool = False, size: tuple[int, int] = (24, 40)
+) -> Path:
+    """stereo_folder scenes ``scene<i>`` of synthetic pairs of ``size`` (ground truth: the
+    pair's, or the matcher's own winner-takes-all disparity)."""
     for number, seed in enumerate(seeds):
-        sample = synthetic_pair(seed, 24, 40, 16)
+        sample = synthetic_pair(seed, *size, 16)
         folder = root / f'scene{number}'
         folder.mkdir(parents=True)
         cv2.imwrite(str(folder / 'left.png'), sample.left)

@@ -7,11 +7,9 @@ import json
 from pathlib import Path
 import shutil
 
-import cv2
-import numpy as np
 import pytest
+from test_review36_training_users import _scenes as stereo_folder_scenes
 
-from cva_confidence_ros.datasets.synthetic import synthetic_pair
 from cva_confidence_ros.errors import ConfigError
 from cva_confidence_ros.training.cli import main
 from cva_confidence_ros.training.config import TrainConfig
@@ -34,14 +32,7 @@ OWN = [
 
 def _scenes(root: Path, seeds: list[int]) -> Path:
     """stereo_folder scenes ``scene<i>`` of 48×64 synthetic pairs under ``root``."""
-    for number, seed in enumerate(seeds):
-        sample = synthetic_pair(seed, 48, 64, 16)
-        folder = root / f'scene{number}'
-        folder.mkdir(parents=True)
-        cv2.imwrite(str(folder / 'left.png'), sample.left)
-        cv2.imwrite(str(folder / 'right.png'), sample.right)
-        np.save(folder / 'disparity.npy', sample.disparity.astype(np.float32))
-    return root
+    return stereo_folder_scenes(root, seeds, size=(48, 64))
 
 
 @pytest.mark.parametrize('arch', ['cvanet_lite', 'ccnn'])
