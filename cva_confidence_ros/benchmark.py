@@ -63,6 +63,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from cva_confidence_ros import strict_json
 from cva_confidence_ros.errors import ConfigError, CVAError, ModelError
 from cva_confidence_ros.outputs import check_output_file
 from cva_confidence_ros.registry import Registry
@@ -769,19 +770,6 @@ def host_summary() -> str:
     return f'{model}, {os.cpu_count() or 1} CPU cores, torch CPU kernels {isa}'
 
 
-def _strict(value: Any) -> Any:
-    """``value`` with every NaN or infinite float (an AUC ratio over a zero, a rate over no
-    time) turned into None, inside lists and dicts too: JSON has no NaN, and a file with one
-    is refused by strict readers (``NaN`` is no JSON token)."""
-    if isinstance(value, float | np.floating):
-        return float(value) if np.isfinite(value) else None
-    if isinstance(value, dict):
-        return {key: _strict(item) for key, item in value.items()}
-    if isinstance(value, list | tuple):
-        return [_strict(item) for item in value]
-    return value
-
-
 def write_records(
     path: Path,
     records: Sequence[dict[str, Any]],
@@ -797,11 +785,11 @@ def write_records(
     keys = (*RECORD_KEYS, *extra_keys)
     host = host_summary() if host is None else host
     rows = [
-        {**{key: _strict(record[key]) for key in keys if key in record}, 'host': host}
+        {**{key: record[key] for key in keys if key in record}, 'host': host}
         for record in records
     ]
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(rows, indent=2, allow_nan=False) + '\n', encoding='utf-8')
+    path.write_text(strict_json.dumps(rows, indent=2) + '\n', encoding='utf-8')
     print(f'wrote {path}', file=sys.stderr)
 
 

@@ -22,6 +22,7 @@ import time
 
 import numpy as np
 
+from cva_confidence_ros import strict_json
 from cva_confidence_ros.errors import ConfigError, CVAError, DataError, reason
 from cva_confidence_ros.outputs import check_output_dir
 
@@ -100,7 +101,7 @@ def _match_all(
     _write_png(out / 'left.png', cv2.cvtColor(sample.left, cv2.COLOR_RGB2BGR))
     summary = out / 'cost_volume_summary.json'
     try:
-        summary.write_text(json.dumps(rows, indent=2))
+        summary.write_text(strict_json.dumps(rows, indent=2) + '\n')
     except OSError as exc:
         raise DataError(f'cannot write {summary}: {reason(exc)}') from None
     return rows

@@ -66,6 +66,7 @@ from typing import Any, cast
 
 import numpy as np
 
+from cva_confidence_ros import strict_json
 from cva_confidence_ros.benchmark import RECORD_KEYS as MATCHER_RECORD_KEYS
 from cva_confidence_ros.benchmark import BenchSettings, host_summary, make_pairs, memory_kb
 from cva_confidence_ros.errors import ConfigError, CVAError, ModelError
@@ -1389,7 +1390,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         rows = [{**record, 'host': host} for record in records]
-        args.json.write_text(json.dumps(rows, indent=2) + '\n', encoding='utf-8')
+        args.json.write_text(strict_json.dumps(rows, indent=2) + '\n', encoding='utf-8')
         _log(f'wrote {args.json}')
     return 0
 

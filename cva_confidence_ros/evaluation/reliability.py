@@ -15,10 +15,10 @@ of every probabilistic method per data set and matcher over all its scenes, and 
 from __future__ import annotations
 
 from collections.abc import Mapping
-import json
 from pathlib import Path
 from typing import Any
 
+from cva_confidence_ros import strict_json
 from cva_confidence_ros.calibration import ReliabilityTable
 from cva_confidence_ros.errors import InputError
 from cva_confidence_ros.evaluation.records import _cell
@@ -149,7 +149,7 @@ def write_calibration(tables: Mapping[Key, ReliabilityTable], out_dir: str | Pat
         for (dataset, matcher, method), table in rows.items()
     ]
     # Both texts first: an error in the table must not leave a new JSON beside an old table.
-    texts = (json.dumps(records, indent=1) + '\n', table_text)
+    texts = (strict_json.dumps(records, indent=1) + '\n', table_text)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = [out / 'calibration.json', out / 'calibration.md']

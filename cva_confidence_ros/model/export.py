@@ -20,7 +20,6 @@ import argparse
 from collections.abc import Iterator, Mapping, Sequence
 import contextlib
 import copy
-import json
 import os
 from pathlib import Path
 import sys
@@ -34,6 +33,7 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
+from cva_confidence_ros import strict_json
 from cva_confidence_ros.checks import is_int
 from cva_confidence_ros.errors import ConfigError, InputError, ModelError, reason
 from cva_confidence_ros.model.fast import FoldedCVANetFast
@@ -518,7 +518,7 @@ def run(args: argparse.Namespace) -> int:
                 )
         # The card first, whole or not at all: written after the graph, a card that could not
         # be written left the new graph beside the card of the one before (its matcher, D).
-        write_text_atomic(card, json.dumps(record, indent=2) + '\n')
+        write_text_atomic(card, strict_json.dumps(record, indent=2) + '\n')
         os.replace(staging, out)
     finally:
         staging.unlink(missing_ok=True)

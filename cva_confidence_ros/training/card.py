@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-import json
-import math
 import os
 from pathlib import Path
 import platform
@@ -13,6 +11,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from cva_confidence_ros import strict_json
 from cva_confidence_ros.outputs import write_text_atomic
 
 __all__ = ['card_paths', 'hardware_facts', 'write_model_card']
@@ -76,20 +75,6 @@ def _code(text: Any) -> str:
     fence = '`' * (longest + 1)
     pad = ' ' if text.startswith('`') or text.endswith('`') else ''
     return f'{fence}{pad}{text}{pad}{fence}'
-
-
-def _json_ready(value: Any) -> Any:
-    """``value`` with every NaN or infinity (a diverged loss) as None: ``json.dumps`` writes
-    them as ``NaN`` / ``Infinity``, which is not JSON; numpy scalars as Python numbers."""
-    if isinstance(value, np.generic):  # json.dumps refused np.float32 and np.int64
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, Mapping):
-        return {key: _json_ready(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_ready(item) for item in value]
-    return value
 
 
 _CVANET_TEXT = (
@@ -174,7 +159,7 @@ def write_model_card(
     """
     md_path, json_path = card_paths(weights_path)
     # A NaN or infinite number (a diverged loss) is null in the JSON, 'nan' / 'inf' in the text.
-    json_text = json.dumps(_json_ready(dict(facts)), indent=2, sort_keys=True, allow_nan=False)
+    json_text = strict_json.dumps(dict(facts), indent=2, sort_keys=True)
     hardware = facts.get('hardware', {})
     title, about = _ARCH_TEXT.get(str(facts.get('arch', 'cvanet')), _ARCH_TEXT['cvanet'])
     lines = [

@@ -26,6 +26,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from cva_confidence_ros import strict_json
 from cva_confidence_ros.datasets import StereoSample, list_scenes, load_scene, skipped_notice
 from cva_confidence_ros.datasets.synthetic import synthetic_pair
 from cva_confidence_ros.errors import ConfigError, DataError, ModelError, reason
@@ -563,7 +564,9 @@ def _save_checkpoint(path: Path, state: dict[str, Any]) -> None:
 
 def _write_history(out: Path, history: list[dict[str, Any]]) -> None:
     """``out/history.json``, replaced whole (a run stopped while writing it keeps the last)."""
-    write_text_atomic(out / _HISTORY_NAME, json.dumps(history, indent=2) + '\n',
+    # NaN / inf as null: json.dumps wrote them as NaN / Infinity, which strict readers refuse.
+    text = json.dumps(strict_json.json_ready(history), indent=2, allow_nan=False)
+    write_text_atomic(out / _HISTORY_NAME, text + '\n',
                       'training history ')
 
 
