@@ -534,20 +534,31 @@ def save_roc_curves(
         if problem:
             raise InputError(f'curve {name!r} needs density in [0, 1] ascending and error rate '
                              f'in [0, 1]; got {problem}')
-        axes.plot(density, rate, label=name, linewidth=1.5)
+        # Above the axes' frame and unclipped: a curve at error rate 0 (a scene without
+        # errors) lay on the bottom spine, half cut off, and the plot looked empty.
+        axes.plot(density, rate, label=name, linewidth=1.5, zorder=3, clip_on=False)
     if error_rate is not None:
         # Not float(error_rate) first: a string or True would pass optimal_roc_curve's checks.
         density, rate = optimal_roc_curve(error_rate)
-        axes.plot(density, rate, 'k--', label='optimal', linewidth=1.2)
+        axes.plot(density, rate, 'k--', label='optimal', linewidth=1.2, zorder=3,
+                  clip_on=False)
     axes.set_xlim(0.0, 1.0)
     axes.set_ylim(bottom=0.0)
+    if axes.get_lines() and not any(np.any(line.get_ydata()) for line in axes.get_lines()):
+        # Every curve at 0 (no wrong disparity): lifted off the bottom spine, where they
+        # vanished, and said in words, or the plot reads as empty.
+        axes.set_ylim(-0.002, 0.05)
+        axes.text(0.5, 0.5, 'no wrong disparities: every curve is at error rate 0',
+                  transform=axes.transAxes, ha='center', fontsize=8, color='0.4')
     axes.set_xlabel('density (fraction of pixels, by decreasing confidence)')
     axes.set_ylabel('error rate')
     if title:
         axes.set_title(title, fontsize=10)
     axes.grid(True, alpha=0.3)
     if axes.get_legend_handles_labels()[0]:  # no curves: an empty legend only warns
-        axes.legend(fontsize=8, loc='upper left')
+        # Where it covers the fewest points: at 'upper left' it hid the flat curve of an
+        # uninformative method (error rate ε at every density) or a scene with ε = 1.
+        axes.legend(fontsize=8, loc='best')
     figure.tight_layout()
     return _save(path, lambda out: figure.savefig(out, format='png'))
 

@@ -43,7 +43,6 @@ from collections import Counter
 from collections.abc import Callable, Collection
 import csv
 from dataclasses import asdict, dataclass, field
-import json
 import math
 from pathlib import Path
 import re
@@ -51,6 +50,7 @@ from typing import Any, cast
 
 import numpy as np
 
+from cva_confidence_ros import strict_json
 from cva_confidence_ros.errors import ConfigError, InputError, reason
 
 __all__ = [
@@ -238,15 +238,7 @@ class FrameScore:
         """The JSON record: :data:`REPORT_KEYS` first, then the extras; NaN → None."""
         values = asdict(self)
         keys = (*REPORT_KEYS, *_EXTRA_KEYS)
-        return {key: _clean(values[key]) for key in keys}
-
-
-def _clean(value: Any) -> Any:
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, np.generic):
-        return _clean(value.item())
-    return value
+        return {key: strict_json.json_ready(values[key]) for key in keys}
 
 
 def score_frame(
@@ -466,7 +458,7 @@ class ReplayReport:
         out['gt_unmatched_stamps'] = [int(stamp) for stamp in self.gt_unmatched_stamps]
         out['interrupted'] = self.interrupted
         out['error'] = self.error or None
-        return {key: _clean(value) for key, value in out.items()}
+        return {key: strict_json.json_ready(value) for key, value in out.items()}
 
     def as_dict(self) -> dict[str, Any]:
         """The JSON document: ``config``, ``frames`` (records), ``summary``, ``unpaired``
@@ -478,6 +470,26 @@ class ReplayReport:
             'summary': self.summary(),
             'unpaired': list(self.unpaired),
         }
+
+
+def _probabilistic(method: str) -> bool:
+    """Whether the confidence method ``method`` gives probabilities (False if unknown)."""
+    from cva_confidence_ros.confidence import is_probabilistic
+
+    try:
+        return is_probabilistic(method)
+    except ConfigError:
+        return False
+
+
+def _frame_axis(axes: Any, index: list[int]) -> None:
+    """Whole frame numbers on the x axis; one frame in the middle of -1 … +1 (matplotlib
+    spread a single point over ±0.05, ticked -0.04 … 0.04)."""
+    from matplotlib.ticker import MaxNLocator
+
+    axes.xaxis.set_major_locator(MaxNLocator(integer=True))
+    if index[0] == index[-1]:
+        axes.set_xlim(index[0] - 1, index[0] + 1)
 
 
 def _fmt(value: Any, percent: bool = False, digits: int = 1) -> str:
@@ -598,7 +610,11 @@ class ReportWriter:
 
         finite = confidence[np.isfinite(confidence)]
         vmin = vmax = None
-        if finite.size:
+        if _probabilistic(label):
+            # A probability is drawn on [0, 1] always, so that two frames' maps compare: by
+            # percentiles, an easy frame (1st percentile above 0.25) was stretched, 0.5 black.
+            vmin, vmax = 0.0, 1.0
+        elif finite.size:
             low, high = (float(v) for v in np.percentile(finite, [1.0, 99.0]))
             # A map that uses most of [0, 1] (learned) is drawn on that fixed scale; one with a
             # long tail (hand-crafted ratios, even min–max scaled) is stretched, or it is black.
@@ -621,7 +637,8 @@ class ReportWriter:
                     {label: (score.density, score.roc_error)},
                     self.folder / f'roc_{score.frame:05d}.png',
                     error_rate=score.error_rate,
-                    title=f'frame {score.frame}  AUC {100 * (score.auc or 0):.2f} '
+                    # × 10² as in the tables: a bare "AUC 4.66" over axes of 0 to 1 misleads.
+                    title=f'frame {score.frame}  AUC × 10² {100 * (score.auc or 0):.2f} '
                     f'(opt {100 * (score.auc_opt or 0):.2f})',
                 )
             )
@@ -648,7 +665,7 @@ class ReportWriter:
             'markdown': self.folder / 'summary.md',
         }
         tmp = paths['json'].with_suffix('.json.tmp')
-        tmp.write_text(json.dumps(document, indent=2) + '\n', encoding='utf-8')
+        tmp.write_text(strict_json.dumps(document, indent=2) + '\n', encoding='utf-8')
         tmp.replace(paths['json'])
         with paths['csv'].open('w', newline='', encoding='utf-8') as stream:
             writer = csv.writer(stream)
@@ -683,8 +700,6 @@ class ReportWriter:
         )
         if not frames:
             return None
-        from matplotlib.ticker import MaxNLocator
-
         figure = Figure(figsize=(7.0, 4.5), dpi=100)
         FigureCanvasAgg(figure)
         kept_axes, error_axes = figure.subplots(2, 1, sharex=True)
@@ -697,8 +712,12 @@ class ReportWriter:
         if least is not None:
             for axes in (kept_axes, error_axes):
                 axes.axvline(least.frame, color='0.6', linewidth=0.8)
-            kept_axes.annotate(f' least kept: frame {least.frame}', (least.frame, 4.0),
-                               fontsize=7, color='0.35')
+            # Written towards the middle: beside a line at the right end it ran off the
+            # figure (and over the frame of the axes).
+            first, last = index[0], index[-1]
+            right = last > first and least.frame > (first + last) / 2
+            kept_axes.annotate(f' least kept: frame {least.frame} ', (least.frame, 4.0),
+                               fontsize=7, color='0.35', ha='right' if right else 'left')
         drawn = False
         for key, label, style in (
             ('predicted_kept_error', 'predicted by the confidence', 's--'),
@@ -719,7 +738,7 @@ class ReportWriter:
         error_axes.set_ylim(bottom=0.0)
         error_axes.set_ylabel('error of the kept %')
         error_axes.set_xlabel('frame')
-        error_axes.xaxis.set_major_locator(MaxNLocator(integer=True))
+        _frame_axis(error_axes, index)
         for axes in (kept_axes, error_axes):
             axes.grid(True, alpha=0.3)
         kept_axes.set_title(f"{report.config.get('matcher', '')} + "
@@ -745,12 +764,17 @@ class ReportWriter:
         aucs = [100 * cast(float, f.auc) for f in frames]
         auc_opts = [100 * cast(float, f.auc_opt) for f in frames]
         error_rates = [100 * cast(float, f.error_rate) for f in frames]
+        # Every line with markers: a bag with one scored frame showed only the AUC's dot.
         axes.plot(index, aucs, 'o-', label='AUC', markersize=3)
-        axes.plot(index, auc_opts, 'k--', label='AUC opt', linewidth=1)
-        axes.plot(index, error_rates, ':', label='error rate', linewidth=1)
+        axes.plot(index, auc_opts, 'k+--', label='AUC opt', linewidth=1, markersize=5)
+        axes.plot(index, error_rates, 'x:', label='error rate', linewidth=1, markersize=4)
         axes.set_xlabel('frame')
-        axes.set_ylabel('× 100')
+        _frame_axis(axes, index)
+        axes.set_ylabel('× 100 (error rate: %)')
         axes.set_ylim(bottom=0.0)
+        axes.set_title(f"{report.config.get('matcher', '')} + "
+                       f"{report.config.get('confidence_method', '')}: AUC per frame",
+                       fontsize=9)
         axes.grid(True, alpha=0.3)
         axes.legend(fontsize=8)
         figure.tight_layout()

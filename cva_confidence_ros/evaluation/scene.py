@@ -259,6 +259,7 @@ def _write_plots(
     xs: np.ndarray,
     maps: Mapping[str, np.ndarray],
     scores: Mapping[str, ScoredMethod],
+    matcher: str,
 ) -> None:
     from cva_confidence_ros.plots import (
         save_confidence_map,
@@ -283,7 +284,9 @@ def _write_plots(
         {name: (s.density, s.roc_error) for name, s in scores.items()},
         plot_dir / 'roc.png',
         error_rate=any_score.error_rate,
-        title=f'{sample.dataset}/{sample.scene}  ε = {100 * any_score.error_rate:.1f} %',
+        # The matcher too: the PNG pasted into a report no longer has its folder's name.
+        title=f'{sample.dataset}/{sample.scene}  {matcher}  '
+        f'ε = {100 * any_score.error_rate:.1f} %',
     )
 
 
@@ -448,7 +451,8 @@ def evaluate_scene(
         )
     if plot_dir is not None and scores:
         _write_plots(
-            Path(plot_dir), sample, disparity, max_disparity, error_map, ys, xs, maps, scores
+            Path(plot_dir), sample, disparity, max_disparity, error_map, ys, xs, maps, scores,
+            matcher,
         )
         if tables:
             from cva_confidence_ros.plots import save_reliability_diagram

@@ -317,6 +317,7 @@ def save_table_png(
     """The table as a PNG: each cell shaded by its AUC relative to the row's best (green)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
+    from matplotlib.transforms import Bbox
 
     cells = _cells(records)
     labels, texts, colours = [], [], []
@@ -349,14 +350,20 @@ def save_table_png(
         cellColours=colours,
         rowLabels=labels,
         colLabels=['Opt.', *[t for _, t in columns]],
-        loc='center',
+        bbox=Bbox.from_bounds(0.0, 0.0, 1.0, 1.0),  # the whole axes: title, note close by
     )
     table.auto_set_font_size(False)
     table.set_fontsize(8)
     axes.set_title(title, fontsize=9)
-    figure.tight_layout()
+    # What the shades mean, under the table (the Markdown says it in its first line).
+    axes.text(0.5, -0.02, 'green: best of the row; red: worse (full red at twice the best); '
+              '–: not scored', transform=axes.transAxes, ha='center', va='top', fontsize=7,
+              color='0.3')
     path.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(path, dpi=130)
+    # Cropped to what is drawn: sized by the columns, the figure cut a title longer than the
+    # table off at the right (one method: "... AUC × 10², mea"), and the centred table left
+    # a wide blank band under the title.
+    figure.savefig(path, dpi=130, bbox_inches='tight', pad_inches=0.15)
     return path
 
 
@@ -788,9 +795,12 @@ def run(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(args.out / 'table1.md', markdown)
     write_text_atomic(args.out / 'table1.json', summary_text(records, outcome.note() or None))
+    # Marked partial as the Markdown is: the PNG goes into reports without it.
+    partial_mark = (f'\nPartial: {outcome.done} of {outcome.total} scenes (see table1.md)'
+                    if outcome.partial else '')
     save_table_png(records, rows, matchers, args.out / 'table1.png',
                    f'Table 1 reproduction ({protocol}, D = {args.max_disparity}): AUC × 10², '
-                   'mean over scenes',
+                   f'mean over scenes{partial_mark}',
                    columns)
     sys.stdout.write(markdown)
     sys.stdout.flush()
