@@ -5,8 +5,6 @@ and the Table-1 PNG's title."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import cv2
 from matplotlib.figure import Figure
 import numpy as np
@@ -14,8 +12,6 @@ import pytest
 
 from cva_confidence_ros import plots
 from cva_confidence_ros.datasets import StereoSample
-from cva_confidence_ros.datasets.io import write_pfm
-from cva_confidence_ros.datasets.synthetic import synthetic_pair
 from cva_confidence_ros.evaluation import table1
 from cva_confidence_ros.evaluation.scene import evaluate_scene
 from msg_tools.scoring import FrameScore, ReplayReport, ReportWriter
@@ -166,46 +162,3 @@ def test_table1_png_holds_its_whole_title_with_a_single_method(tmp_path):
     # Before: a 5-inch figure for one method, the title ran off its right edge ("…, mea"):
     # dark text pixels in the last columns. Nothing drawn may touch the PNG's edge.
     assert border.min() >= 250
-
-
-def _middlebury(root: Path, scenes: int) -> Path:
-    for number in range(scenes):
-        folder = root / 'middlebury2014' / 'trainingQ' / f'S{number}'
-        folder.mkdir(parents=True)
-        pair = synthetic_pair(360 + number, 40, 64, D)
-        for name, image in (('im0.png', pair.left), ('im1.png', pair.right)):
-            cv2.imwrite(str(folder / name),
-                        cv2.cvtColor(image, cv2.COLOR_RGB2BGR) if image.ndim == 3 else image)
-        write_pfm(folder / 'disp0GT.pfm', np.where(np.isfinite(pair.disparity),
-                                                   pair.disparity, np.inf).astype(np.float32))
-    return root
-
-
-def test_table1_png_of_a_partial_run_says_so(tmp_path, monkeypatch):
-    import numba
-    import torch
-
-    threads, numba_threads = torch.get_num_threads(), numba.get_num_threads()
-    titles: list[str] = []
-    original = table1.save_table_png
-
-    def record(records, rows, matchers, path, title, columns=table1.COLUMNS):
-        titles.append(title)
-        return original(records, rows, matchers, path, title, columns)
-
-    monkeypatch.setattr(table1, 'save_table_png', record)
-    root = _middlebury(tmp_path / 'data', 2)
-    (root / 'middlebury2014' / 'trainingQ' / 'S1' / 'im1.png').write_bytes(b'not a PNG')
-    try:
-        code = table1.main(['--data-root', str(root), '--matchers', 'census_bm', '--methods',
-                            'pkrn', '--max-disparity', str(D), '--max-pixels', '100',
-                            '--protocol', 'develop', '--threads', '1',
-                            '--out', str(tmp_path / 'out')])
-    finally:
-        numba.set_num_threads(numba_threads)
-        torch.set_num_threads(threads)
-    assert code == 2
-    # Before: the Markdown said "Partial: 1 of 2 scenes", the PNG (what goes into a report)
-    # looked like a complete table.
-    assert titles and 'Partial: 1 of 2 scenes' in titles[0]
-    assert (tmp_path / 'out' / 'table1.png').is_file()
