@@ -6,10 +6,12 @@ messages and parameters into :class:`PipelineConfig` and arrays.
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass, field, fields
 from functools import cached_property
 import math
 import os
+import threading
 import time
 from typing import TYPE_CHECKING, Any
 
@@ -40,6 +42,10 @@ WARM_UP_MARGIN = 16
 #: Most multiply-adds a confidence network may spend on the warm-up pair on a CPU; a heavier
 #: one (CVA-Net: 35 M per pixel at D = 64) sees a window of it.
 WARM_UP_NETWORK_MACS = 2e9
+# Taken around each frame when numba runs its parallel kernels on its ``workqueue`` threading
+# layer (NUMBA_THREADING_LAYER=workqueue, or no OpenMP/TBB library): that layer is not
+# thread-safe, and two pipelines used from two threads terminated the whole process.
+_WORKQUEUE_LOCK = threading.Lock()
 
 
 @dataclass(frozen=True)
@@ -444,7 +450,7 @@ class StereoPipeline:
             saved = (dict(evaluator.path_counts), evaluator.flops_done, evaluator.progress)
             evaluator.progress = None
         try:
-            with preserved_features(), preserved_scratch():
+            with _frame_guard(), preserved_features(), preserved_scratch():
                 self._run(left, right, None, self._warm_up_window(height, width))
         finally:
             if evaluator is not None and saved is not None:
@@ -488,9 +494,16 @@ class StereoPipeline:
         from cva_confidence_ros.matching import check_image_pair
 
         # Checked before resizing: OpenCV's resize has its own, less clear, view of bad arrays.
+        given = left
         left, right = check_image_pair(left, right)
         self.check_input_size(left.shape[1], left.shape[0])
-        return self._run(left, right, self._processed_mask(left.shape[:2]))
+        with _frame_guard():
+            result = self._run(left, right, self._processed_mask(left.shape[:2]))
+        if np.may_share_memory(result.left, given):
+            # At downsample = 1 it was the caller's own array: a camera driver that fills the
+            # same buffer with the next frame changed the image of a result kept for later.
+            result.left = result.left.copy()
+        return result
 
     def _run(
         self,
@@ -642,8 +655,25 @@ class StereoPipeline:
 
             check_mask_size(self._mask, shape[1], shape[0],
                             f'{self._mask_option} {self.config.mask_path!r}')
-            self._reduced = (shape, reduce_mask(self._mask, self.config.downsample))
+            reduced = reduce_mask(self._mask, self.config.downsample)
+            # Read-only: every result's ``mask`` is this array, and an in-place edit of one
+            # result's mask (``result.mask[:10] = False``) changed the rows of every later frame.
+            reduced.setflags(write=False)
+            self._reduced = (shape, reduced)
         return self._reduced[1]
+
+
+def _frame_guard() -> contextlib.AbstractContextManager[object]:
+    """:data:`_WORKQUEUE_LOCK` when numba's threading layer is ``workqueue``, else a no-op."""
+    import numba
+    from numba.np.ufunc import parallel
+
+    # Chooses the layer (once per process, as the first parallel kernel call would; a no-op
+    # after that), so that it can be read before the first kernel runs.
+    parallel._launch_threads()
+    if numba.threading_layer() == 'workqueue':
+        return _WORKQUEUE_LOCK
+    return contextlib.nullcontext()
 
 
 def output_region(
