@@ -37,9 +37,9 @@ __all__ = ['CVANetConfidence']
 class CVANetConfidence(ConfidenceMethod):
     """CVA-Net applied to the cost volume; weights are loaded once, at construction.
 
-    Any network with CVA-Net's contract that :func:`~cva_confidence_ros.model.load_weights`
-    returns (for instance a lighter network's weights file given as ``weights``) runs the same
-    way, sparse evaluation included.
+    The subclasses ``cva_net_lite`` and ``cva_net_fast`` run the lighter networks the same way,
+    sparse evaluation included; ``weights`` must hold weights of the class's own architecture
+    (``arch``: a CVA-Net-Lite file given to ``cva_net`` is refused, naming both).
 
     Args:
         matcher: The matcher whose cost volumes the weights were trained on.
@@ -166,13 +166,21 @@ class CVANetConfidence(ConfidenceMethod):
                 f'{self.arch} weights {self.weights_path.name} are for matcher {self.matcher!r}; '
                 f'got a cost volume of {inputs.matcher!r}'
             )
+        if self.needs_right and inputs.cost_volume_right is None:
+            # Was LeftRightDifference's own refusal, naming a method the caller never chose.
+            raise InputError(
+                f"{type(self).__name__} with cva_cascade 'lrd' ranks the pixels by the "
+                'left-right difference and needs the right-reference cost volume '
+                "(ConfidenceInputs.cost_volume_right); got None (or take cva_cascade 'pkrn')"
+            )
 
     def __call__(self, inputs: ConfidenceInputs) -> np.ndarray:
         """Return (H, W) float32 confidence in (0, 1) for the left-reference cost volume.
 
         Raises:
-            InputError: The volume's depth differs from the weights' D, or it comes from
-                another matcher than the weights were trained for.
+            InputError: The volume's depth differs from the weights' D, it comes from
+                another matcher than the weights were trained for, or ``cva_cascade`` is
+                ``lrd`` and the inputs lack the right-reference volume.
         """
         self._check(inputs)
         if self.sparse.exact:

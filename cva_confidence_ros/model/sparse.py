@@ -43,9 +43,11 @@ without data, once per tile shape):
 * ``extracts``: one 13×13×D extract per wanted pixel, nothing computed for the others.
 
 For CVA-Net at D = 64, dense fusion is ≈ 21 % of a pixel's operations and an extract's fusion
-≈ 6.5× a pixel's dense fusion, so stride 2 and 4 fuse densely, stride 8 and a sparse cascade
-use extracts. CVA-Net-Lite (:class:`~cva_confidence_ros.model.FoldedCVANetLite`) splits the
-same way, but its fusion is ≈ 83 % of its operations, so stride 2 and 4 save little there.
+≈ 6.5× a pixel's dense fusion, so stride 2 and 4 fuse densely, and so does a cascade alone at
+fraction 0.1 or 0.25 (11–28 % of the pixels); stride 8, and a cascade of fraction ≤ 0.25 on
+a stride-4 or -8 grid, use extracts. CVA-Net-Lite
+(:class:`~cva_confidence_ros.model.FoldedCVANetLite`) splits the same way, but its fusion is
+≈ 83 % of its operations, so stride 2 and 4 save little there.
 Tiles are sized by the network's own widest activation
 (:func:`~cva_confidence_ros.model.inference.activations_per_pixel`).
 """
