@@ -237,8 +237,8 @@ def build_parser() -> argparse.ArgumentParser:
     compressed.add_argument(
         '--compressed-depth-quantization', dest='compressed_depth_quantization', type=float,
         metavar='Q', default=_COMPRESSION['compressed_depth_quantization'].default,
-        help='compressed_depth_quantization: a 32FC1 depth z comes back within z^2 / (Q (Q + 1)) '
-             'm (default %(default)s)',
+        help='compressed_depth_quantization: a 32FC1 depth z comes back within about '
+             'z^2 / (Q (Q + 1)) m (default %(default)s)',
     )
     compressed.add_argument(
         '--compressed-depth-png-level', dest='compressed_depth_png_level', type=int,
@@ -262,7 +262,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help='score a fixed random subset of N ground-truth pixels per frame')
     report.add_argument('--seed', type=int, default=0, help='seed of that subset (>= 0)')
     report.add_argument('--max-plots', type=int, default=10,
-                        help='frames that get confidence and ROC PNGs (default %(default)s)')
+                        help='frames that get confidence, overlay and ROC PNGs, spread evenly '
+                             'over the bag (default %(default)s)')
 
     output = parser.add_argument_group('output bag')
     output.add_argument('--storage', choices=STORAGES, default='mcap',

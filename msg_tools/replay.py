@@ -238,7 +238,7 @@ class CompressionConfig:
         compressed_depth_max: Largest depth on ``depth/compressedDepth``, metres; deeper
             pixels travel as no depth.
         compressed_depth_quantization: Inverse-depth quantisation ``q`` of a 32FC1
-            ``depth/compressedDepth``: a depth z comes back within z² / (q·(q + 1)).
+            ``depth/compressedDepth``: a depth z comes back within about z² / (q·(q + 1)).
         compressed_depth_png_level: zlib level (0–9) of the ``depth/compressedDepth`` PNG.
 
     Raises:
