@@ -42,6 +42,8 @@ WARM_UP_MARGIN = 16
 #: Most multiply-adds a confidence network may spend on the warm-up pair on a CPU; a heavier
 #: one (CVA-Net: 35 M per pixel at D = 64) sees a window of it.
 WARM_UP_NETWORK_MACS = 2e9
+#: The methods the ``cva_*`` options (sparse paths, precision, backend) apply to.
+COST_VOLUME_NETWORKS = ('cva_net', 'cva_net_lite', 'cva_net_fast')
 # Taken around each frame when numba runs its parallel kernels on its ``workqueue`` threading
 # layer (NUMBA_THREADING_LAYER=workqueue, or no OpenMP/TBB library): that layer is not
 # thread-safe, and two pipelines used from two threads terminated the whole process.
@@ -220,6 +222,19 @@ class PipelineConfig:
                      'cva_cascade_fraction', 'roi_top', 'roi_bottom'):
             object.__setattr__(self, name, float(getattr(self, name)))
         object.__setattr__(self, 'lr_check', bool(self.lr_check))
+
+    def unused_options(self) -> list[str]:
+        """The ``cva_*`` options set away from their defaults that change nothing here: those
+        of the cost-volume networks under another method, and a cascade fraction without a
+        cascade. They are accepted (one set of options serves every method) but a user tuning
+        them saw no change and no word."""
+        defaults = PipelineConfig()
+        names = ['cva_stride', 'cva_cascade', 'cva_cascade_fraction', 'cva_precision',
+                 'cva_backend']
+        if self.confidence_method in COST_VOLUME_NETWORKS:
+            names = ['cva_cascade_fraction'] if self.cva_cascade == 'none' else []
+        return [f'{name} {getattr(self, name)!r}' for name in names
+                if getattr(self, name) != getattr(defaults, name)]
 
     def roi_rows(self, height: int) -> tuple[int, int]:
         """Rows ``[y0, y1)`` of the region of interest in an image of ``height`` rows (the

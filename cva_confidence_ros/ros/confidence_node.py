@@ -29,7 +29,12 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, LaserScan, Point
 from stereo_msgs.msg import DisparityImage
 
 from cva_confidence_ros.errors import ConfigError, CVAError
-from cva_confidence_ros.pipeline import PipelineConfig, PipelineResult, StereoPipeline
+from cva_confidence_ros.pipeline import (
+    COST_VOLUME_NETWORKS,
+    PipelineConfig,
+    PipelineResult,
+    StereoPipeline,
+)
 from cva_confidence_ros.plots import confidence_overlay
 from cva_confidence_ros.pointcloud import StereoGeometry, disparity_to_depth, stereo_cloud
 from cva_confidence_ros.ros import interrupt
@@ -547,8 +552,19 @@ class ConfidenceCore(Node):
         )
 
     def _warn_if_slow(self, pipeline: StereoPipeline) -> None:
-        """Say so when the paper network is to run on every pixel on a CPU (seconds a frame)."""
+        """Say so when the paper network is to run on every pixel on a CPU (seconds a frame),
+        and name the ``cva_*`` options that change nothing for the configured method."""
         config = pipeline.config
+        unused = config.unused_options()
+        if unused:
+            self.get_logger().warning(
+                f'{", ".join(unused)}: no effect on confidence_method '
+                f'{config.confidence_method}' + (
+                    ' (cva_cascade_fraction needs a cva_cascade)'
+                    if config.confidence_method in COST_VOLUME_NETWORKS
+                    else f' (they apply to {", ".join(COST_VOLUME_NETWORKS)})'
+                )
+            )
         if (
             config.confidence_method == 'cva_net'
             and pipeline.device.type == 'cpu'
