@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import contextlib
 from dataclasses import dataclass, field, fields
-from functools import cached_property
+from functools import cache, cached_property
 import math
 import os
 import threading
@@ -678,17 +678,22 @@ class StereoPipeline:
         return self._reduced[1]
 
 
-def _frame_guard() -> contextlib.AbstractContextManager[object]:
-    """:data:`_WORKQUEUE_LOCK` when numba's threading layer is ``workqueue``, else a no-op."""
+@cache
+def _workqueue_layer() -> bool:
+    """Whether numba's parallel kernels run on its ``workqueue`` threading layer (chosen once
+    per process, and fixed from then on)."""
     import numba
     from numba.np.ufunc import parallel
 
-    # Chooses the layer (once per process, as the first parallel kernel call would; a no-op
-    # after that), so that it can be read before the first kernel runs.
+    # Chooses the layer as the first parallel kernel call would, so that it can be read
+    # before the first kernel runs.
     parallel._launch_threads()
-    if numba.threading_layer() == 'workqueue':
-        return _WORKQUEUE_LOCK
-    return contextlib.nullcontext()
+    return bool(numba.threading_layer() == 'workqueue')
+
+
+def _frame_guard() -> contextlib.AbstractContextManager[object]:
+    """:data:`_WORKQUEUE_LOCK` when numba's threading layer is ``workqueue``, else a no-op."""
+    return _WORKQUEUE_LOCK if _workqueue_layer() else contextlib.nullcontext()
 
 
 def output_region(

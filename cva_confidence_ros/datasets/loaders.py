@@ -651,14 +651,10 @@ class _FolderPerScene(StereoDataset):
                     tuple(n.format(scene=folder.name) for n in group)
                     for group in (pattern.left, pattern.right, pattern.gt)
                 ]
-                there = sum(_first_existing(folder, group) is not None for group in groups)
-                if there > most:
-                    most = there
-                    best = [
-                        _absent(folder / group[0], folder, group[1:])
-                        for group in groups
-                        if _first_existing(folder, group) is None
-                    ]
+                lacking = [group for group in groups if _first_existing(folder, group) is None]
+                if len(groups) - len(lacking) > most:
+                    most = len(groups) - len(lacking)
+                    best = [_absent(folder / group[0], folder, group[1:]) for group in lacking]
             if best:
                 skipped.append((folder.name, 'no ' + ' and no '.join(best)))
         return skipped
