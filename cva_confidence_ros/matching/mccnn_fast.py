@@ -19,7 +19,8 @@ from typing import TYPE_CHECKING
 from numba import njit, prange
 import numpy as np
 
-from cva_confidence_ros.errors import ConfigError
+from cva_confidence_ros.checks import is_int
+from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.matching.base import Matcher
 from cva_confidence_ros.matching.census import valid_range
 
@@ -103,15 +104,71 @@ def cosine_cost_volume(
     Returns:
         (D, H, W) float32 in [0, 1], 1.0 where the partner is outside the image. Computed by a
         numba kernel for CPU tensors and by :func:`cosine_cost_volume_torch` on the GPU.
+
+    Raises:
+        InputError: Features that are not non-empty 3-D float tensors of one shape on one
+            device, ``depth`` < 1, or ``step`` not ±1.
     """
+    _check_features(features_ref, features_other, depth, step)
     if features_ref.device.type != 'cpu':
         return cosine_cost_volume_torch(features_ref, features_other, depth, step)
     channels, height, width = features_ref.shape
-    volume = np.empty((depth, height, width), np.float32)
-    ref = np.ascontiguousarray(features_ref.permute(1, 2, 0).numpy())
-    other = np.ascontiguousarray(features_other.permute(1, 2, 0).numpy())
+    volume = np.empty((int(depth), height, width), np.float32)
+    ref = _kernel_features(features_ref)
+    other = _kernel_features(features_other)
     _cosine_kernel(ref, other, int(step), volume)
     return volume
+
+
+def _check_features(
+    features_ref: torch.Tensor, features_other: torch.Tensor, depth: int, step: int
+) -> None:
+    """InputError unless both are (C, H, W) float tensors of one shape and device.
+
+    The numba kernel reads the other view at the reference's channels and columns, and at
+    x + step·d: a narrower or thinner other view, or a step other than ±1, was read past its
+    end (numba does not check bounds) and gave costs of whatever lay there, NaN included.
+    """
+    import torch
+
+    for name, features in (('features_ref', features_ref), ('features_other', features_other)):
+        if not isinstance(features, torch.Tensor):
+            raise InputError(
+                f'{name} must be a (C, H, W) torch tensor; got {type(features).__name__}'
+            )
+        if features.ndim != 3 or 0 in features.shape or not features.is_floating_point():
+            raise InputError(
+                f'{name} must be a non-empty (C, H, W) float tensor; got shape '
+                f'{tuple(features.shape)} and dtype {features.dtype}'
+            )
+    if features_ref.shape != features_other.shape:
+        raise InputError(
+            'features_ref and features_other must have the same (C, H, W) shape; got '
+            f'{tuple(features_ref.shape)} and {tuple(features_other.shape)}'
+        )
+    if features_ref.device != features_other.device:
+        raise InputError(
+            'features_ref and features_other must be on one device; got '
+            f'{features_ref.device} and {features_other.device}'
+        )
+    if not is_int(depth) or depth < 1:
+        raise InputError(f'depth must be an integer ≥ 1; got {depth!r}')
+    if step not in (-1, 1):
+        raise InputError(f'step must be -1 or 1; got {step!r}')
+
+
+def _kernel_features(features: torch.Tensor) -> np.ndarray:
+    """(H, W, C) C-contiguous numpy copy of (C, H, W) features for the numba kernel.
+
+    Detached (a tensor that requires grad has no .numpy()) and float32 unless float64
+    (numba has no float16, numpy no bfloat16), as the torch path takes them all.
+    """
+    import torch
+
+    features = features.detach()
+    if features.dtype not in (torch.float32, torch.float64):
+        features = features.float()
+    return np.ascontiguousarray(features.permute(1, 2, 0).numpy())
 
 
 def cosine_cost_volume_torch(
@@ -120,6 +177,8 @@ def cosine_cost_volume_torch(
     """Same as :func:`cosine_cost_volume`, as a loop over d of torch operations on the
     features' device (what CUDA uses)."""
     import torch
+
+    _check_features(features_ref, features_other, depth, step)
 
     channels, height, width = features_ref.shape
     with torch.inference_mode():
