@@ -28,7 +28,7 @@ from rclpy.timer import Timer
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, LaserScan, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
-from cva_confidence_ros.errors import ConfigError, CVAError
+from cva_confidence_ros.errors import ConfigError, CVAError, InputError
 from cva_confidence_ros.pipeline import (
     COST_VOLUME_NETWORKS,
     PipelineConfig,
@@ -262,6 +262,9 @@ class _Stats:
     # left images: when the last one arrived and the last gaps between arrivals (monotonic s;
     # a slow camera, or a bag played slowly, is not silent between its frames)
     left_arrived_at: float | None = None
+    # per synchroniser key: when its last message arrived since subscribed (monotonic s; an
+    # input that stopped is not one whose messages never arrive)
+    key_arrived_at: dict[str, float] = field(default_factory=dict)
     left_arrival_gaps_s: deque[float] = field(default_factory=lambda: deque(maxlen=8))
 
     @property
@@ -376,9 +379,11 @@ class ConfidenceCore(Node):
             self._cold = None
             self._pipeline_config = pipeline_config
             self._node_config = node_config
-            # (width, height) of the last images received: a parameter change that could not
-            # process them (max_disparity, downsample) is refused.
+            # (width, height) of the last images received and when (monotonic s): a parameter
+            # change that could not process them (max_disparity, downsample) is refused.
+            # Forgotten on unsubscribing: the camera may come back with another resolution.
             self._input_size: tuple[int, int] | None = None
+            self._input_size_at = 0.0
             self._sync = self._make_sync(node_config)
             self._stats = _Stats()
             self._reset_wide_tolerance()
@@ -447,6 +452,7 @@ class ConfidenceCore(Node):
             raise
         with self._lock:
             self._stats.subscribed_at, self._stats.last_message_at = time.monotonic(), None
+            self._stats.key_arrived_at = {}
 
     def _deactivate(self) -> None:
         """Unsubscribe; a frame waiting in the mailbox is dropped, pairing starts afresh."""
@@ -460,6 +466,9 @@ class ConfidenceCore(Node):
             with self._lock:
                 # Not subscribed, no input is expected: no warning for its silence.
                 self._stats.subscribed_at = self._stats.last_message_at = None
+                # The images to come (after an activate) may be of another camera or
+                # resolution: parameter changes are not judged by these any more.
+                self._input_size = None
                 self._stats.dropped += self._mailbox.clear()
                 self._stats.unmatched += sum(self._sync.pending().values())
                 self._sync = self._make_sync(self._node_config)
@@ -622,9 +631,17 @@ class ConfidenceCore(Node):
                 # is not there reject the change, and checked against the images coming in.
                 pipeline = StereoPipeline(pipeline_config)
                 with self._lock:
-                    size = self._input_size
+                    size, seen_at = self._input_size, self._input_size_at
                 if size is not None:
-                    pipeline.check_input_size(*size)
+                    try:
+                        pipeline.check_input_size(*size)
+                    except InputError as error:
+                        # Say which images: a camera restarted with another resolution is
+                        # judged by its first frame, not before.
+                        raise InputError(
+                            f'{error} (the images coming in: {size[0]}×{size[1]} px, the last '
+                            f'one {time.monotonic() - seen_at:.1f} s ago)'
+                        ) from error
         except CVAError as error:
             self.get_logger().warning(f'parameter change refused ({asked}): {error}')
             return SetParametersResult(successful=False, reason=str(error))
@@ -667,6 +684,7 @@ class ConfidenceCore(Node):
         arrived = time.monotonic()
         with self._lock:
             self._stats.last_message_at = arrived
+            self._stats.key_arrived_at[key] = arrived
             if key == 'left':
                 if self._stats.left_arrived_at is not None:
                     self._stats.left_arrival_gaps_s.append(arrived - self._stats.left_arrived_at)
@@ -825,9 +843,12 @@ class ConfidenceCore(Node):
                 f'messages arrive but none pair up: nothing on {", ".join(silent)} in the last '
                 f'{elapsed:.1f} s'
             )
-            images_only = all(not key.endswith('_info') for key in names if names[key] in silent)
-            if images_only and large_messages_unset():
-                text += f' while the camera infos come: {LARGE_MESSAGES_HINT}'
+            silent_keys = [key for key in names if names[key] in silent]
+            images_only = all(not key.endswith('_info') for key in silent_keys)
+            if images_only:
+                text += ' while the camera infos come' + self._silent_images_reason(
+                    stats, silent_keys
+                )
             elif all(key.endswith('_info') for key in names if names[key] in silent):
                 # A driver that publishes its camera_info once, latched (transient local):
                 # `ros2 topic echo` shows it, and a volatile subscriber gets none.
@@ -850,6 +871,44 @@ class ConfidenceCore(Node):
             'that are not hardware-synchronised)'
         )
         return f'messages arrive but none pair up; newest stamps: {stamps}; {how}'
+
+    def _silent_images_reason(self, stats: _Stats, keys: list[str]) -> str:
+        """Why the images of ``keys`` do not come while their camera infos do (lock held): the
+        large-message hint only where it can hold, images that never arrived from a publisher
+        there is; one that stopped, or no publisher, is said as such."""
+        names = self._input_names()
+        topics = dict(zip(names, self._subscriptions_in, strict=False))
+        unpublished = [
+            names[key] for key in keys
+            if key in topics and not self.count_publishers(topics[key].topic_name)
+        ]
+        if unpublished:
+            return (
+                f': no publisher on {", ".join(unpublished)} (its driver or rectifier not '
+                'running, or on another topic name?)'
+            )
+        arrived = [stats.key_arrived_at[key] for key in keys if key in stats.key_arrived_at]
+        if arrived:
+            # They came (small enough to come): a paused or restarted publisher, whose size
+            # matters only if it changed.
+            text = (
+                f'; images came until {time.monotonic() - max(arrived):.1f} s ago and stopped '
+                '(their publisher stopped sending, or was restarted?)'
+            )
+            if large_messages_unset():
+                text += f'; restarted at a larger size: {LARGE_MESSAGES_HINT}'
+            return text
+        return f': {LARGE_MESSAGES_HINT}' if large_messages_unset() else ''
+
+    def _crowded_inputs(self) -> str:
+        """The inputs with more than one publisher, with their counts ('' when none; lock
+        held, while subscribed)."""
+        names = self._input_names()
+        counts = {
+            names[key]: self.count_publishers(subscription.topic_name)
+            for key, subscription in zip(names, self._subscriptions_in, strict=False)
+        }
+        return ', '.join(f'{topic} ({count})' for topic, count in counts.items() if count > 1)
 
     def _few_paired_reason(self, stats: _Stats, elapsed: float) -> str:
         """Why most left images of the period paired with nothing, naming each input's count;
@@ -1020,6 +1079,7 @@ class ConfidenceCore(Node):
                 # configuration's input size nor its pipeline are this frame's.
                 return
             self._input_size = (left.shape[1], left.shape[0])
+            self._input_size_at = time.monotonic()
             pipeline, config, node_config = (
                 self._pipeline,
                 self._pipeline_config,
@@ -1220,6 +1280,16 @@ class ConfidenceCore(Node):
                 level = DiagnosticStatus.WARN
                 failed = f'{stats.window_failed} frame(s) failed: {stats.last_failure}'
                 message = f'{message}; {failed}' if stats.window_invalid else failed
+            crowded = self._crowded_inputs()
+            if crowded:
+                # Two cameras (or a bag and the live driver) on one input: their messages pair
+                # with the other's (approximate sync), silently wrong; or are dropped unpaired.
+                level = DiagnosticStatus.WARN
+                message = (
+                    f'more than one publisher on {crowded}: two cameras, or a bag played '
+                    "beside the driver, on one topic? A frame may pair one camera's image with "
+                    "the other's; stop or remap all but one"
+                )
             if stats.window_messages and not stats.window_pairs:
                 level = DiagnosticStatus.WARN
                 message = self._unpaired_reason(stats, elapsed)
@@ -1282,6 +1352,8 @@ class ConfidenceCore(Node):
         if status.message.startswith('messages arrive but none pair up'):
             self.get_logger().warning(line, throttle_duration_sec=LOG_THROTTLE_S)
         elif status.message.startswith('no input'):
+            self.get_logger().warning(line, throttle_duration_sec=LOG_THROTTLE_S)
+        elif status.message.startswith('more than one publisher'):
             self.get_logger().warning(line, throttle_duration_sec=LOG_THROTTLE_S)
         elif status.message.startswith(('only ', 'the confidence predicts')):
             # min_kept_fraction / max_expected_kept_error: logged nowhere else
