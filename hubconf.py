@@ -22,8 +22,9 @@ if TYPE_CHECKING:  # not at run time: torch.hub.list would name them as entries
     from collections.abc import Callable
     from typing import Any
 
-# torch.hub checks these import names before it loads an entry.
-dependencies = ['torch', 'numpy', 'numba', 'scipy', 'cv2']
+# torch.hub checks these import names before it loads an entry: what the entries import (scipy
+# was listed too, which nothing imports, so torch.hub.load refused a setup without it).
+dependencies = ['torch', 'numpy', 'numba', 'cv2']
 
 _DEFAULT_MATCHER = 'census_bm'
 _BASELINES = ('ccnn', 'lfn', 'lgcnet')

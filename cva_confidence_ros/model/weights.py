@@ -317,20 +317,24 @@ def load_weights(
 
 
 def weights_search_dirs() -> list[Path]:
-    """Folders searched for shipped weights, in order.
+    """Folders searched for shipped weights, in order: those of the running install first.
 
     1. ``models/`` of the source tree (editable installs and checkouts);
-    2. ``<sys.prefix>/share/cva_confidence_ros/models`` (pip install);
-    3. ``share/cva_confidence_ros/models`` beside the installed package: in the folder of a
+    2. ``share/cva_confidence_ros/models`` beside the installed package: in the folder of a
        ``pip install --target DIR`` and in the prefix of a ``<prefix>/lib/pythonX.Y/
-       site-packages`` install (``pip install --user``, ``--prefix``, a colcon install tree)
-       used through ``PYTHONPATH``, where ``sys.prefix`` is another one;
+       site-packages`` install (a venv's ``pip install``, ``--user``, ``--prefix``, a colcon
+       install tree) used through ``PYTHONPATH``, where ``sys.prefix`` is another one;
+    3. ``<sys.prefix>/share/cva_confidence_ros/models`` (pip install);
     4. the ament index share directory of the package (colcon install), when
        ``ament_index_python`` is importable and knows the package.
     """
     here = Path(__file__).resolve().parents  # model, cva_confidence_ros, site-packages, ...
-    dirs = [here[2] / 'models', Path(sys.prefix) / 'share' / PACKAGE / 'models']
-    for base in (here[2], here[5] if len(here) > 5 else None):
+    # sys.prefix came second: a colcon install tree or a --target install run with a venv's
+    # Python loaded the weights of the (older) copy pip-installed into that venv.
+    prefix = here[5] if len(here) > 5 and here[2].name in ('site-packages', 'dist-packages') \
+        else None
+    dirs = [here[2] / 'models']
+    for base in (here[2], prefix, Path(sys.prefix)):
         folder = base / 'share' / PACKAGE / 'models' if base is not None else None
         if folder is not None and folder not in dirs:
             dirs.append(folder)
