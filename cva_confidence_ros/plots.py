@@ -16,7 +16,9 @@ import itertools
 import math
 import os
 from pathlib import Path
+import struct
 from typing import TYPE_CHECKING
+import zlib
 
 import numpy as np
 
@@ -96,7 +98,17 @@ def _save(path: PathLike, write: Callable[[Path], object]) -> Path:
     return out
 
 
-def _write_rgb(rgb: np.ndarray, path: PathLike) -> Path:
+def _text_chunks(text: Mapping[str, str]) -> bytes:
+    """PNG ``iTXt`` chunks (UTF-8: 'ε', '≤') of ``text``, keyword → value."""
+    chunks = b''
+    for key, value in text.items():
+        data = key.encode('latin-1') + b'\0\0\0\0\0' + value.encode('utf-8')
+        body = b'iTXt' + data
+        chunks += struct.pack('>I', len(data)) + body + struct.pack('>I', zlib.crc32(body))
+    return chunks
+
+
+def _write_rgb(rgb: np.ndarray, path: PathLike, text: Mapping[str, str] | None = None) -> Path:
     import cv2
 
     # Not matplotlib's imsave: it adds an alpha channel (an RGBA PNG where RGB is promised).
@@ -105,7 +117,11 @@ def _write_rgb(rgb: np.ndarray, path: PathLike) -> Path:
     ok, png = cv2.imencode('.png', bgr)
     if not ok:
         raise InputError(f'cannot encode a {rgb.shape} image as PNG')
-    return _save(path, lambda out: out.write_bytes(png.tobytes()))
+    data = png.tobytes()
+    if text:
+        # After the signature (8 bytes) and IHDR (25): where readers look for text.
+        data = data[:33] + _text_chunks(text) + data[33:]
+    return _save(path, lambda out: out.write_bytes(data))
 
 
 def _bound(name: str, value: float | None) -> float | None:
@@ -115,6 +131,25 @@ def _bound(name: str, value: float | None) -> float | None:
     if not is_real(value) or not math.isfinite(value):
         raise InputError(f'{name} must be a finite number or None; got {value!r}')
     return float(value)
+
+
+def _scale_bounds(
+    values: np.ndarray, vmin: float | None, vmax: float | None
+) -> tuple[float, float]:
+    """The values drawn at the colormap's start and end: the given ones, else the finite
+    minimum / maximum."""
+    vmin, vmax = _bound('vmin', vmin), _bound('vmax', vmax)
+    finite = values[np.isfinite(values)]
+    # A default bound never lies beyond the given one: the scale would be inverted, and a
+    # map wholly below a given vmin drawn white instead of black.
+    if vmin is None:
+        vmin = float(finite.min()) if finite.size else 0.0
+        if vmax is not None:
+            vmin = min(vmin, vmax)
+    if vmax is None:
+        vmax = float(finite.max()) if finite.size else 1.0
+        vmax = max(vmax, vmin)
+    return vmin, vmax
 
 
 def _colorize(
@@ -127,19 +162,9 @@ def _colorize(
     """
     from matplotlib import colormaps
 
-    vmin, vmax = _bound('vmin', vmin), _bound('vmax', vmax)
     values = values.astype(np.float64)
-    finite = np.isfinite(values)
     known = ~np.isnan(values)
-    # A default bound never lies beyond the given one: the scale would be inverted, and a
-    # map wholly below a given vmin drawn white instead of black.
-    if vmin is None:
-        vmin = float(values[finite].min()) if finite.any() else 0.0
-        if vmax is not None:
-            vmin = min(vmin, vmax)
-    if vmax is None:
-        vmax = float(values[finite].max()) if finite.any() else 1.0
-        vmax = max(vmax, vmin)
+    vmin, vmax = _scale_bounds(values, vmin, vmax)
     # Halves: vmax − vmin of two finite extremes can overflow to inf (and x / inf is 0).
     half_span = vmax / 2 - vmin / 2
     with np.errstate(invalid='ignore', over='ignore'):
@@ -162,8 +187,13 @@ def save_confidence_map(
     vmin: float | None = None,
     vmax: float | None = None,
     cmap: str = 'gray',
+    description: str | None = None,
 ) -> Path:
     """Write a confidence map as a PNG, black = low, white = high (as in the paper's figures).
+
+    The values drawn black and white are recorded in the PNG's text (``iTXt``) chunks
+    ``vmin``, ``vmax`` and ``Description`` (PIL: ``Image.open(path).text``): the pixels alone
+    do not say what a grey level means.
 
     Args:
         confidence: (H, W) float array, any real range (±inf saturate); NaN marks pixels
@@ -175,6 +205,7 @@ def save_confidence_map(
             or ``vmin`` where that is higher. ``vmin > vmax`` (both given) inverts the scale. A
             constant map is drawn mid-grey.
         cmap: Any matplotlib colormap name.
+        description: The ``Description`` text; default ``'black = <vmin>, white = <vmax>'``.
 
     Returns:
         The path written, an (H, W) RGB PNG.
@@ -185,7 +216,13 @@ def save_confidence_map(
         OSError: ``path`` cannot be written (a folder, under a file, no permission).
     """
     confidence = _check_map('confidence', confidence)
-    return _write_rgb(_colorize(confidence, cmap, vmin, vmax), path)
+    low, high = _scale_bounds(confidence.astype(np.float64), vmin, vmax)
+    text = {
+        'vmin': f'{low:.9g}',
+        'vmax': f'{high:.9g}',
+        'Description': description or f'black = {low:.6g}, white = {high:.6g}',
+    }
+    return _write_rgb(_colorize(confidence, cmap, vmin, vmax), path, text)
 
 
 def save_disparity_map(

@@ -981,16 +981,43 @@ class SceneFlowExtra(StereoDataset):
                 return files[0], files[1], files[2], occ if occ and occ.is_file() else None
         return None
 
-    def list_scenes(self, root: Path, split: str | None) -> list[str]:
+    def _gt_files(self, root: Path) -> Iterator[tuple[Path, str, tuple[Path, Path]]]:
+        """(folder, frame id, its (left, right) images in the layout of its ground truth)
+        of each ground-truth PFM under ``root``."""
         if not root.is_dir():
-            return []
-        scenes = []
-        for folder in root.iterdir():
-            for gt_dir in (folder / 'Disparity', folder / 'disparity' / 'left'):
-                for pfm in gt_dir.glob('*.pfm') if gt_dir.is_dir() else ():
-                    if self._files(folder, pfm.stem):
-                        scenes.append(f'{folder.name}/{pfm.stem}')
-        return sorted(set(scenes))
+            return
+        for folder in sorted(root.iterdir()):
+            layouts = (
+                (folder / 'Disparity', folder / 'Left', folder / 'Right'),
+                (
+                    folder / 'disparity' / 'left',
+                    folder / 'RGB_cleanpass' / 'left',
+                    folder / 'RGB_cleanpass' / 'right',
+                ),
+            )
+            for gt_dir, left, right in layouts:
+                for pfm in sorted(gt_dir.glob('*.pfm')) if gt_dir.is_dir() else ():
+                    yield folder, pfm.stem, (left / f'{pfm.stem}.png', right / f'{pfm.stem}.png')
+
+    def list_scenes(self, root: Path, split: str | None) -> list[str]:
+        return sorted(
+            {
+                f'{folder.name}/{stem}'
+                for folder, stem, _ in self._gt_files(root)
+                if self._files(folder, stem)
+            }
+        )
+
+    def skipped(self, root: Path, split: str | None) -> list[tuple[str, str]]:
+        # A frame with ground truth but no right image was left out unsaid.
+        skipped: dict[str, str] = {}
+        for folder, stem, images in self._gt_files(root):
+            scene = f'{folder.name}/{stem}'
+            if scene in skipped or self._files(folder, stem):
+                continue
+            absent = [_absent(path, folder) for path in images if not path.is_file()]
+            skipped[scene] = 'no ' + ' and no '.join(absent)
+        return sorted(skipped.items())
 
     def load_scene(self, root: Path, scene: str, split: str | None) -> StereoSample:
         folder_name, _, stem = scene.partition('/')
@@ -1050,19 +1077,43 @@ class TartanAir(StereoDataset):
             return nested[0], nested[1], nested[2], True
         return None
 
-    def list_scenes(self, root: Path, split: str | None) -> list[str]:
+    @staticmethod
+    def _gt_files(root: Path) -> Iterator[tuple[Path, str, tuple[Path, Path]]]:
+        """(scene folder, frame id, its (left, right) images in the layout of its ground
+        truth) of each ground-truth file under ``root``."""
         if not root.is_dir():
-            return []
-        scenes = []
+            return
         for path in _rglob(root, '*_left_disp.npy'):
             frame = path.name[: -len('_left_disp.npy')]
-            if self._files(path.parent, frame):
-                scenes.append(f'{path.parent.relative_to(root).as_posix()}/{frame}')
+            folder = path.parent
+            yield folder, frame, (folder / f'{frame}_left.png', folder / f'{frame}_right.png')
         for path in _rglob(root, 'depth_left/*_left_depth.npy'):
             frame = path.name[: -len('_left_depth.npy')]
-            if self._files(path.parent.parent, frame):
-                scenes.append(f'{path.parent.parent.relative_to(root).as_posix()}/{frame}')
-        return sorted(set(scenes))
+            folder = path.parent.parent
+            yield folder, frame, (
+                folder / 'image_left' / f'{frame}_left.png',
+                folder / 'image_right' / f'{frame}_right.png',
+            )
+
+    def list_scenes(self, root: Path, split: str | None) -> list[str]:
+        return sorted(
+            {
+                f'{folder.relative_to(root).as_posix()}/{frame}'
+                for folder, frame, _ in self._gt_files(root)
+                if self._files(folder, frame)
+            }
+        )
+
+    def skipped(self, root: Path, split: str | None) -> list[tuple[str, str]]:
+        # A frame with ground truth but no right image was left out unsaid.
+        skipped: dict[str, str] = {}
+        for folder, frame, images in self._gt_files(root):
+            scene = f'{folder.relative_to(root).as_posix()}/{frame}'
+            if scene in skipped or self._files(folder, frame):
+                continue
+            absent = [_absent(path, folder) for path in images if not path.is_file()]
+            skipped[scene] = 'no ' + ' and no '.join(absent)
+        return sorted(skipped.items())
 
     def load_scene(self, root: Path, scene: str, split: str | None) -> StereoSample:
         folder, _, frame = scene.rpartition('/')

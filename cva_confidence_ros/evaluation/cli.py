@@ -9,11 +9,13 @@ Sec. 4.1), then writes
 * a Markdown table in the layout of the paper's Table 1 (AUC × 10², mean over scenes, best
   method per row in bold) to stdout and, with ``--out DIR``, to ``DIR/table.md``;
 * with ``--out DIR``: PNGs under ``DIR/<dataset>/<scene>/<matcher>/``: ``disparity.png``;
-  per method ``confidence_<method>.png`` (black = low, white = high) and
-  ``correct_<method>.png``; ``roc.png`` (all methods and the optimal curve); for the networks,
-  whose confidence is meant as a probability, ``reliability.png`` there and, over the scenes,
-  ``DIR/calibration.md``, ``DIR/calibration.json`` and ``DIR/reliability_<dataset>_<matcher>
-  .png`` (:mod:`cva_confidence_ros.evaluation.reliability`).
+  per method ``confidence_<method>.png`` (black = low, white = high: [0, 1] for a
+  probability, else the map's 1st–99th percentile; the values, and τ, are in the PNG's
+  text chunks ``vmin``, ``vmax``, ``Description``) and ``correct_<method>.png``;
+  ``roc.png`` (all methods and the optimal curve); for the networks, whose confidence is
+  meant as a probability, ``reliability.png`` there and, over the scenes,
+  ``DIR/calibration.md``, ``DIR/calibration.json`` and ``DIR/reliability_<dataset>_<matcher>.png``
+  (:mod:`cva_confidence_ros.evaluation.reliability`).
 
 The correctness overlay follows the paper's Fig. 4: a scored pixel is green if its disparity is
 correct and its confidence > τ, or wrong and confidence ≤ τ; red otherwise. τ = 0.5 for
@@ -26,7 +28,9 @@ Progress goes to stderr: per scene ``[i/N]``, the time so far and an estimate of
 left. ``--json`` is rewritten (atomically) after every scene, so a run that ends early (Ctrl-C,
 SIGTERM, a kill or a crash) keeps the scenes done; ``--resume`` continues it (see
 :func:`run`). A scene whose data cannot be used is reported and left out (of every method
-alike); the others go on, and the run ends with exit code 2. Bad input (unknown names, empty
+alike); the others go on, and the run ends with exit code 2. So does a run that left out a
+scene with ground truth but a file missing (a right image; named on stderr and in the table's
+**Partial** line), unless ``--allow-missing-files`` is given. Bad input (unknown names, empty
 data root, weights for another matcher or depth) ends with a one-line message and exit code 2;
 Ctrl-C with 130, SIGTERM with 143, after writing what was done.
 """
@@ -226,6 +230,10 @@ def _build_parser() -> argparse.ArgumentParser:
                         help='device of learned methods')
     parser.add_argument('--tile-budget-mb', type=float, default=512.0,
                         help='memory budget of one network tile')
+    parser.add_argument('--allow-missing-files', action='store_true',
+                        help='a scene with ground truth but a file missing (a right image) is '
+                        'left out and the run marked partial (table.md, stderr) with exit '
+                        'status 2; with this option the exit status is 0 all the same')
     parser.add_argument('--resume', action='store_true',
                         help='continue a run that ended early: take over the scenes whose '
                         'records --json already holds (written after every scene) and score '
@@ -248,6 +256,10 @@ class SceneRun:
         total: Scenes there were to do.
         done: Scenes that finished.
         interrupted: Ctrl-C ended the loop early.
+        left_out: ``(scene label, 'no <file>')`` of each scene the loader left out for a
+            missing file (``datasets.skipped_scenes``); not in :attr:`total`.
+        allow_left_out: Such scenes still make the run partial (noted), but exit status 0
+            (``--allow-missing-files``).
     """
 
     records: list[Any] = field(default_factory=list)
@@ -255,11 +267,18 @@ class SceneRun:
     total: int = 0
     done: int = 0
     interrupted: bool = False
+    left_out: list[tuple[str, str]] = field(default_factory=list)
+    allow_left_out: bool = False
 
     @property
     def partial(self) -> bool:
         """Whether some scenes are missing from :attr:`records`."""
-        return self.done < self.total
+        return self.done < self.total or bool(self.left_out)
+
+    @property
+    def wanted(self) -> int:
+        """Scenes there were to score: :attr:`total` and those left out."""
+        return self.total + len(self.left_out)
 
     def note(self) -> str:
         """One Markdown line on what is missing, for the written table ('' when complete)."""
@@ -270,7 +289,10 @@ class SceneRun:
             parts.append(f'interrupted after {self.done} of {self.total} scenes')
         if self.failed:
             parts.append('could not use ' + '; '.join(f'{s} ({r})' for s, r in self.failed))
-        return f'**Partial: {self.done} of {self.total} scenes** — ' + '; '.join(parts) + '.'
+        if self.left_out:
+            parts.append('left out for a missing file '
+                         + '; '.join(f'{s} ({r})' for s, r in self.left_out))
+        return f'**Partial: {self.done} of {self.wanted} scenes** — ' + '; '.join(parts) + '.'
 
     def ending(self, prog: str, written: str) -> int:
         """Say on stderr what was left out and return the exit status (0, 2 or 130)."""
@@ -284,7 +306,21 @@ class SceneRun:
             print(f'{prog}: error: {len(self.failed)} of {self.total} scenes could not be used; '
                   f'{written}', file=sys.stderr)
             return 2
+        if self.left_out:
+            # A data set with a file missing scored fewer scenes under exit status 0: a
+            # script took the table for one of the whole data set.
+            kind = 'warning' if self.allow_left_out else 'error'
+            print(f'{prog}: {kind}: {len(self.left_out)} of {self.wanted} scenes left out for a '
+                  f'missing file ({_describe_left_out(self.left_out)}); {written}'
+                  + ('' if self.allow_left_out else
+                     '; --allow-missing-files accepts that (exit status 0)'), file=sys.stderr)
+            return 0 if self.allow_left_out else 2
         return 0
+
+
+def _describe_left_out(left_out: Sequence[tuple[str, str]], limit: int = 3) -> str:
+    shown = '; '.join(f'{scene}: {why}' for scene, why in left_out[:limit])
+    return shown + (f' (and {len(left_out) - limit} more)' if len(left_out) > limit else '')
 
 
 def _duration(seconds: float) -> str:
@@ -419,10 +455,14 @@ def _scene_lists(
     root: Path | None,
     splits: dict[str, str | None],
     max_scenes: int | None,
-) -> list[tuple[str, str]]:
-    from cva_confidence_ros.datasets import list_scenes, skipped_notice
+) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
+    """The (data set, scene) jobs, and ``('<data set>/<scene>', 'no <file>')`` of each scene
+    the loader leaves out for a missing file among them (with ``max_scenes``: those sorted
+    before the last scene taken, which the first ``max_scenes`` would have held)."""
+    from cva_confidence_ros.datasets import list_scenes, skipped_notice, skipped_scenes
 
     jobs: list[tuple[str, str]] = []
+    left_out: list[tuple[str, str]] = []
     for name in datasets:
         scenes = list(list_scenes(name, root, split=splits[name]))
         if not scenes:
@@ -431,8 +471,16 @@ def _scene_lists(
         # A partial download (a scene without its right image) ran on fewer scenes unsaid.
         if notice := skipped_notice(name, root, split=splits[name]):
             _log(notice)
-        jobs.extend((name, scene) for scene in scenes[:max_scenes])
-    return jobs
+        taken = scenes[:max_scenes]
+        jobs.extend((name, scene) for scene in taken)
+        # ... and was no partial run: exit status 0, a table with no mark.
+        last = taken[-1] if max_scenes is not None and len(scenes) > max_scenes else None
+        left_out.extend(
+            (f'{name}/{scene}', why)
+            for scene, why in skipped_scenes(name, root, split=splits[name])
+            if last is None or scene < last
+        )
+    return jobs, left_out
 
 
 #: How far a record of ``--resume``'s file may be from the same scene scored again: the
@@ -527,7 +575,7 @@ def run(args: argparse.Namespace) -> int:
     for method in methods:
         CONFIDENCE_METHODS.get(method)
     built = _build_methods(args, matchers, methods)
-    jobs = _scene_lists(datasets, args.data_root, splits, args.max_scenes)
+    jobs, left_out = _scene_lists(datasets, args.data_root, splits, args.max_scenes)
     calibration: dict[tuple[str, str, str], Any] = {}
     previous = _previous_records(args.json, jobs, matchers, methods) if args.resume else {}
     whole = len(matchers) * len(methods)
@@ -601,6 +649,8 @@ def run(args: argparse.Namespace) -> int:
             write_records(merged(so_far), args.json)
 
     outcome = run_scenes(jobs, lambda job: f'{job[0]}/{job[1]}', work, after=save, held=held)
+    outcome.left_out = left_out
+    outcome.allow_left_out = args.allow_missing_files
     if not outcome.records:
         return outcome.ending(PROG, 'nothing written')
     records = outcome.records
@@ -646,9 +696,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``cva-evaluate`` (and ``ros2 run cva_confidence_ros evaluate``).
 
     Returns:
-        0 on success, 2 on bad input (after one line on stderr) or when the records or
-        ``table.md`` cannot be written (an older file there is kept), 1 if another output
-        file cannot be written.
+        0 on success, 2 on bad input (after one line on stderr), when the records or
+        ``table.md`` cannot be written (an older file there is kept) or the run is partial
+        (scenes that could not be used; scenes left out for a missing file, unless
+        ``--allow-missing-files``), 1 if another output file cannot be written.
     """
     args = _build_parser().parse_args(argv)
     return exit_code(PROG, lambda: run(args))

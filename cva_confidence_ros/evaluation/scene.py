@@ -240,13 +240,19 @@ def _network_progress(method: Any, label: str, enabled: bool) -> Iterator[None]:
             bar.close()
 
 
-def _map_range(values: np.ndarray) -> tuple[float | None, float | None]:
+#: How ``confidence_<method>.png`` is scaled, as recorded beside it (:func:`_map_range`).
+FIXED_RANGE = 'fixed [0, 1]: every value lies in [0, 1] (a probability)'
+PERCENTILE_RANGE = "1st and 99th percentile of the map's finite values; values beyond saturate"
+
+
+def _map_range(values: np.ndarray) -> tuple[float, float, str]:
+    """(value drawn black, value drawn white, how they were chosen) of a confidence map."""
     finite = values[np.isfinite(values)]
     if finite.size == 0 or (finite.min() >= 0.0 and finite.max() <= 1.0):
-        return 0.0, 1.0
+        return 0.0, 1.0, FIXED_RANGE
     # Hand-crafted ratios (PKRN) have long tails that would leave the map black.
     low, high = np.percentile(finite, [1.0, 99.0])
-    return float(low), float(high)
+    return float(low), float(high), PERCENTILE_RANGE
 
 
 def _write_plots(
@@ -272,9 +278,15 @@ def _write_plots(
     mask[ys, xs] = True
     save_disparity_map(disparity, plot_dir / 'disparity.png', max_disparity=max_disparity - 1)
     for name, confidence in maps.items():
-        vmin, vmax = _map_range(confidence)
-        save_confidence_map(confidence, plot_dir / f'confidence_{name}.png', vmin, vmax)
+        vmin, vmax, how = _map_range(confidence)
         tau = overlay_threshold(confidence[ys, xs], scores[name].error_rate)
+        # A hand-crafted measure's map is stretched over its own percentiles: without the
+        # values a reader could not tell what black and white mean, nor compare two PNGs.
+        save_confidence_map(
+            confidence, plot_dir / f'confidence_{name}.png', vmin, vmax,
+            description=f'{sample.dataset}/{sample.scene} {matcher} {name}: black = '
+            f'{vmin:.6g}, white = {vmax:.6g} ({how}); correct_{name}.png τ = {tau:.6g}',
+        )
         save_correctness_overlay(
             confidence, error, plot_dir / f'correct_{name}.png', tau=tau,
             image=sample.left, mask=mask,
@@ -322,8 +334,11 @@ def evaluate_scene(
         seed: Seed of that subset.
         plot_dir: If given, write ``disparity.png``, ``confidence_<method>.png``,
             ``correct_<method>.png`` (green/red overlay on the scored pixels) and ``roc.png``
-            there. In a subset run, a method computed in patch mode has values only at the
-            scored pixels; the rest of its confidence map is drawn in ``plots.UNKNOWN_RGB``.
+            there. Each confidence PNG records in its text chunks (``vmin``, ``vmax``,
+            ``Description``) the values drawn black and white, how they were chosen, and the
+            overlay's τ. In a subset run, a method computed in patch mode has values only at
+            the scored pixels; the rest of its confidence map is drawn in
+            ``plots.UNKNOWN_RGB``.
         log: Receives one progress line per stage (matching, each method), with seconds.
         method_order: Order of the records; default the order of ``methods``.
         progress: Show a progress bar on stderr (pixels) while a network method runs: on a

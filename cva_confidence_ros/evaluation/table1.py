@@ -408,6 +408,10 @@ def _build_parser() -> argparse.ArgumentParser:
                         help='records JSON of an earlier cva-evaluate / cva-table1 run with the '
                         'same D, --max-pixels and --seed: its (scene, matcher, method) '
                         'results are taken over after a consistency check, not recomputed')
+    parser.add_argument('--allow-missing-files', action='store_true',
+                        help='a scene of a row with ground truth but a file missing (a right '
+                        'image) is left out and the table marked partial with exit status 2; '
+                        'with this option the exit status is 0 all the same')
     parser.add_argument('--device', default='cpu', choices=('cpu', 'cuda', 'auto'))
     parser.add_argument('--threads', type=int, default=None, help='torch and numba threads')
     return parser
@@ -568,7 +572,12 @@ def _load_reusable(
 def run(args: argparse.Namespace) -> int:
     """Score every method on every row; write the outputs. Raises ``CVAError`` on bad input."""
     from cva_confidence_ros.confidence import CONFIDENCE_METHODS
-    from cva_confidence_ros.datasets import list_scenes, load_scene, skipped_notice
+    from cva_confidence_ros.datasets import (
+        list_scenes,
+        load_scene,
+        skipped_notice,
+        skipped_scenes,
+    )
     from cva_confidence_ros.evaluation.cli import RESUME_TOLERANCE, SceneRun, run_scenes
     from cva_confidence_ros.evaluation.scene import evaluate_scene
     from cva_confidence_ros.matching import MATCHERS
@@ -658,18 +667,30 @@ def run(args: argparse.Namespace) -> int:
             )
 
     jobs: list[tuple[TableRow, str]] = []
+    left_out: list[tuple[str, str]] = []
     noticed: set[tuple[str, str | None]] = set()
     for row in rows:
         if row.missing:
             continue
-        scenes = list_scenes(row.dataset, args.data_root, row.split)[row.first :]
+        every_scene = list_scenes(row.dataset, args.data_root, row.split)
+        scenes = every_scene[row.first :]
         # A partial download (a scene without its right image) ran on fewer scenes unsaid;
         # said once for a data set that fills two rows.
         if (row.dataset, row.split) not in noticed:
             noticed.add((row.dataset, row.split))
             if notice := skipped_notice(row.dataset, args.data_root, row.split):
                 _log(notice)
-        jobs.extend((row, scene) for scene in scenes[: args.max_scenes])
+        taken = scenes[: args.max_scenes]
+        jobs.extend((row, scene) for scene in taken)
+        # ... and the row was no partial one (exit status 0, no mark). Only the scenes the
+        # row would have held count: not those among the training pairs before ``first``.
+        low = every_scene[row.first - 1] if 0 < row.first <= len(every_scene) else None
+        high = taken[-1] if len(taken) < len(scenes) and taken else None
+        left_out.extend(
+            (f'{row.dataset}/{scene}', why)
+            for scene, why in skipped_scenes(row.dataset, args.data_root, row.split)
+            if (low is None or scene > low) and (high is None or scene < high)
+        )
     # Once one scene of --reuse has been scored again and agreed with it, a scene it holds
     # for every matcher and method is taken over as it is: an interrupted run's table1.json
     # continues where it stopped instead of scoring every scene again. Per matcher: each
@@ -767,6 +788,8 @@ def run(args: argparse.Namespace) -> int:
 
     outcome = run_scenes(jobs, lambda job: f'{job[0].dataset}/{job[1]}', work, after=save,
                          held=held)
+    outcome.left_out = left_out
+    outcome.allow_left_out = args.allow_missing_files
     if not outcome.records:
         return outcome.ending(PROG, 'nothing written')
     records = outcome.records
@@ -796,7 +819,7 @@ def run(args: argparse.Namespace) -> int:
     write_text_atomic(args.out / 'table1.md', markdown)
     write_text_atomic(args.out / 'table1.json', summary_text(records, outcome.note() or None))
     # Marked partial as the Markdown is: the PNG goes into reports without it.
-    partial_mark = (f'\nPartial: {outcome.done} of {outcome.total} scenes (see table1.md)'
+    partial_mark = (f'\nPartial: {outcome.done} of {outcome.wanted} scenes (see table1.md)'
                     if outcome.partial else '')
     save_table_png(records, rows, matchers, args.out / 'table1.png',
                    f'Table 1 reproduction ({protocol}, D = {args.max_disparity}): AUC × 10², '
@@ -812,7 +835,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``cva-table1`` (``ros2 run cva_confidence_ros table1``).
 
     Returns:
-        0 on success, 2 on bad input (one line on stderr), 1 if an output cannot be written.
+        0 on success, 2 on bad input (one line on stderr) or a partial table (scenes that
+        could not be used; scenes left out for a missing file, unless
+        ``--allow-missing-files``), 1 if an output cannot be written.
     """
     from cva_confidence_ros.evaluation.cli import exit_code
 

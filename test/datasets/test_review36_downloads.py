@@ -229,9 +229,10 @@ def test_cva_evaluate_and_cva_table1_name_a_left_out_scene_once(
     notice = 'middlebury2014: 1 scene(s) left out, a file missing: B has no im1.png'
     assert evaluate(['--data-root', str(root), '--dataset', 'middlebury2014', '--matchers',
                      'census_bm', '--methods', 'pkrn', '--max-disparity', '16',
-                     '--max-pixels', '100', '--json', str(tmp_path / 'r.json')]) == 0
+                     '--max-pixels', '100', '--json', str(tmp_path / 'r.json'),
+                     '--allow-missing-files']) == 0
     assert capsys.readouterr().err.count(notice) == 1
     assert table1(['--data-root', str(root), '--out', str(tmp_path / 'out'), '--matchers',
                    'census_bm', '--methods', 'pkrn', '--max-disparity', '16',
-                   '--max-pixels', '100', '--protocol', 'develop']) == 0
+                   '--max-pixels', '100', '--protocol', 'develop', '--allow-missing-files']) == 0
     assert capsys.readouterr().err.count(notice) == 1
