@@ -125,3 +125,25 @@ def test_stereo_cloud_matches_the_old_assembly(
     )
     assert got.dtype == want.dtype and got.shape == want.shape
     assert got.tobytes() == want.tobytes()
+
+
+@pytest.mark.parametrize('channels', [None, 1, 3, 4])
+def test_overlay_grey_equals_the_channel_mean_it_was(channels: int | None) -> None:
+    from cva_confidence_ros.plots import confidence_overlay
+
+    rng = np.random.default_rng(channels or 0)
+    shape = (17, 23) if channels is None else (17, 23, channels)
+    image = rng.integers(0, 256, shape, dtype=np.uint8)
+    confidence = rng.random((17, 23), dtype=np.float32)
+    kept = rng.random((17, 23)) < 0.5
+    if channels is None:
+        grey = image.astype(np.uint16)
+    else:
+        used = min(channels, 3)
+        grey = image[..., :used].sum(axis=2, dtype=np.uint16) // used
+    dim = ((grey * 115 + 128) >> 8).astype(np.uint8)
+    overlay = confidence_overlay(image, confidence, kept)
+    assert np.array_equal(overlay[~kept], np.repeat(dim[~kept][:, None], 3, axis=1))
+    # Kept pixels: the 40 % base under the tint, the same grey.
+    again = confidence_overlay(np.ascontiguousarray(image), confidence, kept)
+    assert np.array_equal(overlay, again)
