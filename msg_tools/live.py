@@ -58,7 +58,7 @@ from msg_tools.replay import (
     plan_topics,
     preload,
 )
-from msg_tools.scoring import clear_report
+from msg_tools.scoring import ReportFolderLock, clear_report
 
 __all__ = ['NodeProcess', 'node_arguments', 'recorded_outputs', 'run_live']
 
@@ -437,10 +437,12 @@ def run_live(
             # of 5000) are refused here, before the old report goes.
             node_arguments(options, 'cva_confidence_replay', plan.image_transport)
         check_output_bag_folder(options.out)  # before the old report goes
-        if options.overwrite:
-            clear_report(options.report)  # the files of an earlier report, node.log too
-        with _large_messages_profile(options.start_node, log):
-            return _run_with_node(bag, plan, options, log, interrupts)
+        # Another run writing this report folder now is refused before its files go.
+        with ReportFolderLock(options.report):
+            if options.overwrite:
+                clear_report(options.report)  # the files of an earlier report, node.log too
+            with _large_messages_profile(options.start_node, log):
+                return _run_with_node(bag, plan, options, log, interrupts)
 
 
 @contextmanager

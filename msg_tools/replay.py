@@ -50,6 +50,7 @@ from msg_tools.progress import GracefulInterrupt, Progress, print_above
 from msg_tools.scoring import (
     FrameScore,
     ReplayReport,
+    ReportFolderLock,
     ReportWriter,
     check_report_folder,
     clear_report,
@@ -972,6 +973,7 @@ class ReplaySession:
             unreadable=0, gt_unmatched=0,
         )
         self.interrupts = interrupts or GracefulInterrupt()
+        self._report_lock = ReportFolderLock(options.report)
         self.out: OutputBag | None = None
         self.writer: ReportWriter | None = None
         self.paths: dict[str, Path] = {}
@@ -995,6 +997,9 @@ class ReplaySession:
         # (Stamp, epoch) of the processed frames, to tell a second ground-truth message of a
         # frame's stamp from one that matched no frame.
         self._processed: OrderedDict[tuple[int, int], None] = OrderedDict()
+        # Stamps of the skipped frames: their ground truth matched no processed frame, but it
+        # is stamped right (the closing line must not blame its stamps).
+        self._skipped: OrderedDict[int, None] = OrderedDict()
         # Stamps (→ epoch) of left images the synchroniser let go as late (out of order).
         self._late_frames: OrderedDict[int, int] = OrderedDict()
         self._late_truth_logged = False
@@ -1011,11 +1016,21 @@ class ReplaySession:
         # output bag. A live run did both before it started the node (whose log is there).
         if self.options.mode != 'live':
             check_output_bag_folder(self.options.out)
-        if self.options.overwrite and self.options.mode != 'live':
-            clear_report(self.options.report)
-        self.writer = ReportWriter(
-            self.options.report, self.options.max_plots, self.plan.pairs_expected
-        )
+        # Held to the end of the run, before the old report is cleared: a second run into
+        # this report folder now is refused instead of mixing its files with ours.
+        self._report_lock.__enter__()
+        try:
+            if self.options.overwrite and self.options.mode != 'live':
+                clear_report(self.options.report)
+            pipeline = self.options.pipeline
+            self.writer = ReportWriter(
+                self.options.report, self.options.max_plots, self.plan.pairs_expected,
+                run=f'{pipeline.matcher} + {pipeline.confidence_method}, '
+                f'D = {pipeline.max_disparity}',
+            )
+        except BaseException:
+            self._report_lock.__exit__()
+            raise
         self.interrupts.__enter__()
         try:
             # With --overwrite the old bag is replaced only once the new one holds a frame.
@@ -1027,6 +1042,7 @@ class ReplaySession:
             self.out.open()
         except BaseException:
             self.interrupts.__exit__()
+            self._report_lock.__exit__()
             raise
         return self
 
@@ -1047,6 +1063,7 @@ class ReplaySession:
             self.finish()
         finally:
             self.interrupts.__exit__()
+            self._report_lock.__exit__()
         return interrupted or isinstance(exc, BagError)
 
     @property
@@ -1054,10 +1071,12 @@ class ReplaySession:
         """Frame counters of the report (``pairs``, ``processed``, ``skipped``, ...)."""
         return self.report.counts
 
-    def skip(self, what: str, reason: object) -> None:
-        """Count a bad frame (a stereo pair that was not processed) and log it (the first few
-        times)."""
+    def skip(self, what: str, reason: object, stamp_ns: int | None = None) -> None:
+        """Count a bad frame (a stereo pair that was not processed, of stamp ``stamp_ns``
+        where known) and log it (the first few times)."""
         self.counts['skipped'] += 1
+        if stamp_ns is not None:
+            _remember(self._skipped, stamp_ns)
         self._log_skip(what, reason)
 
     def unreadable(self, topic: str, timestamp_ns: int, reason: object) -> None:
@@ -1574,9 +1593,17 @@ class ReplaySession:
         if done == 0:
             empty = [topic for topic, n in self.plan.input_counts.items() if n == 0]
             if counts['pairs'] == 0 and empty:
+                where_in = 'bag'
+                if self.plan.window != (None, None):
+                    # The counts are the window's: "no messages in bag X" of a bag full of
+                    # them sent users to check their recording.
+                    span = ('to its end' if self.options.duration_s is None
+                            else f'for {self.options.duration_s:g} s')
+                    where_in = (f'the part replayed (from {self.options.start_s:g} s {span}) '
+                                f'of bag')
                 reason = (
                     f'the input topic{"s" if len(empty) > 1 else ""} {", ".join(empty)} '
-                    f'hold{"" if len(empty) > 1 else "s"} no messages in bag '
+                    f'hold{"" if len(empty) > 1 else "s"} no messages in {where_in} '
                     f'{self.options.bag}: there is nothing to pair'
                 )
             elif counts['pairs'] == 0:
@@ -1666,15 +1693,24 @@ class ReplaySession:
         if stamps:
             more = ', …' if count > len(stamps) else ''
             text += f' (stamp{"s" if count > 1 else ""} {", ".join(map(str, stamps))}{more} ns'
-            if self._processed:
+            if self._processed and stamps[0] not in self._skipped:
                 # A constant offset (ground truth stamped at another time) shows here.
                 nearest = min((s for s, _ in self._processed), key=lambda s: abs(s - stamps[0]))
                 if nearest != stamps[0]:
                     text += (f'; {stamps[0]} is {_offset(stamps[0] - nearest)} than frame '
                              f'stamp {nearest}')
             text += ')'
-        return text + (': no stereo pair of that stamp was processed (ground truth must carry '
-                       "its left image's stamp)")
+        listed = self.report.gt_unmatched_stamps
+        skipped = sum(stamp in self._skipped for stamp in listed)
+        if listed and skipped == len(listed) == count:
+            # A camera_info of another size, say, skipped the frames: their ground truth is
+            # stamped right, and "must carry its left image's stamp" sent users to the wrong
+            # place.
+            return text + (': the stereo pairs of those stamps were skipped (bad frames, see '
+                           'above)')
+        hint = f'{skipped} of those listed are stamps of skipped frames; ' if skipped else ''
+        return text + (f': no stereo pair of that stamp was processed ({hint}ground truth must '
+                       "carry its left image's stamp)")
 
     def _unpaired_text(self) -> str:
         """`` (topic: n, ...)`` of the unpaired messages per topic, or ''."""
@@ -1836,7 +1872,7 @@ def _process_pair(session: ReplaySession, pipeline: Any, matched: Any, frame: in
     except CVAError as err:
         # As the node does: whatever the pipeline refuses for one frame's data (bad images,
         # or a frame narrower than max_disparity, a ConfigError) drops that frame only.
-        session.skip(f'frame {frame} (stamp {matched.stamp_ns} ns)', err)
+        session.skip(f'frame {frame} (stamp {matched.stamp_ns} ns)', err, matched.stamp_ns)
         return
     outputs = node_outputs(
         result, geometry, left.shape[:2], items['left'].header, options.pipeline,

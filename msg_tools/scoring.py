@@ -43,7 +43,9 @@ from collections import Counter
 from collections.abc import Callable, Collection
 import csv
 from dataclasses import asdict, dataclass, field
+import fcntl
 import math
+import os
 from pathlib import Path
 import re
 from typing import Any, cast
@@ -60,6 +62,7 @@ __all__ = [
     'METRIC_KEYS',
     'REPORT_KEYS',
     'ReplayReport',
+    'ReportFolderLock',
     'ReportWriter',
     'check_report_folder',
     'clear_report',
@@ -97,6 +100,88 @@ def report_files(folder: str | Path) -> list[Path]:
     )
 
 
+def _busy_message(folder: str | Path) -> str:
+    return (
+        f'the report folder {folder} is being written by another cva-bag-replay now; wait '
+        f'until it ends, or pick another folder'
+    )
+
+
+def report_folder_busy(folder: str | Path) -> bool:
+    """Whether another process holds the :class:`ReportFolderLock` of ``folder`` now."""
+    path = Path(folder)
+    if not path.is_dir() or path.resolve() in ReportFolderLock.held:
+        return False
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    except OSError:
+        return False  # a file system without locks: nothing to tell
+    finally:
+        os.close(fd)
+    return False
+
+
+class ReportFolderLock:
+    """Holds a report folder for one run (``flock`` on the folder itself, so no file is left
+    behind and a killed run holds nothing): two replays into one folder at once both passed
+    the empty-folder check and wrote a mix of their PNGs and reports, without a word.
+
+    Creates the folder. Re-entrant within a process (live mode holds it from before the old
+    report is cleared; its session takes it again).
+
+    Raises:
+        ConfigError: Another process holds the folder, or it cannot be created.
+    """
+
+    #: Resolved folders held by this process → how many times.
+    held: dict[Path, int] = {}
+
+    def __init__(self, folder: str | Path) -> None:
+        self.folder = Path(folder)
+        self._key: Path | None = None
+        self._fd: int | None = None
+
+    def __enter__(self) -> ReportFolderLock:
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            key = self.folder.resolve()
+            if key in self.held:
+                self.held[key] += 1
+                self._key = key
+                return self
+            fd = os.open(self.folder, os.O_RDONLY)
+        except OSError as err:
+            raise ConfigError(
+                f'cannot create the report folder {self.folder}: {reason(err)}'
+            ) from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise ConfigError(_busy_message(self.folder)) from None
+        except OSError:
+            pass  # a file system without locks: run unguarded, as before
+        self.held[key] = 1
+        self._key, self._fd = key, fd
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._key is None:
+            return
+        self.held[self._key] -= 1
+        if not self.held[self._key]:
+            del self.held[self._key]
+            if self._fd is not None:
+                os.close(self._fd)  # releases the lock
+        self._key = self._fd = None
+
+
 def check_report_folder(
     folder: str | Path, overwrite: bool, ignore: Collection[Path] = ()
 ) -> None:
@@ -116,11 +201,16 @@ def check_report_folder(
 
     Raises:
         ConfigError: The folder holds something and ``overwrite`` is off, or it holds
-            something that is not a report (a link or folder of a report file's name too).
+            something that is not a report (a link or folder of a report file's name too),
+            or another run is writing it now (:class:`ReportFolderLock`).
     """
     path = Path(folder)
     if not path.is_dir():
         return
+    if report_folder_busy(path):
+        # Before the listing: "holds an earlier report, use --overwrite" would have the user
+        # delete the files of a run that is still writing them.
+        raise ConfigError(_busy_message(folder))
     entries = sorted(p for p in path.iterdir() if p.resolve() not in ignore)
     if not entries:
         return
@@ -518,15 +608,18 @@ class ReportWriter:
             are written all the same).
         expected_frames: Stereo pairs the bag is expected to hold (0 = unknown: the first
             ``max_plots`` frames are plotted).
+        run: What the run was, for the per-frame PNGs' titles (``census_bm + pkrn``; empty:
+            the method passed to :meth:`frame_plots`).
 
     Raises:
         ConfigError: ``folder`` is an existing file, or cannot be created.
     """
 
     def __init__(
-        self, folder: str | Path, max_plots: int = 10, expected_frames: int = 0
+        self, folder: str | Path, max_plots: int = 10, expected_frames: int = 0, run: str = ''
     ) -> None:
         self.folder = Path(folder)
+        self.run = run
         self.max_plots = max_plots
         self.stride = max(1, math.ceil(expected_frames / max_plots)) if max_plots > 0 else 1
         self._plotted = 0
@@ -637,8 +730,12 @@ class ReportWriter:
                     {label: (score.density, score.roc_error)},
                     self.folder / f'roc_{score.frame:05d}.png',
                     error_rate=score.error_rate,
+                    # The run and the stamp too (as cva-evaluate's roc.png names the matcher):
+                    # two runs' roc_00003.png side by side were told apart by folder only.
                     # × 10² as in the tables: a bare "AUC 4.66" over axes of 0 to 1 misleads.
-                    title=f'frame {score.frame}  AUC × 10² {100 * (score.auc or 0):.2f} '
+                    title=f'{self.run or label}, frame {score.frame}\nstamp '
+                    f'{score.stamp_ns // 10**9}.{score.stamp_ns % 10**9:09d} s  '
+                    f'AUC × 10² {100 * (score.auc or 0):.2f} '
                     f'(opt {100 * (score.auc_opt or 0):.2f})',
                 )
             )
