@@ -459,17 +459,13 @@ class StereoPipeline:
         texture = rng.integers(0, 256, (height * factor, (width + 2) * factor), dtype=np.uint8)
         left = np.ascontiguousarray(texture[:, 2 * factor:])
         right = np.ascontiguousarray(texture[:, : width * factor])
-        evaluator = getattr(self._method, 'evaluator', None)
-        saved = None
-        if evaluator is not None:
-            saved = (dict(evaluator.path_counts), evaluator.flops_done, evaluator.progress)
-            evaluator.progress = None
-        try:
-            with _frame_guard(), preserved_features(), preserved_scratch():
-                self._run(left, right, None, self._warm_up_window(height, width))
-        finally:
-            if evaluator is not None and saved is not None:
-                evaluator.path_counts, evaluator.flops_done, evaluator.progress = saved
+        # Uncounted in this thread only: saving the counters and putting them back lost the
+        # counts of frames that other threads processed during the warm-up (the node warms
+        # up while its first frames arrive).
+        uncounted = getattr(getattr(self._method, 'evaluator', None), 'uncounted', None)
+        quiet = uncounted() if callable(uncounted) else contextlib.nullcontext()
+        with _frame_guard(), preserved_features(), preserved_scratch(), quiet:
+            self._run(left, right, None, self._warm_up_window(height, width))
 
     def _warm_up_window(self, height: int, width: int) -> tuple[int, int] | None:
         """(rows, columns) of the window the method sees in the warm-up, or None for all of

@@ -40,7 +40,9 @@ without data, once per tile shape):
   :class:`~cva_confidence_ros.model.FoldedCVANet` does: the neighbourhood fusion densely
   over the tile (shared between neighbouring pixels), the depth processing only at the
   wanted pixels;
-* ``extracts``: one 13×13×D extract per wanted pixel, nothing computed for the others.
+* ``extracts``: one 13×13×D extract per wanted pixel, nothing computed for the others
+  (charged :data:`_EXTRACT_VALUE_FLOPS` more per value of the extract for its gathering,
+  which the count does not see: CVA-Net-Fast fuses densely at stride 8 too).
 
 For CVA-Net at D = 64, dense fusion is ≈ 21 % of a pixel's operations and an extract's fusion
 ≈ 6.5× a pixel's dense fusion, so stride 2 and 4 fuse densely, and so does a cascade alone at
@@ -54,11 +56,12 @@ Tiles are sized by the network's own widest activation
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 import contextlib
 import copy
 from dataclasses import dataclass
 import math
+import threading
 from typing import cast
 
 import numba
@@ -128,6 +131,13 @@ SIGMA_DISPARITY = 2.0
 _LOGIT_EPS = 1e-6
 #: Most 13×13×D extracts run at once (fewer where ``tile_budget_mb`` asks for it).
 _EXTRACT_BATCH = 512
+#: What one value of a 13×13×D extract costs beyond the network's counted operations (its
+#: gather from the padded volume into a contiguous batch; CVA-Net-Fast's WTA scan, which the
+#: operation count does not see), in operations, when the evaluator picks a way. Measured on
+#: the 2-core CPU: CVA-Net-Fast at stride 8 (320×240, D = 64) counts 7.4 GFLOP as extracts
+#: against 9.3 fused, yet took 115 ms against 72 (≈ 4.4 ns a value, ≈ 570 operations at the
+#: fused rate). Small beside CVA-Net's (600 MFLOP an extract, +1 %) and CVA-Net-Lite's.
+_EXTRACT_VALUE_FLOPS = 600.0
 
 
 @dataclass(frozen=True)
@@ -355,6 +365,38 @@ class SparseEvaluator:
         #: Called as ``progress(done, total)``, in pixels, after each tile or batch of extracts
         #: of a call (for a progress bar over a long whole-image evaluation); None = silent.
         self.progress: Callable[[int, int], None] | None = None
+        # Per thread, not per evaluator: a warm-up in one thread (:meth:`uncounted`) must not
+        # hide or undo the counts of frames another thread runs meanwhile.
+        self._local = threading.local()
+        self._count_lock = threading.Lock()
+
+    @contextlib.contextmanager
+    def uncounted(self) -> Iterator[None]:
+        """Calls from this thread inside the block leave ``path_counts`` and ``flops_done``
+        as they are and report no progress; calls from other threads count as ever.
+
+        The pipeline's warm-up runs in it. Saving the counters and putting them back
+        afterwards lost every count of the frames processed by other threads meanwhile.
+        """
+        local = self._local
+        local.depth = getattr(local, 'depth', 0) + 1
+        try:
+            yield
+        finally:
+            local.depth -= 1
+
+    def _counting(self) -> bool:
+        return not getattr(self._local, 'depth', 0)
+
+    def _count(self, way: str, flops: float) -> None:
+        if self._counting():
+            # Locked: two threads' read-add-write of the same counter could drop one.
+            with self._count_lock:
+                self.path_counts[way] += 1
+                self.flops_done += flops
+
+    def _reporter(self) -> Callable[[int, int], None] | None:
+        return self.progress if self._counting() else None
 
     # -- operation counts ---------------------------------------------------------------------
     def _flops(self, kind: str, rows: int, columns: int) -> float:
@@ -400,9 +442,12 @@ class SparseEvaluator:
 
     def _choose(self, rows: int, columns: int, count: int) -> str:
         costs = self._costs(rows, columns, count)
-        way = min(costs, key=costs.__getitem__) if self.path == 'auto' else self.path
-        self.path_counts[way] += 1
-        self.flops_done += costs[way]
+        # Chosen by operations plus the extracts' gathering (not counted in flops_done):
+        # by operations alone CVA-Net-Fast took extracts at stride 8, 1.6× slower than fused.
+        weighed = dict(costs)
+        weighed['extracts'] += count * PATCH_SIZE**2 * self.max_disparity * _EXTRACT_VALUE_FLOPS
+        way = min(weighed, key=weighed.__getitem__) if self.path == 'auto' else self.path
+        self._count(way, costs[way])
         return way
 
     # -- evaluation ---------------------------------------------------------------------------
@@ -440,6 +485,7 @@ class SparseEvaluator:
         padded = torch.from_numpy(padded_np)
         windows = None
         total, done = int(np.count_nonzero(mask)), 0
+        report = self._reporter()
         with contextlib.ExitStack() as stack:
             stack.enter_context(torch.inference_mode())
             stack.enter_context(precision_context(self.device, self.precision))
@@ -456,15 +502,17 @@ class SparseEvaluator:
                             windows = sliding_window_view(
                                 padded_np, (PATCH_SIZE, PATCH_SIZE), axis=(1, 2)
                             )
-                        values = self._extracts(windows, ys + y0, xs + x0, (done, total))
+                        values = self._extracts(
+                            windows, ys + y0, xs + x0, (done, total), report
+                        )
                     else:
                         tile = padded[:, y0 : y1 + 2 * PAD, x0 : x1 + 2 * PAD]
                         tile = tile.to(self.device, self._dtype)[None, None]
                         values = self._dense(tile, way, ys, xs)
                     result[ys + y0, xs + x0] = values
                     done += ys.size
-                    if self.progress is not None:
-                        self.progress(done, total)
+                    if report is not None:
+                        report(done, total)
         return result
 
     def at(self, cost_volume: np.ndarray, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
@@ -485,10 +533,9 @@ class SparseEvaluator:
         ys, xs = _check_pixels(ys, xs, volume.shape[1:])
         padded = pad_cost_volume(volume)
         windows = sliding_window_view(padded, (PATCH_SIZE, PATCH_SIZE), axis=(1, 2))
-        self.path_counts['extracts'] += 1
-        self.flops_done += ys.size * self._flops('tile', 1, 1)
+        self._count('extracts', ys.size * self._flops('tile', 1, 1))
         with torch.inference_mode(), precision_context(self.device, self.precision):
-            return self._extracts(windows, ys, xs, (0, ys.size))
+            return self._extracts(windows, ys, xs, (0, ys.size), self._reporter())
 
     def _dense(self, tile: torch.Tensor, way: str, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
         index_y = torch.from_numpy(ys).to(self.device)
@@ -519,9 +566,10 @@ class SparseEvaluator:
         ys: np.ndarray,
         xs: np.ndarray,
         progress: tuple[int, int],
+        report: Callable[[int, int], None] | None,
     ) -> np.ndarray:
         """The network on batched 13×13×D extracts; ``progress`` = (pixels done before this
-        call, pixels of the whole call), reported on after each batch."""
+        call, pixels of the whole call), reported to ``report`` after each batch."""
         out = np.empty(ys.size, dtype=np.float32)
         done_before, total = progress
         batch_size = self.extract_batch
@@ -531,8 +579,8 @@ class SparseEvaluator:
             batch = np.ascontiguousarray(windows[:, ys[start:stop], xs[start:stop]].swapaxes(0, 1))
             extracts = torch.from_numpy(batch)[:, None].to(self.device, self._dtype)
             out[start:stop] = self._run(extracts)[:, 0, 0].float().cpu().numpy()
-            if self.progress is not None:
-                self.progress(done_before + stop, total)
+            if report is not None:
+                report(done_before + stop, total)
         return out
 
     def confidence(
