@@ -346,7 +346,9 @@ def reliability(confidence: Any, correct: Any, bins: int = DEFAULT_BINS) -> Reli
     Args:
         confidence: (N,) or any-shaped float probabilities in [0, 1] (NaN refused).
         correct: Same size, bool, True = the disparity is correct (``~metrics.kitti_error``);
-            the same shape where both have two or more dimensions.
+            the same shape where both have two or more dimensions. Pass only pixels with
+            ground truth: ``kitti_error`` marks those without it False (not wrong), so
+            ``~kitti_error`` over a whole sparse map counts them as correct.
         bins: Number of equal-width bins, ≥ 1.
 
     Returns:
