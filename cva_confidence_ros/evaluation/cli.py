@@ -665,8 +665,9 @@ def run(args: argparse.Namespace) -> int:
             # pass for one of every scene.
             _log(f'calibration not written: {len(taken)} scene(s) were taken over from '
                  f'{args.json}; run without --resume for it')
+            _clear_calibration(args.out, [])
         else:
-            _write_calibration(calibration, args.out)
+            _clear_calibration(args.out, _write_calibration(calibration, args.out))
     sys.stdout.write(table)
     sys.stdout.flush()
     if unchecked:
@@ -676,12 +677,13 @@ def run(args: argparse.Namespace) -> int:
     return outcome.ending(PROG, f'the records of the {outcome.done} done are in {args.json}')
 
 
-def _write_calibration(tables: dict[tuple[str, str, str], Any], out: Path) -> None:
+def _write_calibration(tables: dict[tuple[str, str, str], Any], out: Path) -> list[Path]:
+    """Write the calibration files of ``tables`` (none without tables); the paths written."""
     from cva_confidence_ros.evaluation.reliability import ALL_DATASETS, pooled, write_calibration
 
     if not tables:
-        return
-    write_calibration(tables, out)
+        return []
+    written = write_calibration(tables, out)
     rows = pooled(tables)
     # One line per matcher and method: the rows over all data sets where there are several.
     summary = {k: t for k, t in rows.items() if k[0] == ALL_DATASETS} or rows
@@ -690,6 +692,25 @@ def _write_calibration(tables: dict[tuple[str, str, str], Any], out: Path) -> No
              f'{100 * table.overall_confidence:.1f} %, correct '
              f'{100 * table.overall_accuracy:.1f} %, ECE {100 * table.ece:.2f} %')
     _log(f'wrote {out / "calibration.md"}, calibration.json and reliability PNGs')
+    return written
+
+
+def _clear_calibration(out: Path, written: Sequence[Path]) -> None:
+    """Remove the calibration files of an earlier run in ``out`` that this run did not write:
+    they sat beside a fresh table.md as if they summed up this run (a run of hand-crafted
+    measures only, a --resume, a matcher fewer)."""
+    keep = {path.resolve() for path in written}
+    stale = [
+        path
+        for pattern in ('calibration.json', 'calibration.md', 'reliability_*.png')
+        for path in sorted(out.glob(pattern))
+        if path.is_file() and path.resolve() not in keep
+    ]
+    for path in stale:
+        path.unlink(missing_ok=True)
+    if stale:
+        _log(f'removed {len(stale)} calibration file(s) of an earlier run in {out}: '
+             f'{", ".join(path.name for path in stale)}')
 
 
 def main(argv: Sequence[str] | None = None) -> int:

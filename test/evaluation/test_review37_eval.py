@@ -204,3 +204,24 @@ def test_kitti_criterion_at_its_boundaries() -> None:
     # 3 px exactly and 5 % exactly are wrong (strict '<', as the package documents); 0 is a
     # known disparity; no ground truth is never wrong.
     assert kitti_error(est, gt).tolist() == [True, True, False, False, False]
+
+
+def test_a_run_without_calibration_removes_the_earlier_runs_calibration_files(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # A network's run writes calibration.md/.json and a reliability PNG; a later run of a
+    # hand-crafted measure into the same folder left them beside its fresh table.md.
+    from cva_confidence_ros.evaluation.cli import main as evaluate
+
+    out = tmp_path / 'out'
+    common = ['--dataset', 'motorcycle', '--matchers', 'census_bm', '--max-pixels', '200',
+              '--downsample', '4', '--max-disparity', '64', '--out', str(out)]
+    first = [*common, '--methods', 'cva_net_fast', '--json', str(tmp_path / 'a.json')]
+    assert evaluate(first) == 0
+    names = {'calibration.json', 'calibration.md', 'reliability_motorcycle_census_bm.png'}
+    assert names <= {path.name for path in out.iterdir()}
+    capsys.readouterr()
+    assert evaluate([*common, '--methods', 'pkrn', '--json', str(tmp_path / 'b.json')]) == 0
+    assert not names & {path.name for path in out.iterdir()}
+    assert 'removed 3 calibration file(s) of an earlier run' in capsys.readouterr().err
+    assert (out / 'table.md').is_file()
