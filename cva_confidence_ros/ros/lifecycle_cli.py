@@ -14,13 +14,15 @@ refused the transition, 2 for bad arguments or a node that does not answer in ``
 from __future__ import annotations
 
 import argparse
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
+import contextlib
 import os
+import signal
 import sys
 import time
 from typing import Any
 
-__all__ = ['ask', 'bad_node_name', 'call', 'main', 'node_name']
+__all__ = ['ask', 'bad_node_name', 'call', 'init_rclpy', 'interruptible', 'main', 'node_name']
 
 EXIT_REFUSED = 1
 EXIT_NO_ANSWER = 2
@@ -53,6 +55,54 @@ def _parser() -> argparse.ArgumentParser:
     change.add_argument('node')
     change.add_argument('transition', help='configure, activate, deactivate, cleanup, shutdown')
     return parser
+
+
+class _Terminated(Exception):
+    """SIGTERM, raised where the tool is waiting."""
+
+
+def init_rclpy(prog: str) -> None:
+    """``rclpy.init`` for a one-shot tool: without rclpy's signal handlers.
+
+    rclpy's handlers shut the context down on SIGINT and SIGTERM, and the wait under way then
+    failed with a traceback (``RCLError: ... rcl node's context is invalid``) and exit status
+    1, the status of a refusal by the node; :func:`interruptible` handles both signals.
+    """
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+
+    # The command line is argparse's, not rclpy's.
+    rclpy.init(args=[prog], signal_handler_options=SignalHandlerOptions.NO)
+
+
+@contextlib.contextmanager
+def _sigterm_raises() -> Iterator[None]:
+    if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:  # left as the caller set it
+        yield
+        return
+
+    def _raise(signum: int, frame: object) -> None:
+        raise _Terminated
+
+    signal.signal(signal.SIGTERM, _raise)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def interruptible(prog: str, body: Callable[[], int]) -> int:
+    """``body()``, where Ctrl-C ends it with one line and status 130 and SIGTERM (``timeout``,
+    a CI runner) with 143, as a shell reports those signals, instead of a traceback."""
+    try:
+        with _sigterm_raises():
+            return body()
+    except KeyboardInterrupt:
+        print(f'{prog}: interrupted', file=sys.stderr)
+        return 130
+    except _Terminated:
+        print(f'{prog}: terminated', file=sys.stderr)
+        return 143
 
 
 def node_name(name: str) -> str:
@@ -175,8 +225,12 @@ def _change_state(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; returns the exit status."""
+    """Run the command line; returns the exit status (130 / 143 after Ctrl-C / SIGTERM)."""
     args = _parser().parse_args(list(sys.argv[1:] if argv is None else argv))
+    return interruptible('cva-lifecycle', lambda: _main(args))
+
+
+def _main(args: argparse.Namespace) -> int:
     if not args.timeout > 0:  # nan too (it waited no time and said "within nan s")
         print(f'cva-lifecycle: --timeout must be > 0 s; got {args.timeout:g}', file=sys.stderr)
         return EXIT_NO_ANSWER
@@ -196,7 +250,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f'cva-lifecycle: {args.node!r} is not a node name ({why})', file=sys.stderr)
         return EXIT_NO_ANSWER
     deadline = time.monotonic() + args.timeout
-    rclpy.init(args=['cva-lifecycle'])  # the command line is argparse's, not rclpy's
+    init_rclpy('cva-lifecycle')
     try:
         node = rclpy.create_node(f'cva_lifecycle_{os.getpid()}')
         try:

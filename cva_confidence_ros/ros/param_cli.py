@@ -28,7 +28,14 @@ import time
 from typing import Any
 
 from cva_confidence_ros.errors import ConfigError
-from cva_confidence_ros.ros.lifecycle_cli import ask, bad_node_name, call, node_name
+from cva_confidence_ros.ros.lifecycle_cli import (
+    ask,
+    bad_node_name,
+    call,
+    init_rclpy,
+    interruptible,
+    node_name,
+)
 
 __all__ = ['main', 'parse_value', 'yaml_scalar']
 
@@ -343,8 +350,12 @@ def _dump_tree(tree: dict[str, Any], indent: int, lines: list[str]) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; returns the exit status."""
+    """Run the command line; returns the exit status (130 / 143 after Ctrl-C / SIGTERM)."""
     args = _parser().parse_args(list(sys.argv[1:] if argv is None else argv))
+    return interruptible('cva-param', lambda: _main(args))
+
+
+def _main(args: argparse.Namespace) -> int:
     if not args.timeout > 0:  # nan too
         print(f'cva-param: --timeout must be > 0 s; got {args.timeout:g}', file=sys.stderr)
         return EXIT_NO_ANSWER
@@ -356,7 +367,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f'cva-param: {args.node!r} is not a node name ({why})', file=sys.stderr)
         return EXIT_NO_ANSWER
     deadline = time.monotonic() + args.timeout
-    rclpy.init(args=['cva-param'])  # the command line is argparse's, not rclpy's
+    init_rclpy('cva-param')
     try:
         node = rclpy.create_node(f'cva_param_{os.getpid()}',
                                  start_parameter_services=False)

@@ -26,12 +26,14 @@ Own data with held-out scenes: ``--data-root my/train --datasets stereo_folder
 from __future__ import annotations
 
 import argparse
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+import contextlib
+import os
 import shlex
 import sys
 import traceback
 
-from cva_confidence_ros.errors import CVAError, end_process, from_interrupt
+from cva_confidence_ros.errors import ConfigError, CVAError, end_process, from_interrupt
 from cva_confidence_ros.training.config import (
     FUSION_SPLITS,
     MODES,
@@ -239,7 +241,12 @@ def build_parser() -> argparse.ArgumentParser:
         'checkpoint and history.json are removed first), and let --weights-out replace '
         'existing weights and their card',
     )
-    output.add_argument('--no-progress', action='store_true', help='no progress bar')
+    output.add_argument(
+        '--no-progress',
+        action='store_true',
+        help='no progress bar (there is none either where stderr is no terminal: a log file, '
+        'a pipe)',
+    )
     return parser
 
 
@@ -276,7 +283,8 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         weights_out=args.weights_out,
         resume=args.resume,
         overwrite=args.overwrite,
-        progress=not args.no_progress,
+        # A bar on a log file or a pipe is a stream of carriage returns (CI logs, `| tee`).
+        progress=not args.no_progress and _is_terminal(sys.stderr),
         teacher=args.teacher,
         distill_weight=args.distill_weight,
         init_weights=args.init_weights,
@@ -313,7 +321,8 @@ def _train(args: argparse.Namespace, argv: list[str]) -> int:
         config = config_from_args(args)
         from cva_confidence_ros.training.trainer import train
 
-        train(config, command=shlex.join([PROG, *argv]))
+        with _hold_out(config):
+            train(config, command=shlex.join([PROG, *argv]))
     except CVAError as exc:
         print(f'{PROG}: error: {exc}', file=sys.stderr)
         return 2
@@ -324,6 +333,60 @@ def _train(args: argparse.Namespace, argv: list[str]) -> int:
         print(f'{PROG}: interrupted; continue with --resume', file=sys.stderr)
         return 130
     return 0
+
+
+def _is_terminal(stream: object) -> bool:
+    isatty = getattr(stream, 'isatty', None)
+    try:
+        return bool(isatty and isatty())
+    except (OSError, ValueError):  # a closed stream
+        return False
+
+
+@contextlib.contextmanager
+def _hold_out(config: TrainConfig) -> Iterator[None]:
+    """Hold ``config.out`` for this run (an exclusive lock on the folder, released when the
+    process ends): a second run into the same ``--out`` is refused at its start.
+
+    Two at once both trained there, their checkpoints and history replacing each other's
+    epoch by epoch (a later ``--resume`` took one run's checkpoint with the other's history),
+    until one failed on the other's temporary file. Only process 0 of a torchrun group holds
+    it (the others write nothing there); where the file system has no locks, nothing is held.
+
+    Raises:
+        ConfigError: Another process holds ``config.out``, or it cannot be made.
+    """
+    try:
+        import fcntl
+    except ImportError:  # Windows
+        yield
+        return
+    if os.environ.get('RANK', '0') != '0':
+        yield
+        return
+    from cva_confidence_ros.outputs import check_output_dir, check_output_file
+
+    if config.weights_out:  # refused before --out is made, as the trainer refuses it
+        check_output_file(config.weights_out, '--weights-out')
+    out = check_output_dir(config.out, '--out')
+    try:
+        handle = os.open(out, os.O_RDONLY)
+    except OSError:
+        yield  # the trainer says what is wrong with it
+        return
+    try:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise ConfigError(
+                f'--out {config.out} is in use by another cva-train run (still going); wait '
+                'for it to end or give another --out'
+            ) from None
+        except OSError:
+            pass  # no locks on this file system (some network mounts)
+        yield
+    finally:
+        os.close(handle)
 
 
 def _group_left() -> bool:
