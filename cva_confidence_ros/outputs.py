@@ -14,11 +14,18 @@ import contextlib
 import os
 from pathlib import Path
 import tempfile
+import threading
 from typing import BinaryIO
 
 from cva_confidence_ros.errors import ConfigError, DataError, reason
 
-__all__ = ['check_output_dir', 'check_output_file', 'write_atomic', 'write_text_atomic']
+__all__ = [
+    'check_output_dir',
+    'check_output_file',
+    'temporary_sibling',
+    'write_atomic',
+    'write_text_atomic',
+]
 
 
 def _unusable(option: str, path: Path, error: OSError) -> ConfigError:
@@ -132,14 +139,14 @@ def write_text_atomic(path: str | os.PathLike[str], text: str, what: str = '') -
 
 
 def write_atomic(path: Path, write: Callable[[BinaryIO], object]) -> None:
-    """``write(handle)`` into ``path.tmp`` beside ``path``, sync it to the disk, move it onto
-    ``path`` and sync the folder (see :func:`write_text_atomic`).
+    """``write(handle)`` into a temporary file beside ``path``, sync it to the disk, move it
+    onto ``path`` and sync the folder (see :func:`write_text_atomic`).
 
     Raises:
         BaseException: Whatever ``write`` or the file system raised, after removing the
             partial file; a file at ``path`` is left as it was.
     """
-    tmp = path.with_name(path.name + '.tmp')
+    tmp = temporary_sibling(path)
     try:
         with open(tmp, 'wb') as handle:
             write(handle)
@@ -151,6 +158,13 @@ def write_atomic(path: Path, write: Callable[[BinaryIO], object]) -> None:
             tmp.unlink(missing_ok=True)
         raise
     _sync_folder(path.parent)
+
+
+def temporary_sibling(path: Path) -> Path:
+    """A name beside ``path`` to write it under before the rename, of this process and thread:
+    one fixed ``path.tmp`` was shared by two writers of the same file (two runs into one
+    folder), one renaming the other's half-written file or failing on its vanished one."""
+    return path.with_name(f'{path.name}.{os.getpid()}-{threading.get_ident()}.tmp')
 
 
 def _sync_folder(folder: Path) -> None:

@@ -30,6 +30,7 @@ from cva_confidence_ros.model.fast import CVANetFast
 from cva_confidence_ros.model.inference import resolve_device
 from cva_confidence_ros.model.lite import CVANetLite
 from cva_confidence_ros.model.network import CVANet
+from cva_confidence_ros.outputs import temporary_sibling
 from cva_confidence_ros.registry import Registry
 
 __all__ = [
@@ -148,7 +149,7 @@ def save_weights(net: nn.Module, path: str | os.PathLike[str], meta: Mapping[str
     state = {k: v.detach().cpu() for k, v in model.state_dict().items()}
     if path.is_dir():
         raise ModelError(f'weights file {path} is a directory; expected a .pt file path')
-    tmp = path.with_name(path.name + '.tmp')
+    tmp = temporary_sibling(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         torch.save({'state_dict': state, 'meta': meta}, tmp)
