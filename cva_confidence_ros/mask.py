@@ -4,9 +4,10 @@ A camera on a robot often sees part of the robot: a bumper in the lower corners,
 mast, a wiper, a smudge on the lens. Their disparity is right, but they are not obstacles and
 must not reach a point cloud, a depth image or a laser scan. A mask is an image of the camera's
 size (PNG, 8 or 16 bit, grey or colour): black (0 in every channel) = ignore, anything else =
-judge. The pipeline (``PipelineConfig.mask_path``) publishes nothing at the black pixels, as it
-does outside the region of interest, and skips the rows that are black from edge to edge at
-the top and bottom of the image altogether.
+judge (in a lossy JPEG or WebP, below a quarter of full scale is black). The pipeline
+(``PipelineConfig.mask_path``) publishes nothing at the black pixels, as it does outside the
+region of interest, and skips the rows that are black from edge to edge at the top and bottom
+of the image altogether.
 
 Any image editor draws one on a frame of the camera; ``cva-mask`` draws rectangles and
 polygons from the command line and shows the result over a frame.
@@ -29,7 +30,9 @@ def load_mask(path: str | Path, option: str = 'mask_path') -> np.ndarray:
     """Read an ignore mask.
 
     Args:
-        path: An image file that OpenCV reads (PNG, BMP, TIFF, …); black = ignore.
+        path: An image file that OpenCV reads (PNG, BMP, TIFF, …); black = ignore. In a
+            JPEG or lossy WebP, whose black comes back as 1, 2, … near the edges, every
+            value below a quarter of full scale (64 of 255) counts as black.
         option: The parameter or option that named the file, for the messages (e.g.
             ``'--start'`` of ``cva-mask``).
 
@@ -62,13 +65,31 @@ def load_mask(path: str | Path, option: str = 'mask_path') -> np.ndarray:
             f'{option} {str(path)!r} holds {int(np.isnan(values).sum())} NaN values; a mask '
             f'is 0 (ignore) or another number (judge) at every pixel'
         )
-    keep = np.any(values != 0, axis=2) if values.ndim == 3 else values != 0
+    lossy = _lossy_format(path)
+    # A lossy format brings black back as 1, 2, … next to the edges (up to 60 at low
+    # quality), which read as "judge" published a rim of the robot's body: there, anything
+    # darker than a quarter of full scale is black.
+    dark = np.iinfo(values.dtype).max // 4 + 1 if lossy and values.dtype.kind == 'u' else 0
+    judged = values >= dark if dark else values != 0
+    keep = np.any(judged, axis=2) if judged.ndim == 3 else judged
     if not keep.any():
         raise ConfigError(
             f'{option} {str(path)!r} ignores every pixel (black everywhere); black = ignore, '
-            f'any other value = judge'
+            f'any other value = judge' + (f' (in a {lossy}: {dark} or more)' if dark else '')
         )
     return keep
+
+
+def _lossy_format(path: Path) -> str | None:
+    """``'JPEG'`` or ``'WebP'`` when the file's content is in that lossy format (whatever its
+    name), else None."""
+    with path.open('rb') as stream:
+        head = stream.read(16)
+    if head.startswith(b'\xff\xd8\xff'):
+        return 'JPEG'
+    if head[:4] == b'RIFF' and head[8:16] == b'WEBPVP8 ':  # 'VP8L' is the lossless one
+        return 'WebP'
+    return None
 
 
 def reduce_mask(mask: np.ndarray, factor: int) -> np.ndarray:

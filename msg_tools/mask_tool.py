@@ -297,6 +297,10 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of ``cva-mask``; returns the exit code (2 on bad input)."""
     args = build_parser().parse_args(argv)
     try:
+        if args.out.suffix.lower() != '.png':
+            # The mask is written as PNG whatever the name: one named .jpg was then refused
+            # by the node as a truncated JPEG (the name decides how it is checked).
+            raise ConfigError(f'out {args.out} must be named .png: cva-mask writes a PNG mask')
         if args.preview is not None and args.preview.resolve() == args.out.resolve():
             raise ConfigError(
                 f'--preview {args.preview} is the mask {args.out} itself: the preview would '

@@ -1,0 +1,74 @@
+"""Review 37: ignore masks as a robot integrator makes them (``cva-mask``, an image editor's
+export) and gives them to the node (each test a regression test of a fault found then)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from cva_confidence_ros.errors import ConfigError
+from cva_confidence_ros.mask import load_mask
+from msg_tools.mask_tool import main as mask_main
+
+
+def _bumper_and_mast() -> np.ndarray:
+    """A 0/255 mask: a bumper corner and a mast ignored."""
+    mask = np.full((48, 64), 255, np.uint8)
+    mask[30:, :20] = 0
+    mask[:, 50:] = 0
+    return mask
+
+
+@pytest.mark.parametrize(
+    ('name', 'params'),
+    [
+        ('mask.jpg', [cv2.IMWRITE_JPEG_QUALITY, 95]),
+        ('mask.jpg', [cv2.IMWRITE_JPEG_QUALITY, 20]),
+        ('mask.png', [cv2.IMWRITE_JPEG_QUALITY, 75]),  # a JPEG named .png: by its content
+        ('mask.webp', [cv2.IMWRITE_WEBP_QUALITY, 75]),
+    ],
+)
+def test_a_lossy_mask_keeps_the_black_next_to_its_edges_ignored(
+    tmp_path: Path, name: str, params: list[int]
+) -> None:
+    # JPEG brings black back as 1, 2, … next to the edges; read as "not 0 = judge", 50 of the
+    # 1032 ignored pixels at quality 95 (116 at 75) were published: the robot's outline.
+    mask = _bumper_and_mast()
+    path = tmp_path / name
+    ok, data = cv2.imencode('.webp' if name.endswith('.webp') else '.jpg', mask, params)
+    assert ok
+    path.write_bytes(data.tobytes())
+    decoded = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    assert ((decoded != 0) & (mask == 0)).any()  # the lossy rim is there
+    np.testing.assert_array_equal(load_mask(path), mask != 0)
+    # A lossless mask of 0 and 1 (a bool array saved as it is) still judges its 1s.
+    ones = tmp_path / 'ones.png'
+    assert cv2.imwrite(str(ones), (mask != 0).astype(np.uint8))
+    np.testing.assert_array_equal(load_mask(ones), mask != 0)
+
+
+def test_a_jpeg_mask_of_zeros_and_ones_is_refused_with_its_threshold(tmp_path: Path) -> None:
+    # In a JPEG, 1 is black: every pixel ignored is named, with the value that judges.
+    path = tmp_path / 'mask.jpg'
+    assert cv2.imwrite(str(path), (_bumper_and_mast() != 0).astype(np.uint8))
+    with pytest.raises(ConfigError, match=r'ignores every pixel .*\(in a JPEG: 64 or more\)'):
+        load_mask(path)
+
+
+def test_cva_mask_refuses_a_mask_name_that_is_not_png(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # `cva-mask mask.jpg` wrote PNG bytes into mask.jpg and said "use it with mask_path:=…";
+    # the node then refused it as "a truncated JPEG: no end-of-image marker".
+    out = tmp_path / 'mask.jpg'
+    assert mask_main([str(out), '--size', '64x48', '--rect', '0', '0', '10', '10']) == 2
+    assert capsys.readouterr().err.strip() == (
+        f'cva-mask: error: out {out} must be named .png: cva-mask writes a PNG mask'
+    )
+    assert not out.exists()
+    upper = tmp_path / 'mask.PNG'
+    assert mask_main([str(upper), '--size', '64x48', '--rect', '0', '0', '10', '10']) == 0
+    assert int((~load_mask(upper)).sum()) == 100
