@@ -86,6 +86,8 @@ STOP_TIMEOUT_S = 10.0
 #: How long a deactivate waits for the outputs of a frame being published, in seconds.
 PUBLISH_WAIT_S = 1.0
 _OWN_PARAMETERS = frozenset(spec.name for spec in PARAMETERS)
+#: Parameters naming a file, read when set (again: the file may have changed under its name).
+_FILE_PARAMETERS = frozenset({'mask_path', 'model_path'})
 # Synchroniser key → the topic it subscribes to (named in the logs).
 _TOPICS = {
     'left': 'left/image_rect',
@@ -626,7 +628,11 @@ class ConfidenceCore(Node):
         try:
             pipeline_config, node_config = build_configs(parameter_values(self), params)
             pipeline = None
-            if pipeline_config != self.pipeline_config:
+            # A file parameter set again to the same path reloads the file: an edited mask
+            # (cva-mask --start … --overwrite) or retrained weights at the same name were
+            # accepted as "set" while the old ones stayed.
+            reload = any(p.name in _FILE_PARAMETERS and p.value for p in params)
+            if reload or pipeline_config != self.pipeline_config:
                 # Built here, before accepting, so that e.g. missing weights or a device that
                 # is not there reject the change, and checked against the images coming in.
                 pipeline = StereoPipeline(pipeline_config)

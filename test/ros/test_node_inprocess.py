@@ -708,6 +708,30 @@ def test_ignore_mask_changes_at_run_time(running: _Running, tmp_path: Path) -> N
         assert running.set(mask_path='').successful
 
 
+def test_a_mask_edited_under_its_name_is_read_when_mask_path_is_set_again(
+    running: _Running, tmp_path: Path
+) -> None:
+    # The README's "add a mast" step: cva-mask --start bumper.png --overwrite, then set
+    # mask_path again. The same path compared equal, so the old mask stayed while "set" was
+    # logged.
+    left, right = textured_pair(seed=13)
+    mask = np.full((64, 96), 255, np.uint8)
+    mask[52:, :30] = 0
+    path = tmp_path / 'bumper.png'
+    assert cv2.imwrite(str(path), mask)
+    assert running.set(mask_path=str(path)).successful
+    try:
+        disparity = _published(running, left, right)[0]
+        assert np.isnan(disparity[52:, :30]).all() and np.isfinite(disparity[:40, 60:80]).any()
+        mask[:, 60:80] = 0  # a mast
+        assert cv2.imwrite(str(path), mask)
+        assert running.set(mask_path=str(path)).successful
+        disparity = _published(running, left, right)[0]
+        assert np.isnan(disparity[:, 60:80]).all()
+    finally:
+        assert running.set(mask_path='').successful
+
+
 def test_confidence_overlay_for_a_person_to_look_at(running: _Running) -> None:
     # rgb8 at the output size with the left image's header: the kept pixels tinted (green above
     # red where the confidence is high), the others a dimmed grey (r = g = b).
