@@ -338,7 +338,11 @@ class LeftRightDifference(ConfidenceMethod):
 
     def to_unit_interval(self, confidence: np.ndarray) -> np.ndarray:
         """``LRD / (1 + LRD)`` in [0, 1]: 1 for +inf (a tiny eps), the most confident."""
-        positive = np.maximum(confidence, 0.0)
+        # In float64, rounded once (to float32, in the clip): in float32 both 1 + LRD and the
+        # quotient were rounded, which put the larger of two LRDs an ulp apart below the
+        # smaller one (an increasing map no more; 18 pixels of the Motorcycle pair at half
+        # size, Census-BM, D = 32, 506 with Census-SGM).
+        positive = np.maximum(np.asarray(confidence, dtype=np.float64), 0.0)
         # inf / (1 + inf) is NaN, which the clip below would turn into 0, the least confident.
         with np.errstate(invalid='ignore'):
             unit = np.where(np.isposinf(positive), 1.0, positive / (1.0 + positive))
@@ -350,9 +354,10 @@ class LeftRightConsistency(ConfidenceMethod):
     """Left-right consistency (LRC): ``-|d_L(x) - d_R(x - round(d_L(x)))|``.
 
     Uses ``inputs.disparity_right``, or the arg-minimum of ``inputs.cost_volume_right`` when
-    only the volume is given. Pixels whose right correspondence lies outside the image or whose
-    disparity is NaN get ``-D`` (D = volume depth), below every checkable value (≥ ``-(D-1)``
-    for disparities in [0, D - 1]; given disparities outside that range can differ by more).
+    only the volume is given. Pixels whose right correspondence lies outside the image (within a
+    crop, ``first_column`` > 0: outside the arrays) or whose disparity is NaN get ``-D`` (D =
+    volume depth), below every checkable value (≥ ``-(D-1)`` for disparities in [0, D - 1];
+    given disparities outside that range can differ by more).
     """
 
     needs_right = True
