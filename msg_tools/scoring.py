@@ -358,9 +358,9 @@ def score_frame(
             networks): also report ``expected_kept_error``.
         region: (h, w) bool, the pixels the node judges (its region of interest ``roi_top``
             to ``roi_bottom`` and its ignore mask, ``PipelineResult.region``):
-            ``kept_fraction`` is the share of them, as in ``/diagnostics``; None = the whole
-            image. The ground-truth metrics take every pixel with ground truth (outside the
-            region the node keeps nothing).
+            ``kept_fraction`` is the share of them, as in ``/diagnostics``, and the
+            ground-truth metrics take the pixels with ground truth among them; None = the
+            whole image.
 
     Returns:
         The :class:`FrameScore`: :data:`FRAME_KEYS` always, the ground-truth metrics None
@@ -411,9 +411,19 @@ def score_frame(
     if gt is None:
         score.note = 'no ground truth'
         return score
-    ys, xs = select_pixels(np.isfinite(gt), max_pixels, seed)
+    known = np.isfinite(gt)
+    if region is not None:
+        # Not the pixels the user told the node not to judge (its bumper, a hood, rows outside
+        # the region of interest): they were all scored as errors of confidence 0, and a mask
+        # of 30 % made a matcher 25 % wrong (0.29 → 25.00 %) and the AUC ×10² 0.01 → 3.41.
+        known &= np.asarray(region, dtype=bool)
+    ys, xs = select_pixels(known, max_pixels, seed)
     if ys.size == 0:
-        score.note = 'ground truth has no known pixel'
+        score.note = (
+            'ground truth has no known pixel'
+            if region is None or not np.isfinite(gt).any()
+            else 'ground truth has no known pixel among those judged (region of interest, mask)'
+        )
         return score
     error = np.asarray(kitti_error(disparity, gt), dtype=bool)[ys, xs]
     # Ranked in its own dtype, as cva-evaluate ranks it: a cast to float32 tied float64

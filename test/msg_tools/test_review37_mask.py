@@ -72,3 +72,26 @@ def test_cva_mask_refuses_a_mask_name_that_is_not_png(
     upper = tmp_path / 'mask.PNG'
     assert mask_main([str(upper), '--size', '64x48', '--rect', '0', '0', '10', '10']) == 0
     assert int((~load_mask(upper)).sum()) == 100
+
+
+def test_replay_scores_only_the_pixels_the_node_judges() -> None:
+    # The ground-truth metrics took every pixel with ground truth, the masked ones too: as
+    # errors of confidence 0 (the node keeps nothing there), so a mask made the matcher wrong.
+    from msg_tools.scoring import score_frame
+
+    rng = np.random.default_rng(0)
+    gt = rng.uniform(5, 20, (12, 16)).astype(np.float32)
+    disparity = gt + 0.5
+    confidence = rng.random((12, 16)).astype(np.float32)
+    region = np.ones((12, 16), bool)
+    region[8:, :6] = False  # the bumper
+    disparity[~region] = np.nan
+    confidence[~region] = 0.0
+    kept = np.isfinite(disparity)
+    score = score_frame(0, 0, disparity, confidence, kept, gt, region=region)
+    assert score.error_rate == 0.0 and score.n_pixels == int(region.sum())
+    whole = score_frame(0, 0, disparity, confidence, kept, gt)
+    assert whole.error_rate == pytest.approx((~region).mean())
+    nothing = score_frame(0, 0, disparity, confidence, kept,
+                          np.where(region, np.nan, gt).astype(np.float32), region=region)
+    assert nothing.auc is None and 'among those judged' in nothing.note
