@@ -259,10 +259,12 @@ def decode_image_file(path: str | Path) -> np.ndarray | None:
 
 def _check_jpeg_complete(path: Path) -> None:
     """A truncated JPEG decodes without an error in OpenCV (the missing rows come out grey),
-    so look for the end-of-image marker that every complete JPEG ends with."""
-    if path.suffix.lower() not in ('.jpg', '.jpeg'):
-        return
+    so look for the end-of-image marker that every complete JPEG ends with. Judged by the
+    content (a JPEG begins with FF D8), not the name: a PNG named .jpg was refused as a
+    truncated JPEG, and a JPEG named .png was not checked."""
     with path.open('rb') as stream:
+        if stream.read(2) != b'\xff\xd8':
+            return
         stream.seek(max(0, path.stat().st_size - _JPEG_TAIL))
         tail = stream.read()
     if b'\xff\xd9' not in tail:

@@ -95,3 +95,19 @@ def test_replay_scores_only_the_pixels_the_node_judges() -> None:
     nothing = score_frame(0, 0, disparity, confidence, kept,
                           np.where(region, np.nan, gt).astype(np.float32), region=region)
     assert nothing.auc is None and 'among those judged' in nothing.note
+
+
+def test_an_image_file_is_checked_as_a_jpeg_by_its_content_not_its_name(tmp_path: Path) -> None:
+    # A PNG named .jpg was refused as "a truncated JPEG"; a truncated JPEG named .png passed.
+    from cva_confidence_ros.datasets.io import read_image
+    from cva_confidence_ros.errors import DataError
+
+    image = np.random.default_rng(1).integers(0, 256, (24, 32), dtype=np.uint8)
+    png = tmp_path / 'frame.jpg'
+    png.write_bytes(cv2.imencode('.png', image)[1].tobytes())
+    np.testing.assert_array_equal(read_image(png), image)
+    jpeg = cv2.imencode('.jpg', image)[1].tobytes()
+    cut = tmp_path / 'frame.png'
+    cut.write_bytes(jpeg[: len(jpeg) * 2 // 3])
+    with pytest.raises(DataError, match='truncated JPEG'):
+        read_image(cut)
