@@ -158,8 +158,10 @@ def test_replay_skips_a_frame_of_unequal_cy() -> None:
         stereo_inputs(items)
 
     skipped: list[tuple[str, Exception]] = []
-    session = SimpleNamespace(options=None, skip=lambda what, err: skipped.append((what, err)),
-                              frame_epoch=lambda stamp: 0)
+    session = SimpleNamespace(
+        options=None, skip=lambda what, err, stamp=None: skipped.append((what, err)),
+        frame_epoch=lambda stamp: 0,
+    )
     matched = SimpleNamespace(stamp_ns=5, items={key: (msg, 5) for key, msg in items.items()})
     _process_pair(session, None, matched, frame=3)  # type: ignore[arg-type]
     assert [what for what, _ in skipped] == ['frame 3 (stamp 5 ns)']

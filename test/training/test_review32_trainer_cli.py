@@ -54,9 +54,14 @@ def test_an_overwrite_stopped_in_its_first_epoch_leaves_no_earlier_checkpoint(
     assert not (tmp_path / 'history.json').exists()
 
 
-def test_a_checkpoint_that_cannot_be_written_is_named(tmp_path: Path, capsys) -> None:
+def test_a_checkpoint_that_cannot_be_written_is_named(
+    tmp_path: Path, capsys, monkeypatch: pytest.MonkeyPatch
+) -> None:
     # Was a raw RuntimeError '[enforce fail at inline_container.cc:747] . open file failed'.
-    (tmp_path / 'checkpoint.pt.tmp').mkdir()
+    from cva_confidence_ros import outputs
+
+    monkeypatch.setattr(outputs, 'temporary_sibling', lambda path: path.with_name('blocked.tmp'))
+    (tmp_path / 'blocked.tmp').mkdir()
     assert main([*ONE_EPOCH, '--out', str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert f'cannot write checkpoint {tmp_path / "checkpoint.pt"}' in err
