@@ -951,7 +951,43 @@ class FlyingThings3D(StereoDataset):
         )
 
 
-class SceneFlowExtra(StereoDataset):
+class _FramesByTruth(StereoDataset):
+    """A data set of loose frames found by their ground-truth files (``_gt_files``: folder,
+    frame id, its two images), each a scene when its files are all there (``_files``)."""
+
+    def _gt_files(self, root: Path) -> Iterator[tuple[Path, str, tuple[Path, Path]]]:
+        raise NotImplementedError
+
+    @staticmethod
+    def _files(folder: Path, frame: str) -> tuple[object, ...] | None:
+        raise NotImplementedError
+
+    @staticmethod
+    def _scene(root: Path, folder: Path, frame: str) -> str:
+        raise NotImplementedError
+
+    def list_scenes(self, root: Path, split: str | None) -> list[str]:
+        return sorted(
+            {
+                self._scene(root, folder, frame)
+                for folder, frame, _ in self._gt_files(root)
+                if self._files(folder, frame)
+            }
+        )
+
+    def skipped(self, root: Path, split: str | None) -> list[tuple[str, str]]:
+        # A frame with ground truth but no right image was left out unsaid.
+        skipped: dict[str, str] = {}
+        for folder, frame, images in self._gt_files(root):
+            scene = self._scene(root, folder, frame)
+            if scene in skipped or self._files(folder, frame):
+                continue
+            absent = [_absent(path, folder) for path in images if not path.is_file()]
+            skipped[scene] = 'no ' + ' and no '.join(absent)
+        return sorted(skipped.items())
+
+
+class SceneFlowExtra(_FramesByTruth):
     """Loose Scene Flow samples in two layouts, one folder each under the root:
     ``<dir>/{Left,Right}/<id>.png`` + ``<dir>/Disparity/<id>.pfm``, or
     ``<dir>/RGB_cleanpass/{left,right}/<id>.png`` + ``<dir>/disparity/left/<id>.pfm`` (+
@@ -999,25 +1035,9 @@ class SceneFlowExtra(StereoDataset):
                 for pfm in sorted(gt_dir.glob('*.pfm')) if gt_dir.is_dir() else ():
                     yield folder, pfm.stem, (left / f'{pfm.stem}.png', right / f'{pfm.stem}.png')
 
-    def list_scenes(self, root: Path, split: str | None) -> list[str]:
-        return sorted(
-            {
-                f'{folder.name}/{stem}'
-                for folder, stem, _ in self._gt_files(root)
-                if self._files(folder, stem)
-            }
-        )
-
-    def skipped(self, root: Path, split: str | None) -> list[tuple[str, str]]:
-        # A frame with ground truth but no right image was left out unsaid.
-        skipped: dict[str, str] = {}
-        for folder, stem, images in self._gt_files(root):
-            scene = f'{folder.name}/{stem}'
-            if scene in skipped or self._files(folder, stem):
-                continue
-            absent = [_absent(path, folder) for path in images if not path.is_file()]
-            skipped[scene] = 'no ' + ' and no '.join(absent)
-        return sorted(skipped.items())
+    @staticmethod
+    def _scene(root: Path, folder: Path, stem: str) -> str:
+        return f'{folder.name}/{stem}'
 
     def load_scene(self, root: Path, scene: str, split: str | None) -> StereoSample:
         folder_name, _, stem = scene.partition('/')
@@ -1045,7 +1065,7 @@ class SceneFlowExtra(StereoDataset):
 _TARTANAIR_CALIB = Calibration(fx=320.0, fy=320.0, cx=320.0, cy=240.0, baseline=0.25)
 
 
-class TartanAir(StereoDataset):
+class TartanAir(_FramesByTruth):
     """TartanAir: ``<...>/<id>_left.png``, ``<id>_right.png``, ``<id>_left_disp.npy`` (float32
     disparity), or the original ``<...>/{image_left,image_right,depth_left}/<id>_left.png``,
     ``<id>_right.png``, ``<id>_left_depth.npy`` (metric depth; d = 80 / depth). Scene ids are
@@ -1095,25 +1115,9 @@ class TartanAir(StereoDataset):
                 folder / 'image_right' / f'{frame}_right.png',
             )
 
-    def list_scenes(self, root: Path, split: str | None) -> list[str]:
-        return sorted(
-            {
-                f'{folder.relative_to(root).as_posix()}/{frame}'
-                for folder, frame, _ in self._gt_files(root)
-                if self._files(folder, frame)
-            }
-        )
-
-    def skipped(self, root: Path, split: str | None) -> list[tuple[str, str]]:
-        # A frame with ground truth but no right image was left out unsaid.
-        skipped: dict[str, str] = {}
-        for folder, frame, images in self._gt_files(root):
-            scene = f'{folder.relative_to(root).as_posix()}/{frame}'
-            if scene in skipped or self._files(folder, frame):
-                continue
-            absent = [_absent(path, folder) for path in images if not path.is_file()]
-            skipped[scene] = 'no ' + ' and no '.join(absent)
-        return sorted(skipped.items())
+    @staticmethod
+    def _scene(root: Path, folder: Path, frame: str) -> str:
+        return f'{folder.relative_to(root).as_posix()}/{frame}'
 
     def load_scene(self, root: Path, scene: str, split: str | None) -> StereoSample:
         folder, _, frame = scene.rpartition('/')
