@@ -335,6 +335,22 @@ def running_nodes(domain: int, make: Callable[[Context], Any]) -> Iterator[Any]:
             state.client.node.destroy_node()
 
 
+@contextlib.contextmanager
+def node_and_client(make_node: Callable[[Context], Any]) -> Iterator[tuple[Any, StereoClient]]:
+    """``make_node(context)`` and a :class:`StereoClient`, spun together in a fresh localhost
+    context on a spare domain; both stopped and destroyed afterwards."""
+    with localhost_context(spare_domain_id()) as context:
+        node = make_node(context)
+        client = StereoClient(context)
+        spinner = Spinner(context, node, client.node)
+        try:
+            yield node, client
+        finally:
+            spinner.stop()
+            client.node.destroy_node()
+            node.destroy_node()
+
+
 class NodeProcess(BenchNodeProcess):
     """A node executable in a subprocess, on ``domain`` (localhost discovery), with its output
     collected line by line; :attr:`ready` is set once it logs its ``ready:`` line."""

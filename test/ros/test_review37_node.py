@@ -8,14 +8,12 @@ import time
 from diagnostic_msgs.msg import DiagnosticStatus
 from node_test_utils import (
     SMALL_MLM,
-    Spinner,
     StereoClient,
     first_stamp,
     image_msg,
     info_msgs,
-    localhost_context,
+    node_and_client,
     set_parameters_by_service,
-    spare_domain_id,
     textured_pair,
 )
 import pytest
@@ -32,38 +30,36 @@ pytestmark = pytest.mark.timeout(120)
 _QUIET = Parameter('diagnostics_period_seconds', value=600.0)
 
 
+def _quiet_node(context: object) -> ConfidenceNode:
+    return ConfidenceNode(context=context, parameter_overrides=[*SMALL_MLM, _QUIET])
+
+
 def test_a_deactivate_forgets_the_image_size_parameter_changes_are_checked_against() -> None:
     # After deactivate and activate (a camera restarted at 160 px wide), max_disparity 96 was
     # refused as too wide for the 64 px images seen before the deactivate.
-    with localhost_context(spare_domain_id()) as context:
-        node = ManagedConfidenceNode(context=context, parameter_overrides=list(SMALL_MLM))
-        client = StereoClient(context)
-        spinner = Spinner(context, node, client.node)
-        try:
-            assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
-            assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
-            assert client.wait_connected()
-            left, right = textured_pair(48, 64)
-            client.send_until_output(left, right, first_stamp(), topics=('disparity',))
-            # Active, with 64 px images coming: refused, naming the images it is judged by.
-            (refused,) = set_parameters_by_service(client.node, max_disparity=96)
-            assert not refused.successful
-            assert 'image width 64; got 96' in refused.reason
-            assert '64×48 px' in refused.reason
-            assert node.trigger_deactivate() == TransitionCallbackReturn.SUCCESS
-            assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
-            (accepted,) = set_parameters_by_service(client.node, max_disparity=96)
-            assert accepted.successful, accepted.reason
-            assert node.pipeline_config.max_disparity == 96
-            # The camera back at 160×120: processed with it.
-            wide_left, wide_right = textured_pair(120, 160)
-            client.send_until_output(
-                wide_left, wide_right, first_stamp() + 10**10, topics=('disparity',)
-            )
-        finally:
-            spinner.stop()
-            client.node.destroy_node()
-            node.destroy_node()
+    with node_and_client(
+        lambda context: ManagedConfidenceNode(context=context, parameter_overrides=list(SMALL_MLM))
+    ) as (node, client):
+        assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
+        assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
+        assert client.wait_connected()
+        left, right = textured_pair(48, 64)
+        client.send_until_output(left, right, first_stamp(), topics=('disparity',))
+        # Active, with 64 px images coming: refused, naming the images it is judged by.
+        (refused,) = set_parameters_by_service(client.node, max_disparity=96)
+        assert not refused.successful
+        assert 'image width 64; got 96' in refused.reason
+        assert '64×48 px' in refused.reason
+        assert node.trigger_deactivate() == TransitionCallbackReturn.SUCCESS
+        assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
+        (accepted,) = set_parameters_by_service(client.node, max_disparity=96)
+        assert accepted.successful, accepted.reason
+        assert node.pipeline_config.max_disparity == 96
+        # The camera back at 160×120: processed with it.
+        wide_left, wide_right = textured_pair(120, 160)
+        client.send_until_output(
+            wide_left, wide_right, first_stamp() + 10**10, topics=('disparity',)
+        )
 
 
 def _infos_only(client: StereoClient, stamp: int, count: int) -> None:
@@ -90,23 +86,15 @@ def test_images_that_stopped_while_the_camera_infos_come_are_not_called_too_larg
     # and the status blamed images over 512 kB lost by Fast DDS.
     for name in PROFILE_VARIABLES:
         monkeypatch.delenv(name, raising=False)
-    with localhost_context(spare_domain_id()) as context:
-        node = ConfidenceNode(context=context, parameter_overrides=[*SMALL_MLM, _QUIET])
-        client = StereoClient(context)
-        spinner = Spinner(context, node, client.node)
-        try:
-            assert client.wait_connected()
-            left, right = textured_pair(48, 64)
-            stamp = first_stamp()
-            client.send_until_output(left, right, stamp, topics=('disparity',))
-            message = _unpaired_message(node, client, stamp + 10**10)
-            assert message.startswith('messages arrive but none pair up'), message
-            assert 'stopped (their publisher stopped sending, or was restarted?)' in message
-            assert 'come: images over 512 kB' not in message
-        finally:
-            spinner.stop()
-            client.node.destroy_node()
-            node.destroy_node()
+    with node_and_client(_quiet_node) as (node, client):
+        assert client.wait_connected()
+        left, right = textured_pair(48, 64)
+        stamp = first_stamp()
+        client.send_until_output(left, right, stamp, topics=('disparity',))
+        message = _unpaired_message(node, client, stamp + 10**10)
+        assert message.startswith('messages arrive but none pair up'), message
+        assert 'stopped (their publisher stopped sending, or was restarted?)' in message
+        assert 'come: images over 512 kB' not in message
 
 
 def test_images_without_a_publisher_are_not_called_too_large(
@@ -117,67 +105,54 @@ def test_images_without_a_publisher_are_not_called_too_large(
     # come from a publisher there is keep the hint.
     for name in PROFILE_VARIABLES:
         monkeypatch.delenv(name, raising=False)
-    with localhost_context(spare_domain_id()) as context:
-        node = ConfidenceNode(context=context, parameter_overrides=[*SMALL_MLM, _QUIET])
-        client = StereoClient(context)
-        spinner = Spinner(context, node, client.node)
-        try:
-            assert client.wait_connected()
-            stamp = first_stamp()
-            message = _unpaired_message(node, client, stamp)
-            assert '512 kB' in message, message  # publishers there, nothing ever came
-            for key in ('left', 'right'):
-                client.node.destroy_publisher(client.pubs.pop(key))
-            deadline = time.monotonic() + 10.0
-            while node.count_publishers('left/image_rect') and time.monotonic() < deadline:
-                time.sleep(0.05)
-            message = _unpaired_message(node, client, stamp + 10**10)
-            assert 'no publisher on left/image_rect, right/image_rect' in message, message
-            assert '512 kB' not in message
-        finally:
-            spinner.stop()
-            client.node.destroy_node()
-            node.destroy_node()
+    with node_and_client(_quiet_node) as (node, client):
+        assert client.wait_connected()
+        stamp = first_stamp()
+        message = _unpaired_message(node, client, stamp)
+        assert '512 kB' in message, message  # publishers there, nothing ever came
+        for key in ('left', 'right'):
+            client.node.destroy_publisher(client.pubs.pop(key))
+        deadline = time.monotonic() + 10.0
+        while node.count_publishers('left/image_rect') and time.monotonic() < deadline:
+            time.sleep(0.05)
+        message = _unpaired_message(node, client, stamp + 10**10)
+        assert 'no publisher on left/image_rect, right/image_rect' in message, message
+        assert '512 kB' not in message
 
 
 def test_a_second_camera_on_the_left_topic_is_warned_about() -> None:
     # A second camera publishing on left/image_rect by mistake (3 ms apart), approximate sync:
     # most frames paired its image with the first camera's right one (wrong disparities), and
     # the status said 'processing at 10.0 Hz', level OK.
-    with localhost_context(spare_domain_id()) as context:
-        node = ConfidenceNode(context=context, parameter_overrides=[
-            *SMALL_MLM, _QUIET, Parameter('approximate_sync', value=True),
-            Parameter('approximate_sync_tolerance_seconds', value=0.02),
-        ])
-        client = StereoClient(context)
-        spinner = Spinner(context, node, client.node)
-        try:
-            assert client.wait_connected()
-            assert node.diagnostics().message.startswith('processing at')
-            second = client.node.create_publisher(Image, 'left/image_rect', 10)
-            deadline = time.monotonic() + 10.0
-            while node.count_publishers('left/image_rect') < 2 and time.monotonic() < deadline:
-                time.sleep(0.05)
-            left, right = textured_pair(48, 64)
-            other, _ = textured_pair(120, 160, seed=5)
-            stamp = first_stamp()
-            for k in range(3):
-                second.publish(image_msg(other, stamp + k * 10**8 + 3 * 10**6))
-                client.publish_frame(left, right, stamp + k * 10**8)
-                time.sleep(0.05)
-            status = node.diagnostics()
-            assert status.level == DiagnosticStatus.WARN
-            assert status.message.startswith(
-                'more than one publisher on left/image_rect (2): two cameras'
-            ), status.message
-            client.node.destroy_publisher(second)
-            deadline = time.monotonic() + 10.0
-            while node.count_publishers('left/image_rect') > 1 and time.monotonic() < deadline:
-                time.sleep(0.05)
-            client.publish_frame(left, right, stamp + 10**9)
-            time.sleep(0.3)
-            assert 'more than one publisher' not in node.diagnostics().message
-        finally:
-            spinner.stop()
-            client.node.destroy_node()
-            node.destroy_node()
+    overrides = [
+        *SMALL_MLM, _QUIET, Parameter('approximate_sync', value=True),
+        Parameter('approximate_sync_tolerance_seconds', value=0.02),
+    ]
+    with node_and_client(
+        lambda context: ConfidenceNode(context=context, parameter_overrides=overrides)
+    ) as (node, client):
+        assert client.wait_connected()
+        assert node.diagnostics().message.startswith('processing at')
+        second = client.node.create_publisher(Image, 'left/image_rect', 10)
+        deadline = time.monotonic() + 10.0
+        while node.count_publishers('left/image_rect') < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        left, right = textured_pair(48, 64)
+        other, _ = textured_pair(120, 160, seed=5)
+        stamp = first_stamp()
+        for k in range(3):
+            second.publish(image_msg(other, stamp + k * 10**8 + 3 * 10**6))
+            client.publish_frame(left, right, stamp + k * 10**8)
+            time.sleep(0.05)
+        status = node.diagnostics()
+        assert status.level == DiagnosticStatus.WARN
+        assert status.message.startswith(
+            'more than one publisher on left/image_rect (2): two cameras'
+        ), status.message
+        client.node.destroy_publisher(second)
+        deadline = time.monotonic() + 10.0
+        while node.count_publishers('left/image_rect') > 1 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        client.publish_frame(left, right, stamp + 10**9)
+        time.sleep(0.3)
+        assert 'more than one publisher' not in node.diagnostics().message
