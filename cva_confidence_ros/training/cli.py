@@ -21,6 +21,12 @@ run's too (compared by content: the history compares its epochs on them; a moved
 
 Own data with held-out scenes: ``--data-root my/train --datasets stereo_folder
 --val-data-root my/val --val-datasets stereo_folder``.
+
+Memory: every scene's cost volume is kept for the whole run (float16, D·(H+12)·(W+12)·2
+bytes: all of KITTI 2012 + 2015 at D = 256 is about 98 GB). The start-up log says what they
+take before any matching, and a run they do not fit into the available memory is refused
+then; ``--volume-cache DIR`` keeps them on disk instead (``--volume-cache`` may change on a
+resume).
 """
 
 from __future__ import annotations
@@ -218,6 +224,17 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument(
         '--threads', type=int, default=None, help="torch and numba CPU threads (default: torch's)"
     )
+    run.add_argument(
+        '--volume-cache',
+        metavar='DIR',
+        default=None,
+        help='keep the cost volumes in files in DIR, mapped into memory, instead of all in '
+        'memory (default; D·(H+12)·(W+12)·2 bytes a scene: 248 MB for a 1242×375 KITTI pair '
+        'at D = 256): for data that do not fit in memory (the start-up log says what they '
+        'take; a run they clearly do not fit is refused before matching). Written once per '
+        'scene, reused by the epochs, a --resume and later runs on the same pairs, matcher '
+        'and D; the results are those of the in-memory run. Delete DIR to free the disk',
+    )
     output = parser.add_argument_group('output')
     output.add_argument('--out', default=defaults['out'].default, help='checkpoints and log')
     output.add_argument(
@@ -289,6 +306,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         distill_weight=args.distill_weight,
         init_weights=args.init_weights,
         fusion_split=args.fusion_split,
+        volume_cache=args.volume_cache,
     )
 
 

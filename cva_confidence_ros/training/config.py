@@ -203,6 +203,9 @@ class TrainConfig:
         fusion_split: LGC-Net only: which training scenes each stage sees (see
             :data:`FUSION_SPLITS`; ``alternate``: the parts learn from one half of the scenes and
             the fusion from the other, ``none``: both stages from all scenes).
+        volume_cache: Folder that keeps the scenes' cost volumes on disk, mapped into memory
+            (``training.data.VolumeCache``), instead of all of them in memory; reused by later
+            runs and resumes on the same pairs, matcher and D. None = in memory.
     """
 
     arch: str = 'cvanet'
@@ -240,6 +243,7 @@ class TrainConfig:
     distill_weight: float = 0.0
     init_weights: str | None = None
     fusion_split: str = 'alternate'
+    volume_cache: str | None = None
 
     def __post_init__(self) -> None:
         from cva_confidence_ros.model import ARCHITECTURES
@@ -272,7 +276,7 @@ class TrainConfig:
                 )
             object.__setattr__(self, name, bool(value))
         for name in ('data_root', 'val_data_root', 'out', 'weights_out', 'teacher',
-                     'init_weights'):
+                     'init_weights', 'volume_cache'):
             # A Path is kept as a str: checkpoints are read with weights_only, which refuses a
             # pickled Path (a resume would fail with 'cannot read checkpoint').
             value = getattr(self, name)
@@ -352,6 +356,13 @@ class TrainConfig:
                 f'--arch {self.arch} trains in float32 without flips: --vflip and --precision '
                 'bf16 are for the cost-volume networks (cvanet, cvanet_lite, cvanet_fast); got '
                 f'vflip {self.vflip}, precision {self.precision!r}'
+            )
+        if self.arch in BASELINE_ARCHS and self.volume_cache:
+            # Their scenes keep disparity maps, no cost volumes: the option did nothing.
+            raise ConfigError(
+                f'--arch {self.arch} keeps no cost volumes (it learns from disparity maps): '
+                f'--volume-cache is for the cost-volume networks (cvanet, cvanet_lite, '
+                f'cvanet_fast); got volume_cache {self.volume_cache!r}'
             )
         if not (math.isfinite(self.lr) and self.lr > 0 and 0 < self.low_lr_factor <= 1):
             raise ConfigError(

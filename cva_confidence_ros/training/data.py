@@ -11,19 +11,32 @@ winner-takes-all disparity. Samples are then sliced out of the padded volumes:
 
 All draws are seeded by (seed, epoch), so a resumed run sees exactly the samples of an
 uninterrupted one.
+
+Memory: every training scene's padded volume stays in memory for the whole run,
+:func:`volume_bytes` = D·(H + 12)·(W + 12)·2 bytes (measured: the allocation is exactly that;
+the resident size grows by that per scene, plus one scene's float32 matching buffers while it
+is matched). A 1242×375 KITTI pair at D = 256 is 248 MB, all 394 KITTI 2012 + 2015 pairs
+98 GB. :class:`VolumeCache` keeps them in files on disk instead, mapped into memory: the
+page cache then holds what fits, and the run reads the rest from the disk.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
+import json
 import math
+import os
+from pathlib import Path
+import re
+from typing import Any
+import zipfile
 
 import numpy as np
 import torch
 
 from cva_confidence_ros.datasets import StereoSample, fit_disparity_range
-from cva_confidence_ros.errors import DataError
+from cva_confidence_ros.errors import ConfigError, DataError, reason
 from cva_confidence_ros.model import PAD, PATCH_SIZE, pad_cost_volume
 
 __all__ = [
@@ -31,6 +44,7 @@ __all__ = [
     'LabelledScene',
     'PreparedScene',
     'SampleIndex',
+    'VolumeCache',
     'dense_crops',
     'epoch_order',
     'gather_crops',
@@ -39,6 +53,7 @@ __all__ = [
     'prepare_scene',
     'sample_index',
     'validation_subset',
+    'volume_bytes',
 ]
 
 
@@ -109,6 +124,161 @@ def prepare_scene(sample: StereoSample, matcher: str, max_disparity: int) -> Pre
     matched = match_and_label(sample, matcher, max_disparity)
     padded = torch.from_numpy(pad_cost_volume(matched.volume, np.float16))
     return PreparedScene(matched.name, matched.factor, padded, matched.labelled, matched.correct)
+
+
+def volume_bytes(height: int, width: int, max_disparity: int) -> int:
+    """Bytes of the padded float16 volume of a :class:`PreparedScene` of ``height`` ×
+    ``width`` outputs (after the halving that fits D) at depth ``max_disparity``."""
+    return int(max_disparity) * (int(height) + 2 * PAD) * (int(width) + 2 * PAD) * 2
+
+
+class VolumeCache:
+    """Padded float16 cost volumes of prepared scenes in a folder, one ``.npy`` file each,
+    mapped into memory instead of held in it (``cva-train --volume-cache DIR``).
+
+    An entry is keyed by the pair's content (the digest the trainer keeps for its resume
+    checks), the matcher and D: it is written once, when the scene is first matched, and
+    taken by every later epoch, resume or run on the same pair, matcher and D. Beside the
+    volume, ``<key>.labels.npz`` holds the labels, the halving factor and what the entry was
+    made from (matcher, D, package version, shape); an entry that does not match (cut short, or
+    written by another version, whose matcher may compute other costs) is matched again and
+    replaced, and said so.
+
+    The volumes are mapped copy-on-write: training only reads them, so their pages are the
+    page cache's, shared by the processes of a torchrun group, and dropped under memory
+    pressure instead of the process being killed. Results are those of the in-memory volumes,
+    bit for bit.
+    """
+
+    def __init__(
+        self, folder: str | os.PathLike[str], log: Callable[[str], None] | None = None
+    ) -> None:
+        """
+        Raises:
+            ConfigError: ``folder`` cannot be made or written.
+        """
+        self.folder = Path(folder)
+        self.log = log
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            probe = self.folder / f'.probe-{os.getpid()}'
+            probe.write_bytes(b'')
+            probe.unlink()
+        except OSError as exc:
+            raise ConfigError(
+                f'--volume-cache {folder}: cannot write cost volumes there ({reason(exc)})'
+            ) from exc
+
+    def key(self, pair: str, matcher: str, max_disparity: int) -> str:
+        """The entry name of the pair of digest ``pair`` matched by ``matcher`` at D."""
+        safe = re.sub(r'[^A-Za-z0-9_.-]', '_', matcher)
+        return f'{pair}-{safe}-d{int(max_disparity)}'
+
+    def paths(self, key: str) -> tuple[Path, Path]:
+        """(volume, labels) files of entry ``key``."""
+        return self.folder / f'{key}.npy', self.folder / f'{key}.labels.npz'
+
+    def has(self, pair: str, matcher: str, max_disparity: int) -> bool:
+        """Whether the entry's files are there (not whether they are valid)."""
+        return all(path.is_file() for path in self.paths(self.key(pair, matcher, max_disparity)))
+
+    def _meta(self, matcher: str, max_disparity: int, pair: str) -> dict[str, Any]:
+        from cva_confidence_ros import __version__
+
+        return {
+            'format': 1,
+            'matcher': matcher,
+            'max_disparity': int(max_disparity),
+            'pair': pair,
+            'version': __version__,
+        }
+
+    def _read(
+        self, name: str, key: str, meta: dict[str, Any]
+    ) -> PreparedScene | str | None:
+        """The cached scene of ``key``; None where there is none, or why it is stale."""
+        volume_path, labels_path = self.paths(key)
+        if not (volume_path.is_file() and labels_path.is_file()):
+            return None
+        try:
+            with np.load(labels_path, allow_pickle=False) as stored:
+                saved = json.loads(str(stored['meta']))
+                labelled = np.array(stored['labelled'], dtype=bool)
+                correct = np.array(stored['correct'], dtype=bool)
+            # Copy-on-write: a writable array (torch takes no read-only one) whose pages stay
+            # the file's as long as nothing writes them, and training only reads.
+            volume = np.load(volume_path, mmap_mode='c', allow_pickle=False)
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+            return f'unreadable ({reason(exc)})'
+        factor = saved.pop('factor', None)
+        if saved != meta:
+            changed = [k for k in meta if saved.get(k) != meta[k]]
+            return 'made with other ' + ', '.join(
+                f'{k} ({saved.get(k)!r}, now {meta[k]!r})' for k in changed
+            )
+        height, width = labelled.shape
+        depth = meta['max_disparity']
+        expected = (depth, height + 2 * PAD, width + 2 * PAD)
+        if volume.dtype != np.float16 or volume.shape != expected or correct.shape != (
+            height,
+            width,
+        ):
+            return (
+                f'a {volume.dtype} {volume.shape} volume where {expected} float16 belongs'
+            )
+        return PreparedScene(name, int(factor), torch.from_numpy(volume), labelled, correct)
+
+    def prepare(
+        self, sample: StereoSample, matcher: str, max_disparity: int, pair: str
+    ) -> PreparedScene:
+        """:func:`prepare_scene`, the volume taken from the cache where it holds the entry,
+        else matched, written there and mapped.
+
+        Args:
+            pair: The digest of ``sample``'s images and ground truth.
+
+        Raises:
+            DataError: As :func:`prepare_scene`, or the entry cannot be written (a full disk).
+        """
+        from cva_confidence_ros.outputs import write_atomic
+
+        name = f'{sample.dataset}/{sample.scene}'
+        key = self.key(pair, matcher, max_disparity)
+        meta = self._meta(matcher, max_disparity, pair)
+        found = self._read(name, key, meta)
+        if isinstance(found, PreparedScene):
+            return found
+        if found is not None and self.log is not None:
+            self.log(f'--volume-cache: the entry of {name} in {self.folder} is stale ({found}): '
+                     'matched again')
+        matched = match_and_label(sample, matcher, max_disparity)
+        padded = pad_cost_volume(matched.volume, np.float16)
+        volume_path, labels_path = self.paths(key)
+        record = json.dumps({**meta, 'factor': matched.factor})
+        try:
+            # The volume first: the labels file, written last, completes the entry.
+            write_atomic(volume_path, lambda handle: np.save(handle, padded))
+            write_atomic(
+                labels_path,
+                lambda handle: np.savez(
+                    handle,
+                    meta=np.array(record),
+                    labelled=matched.labelled,
+                    correct=matched.correct,
+                ),
+            )
+        except OSError as exc:
+            raise DataError(
+                f'--volume-cache: cannot write the cost volume of {name} to {volume_path} '
+                f'({reason(exc)}; it takes {padded.nbytes / 1e9:.2f} GB)'
+            ) from exc
+        stored = self._read(name, key, meta)
+        if not isinstance(stored, PreparedScene):
+            raise DataError(
+                f'--volume-cache: the cost volume of {name} just written to {volume_path} '
+                f'does not read back ({stored or "gone"})'
+            )
+        return stored
 
 
 @dataclass(eq=False)

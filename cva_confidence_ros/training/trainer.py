@@ -18,6 +18,7 @@ import json
 import math
 import os
 from pathlib import Path
+import shutil
 import sys
 import time
 from typing import Any, TypeVar, cast
@@ -27,7 +28,13 @@ import torch
 from torch import nn
 
 from cva_confidence_ros import strict_json
-from cva_confidence_ros.datasets import StereoSample, list_scenes, load_scene, skipped_notice
+from cva_confidence_ros.datasets import (
+    StereoSample,
+    fit_disparity_range,
+    list_scenes,
+    load_scene,
+    skipped_notice,
+)
 from cva_confidence_ros.datasets.synthetic import synthetic_pair
 from cva_confidence_ros.errors import ConfigError, DataError, ModelError, reason
 from cva_confidence_ros.model import (
@@ -49,6 +56,7 @@ from cva_confidence_ros.training.data import (
     LabelledScene,
     PreparedScene,
     SampleIndex,
+    VolumeCache,
     batches,
     dense_crops,
     epoch_order,
@@ -58,6 +66,7 @@ from cva_confidence_ros.training.data import (
     prepare_scene,
     sample_index,
     validation_subset,
+    volume_bytes,
 )
 from cva_confidence_ros.training.distill import (
     distillation_loss,
@@ -66,7 +75,7 @@ from cva_confidence_ros.training.distill import (
     teacher_logits,
 )
 
-__all__ = ['CHECKPOINT_NAME', 'VAL_SEED_OFFSET', 'train']
+__all__ = ['CHECKPOINT_NAME', 'VAL_SEED_OFFSET', 'available_memory', 'train']
 
 CHECKPOINT_NAME = 'checkpoint.pt'
 _HISTORY_NAME = 'history.json'
@@ -107,6 +116,11 @@ _SCHEDULE_KEYS = ('epochs', 'epochs_low_lr', 'lr', 'low_lr_factor')
 Schedule = list[tuple[str, float]]
 #: Labelled training pixels whose logits are checked after each epoch (NaN, infinity).
 _PROBE_PIXELS = 256
+#: Where the cgroup file systems are mounted (v2 unified, or v1's memory controller below it).
+_CGROUP_ROOT = Path('/sys/fs/cgroup')
+#: Share of the available memory the cost volumes may take without a note: matching a scene
+#: needs its float32 volume on top, and the network and batches need some.
+_VOLUME_SHARE = 0.8
 
 
 _T = TypeVar('_T')
@@ -273,6 +287,7 @@ def _prepare(
     seen: dict[str, str] | None = None,
     same: SamePairs | None = None,
     repeats: list[tuple[str, str]] | None = None,
+    cache: VolumeCache | None = None,
 ) -> list[_Scene]:
     """The scenes of ``loaders`` (:func:`_load_samples`), each prepared by ``prepare`` (the
     cost-volume networks' :func:`prepare_scene`; the disparity-map networks'
@@ -283,7 +298,8 @@ def _prepare(
     validation call) is taken once, and said so: data sets that ship one another's frames
     would weigh it twice, or validate on a training scene. ``same`` (a resume) checks each
     pair taken against the run's before it is matched. ``repeats`` collects (label, label of
-    the pair met before) of the pairs not taken.
+    the pair met before) of the pairs not taken. ``cache`` (``--volume-cache``) keeps the
+    cost volumes on disk, keyed by the pair's digest, instead of ``prepare``.
     """
     seen = {} if seen is None else seen
     scenes: list[_Scene] = []
@@ -305,7 +321,12 @@ def _prepare(
         seen[fingerprint] = label
         if same is not None:
             same.take(len(scenes), label, fingerprint)
-        scene = prepare(sample, config.matcher, config.max_disparity)
+        if cache is not None:
+            scene = cast('_Scene', cache.prepare(
+                sample, config.matcher, config.max_disparity, fingerprint
+            ))
+        else:
+            scene = prepare(sample, config.matcher, config.max_disparity)
         scenes.append(scene)
         log(
             f'{"val " if validation else ""}scene {label}: {scene.shape[0]}×{scene.shape[1]} '
@@ -331,6 +352,7 @@ def _prepare_validation(
     prepare: Callable[[StereoSample, str, int], _Scene],
     seen: dict[str, str],
     same: SamePairs | None = None,
+    cache: VolumeCache | None = None,
 ) -> tuple[list[_Scene], list[list[str]]]:
     """The validation scenes (:func:`_prepare` after the training call, with its ``seen``)
     and their [label, fingerprint] pairs, kept in the checkpoint for :class:`SamePairs`.
@@ -342,7 +364,7 @@ def _prepare_validation(
     """
     before = len(seen)
     repeats: list[tuple[str, str]] = []
-    scenes = _prepare(loaders, config, True, log, prepare, seen, same, repeats)
+    scenes = _prepare(loaders, config, True, log, prepare, seen, same, repeats, cache)
     taken = training_pairs(seen)[before:]
     own = [label for label, _ in loaders if not label.startswith('synthetic/')]
     if own and not any(not label.startswith('synthetic/') for label, _ in taken):
@@ -436,6 +458,162 @@ def _pair_fingerprint(sample: StereoSample) -> str:
         digest.update(f'{array.dtype.str}{array.shape}'.encode())
         digest.update(array.tobytes())
     return digest.hexdigest()
+
+
+def _size_text(count: float) -> str:
+    """Bytes as GB (MB below 0.1 GB)."""
+    return f'{count / 1e9:.1f} GB' if count >= 1e8 else f'{count / 1e6:.1f} MB'
+
+
+def _read_number(path: Path) -> int | None:
+    """The integer in a cgroup file; None where it is absent, ``max`` or unreadable."""
+    try:
+        text = path.read_text().strip()
+    except OSError:
+        return None
+    return int(text) if text.isdecimal() else None
+
+
+def _stat_value(path: Path, key: str) -> int:
+    """``key``'s value in a cgroup ``memory.stat`` (0 where absent)."""
+    with contextlib.suppress(OSError, ValueError):
+        for line in path.read_text().splitlines():
+            name, _, value = line.partition(' ')
+            if name == key:
+                return int(value)
+    return 0
+
+
+def _cgroup_left(root: Path) -> tuple[int, str] | None:
+    """What this process's cgroup memory limit leaves: limit − usage + the inactive page
+    cache (which the kernel reclaims first); None where no limit is set."""
+    relative = ''
+    with contextlib.suppress(OSError):
+        for line in Path('/proc/self/cgroup').read_text().splitlines():
+            if line.startswith('0::'):
+                relative = line[3:].strip().lstrip('/')
+    layouts = (  # v2 (the process's own group, or the container's root), then v1
+        ('memory.max', 'memory.current', 'inactive_file', root / relative),
+        ('memory.max', 'memory.current', 'inactive_file', root),
+        ('memory.limit_in_bytes', 'memory.usage_in_bytes', 'total_inactive_file',
+         root / 'memory'),
+    )
+    for limit_name, usage_name, inactive, folder in layouts:
+        limit = _read_number(folder / limit_name)
+        usage = _read_number(folder / usage_name)
+        # v1 writes "no limit" as a number near 2**63.
+        if limit is None or usage is None or limit >= 1 << 60:
+            continue
+        left = limit - usage + _stat_value(folder / 'memory.stat', inactive)
+        return max(0, min(left, limit)), f'cgroup limit {_size_text(limit)} in {folder}'
+    return None
+
+
+def available_memory(cgroup_root: Path = _CGROUP_ROOT) -> tuple[int | None, str]:
+    """(bytes, where from) of the memory a run may still take: the smaller of MemAvailable
+    in /proc/meminfo and what a cgroup memory limit leaves (a container's or a job's);
+    ``(None, '')`` where neither is known (not Linux)."""
+    found: list[tuple[int, str]] = []
+    with contextlib.suppress(OSError, ValueError, IndexError):
+        for line in Path('/proc/meminfo').read_text().splitlines():
+            if line.startswith('MemAvailable:'):
+                found.append((int(line.split()[1]) * 1024, 'MemAvailable in /proc/meminfo'))
+    limited = _cgroup_left(cgroup_root)
+    if limited is not None:
+        found.append(limited)
+    return min(found) if found else (None, '')
+
+
+def _plan_volumes(
+    loaders: list[tuple[str, Callable[[], StereoSample]]],
+    val_loaders: list[tuple[str, Callable[[], StereoSample]]],
+    config: TrainConfig,
+    log: Callable[[str], None],
+    cache: VolumeCache | None,
+    processes: int = 1,
+) -> None:
+    """Say before any matching what the scenes' cost volumes will take (memory, or the disk
+    of ``--volume-cache``), and refuse a run whose volumes cannot fit.
+
+    Every training scene's padded float16 volume stayed in memory (data.volume_bytes): all
+    of KITTI 2012 + 2015 at D = 256 is 98 GB, and a run on a 64 GB workstation was killed by
+    the system after an hour of matching, with no word. Each pair is read here (the halving
+    that fits D needs its ground truth's largest disparity) but not matched; a pair met before
+    is counted once, as :func:`_prepare` takes it once. Training volumes are held by each of
+    the ``processes`` of a torchrun group on this machine, validation volumes by process 0.
+
+    Raises:
+        ConfigError: The volumes take more memory than is available (without a cache), or
+            more disk than is free in the cache folder (what it does not hold yet).
+    """
+    tic = time.perf_counter()
+    seen: set[str] = set()
+    counts, sizes = [0, 0], [0, 0]  # training, validation
+    cached = largest = 0
+    for part, group in enumerate((loaders, val_loaders)):
+        for _, loader in group:
+            sample = loader()
+            fingerprint = _pair_fingerprint(sample)
+            if fingerprint in seen:
+                continue
+            seen.add(fingerprint)
+            fitted, _ = fit_disparity_range(sample, config.max_disparity)
+            height, width = fitted.left.shape[:2]
+            size = volume_bytes(height, width, config.max_disparity)
+            counts[part] += 1
+            sizes[part] += size
+            largest = max(largest, size)
+            if cache is not None and cache.has(fingerprint, config.matcher, config.max_disparity):
+                cached += size
+    depth = config.max_disparity
+    scenes = (
+        f'{counts[0]} training scenes {_size_text(sizes[0])}'
+        # Copies in memory, not on disk: the processes map the same files.
+        + (f' (× {processes} processes)' if processes > 1 and cache is None else '')
+        + (f', {counts[1]} validation scenes {_size_text(sizes[1])}' if counts[1] else '')
+    )
+    took = f'sized in {time.perf_counter() - tic:.1f} s'
+    if cache is not None:
+        total = sum(sizes)
+        free = shutil.disk_usage(cache.folder).free
+        log(
+            f'cost volumes (float16, D = {depth}): {scenes}: {_size_text(total)} on disk in '
+            f'--volume-cache {cache.folder}, {_size_text(cached)} of it there already, '
+            f'{_size_text(free)} free there ({took})'
+        )
+        if total - cached > free:
+            raise ConfigError(
+                f'--volume-cache {cache.folder}: the cost volumes still to write take '
+                f'{_size_text(total - cached)} ({scenes} at D = {depth}), more than the '
+                f'{_size_text(free)} free there; free space, give a folder on a larger disk, '
+                'or train on fewer scenes (--max-scenes N)'
+            )
+        return
+    need = sizes[0] * processes + sizes[1]
+    available, source = available_memory()
+    log(
+        f'cost volumes (float16, D = {depth}): {scenes}: {_size_text(need)} in memory for the '
+        'whole run'
+        + (f'; {_size_text(available)} available ({source})' if available is not None else '')
+        + f' ({took})'
+    )
+    if available is None:
+        return
+    if need > available:
+        raise ConfigError(
+            f'the cost volumes of this run take {_size_text(need)} of memory ({scenes} at '
+            f'D = {depth}, float16), more than the {_size_text(available)} available '
+            f'({source}): the system would end the run while it matches. Keep them on disk '
+            f'with --volume-cache DIR ({_size_text(sizes[0] + sizes[1])} there; epochs then '
+            'read what the page cache does not hold from the disk), train on fewer scenes '
+            '(--max-scenes N, fewer --datasets), or use a smaller --max-disparity'
+        )
+    if need + 2 * largest > _VOLUME_SHARE * available:
+        log(
+            f'note: the cost volumes take {need / available:.0%} of the available memory, and '
+            f'matching a scene needs up to {_size_text(3 * largest)} more (its float32 '
+            'volume): the run may run short; --volume-cache DIR keeps the volumes on disk'
+        )
 
 
 def _scene_facts(scenes: list[PreparedScene]) -> list[dict[str, Any]]:
@@ -968,15 +1146,24 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
     val_loaders: list[tuple[str, Callable[[], StereoSample]]] = dist.on_main(
         lambda: _load_samples(config, True, log), []
     )
+    # Made on every process (each prepares the training scenes); only process 0 logs.
+    cache = VolumeCache(config.volume_cache, log) if config.volume_cache else None
+    # Under torchrun, every process of this machine holds the training volumes.
+    processes = int(os.environ.get('LOCAL_WORLD_SIZE', dist.world)) if dist.world > 1 else 1
+    dist.on_main(
+        partial(_plan_volumes, loaders, val_loaders, config, log, cache, processes), None
+    )
     pairs: dict[str, str] = {}  # the pairs taken, to take each once
     same = None if state is None else SamePairs(checkpoint, state)
-    scenes = _prepare(loaders, config, False, log, prepare_scene, pairs, same)
+    scenes = _prepare(loaders, config, False, log, prepare_scene, pairs, same, cache=cache)
     train_pairs = training_pairs(pairs)
     index = sample_index(scenes)
     same_val = None if state is None else SamePairs(checkpoint, state, validation=True)
     nothing: tuple[list[PreparedScene], list[list[str]]] = ([], [])  # on the other processes
     val_scenes, val_pairs = dist.on_main(
-        lambda: _prepare_validation(val_loaders, config, log, prepare_scene, pairs, same_val),
+        lambda: _prepare_validation(
+            val_loaders, config, log, prepare_scene, pairs, same_val, cache
+        ),
         nothing,
     )
     val_subsets = validation_subset(val_scenes, config.val_pixels, config.seed)
@@ -984,7 +1171,9 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
     log(
         f'{len(scenes)} training scenes, {len(index)} labelled pixels, '
         f'{index.fraction_wrong:.1%} labelled wrong; {n_samples} samples per epoch '
-        f'({config.mode} mode); {len(val_scenes)} validation scenes'
+        f'({config.mode} mode); {len(val_scenes)} validation scenes; cost volumes '
+        + _size_text(sum(int(s.volume.nbytes) for s in [*scenes, *val_scenes]))
+        + (f' on disk in --volume-cache {config.volume_cache}' if cache else ' in memory')
     )
     if index.fraction_wrong in (0.0, 1.0):
         # Ground truth made by the matcher itself (no lidar) labels every pixel correct: the
