@@ -19,6 +19,7 @@ import weakref
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.context import Context
 import rclpy.logging
 from rclpy.node import Node
@@ -85,6 +86,9 @@ NODE_NAME = 'cva_confidence'
 STOP_TIMEOUT_S = 10.0
 #: How long a deactivate waits for the outputs of a frame being published, in seconds.
 PUBLISH_WAIT_S = 1.0
+#: How long (steady seconds, at least a diagnostics period) simulated time may stay unstarted
+#: under use_sim_time before the node says that no /clock came.
+CLOCK_WAIT_S = 5.0
 _OWN_PARAMETERS = frozenset(spec.name for spec in PARAMETERS)
 #: Parameters naming a file, read when set (again: the file may have changed under its name).
 _FILE_PARAMETERS = frozenset({'mask_path', 'model_path'})
@@ -408,7 +412,14 @@ class ConfidenceCore(Node):
         self._diag_timer = self.create_timer(
             node_config.diagnostics_period_seconds, self._publish_diagnostics
         )
-        self._owned = [*publishers, self._pub_diagnostics, self._diag_timer]
+        # Once, on the steady clock: under use_sim_time with no /clock (a bag played without
+        # --clock) the diagnostics timer never fires, and nothing said why /diagnostics is mute.
+        self._clock_check = self.create_timer(
+            max(CLOCK_WAIT_S, node_config.diagnostics_period_seconds),
+            self._check_sim_clock,
+            clock=Clock(clock_type=ClockType.STEADY_TIME),
+        )
+        self._owned = [*publishers, self._pub_diagnostics, self._diag_timer, self._clock_check]
         self._worker = threading.Thread(
             target=self._work, args=(self._mailbox,), name='cva_confidence_worker'
         )
@@ -1351,6 +1362,17 @@ class ConfidenceCore(Node):
             stats.window_old = 0
             stats.window_start, stats.window_start_clock_ns = now, clock_ns
         return diagnostic_status(self, 'stereo confidence', level, message, values)
+
+    def _check_sim_clock(self) -> None:
+        """Warn once when the node runs on simulated time that has not started."""
+        self._clock_check.cancel()
+        clock = self.get_clock()
+        if getattr(clock, 'ros_time_is_active', False) and clock.now().nanoseconds == 0:
+            self.get_logger().warning(
+                'use_sim_time is true and no /clock has come: /diagnostics is published on '
+                'simulated time and waits for it (a bag played without --clock? ros2 bag play '
+                '--clock, or use_sim_time false); frames are processed all the same'
+            )
 
     def _sim_clock_ns(self) -> int | None:
         """The node's clock (ns) while it runs on simulated time (``use_sim_time``); None on

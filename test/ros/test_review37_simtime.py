@@ -16,7 +16,7 @@ from node_test_utils import (
 )
 import pytest
 from rclpy.parameter import Parameter
-from rclpy.qos import QoSProfile
+from rclpy.qos import DurabilityPolicy, QoSProfile
 from rosgraph_msgs.msg import Clock
 
 from cva_confidence_ros.node import ConfidenceNode, ManagedConfidenceNode
@@ -93,3 +93,31 @@ def test_the_processing_rate_is_per_second_of_simulated_time(
         frames(5 * _SECOND + _SECOND // 10, 5)
         sim_time(5 * _SECOND + 5 * _SECOND // 10)
         assert _rate(node) == pytest.approx(10.0)
+
+
+def test_sim_time_without_a_clock_is_said_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    # use_sim_time and no /clock (a bag played without --clock): the diagnostics timer never
+    # fires, and nothing said why /diagnostics stayed mute.
+    from rcl_interfaces.msg import Log
+
+    from cva_confidence_ros.ros import confidence_node
+
+    monkeypatch.setattr(confidence_node, 'CLOCK_WAIT_S', 0.2)
+    overrides = [*SMALL_MLM, Parameter('use_sim_time', value=True),
+                 Parameter('diagnostics_period_seconds', value=0.2)]
+    with node_and_client(
+        lambda context: ConfidenceNode(context=context, parameter_overrides=overrides)
+    ) as (node, client):
+        # Transient local, as rcl's /rosout: the line may come before discovery.
+        client.subscribe('/rosout', Log, QoSProfile(
+            depth=100, durability=DurabilityPolicy.TRANSIENT_LOCAL
+        ))
+
+        def said() -> list[str]:
+            return [m.msg for m in list(client.received['/rosout'])
+                    if m.msg.startswith('use_sim_time is true and no /clock has come')]
+
+        assert client.wait_for(lambda: bool(said()), timeout=10.0)
+        time.sleep(0.6)
+        assert len(said()) == 1
+        assert not client.received.get('/diagnostics')
