@@ -22,6 +22,7 @@ from cva_confidence_ros.errors import ConfigError, DataError, reason
 __all__ = [
     'check_output_dir',
     'check_output_file',
+    'lock_folder',
     'temporary_sibling',
     'write_atomic',
     'write_text_atomic',
@@ -158,6 +159,38 @@ def write_atomic(path: Path, write: Callable[[BinaryIO], object]) -> None:
             tmp.unlink(missing_ok=True)
         raise
     _sync_folder(path.parent)
+
+
+def lock_folder(folder: Path, shared: bool = False) -> int | None:
+    """Hold ``folder`` for this process: a non-blocking ``flock`` on the folder itself,
+    exclusive (or ``shared``: to probe whether another holds it), so no lock file is left
+    behind and a killed process holds nothing. Two runs into one output folder at once
+    otherwise mixed (or deleted) each other's files without a word.
+
+    Returns:
+        The descriptor holding the lock (close it to release); None where nothing can be
+        held: the folder cannot be opened, a file system without locks, not POSIX.
+
+    Raises:
+        BlockingIOError: Another process holds the folder.
+    """
+    try:
+        import fcntl
+    except ImportError:  # Windows
+        return None
+    try:
+        handle = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return None
+    try:
+        fcntl.flock(handle, (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(handle)
+        raise
+    except OSError:  # no locks on this file system (some network mounts)
+        os.close(handle)
+        return None
+    return handle
 
 
 def temporary_sibling(path: Path) -> Path:

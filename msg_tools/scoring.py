@@ -43,7 +43,6 @@ from collections import Counter
 from collections.abc import Callable, Collection
 import csv
 from dataclasses import asdict, dataclass, field
-import fcntl
 import math
 import os
 from pathlib import Path
@@ -54,6 +53,7 @@ import numpy as np
 
 from cva_confidence_ros import strict_json
 from cva_confidence_ros.errors import ConfigError, InputError, reason
+from cva_confidence_ros.outputs import lock_folder
 
 __all__ = [
     'FRAME_KEYS',
@@ -113,17 +113,11 @@ def report_folder_busy(folder: str | Path) -> bool:
     if not path.is_dir() or path.resolve() in ReportFolderLock.held:
         return False
     try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return False
-    try:
-        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        handle = lock_folder(path, shared=True)
     except BlockingIOError:
         return True
-    except OSError:
-        return False  # a file system without locks: nothing to tell
-    finally:
-        os.close(fd)
+    if handle is not None:
+        os.close(handle)
     return False
 
 
@@ -155,18 +149,14 @@ class ReportFolderLock:
                 self.held[key] += 1
                 self._key = key
                 return self
-            fd = os.open(self.folder, os.O_RDONLY)
         except OSError as err:
             raise ConfigError(
                 f'cannot create the report folder {self.folder}: {reason(err)}'
             ) from None
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            fd = lock_folder(self.folder)  # None: no locks here, run unguarded as before
         except BlockingIOError:
-            os.close(fd)
             raise ConfigError(_busy_message(self.folder)) from None
-        except OSError:
-            pass  # a file system without locks: run unguarded, as before
         self.held[key] = 1
         self._key, self._fd = key, fd
         return self

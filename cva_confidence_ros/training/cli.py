@@ -374,37 +374,26 @@ def _hold_out(config: TrainConfig) -> Iterator[None]:
     Raises:
         ConfigError: Another process holds ``config.out``, or it cannot be made.
     """
-    try:
-        import fcntl
-    except ImportError:  # Windows
-        yield
-        return
     if os.environ.get('RANK', '0') != '0':
         yield
         return
-    from cva_confidence_ros.outputs import check_output_dir, check_output_file
+    from cva_confidence_ros.outputs import check_output_dir, check_output_file, lock_folder
 
     if config.weights_out:  # refused before --out is made, as the trainer refuses it
         check_output_file(config.weights_out, '--weights-out')
     out = check_output_dir(config.out, '--out')
     try:
-        handle = os.open(out, os.O_RDONLY)
-    except OSError:
-        yield  # the trainer says what is wrong with it
-        return
+        handle = lock_folder(out)  # None: nothing to hold (the trainer says what is wrong)
+    except BlockingIOError:
+        raise ConfigError(
+            f'--out {config.out} is in use by another cva-train run (still going); wait '
+            'for it to end or give another --out'
+        ) from None
     try:
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise ConfigError(
-                f'--out {config.out} is in use by another cva-train run (still going); wait '
-                'for it to end or give another --out'
-            ) from None
-        except OSError:
-            pass  # no locks on this file system (some network mounts)
         yield
     finally:
-        os.close(handle)
+        if handle is not None:
+            os.close(handle)
 
 
 def _group_left() -> bool:
