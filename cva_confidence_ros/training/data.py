@@ -23,12 +23,14 @@ page cache then holds what fits, and the run reads the rest from the disk.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
+import contextlib
 from dataclasses import dataclass
 import json
 import math
 import os
 from pathlib import Path
 import re
+import time
 from typing import Any
 import zipfile
 
@@ -132,6 +134,12 @@ def volume_bytes(height: int, width: int, max_disparity: int) -> int:
     return int(max_disparity) * (int(height) + 2 * PAD) * (int(width) + 2 * PAD) * 2
 
 
+#: Temporary files of :class:`VolumeCache` entries (``outputs.temporary_sibling``).
+_TEMPORARY = re.compile(r'.+\.(npy|labels\.npz)\.\d+-\d+\.tmp')
+#: Seconds a temporary entry file stays unchanged before it is taken for a killed writer's.
+_ABANDONED_S = 3600.0
+
+
 class VolumeCache:
     """Padded float16 cost volumes of prepared scenes in a folder, one ``.npy`` file each,
     mapped into memory instead of held in it (``cva-train --volume-cache DIR``).
@@ -163,11 +171,40 @@ class VolumeCache:
             self.folder.mkdir(parents=True, exist_ok=True)
             probe = self.folder / f'.probe-{os.getpid()}'
             probe.write_bytes(b'')
-            probe.unlink()
+            # missing_ok: a process of the same number on another machine (a shared folder)
+            # may have removed it first; the write is what was to be probed.
+            probe.unlink(missing_ok=True)
         except OSError as exc:
+            # mkdir's own words for a file there are 'File exists'.
+            why = 'it is a file, not a folder' if self.folder.is_file() else reason(exc)
             raise ConfigError(
-                f'--volume-cache {folder}: cannot write cost volumes there ({reason(exc)})'
+                f'--volume-cache {folder}: cannot write cost volumes there ({why})'
             ) from exc
+        self._remove_abandoned()
+
+    def _remove_abandoned(self) -> None:
+        """Remove the temporary files of entries whose writer was killed (SIGKILL, SIGTERM, a
+        lost machine: an entry is written beside its name and renamed), unchanged for
+        :data:`_ABANDONED_S`: a writer writes an entry in seconds. Each killed write left one,
+        as large as the volume, unsaid and never removed."""
+        now = time.time()
+        removed, size = 0, 0
+        paths: list[Path] = []
+        with contextlib.suppress(OSError):  # a folder that may be written but not listed
+            paths = list(self.folder.iterdir())
+        for path in paths:
+            if not _TEMPORARY.fullmatch(path.name):
+                continue
+            with contextlib.suppress(OSError):  # gone already, or not ours to remove
+                stat = path.stat()
+                if now - stat.st_mtime > _ABANDONED_S:
+                    path.unlink()
+                    removed, size = removed + 1, size + stat.st_size
+        if removed and self.log is not None:
+            self.log(
+                f'--volume-cache: removed {removed} temporary files ({size / 1e6:.1f} MB) '
+                f'in {self.folder} left by runs killed while writing an entry'
+            )
 
     def key(self, pair: str, matcher: str, max_disparity: int) -> str:
         """The entry name of the pair of digest ``pair`` matched by ``matcher`` at D."""
@@ -205,10 +242,8 @@ class VolumeCache:
                 saved = json.loads(str(stored['meta']))
                 labelled = np.array(stored['labelled'], dtype=bool)
                 correct = np.array(stored['correct'], dtype=bool)
-            # Copy-on-write: a writable array (torch takes no read-only one) whose pages stay
-            # the file's as long as nothing writes them, and training only reads.
-            volume = np.load(volume_path, mmap_mode='c', allow_pickle=False)
-        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+            dtype, shape, volume = _map_volume(volume_path)
+        except (OSError, ValueError, RuntimeError, KeyError, EOFError, zipfile.BadZipFile) as exc:
             return f'unreadable ({reason(exc)})'
         factor = saved.pop('factor', None)
         if saved != meta:
@@ -219,14 +254,9 @@ class VolumeCache:
         height, width = labelled.shape
         depth = meta['max_disparity']
         expected = (depth, height + 2 * PAD, width + 2 * PAD)
-        if volume.dtype != np.float16 or volume.shape != expected or correct.shape != (
-            height,
-            width,
-        ):
-            return (
-                f'a {volume.dtype} {volume.shape} volume where {expected} float16 belongs'
-            )
-        return PreparedScene(name, int(factor), torch.from_numpy(volume), labelled, correct)
+        if volume is None or shape != expected or correct.shape != (height, width):
+            return f'a {dtype} {shape} volume where {expected} float16 belongs'
+        return PreparedScene(name, int(factor), volume, labelled, correct)
 
     def prepare(
         self, sample: StereoSample, matcher: str, max_disparity: int, pair: str
@@ -279,6 +309,42 @@ class VolumeCache:
                 f'does not read back ({stored or "gone"})'
             )
         return stored
+
+
+def _map_volume(path: Path) -> tuple[np.dtype, tuple[int, ...], torch.Tensor | None]:
+    """(dtype, shape, volume) of the ``.npy`` file of a cached volume, mapped into memory
+    copy-on-write: a writable tensor (torch takes no read-only one) whose pages stay the
+    file's as long as nothing writes them, and training only reads. None for the volume where
+    the file holds no C-ordered float16 array.
+
+    Mapped by torch, which keeps no file open: numpy's memmap keeps one descriptor per file,
+    and a cache of more scenes than the open-file limit (``ulimit -n``, 1024 on many systems)
+    failed with 'Too many open files' where the in-memory run trained.
+
+    Raises:
+        OSError, ValueError, EOFError, RuntimeError: The file cannot be read, is no ``.npy``
+            file, or is cut short.
+    """
+    with open(path, 'rb') as handle:
+        version = np.lib.format.read_magic(handle)
+        if version not in ((1, 0), (2, 0)):
+            raise ValueError(f'.npy format {version[0]}.{version[1]}')
+        read = (
+            np.lib.format.read_array_header_1_0
+            if version == (1, 0)
+            else np.lib.format.read_array_header_2_0
+        )
+        shape, fortran, dtype = read(handle)
+        offset = handle.tell()
+        size = os.fstat(handle.fileno()).st_size
+    shape = tuple(int(side) for side in shape)
+    if dtype != np.float16 or fortran or offset % 2:
+        return dtype, shape, None
+    end = offset + 2 * math.prod(shape)
+    if size < end:
+        raise ValueError(f'cut short: {size} bytes where {end} belong')
+    raw = torch.from_file(str(path), shared=False, size=end, dtype=torch.uint8)
+    return dtype, shape, raw[offset:].view(torch.float16).view(shape)
 
 
 @dataclass(eq=False)

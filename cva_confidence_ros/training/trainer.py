@@ -118,6 +118,8 @@ Schedule = list[tuple[str, float]]
 _PROBE_PIXELS = 256
 #: Where the cgroup file systems are mounted (v2 unified, or v1's memory controller below it).
 _CGROUP_ROOT = Path('/sys/fs/cgroup')
+#: This process's cgroups: ``0::/path`` (v2), ``N:memory:/path`` (v1), relative to the root.
+_PROC_CGROUP = Path('/proc/self/cgroup')
 #: Share of the available memory the cost volumes may take without a note: matching a scene
 #: needs its float32 volume on top, and the network and batches need some.
 _VOLUME_SHARE = 0.8
@@ -485,28 +487,42 @@ def _stat_value(path: Path, key: str) -> int:
 
 
 def _cgroup_left(root: Path) -> tuple[int, str] | None:
-    """What this process's cgroup memory limit leaves: limit − usage + the inactive page
-    cache (which the kernel reclaims first); None where no limit is set."""
-    relative = ''
+    """What the tightest cgroup memory limit over this process leaves: limit − usage + the
+    inactive page cache (which the kernel reclaims first), of its own group and of every group
+    above it; None where no limit is set. A Slurm job's or a systemd slice's limit is set on a
+    parent whose child groups, the process's among them, read ``max``: only the own group and
+    the root were read, and such a limit was missed."""
+    relative = {'v2': '', 'v1': ''}
     with contextlib.suppress(OSError):
-        for line in Path('/proc/self/cgroup').read_text().splitlines():
-            if line.startswith('0::'):
-                relative = line[3:].strip().lstrip('/')
-    layouts = (  # v2 (the process's own group, or the container's root), then v1
-        ('memory.max', 'memory.current', 'inactive_file', root / relative),
-        ('memory.max', 'memory.current', 'inactive_file', root),
+        for line in _PROC_CGROUP.read_text().splitlines():
+            number, _, rest = line.partition(':')
+            controllers, _, path = rest.partition(':')
+            if number == '0' and not controllers:
+                relative['v2'] = path
+            elif 'memory' in controllers.split(','):
+                relative['v1'] = path
+    layouts = (
+        ('memory.max', 'memory.current', 'inactive_file', root, relative['v2']),
         ('memory.limit_in_bytes', 'memory.usage_in_bytes', 'total_inactive_file',
-         root / 'memory'),
+         root / 'memory', relative['v1']),
     )
-    for limit_name, usage_name, inactive, folder in layouts:
-        limit = _read_number(folder / limit_name)
-        usage = _read_number(folder / usage_name)
-        # v1 writes "no limit" as a number near 2**63.
-        if limit is None or usage is None or limit >= 1 << 60:
-            continue
-        left = limit - usage + _stat_value(folder / 'memory.stat', inactive)
-        return max(0, min(left, limit)), f'cgroup limit {_size_text(limit)} in {folder}'
-    return None
+    found: list[tuple[int, str]] = []
+    for limit_name, usage_name, inactive, top, path in layouts:
+        parts = Path(path.strip().lstrip('/')).parts
+        # The own group up to the root (in a container, the own path may not exist below a
+        # root that already is the container's group: those folders read nothing).
+        for depth in range(len(parts), -1, -1):
+            folder = top.joinpath(*parts[:depth])
+            limit = _read_number(folder / limit_name)
+            usage = _read_number(folder / usage_name)
+            # v1 writes "no limit" as a number near 2**63.
+            if limit is None or usage is None or limit >= 1 << 60:
+                continue
+            left = limit - usage + _stat_value(folder / 'memory.stat', inactive)
+            found.append(
+                (max(0, min(left, limit)), f'cgroup limit {_size_text(limit)} in {folder}')
+            )
+    return min(found) if found else None
 
 
 def available_memory(cgroup_root: Path = _CGROUP_ROOT) -> tuple[int | None, str]:
