@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from numbers import Real
 from typing import Any
+import warnings
 
 import numpy as np
 
@@ -284,7 +285,9 @@ def evaluate_confidence(
     Args:
         confidence: (H, W) confidence, higher = more confident; no NaN where evaluated.
         d_est: (H, W) estimated disparity, NaN = no estimate (counts as wrong).
-        d_gt: (H, W) ground-truth disparity, NaN = unknown (excluded).
+        d_gt: (H, W) ground-truth disparity, NaN = unknown (excluded); a 0 is judged as
+            disparity 0, with a ``RuntimeWarning`` (files that mark unknown pixels with 0 need
+            them as NaN).
         mask: Optional (H, W) bool; only True pixels are evaluated (e.g. non-occluded).
 
     Returns:
@@ -313,4 +316,14 @@ def evaluate_confidence(
     n_pixels = int(valid.sum())
     if n_pixels == 0:
         raise InputError('no pixel has finite ground truth (inside the mask); nothing to evaluate')
+    # KITTI's and older Middlebury's files mark "no ground truth" with 0; read as they are,
+    # those pixels were judged at disparity 0 (70 % empty: an error rate of 0.74, not 0.17).
+    zeros = int(np.count_nonzero(d_gt[valid] == 0))
+    if zeros:
+        warnings.warn(
+            f'd_gt is exactly 0 at {zeros} of the {n_pixels} evaluated pixels '
+            f'({100 * zeros / n_pixels:.1f} %), judged as ground-truth disparity 0; if 0 means '
+            f'"unknown" (KITTI, Middlebury files), pass np.where(d_gt > 0, d_gt, np.nan)',
+            RuntimeWarning, stacklevel=2,
+        )
     return auc_scores(confidence[valid], error[valid])

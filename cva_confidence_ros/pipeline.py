@@ -11,6 +11,7 @@ from dataclasses import dataclass, field, fields
 from functools import cache, cached_property
 import math
 import os
+import sys
 import threading
 import time
 from typing import TYPE_CHECKING, Any
@@ -317,6 +318,21 @@ class PipelineResult:
         every pixel. Made once per result (the node reads it for several statistics)."""
         return judged_region(self.valid.shape, self.rows, self.mask)
 
+    def __repr__(self) -> str:
+        # A notebook shows the repr of a cell's last value: the dataclass's own printed the
+        # six maps in full, 48 lines of numbers for one 160×120 frame.
+        height, width = np.shape(self.valid)[:2]
+        parts = [f'{width}×{height} px', f'scale={self.scale:g}',
+                 f'kept_fraction={self.kept_fraction:.3f}',
+                 f'probabilistic={self.probabilistic}']
+        if self.rows is not None and tuple(self.rows) != (0, height):
+            parts.append(f'rows={tuple(self.rows)}')
+        if self.mask is not None:
+            parts.append(f'mask: {int(np.count_nonzero(self.mask))} px judged')
+        if 'total' in self.timings_ms:
+            parts.append(f"{self.timings_ms['total']:.1f} ms")
+        return f'PipelineResult({", ".join(parts)})'
+
     @property
     def filtered_disparity(self) -> np.ndarray:
         """Disparity with NaN wherever :attr:`valid` is False."""
@@ -396,6 +412,14 @@ class StereoPipeline:
         self._mask = load_mask(config.mask_path, mask_option) if config.mask_path else None
         self._reduced: tuple[tuple[int, int], np.ndarray] | None = None
 
+    def __repr__(self) -> str:
+        # The options set away from their defaults (the default object repr said nothing).
+        defaults = PipelineConfig()
+        shown = ('matcher', 'max_disparity', 'confidence_method')
+        options = [f'{f.name}={getattr(self.config, f.name)!r}' for f in fields(self.config)
+                   if f.name in shown or getattr(self.config, f.name) != getattr(defaults, f.name)]
+        return f"StereoPipeline({', '.join(options)}; running on {self.device})"
+
     @property
     def probabilistic(self) -> bool:
         """Whether the method's confidence is meant as a probability of a correct disparity."""
@@ -457,8 +481,10 @@ class StereoPipeline:
         # every stage sees ordinary values, with confident pixels for the speckle filter.
         rng = np.random.default_rng(0)
         texture = rng.integers(0, 256, (height * factor, (width + 2) * factor), dtype=np.uint8)
-        left = np.ascontiguousarray(texture[:, 2 * factor:])
-        right = np.ascontiguousarray(texture[:, : width * factor])
+        # Left (x) matches right (x − 2); the pair was the other way round (disparity −2,
+        # nothing confident, nothing kept).
+        left = np.ascontiguousarray(texture[:, : width * factor])
+        right = np.ascontiguousarray(texture[:, 2 * factor:])
         # Uncounted in this thread only: saving the counters and putting them back lost the
         # counts of frames that other threads processed during the warm-up (the node warms
         # up while its first frames arrive).
@@ -681,9 +707,16 @@ def _workqueue_layer() -> bool:
     import numba
     from numba.np.ufunc import parallel
 
+    # numba's OpenMP layer sets OpenMP's thread count to its own as it starts, in the libgomp
+    # that torch uses too: a user's torch.set_num_threads(1) read 2 after the first frame
+    # (and torch ran on 2 threads). Put back.
+    torch = sys.modules.get('torch')
+    threads = torch.get_num_threads() if torch is not None else None
     # Chooses the layer as the first parallel kernel call would, so that it can be read
     # before the first kernel runs.
     parallel._launch_threads()
+    if torch is not None and torch.get_num_threads() != threads:
+        torch.set_num_threads(threads)
     return bool(numba.threading_layer() == 'workqueue')
 
 

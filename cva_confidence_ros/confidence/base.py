@@ -220,6 +220,14 @@ class ConfidenceInputs:
                 _as_disparity('disparity_right', self.disparity_right, shape),
             )
 
+    def __repr__(self) -> str:
+        # The dataclass's own printed every array (96 lines for a 32 × 48 × 64 volume), the
+        # whole of a notebook cell's output.
+        right = '' if self.cost_volume_right is None else ', with the right-view volume'
+        column = f', first_column={self.first_column}' if self.first_column else ''
+        return (f'ConfidenceInputs(D={self.max_disparity}, {self.shape[1]}×{self.shape[0]} px, '
+                f'image {self.image.shape}, matcher={self.matcher!r}{right}{column})')
+
     @property
     def shape(self) -> tuple[int, int]:
         """(H, W) of the maps."""
