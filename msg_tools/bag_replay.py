@@ -132,7 +132,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument('bag', type=Path, help='input bag (folder, .mcap or .db3)')
     parser.add_argument('--out', type=Path, required=True, help='output bag folder to create')
-    parser.add_argument('--report', type=Path, required=True, help='report folder')
+    parser.add_argument('--report', type=Path, required=True,
+                        help='report folder (refused while another cva-bag-replay writes '
+                        'into it, --overwrite or not)')
     parser.add_argument('--mode', choices=('offline', 'live'), default='offline',
                         help='offline: as fast as possible; live: over DDS to the node')
 

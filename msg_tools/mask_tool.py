@@ -47,7 +47,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="Draw an ignore mask for the node's mask_path: black where the camera "
                     "sees the robot's own body.",
     )
-    parser.add_argument('out', type=Path, help='mask PNG to write (0 = ignore, 255 = judge)')
+    parser.add_argument('out', type=Path,
+                        help='mask PNG to write, named .png (0 = ignore, 255 = judge)')
     size = parser.add_mutually_exclusive_group()
     size.add_argument('--size', metavar='WxH', help='image size in pixels, e.g. 640x480')
     size.add_argument('--image', type=Path, help='a frame of the camera (size and preview)')

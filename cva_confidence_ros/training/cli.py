@@ -233,10 +233,16 @@ def build_parser() -> argparse.ArgumentParser:
         'at D = 256): for data that do not fit in memory (the start-up log says what they '
         'take; a run they clearly do not fit is refused before matching). Written once per '
         'scene, reused by the epochs, a --resume and later runs on the same pairs, matcher '
-        'and D; the results are those of the in-memory run. Delete DIR to free the disk',
+        'and D (a run whose volumes still to write exceed the free disk there is refused '
+        'before matching); the results are those of the in-memory run. Delete DIR to free '
+        'the disk',
     )
     output = parser.add_argument_group('output')
-    output.add_argument('--out', default=defaults['out'].default, help='checkpoints and log')
+    output.add_argument(
+        '--out',
+        default=defaults['out'].default,
+        help='checkpoints and log (refused while another cva-train run trains there)',
+    )
     output.add_argument(
         '--weights-out', default=None, help='final weights PATH.pt (+ PATH.md, PATH.json)'
     )
