@@ -476,4 +476,23 @@ def evaluate_scene(
                 tables, Path(plot_dir) / 'reliability.png',
                 title=f'{sample.dataset}/{sample.scene}  {matcher}',
             )
+        _remove_stale_plots(Path(plot_dir), set(maps), bool(tables))
     return records
+
+
+def _remove_stale_plots(plot_dir: Path, methods: set[str], reliability: bool) -> None:
+    """Remove the PNGs of an earlier run in ``plot_dir`` that this scene's run did not write
+    (other methods' maps and overlays, a reliability diagram): they sat beside this run's as
+    if of it."""
+    stale = [
+        path
+        for prefix in ('confidence_', 'correct_')
+        for path in plot_dir.glob(f'{prefix}*.png')
+        if path.stem[len(prefix):] not in methods
+    ]
+    if not reliability:
+        stale.append(plot_dir / 'reliability.png')
+    for path in stale:
+        with contextlib.suppress(OSError):
+            if path.is_file() and not path.is_symlink():
+                path.unlink()

@@ -225,3 +225,8 @@ def test_a_run_without_calibration_removes_the_earlier_runs_calibration_files(
     assert not names & {path.name for path in out.iterdir()}
     assert 'removed 3 calibration file(s) of an earlier run' in capsys.readouterr().err
     assert (out / 'table.md').is_file()
+    # Nor do the scene's PNGs of the earlier run's method stay beside this run's.
+    (scene,) = {path.parent for path in out.rglob('confidence_*.png')}
+    assert sorted(path.name for path in scene.glob('*.png')) == [
+        'confidence_pkrn.png', 'correct_pkrn.png', 'disparity.png', 'roc.png'
+    ]
