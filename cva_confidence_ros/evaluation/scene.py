@@ -241,7 +241,7 @@ def _network_progress(method: Any, label: str, enabled: bool) -> Iterator[None]:
 
 
 #: How ``confidence_<method>.png`` is scaled, as recorded beside it (:func:`_map_range`).
-FIXED_RANGE = 'fixed [0, 1]: every value lies in [0, 1] (a probability)'
+FIXED_RANGE = 'fixed [0, 1]: every value lies in [0, 1]'
 PERCENTILE_RANGE = "1st and 99th percentile of the map's finite values; values beyond saturate"
 
 
@@ -252,7 +252,8 @@ def _map_range(values: np.ndarray) -> tuple[float, float, str]:
         return 0.0, 1.0, FIXED_RANGE
     # Hand-crafted ratios (PKRN) have long tails that would leave the map black.
     low, high = np.percentile(finite, [1.0, 99.0])
-    return float(low), float(high), PERCENTILE_RANGE
+    # + 0.0: LRC's best value was written 'white = -0'.
+    return float(low) + 0.0, float(high) + 0.0, PERCENTILE_RANGE
 
 
 def _write_plots(
