@@ -91,7 +91,12 @@ def _check_image(side: str, image: object) -> np.ndarray:
     if not isinstance(image, np.ndarray):
         raise InputError(f'{side} image must be a numpy array; got {type(image).__name__}')
     if image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] != 3):
-        raise InputError(f'{side} image must be H×W or H×W×3; got shape {image.shape}')
+        # An RGBA PNG as read (imageio, PIL) and a single-channel (H, W, 1) array: say what
+        # to give instead.
+        hint = {4: ' (drop the alpha channel: image[..., :3])',
+                1: ' (give it as (H, W): image[..., 0])'}.get(
+            image.shape[2] if image.ndim == 3 else 0, '')
+        raise InputError(f'{side} image must be H×W or H×W×3; got shape {image.shape}{hint}')
     if image.size == 0:
         raise InputError(f'{side} image is empty; got shape {image.shape}')
     if image.dtype == np.uint8:

@@ -206,3 +206,16 @@ def test_cpu_cosine_costs_take_what_the_torch_path_takes(kind: str) -> None:
     by_torch = mccnn_fast.cosine_cost_volume_torch(features[0], features[1], 4, -1)
     # the torch path multiplies in the tensors' own precision
     np.testing.assert_allclose(by_numba, by_torch, atol=1e-2 if kind != 'requires_grad' else 1e-6)
+
+
+@pytest.mark.parametrize(('channels', 'hint'), [(4, r'image\[\.\.\., :3\]'),
+                                                (1, r'image\[\.\.\., 0\]')])
+def test_an_rgba_or_one_channel_image_is_refused_with_what_to_give(
+    channels: int, hint: str
+) -> None:
+    from cva_confidence_ros.errors import InputError
+    from cva_confidence_ros.matching.base import check_image_pair
+
+    image = np.zeros((8, 16, channels), np.uint8)
+    with pytest.raises(InputError, match=hint):
+        check_image_pair(image, image)
