@@ -8,8 +8,10 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Hashable, Sequence
+import contextlib
 from dataclasses import dataclass, field
 from functools import partial
+import os
 from pathlib import Path
 import threading
 import time
@@ -206,6 +208,19 @@ def _wide_tolerance_message(tolerance_ns: int, period_ns: float) -> str:
     )
 
 
+def _file_stamps(config: PipelineConfig) -> dict[str, tuple[int, ...] | None]:
+    """Per file parameter, what tells its file's content changed (inode, size, modification
+    and change times; None: unset, or cannot be looked at)."""
+    stamps: dict[str, tuple[int, ...] | None] = {}
+    for name in _FILE_PARAMETERS:
+        path, stamps[name] = getattr(config, name), None
+        if path:
+            with contextlib.suppress(OSError, ValueError):
+                info = os.stat(path)
+                stamps[name] = (info.st_ino, info.st_size, info.st_mtime_ns, info.st_ctime_ns)
+    return stamps
+
+
 @dataclass
 class _Stats:
     """Counters and timings shown in ``/diagnostics`` (guarded by the node's lock)."""
@@ -328,6 +343,8 @@ class ConfidenceCore(Node):
     # (tolerance ns, period ns, monotonic s) of the warning logged last (guarded by _lock).
     _wide_holds: bool
     _wide_logged: tuple[int, float, float] | None
+    # _file_stamps() of the files the pipeline read (mask_path, model_path)
+    _files: dict[str, tuple[int, ...] | None]
 
     def _init_core(self) -> None:
         declare_parameters(self)
@@ -379,6 +396,7 @@ class ConfidenceCore(Node):
 
     def _configure(self) -> None:
         pipeline_config, node_config = build_configs(parameter_values(self))
+        files = _file_stamps(pipeline_config)  # before the files are read
         pipeline = StereoPipeline(pipeline_config)
         pipeline.warm_up()
         _warm_up_scan()
@@ -388,6 +406,7 @@ class ConfidenceCore(Node):
             self._pipeline = pipeline
             self._cold = None
             self._pipeline_config = pipeline_config
+            self._files = files
             self._node_config = node_config
             # (width, height) of the last images received and when (monotonic s): a parameter
             # change that could not process them (max_disparity, downsample) is refused.
@@ -643,10 +662,15 @@ class ConfidenceCore(Node):
         try:
             pipeline_config, node_config = build_configs(parameter_values(self), params)
             pipeline = None
-            # A file parameter set again to the same path reloads the file: an edited mask
-            # (cva-mask --start … --overwrite) or retrained weights at the same name were
-            # accepted as "set" while the old ones stayed.
-            reload = any(p.name in _FILE_PARAMETERS and p.value for p in params)
+            # A file parameter set again to the same path reloads the file if it changed
+            # since it was read: an edited mask (cva-mask --start … --overwrite) or retrained
+            # weights at the same name were accepted as "set" while the old ones stayed. An
+            # unchanged one is not (a parameter file loaded again rebuilt the pipeline).
+            files = _file_stamps(pipeline_config)
+            reload = any(
+                p.name in _FILE_PARAMETERS and p.value and files[p.name] != self._files[p.name]
+                for p in params
+            )
             if reload or pipeline_config != self.pipeline_config:
                 # Built here, before accepting, so that e.g. missing weights or a device that
                 # is not there reject the change, and checked against the images coming in.
@@ -676,6 +700,7 @@ class ConfidenceCore(Node):
         with self._lock:
             if pipeline is not None:
                 self._pipeline, self._pipeline_config = pipeline, pipeline_config
+                self._files = files
                 # Warmed up as on start-up, but by the worker before its next frame (the
                 # matcher's kernels compile: seconds on a cold cache), not here on the executor.
                 self._cold = pipeline

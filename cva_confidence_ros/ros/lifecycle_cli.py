@@ -19,6 +19,7 @@ import contextlib
 import os
 import signal
 import sys
+import threading
 import time
 from typing import Any
 
@@ -77,7 +78,12 @@ def init_rclpy(prog: str) -> None:
 
 @contextlib.contextmanager
 def _sigterm_raises() -> Iterator[None]:
-    if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:  # left as the caller set it
+    # Left as the caller set it; and outside the main thread, where signal.signal raises
+    # ValueError (main() called from a thread failed so before it asked anything).
+    if (
+        threading.current_thread() is not threading.main_thread()
+        or signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL
+    ):
         yield
         return
 
