@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import fcntl
 import os
+from pathlib import Path
 import signal
 import threading
 import time
@@ -112,3 +113,13 @@ def test_param_and_lifecycle_end_on_ctrl_c_with_130(capsys) -> None:
     assert interruptible('cva-param', body) == 130
     assert capsys.readouterr().err == 'cva-param: interrupted\n'
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+
+
+def test_a_run_refused_for_its_options_makes_no_out_folder(tmp_path: Path) -> None:
+    # The --out lock made the folder before the trainer refused an unknown matcher.
+    from cva_confidence_ros.training.cli import main
+
+    out = tmp_path / 'run'
+    assert main(['--matcher', 'census_bn', '--max-disparity', '16', '--synthetic', '2',
+                 '--out', str(out), '--no-progress']) == 2
+    assert not out.exists()

@@ -384,7 +384,9 @@ def _hold_out(config: TrainConfig) -> Iterator[None]:
         yield
         return
     from cva_confidence_ros.outputs import check_output_dir, check_output_file, lock_folder
+    from cva_confidence_ros.training.trainer import check_run_options
 
+    check_run_options(config)  # refused before --out is made, as the trainer refuses them
     if config.weights_out:  # refused before --out is made, as the trainer refuses it
         check_output_file(config.weights_out, '--weights-out')
     out = check_output_dir(config.out, '--out')

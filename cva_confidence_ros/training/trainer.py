@@ -1382,17 +1382,12 @@ def _weights_facts(meta: dict[str, Any]) -> dict[str, Any]:
     return {key: meta.get(key) for key in keys if key in meta}
 
 
-def check_run_setup(config: TrainConfig) -> None:
-    """Refuse an unknown matcher or output paths that cannot be written (before hours of
-    training, not after them); apply ``config.threads`` to numba and torch. With
-    ``overwrite``, remove the checkpoint and history of the earlier run in ``out``: a run
-    stopped before its first checkpoint would otherwise be resumed from that one.
+def check_run_options(config: TrainConfig) -> None:
+    """The refusals of :func:`check_run_setup` that touch no path (before ``--out`` is made).
 
     Raises:
-        ConfigError: The matcher is not registered, ``resume`` and ``overwrite`` are both
-            set, ``out`` / ``weights_out`` cannot be written, ``weights_out`` (or its card)
-            is the checkpoint or history of ``out``, or exists without ``overwrite`` (or
-            ``resume`` of the run in ``out`` started with that ``weights_out``).
+        ConfigError: The matcher is not registered, or ``resume`` and ``overwrite`` are both
+            set.
     """
     from cva_confidence_ros.matching import MATCHERS
 
@@ -1405,6 +1400,21 @@ def check_run_setup(config: TrainConfig) -> None:
         raise ConfigError(
             '--resume continues the run in --out, --overwrite starts it afresh; give one'
         )
+
+
+def check_run_setup(config: TrainConfig) -> None:
+    """Refuse an unknown matcher or output paths that cannot be written (before hours of
+    training, not after them); apply ``config.threads`` to numba and torch. With
+    ``overwrite``, remove the checkpoint and history of the earlier run in ``out``: a run
+    stopped before its first checkpoint would otherwise be resumed from that one.
+
+    Raises:
+        ConfigError: The matcher is not registered, ``resume`` and ``overwrite`` are both
+            set, ``out`` / ``weights_out`` cannot be written, ``weights_out`` (or its card)
+            is the checkpoint or history of ``out``, or exists without ``overwrite`` (or
+            ``resume`` of the run in ``out`` started with that ``weights_out``).
+    """
+    check_run_options(config)
     # The weights file first: the check of --out makes that folder.
     if config.weights_out:
         check_output_file(config.weights_out, '--weights-out')
