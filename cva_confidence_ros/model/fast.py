@@ -36,7 +36,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from typing import ClassVar, cast
 
-from numba import njit
+from numba import njit, prange
 import numpy as np
 import torch
 from torch import nn
@@ -83,7 +83,9 @@ def fast_activations_per_pixel(max_disparity: int) -> int:
     return max(int(max_disparity), FAST_CURVE_FEATURES, FAST_FILTERS)
 
 
-def aligned_curve(costs: torch.Tensor) -> torch.Tensor:
+def aligned_curve(
+    costs: torch.Tensor, memory_format: torch.memory_format = torch.contiguous_format
+) -> torch.Tensor:
     """The curve encoder's inputs: (B, D, H, W) normalised costs → (B, 10, H, W).
 
     Channels 0–8: the costs at d_WTA − 4 … d_WTA + 4 (1.0 outside [0, D)); channel 9:
@@ -91,6 +93,8 @@ def aligned_curve(costs: torch.Tensor) -> torch.Tensor:
     tensors without gradient go through a compiled one-pass kernel (6× faster than the
     torch ops here), everything else (CUDA, autograd, tracing for an ONNX or TorchScript
     export, ``torch.func.vmap``) through torch; both give the same values (tested).
+    ``memory_format``: the layout of the result (the kernel writes channels-last directly,
+    which the folded network's convolutions take without a copy).
     """
     source: np.ndarray | None = None
     if (
@@ -107,30 +111,39 @@ def aligned_curve(costs: torch.Tensor) -> torch.Tensor:
             # read it, and its output would drop the vmap batch ("Cannot access data pointer").
             source = None
     if source is not None:
-        out = np.empty((costs.shape[0], FAST_INPUTS, *costs.shape[2:]), np.float32)
+        result = torch.empty(
+            (costs.shape[0], FAST_INPUTS, *costs.shape[2:]),
+            dtype=torch.float32,  # the costs' own, whatever the default dtype
+            memory_format=memory_format,
+        )
+        out = result.numpy()
         for index in range(costs.shape[0]):
-            _aligned_kernel(source[index], FAST_ALIGN, out[index])
-        return torch.from_numpy(out)
+            # (H, W, 10) view: C-contiguous for channels-last, strided for NCHW.
+            _aligned_kernel(source[index], FAST_ALIGN, out[index].transpose(1, 2, 0))
+        return result
     depth = costs.shape[1]
     wta = costs.argmin(dim=1, keepdim=True)
     padded = F.pad(costs, (0, 0, 0, 0, FAST_ALIGN, FAST_ALIGN), value=OUTSIDE_COST)
     offsets = torch.arange(2 * FAST_ALIGN + 1, device=costs.device).reshape(1, -1, 1, 1)
-    return torch.cat([padded.gather(1, wta + offsets), wta.to(costs.dtype) / depth], 1)
+    aligned = torch.cat([padded.gather(1, wta + offsets), wta.to(costs.dtype) / depth], 1)
+    return aligned.contiguous(memory_format=memory_format)
 
 
-# Serial, in memory order: the first pass streams the volume once with a running minimum per
-# pixel (strict '<': the smallest d among equal costs, and the first NaN, like argmin), the
-# second reads only the 2·align + 1 costs around it.
-@njit(cache=True)
+# Rows in parallel (numba threads), each in memory order: the first pass streams the row's
+# costs once with a running minimum per pixel (strict '<': the smallest d among equal costs,
+# and the first NaN, like argmin), the second reads only the 2·align + 1 costs around it. Per
+# row, the running minimum stays in cache: 3× faster than whole planes at 320×240 on one
+# thread, and the two threads share the rows.
+@njit(cache=True, parallel=True)
 def _aligned_kernel(volume: np.ndarray, align: int, out: np.ndarray) -> None:  # pragma: no cover
     depth, height, width = volume.shape
-    best = volume[0].copy()
-    arg = np.zeros((height, width), np.int32)
-    for d in range(1, depth):
-        for y in range(height):
+    span = 2 * align + 1
+    scale = np.float32(depth)
+    for y in prange(height):
+        low = volume[0, y].copy()
+        index = np.zeros(width, np.int32)
+        for d in range(1, depth):
             row = volume[d, y]
-            low = best[y]
-            index = arg[y]
             for x in range(width):
                 value = row[x]
                 # As argmin: a NaN counts as the minimum (the first one wins; a NaN minimum
@@ -138,16 +151,12 @@ def _aligned_kernel(volume: np.ndarray, align: int, out: np.ndarray) -> None:  #
                 if not value >= low[x] and low[x] == low[x]:
                     low[x] = value
                     index[x] = d
-    span = 2 * align + 1
-    scale = np.float32(depth)
-    for y in range(height):
-        index = arg[y]
         for x in range(width):
             centre = index[x]
             for k in range(span):
                 d = centre + k - align
-                out[k, y, x] = volume[d, y, x] if 0 <= d < depth else np.float32(OUTSIDE_COST)
-            out[span, y, x] = np.float32(centre) / scale  # as torch: a float32 division
+                out[y, x, k] = volume[d, y, x] if 0 <= d < depth else np.float32(OUTSIDE_COST)
+            out[y, x, span] = np.float32(centre) / scale  # as torch: a float32 division
 
 
 class CurveEncoder(nn.Module):
@@ -328,12 +337,14 @@ class FoldedCVANetFast(nn.Module):
         check_volume_tensor(volume, self.max_disparity)
         volume = volume.to(self.curve.weight.dtype)  # a float64 or float16 volume, as unfolded
         # Channels-last (NHWC) convolutions: ≈ 10 % faster on this CPU's oneDNN than NCHW,
-        # equal up to float rounding (< 1e-5).
-        x = aligned_curve(volume[:, 0]).contiguous(memory_format=torch.channels_last)
-        x = F.relu(self.curve(x))
-        x = F.relu(self.squeeze(x))
+        # equal up to float rounding (< 1e-5). The kernel writes NHWC itself (no copy), and
+        # the ReLUs work in place on each convolution's fresh output: a new tensor per layer
+        # cost a pass over fresh memory (≈ 1 ms of a 320×240 frame for the 64 channels).
+        x = aligned_curve(volume[:, 0], torch.channels_last)
+        x = F.relu(self.curve(x), inplace=True)
+        x = F.relu(self.squeeze(x), inplace=True)
         for conv in self.fusion:
-            x = F.relu(conv(x))
+            x = F.relu(conv(x), inplace=True)
         return x[:, :, None]
 
     def head_logits(self, curves: torch.Tensor) -> torch.Tensor:
@@ -345,7 +356,7 @@ class FoldedCVANetFast(nn.Module):
     def forward_logits(self, volume: torch.Tensor) -> torch.Tensor:
         """(B, 1, D, H + 12, W + 12) float32 → (B, H, W) float32 logits."""
         x = self.fusion_features(volume)[:, :, 0]
-        return self.fc2(F.relu(self.fc1(x)))[:, 0]
+        return self.fc2(F.relu(self.fc1(x), inplace=True))[:, 0]
 
     def forward(self, volume: torch.Tensor) -> torch.Tensor:
         """Confidence in (0, 1), (B, H, W)."""
@@ -366,6 +377,8 @@ def _folded_conv2d(
         bias = bias * scale.double() + shift.double()
     out_channels, in_channels, kh, kw = weight.shape
     conv = nn.Conv2d(in_channels, out_channels, (kh, kw), device=weight.device)
-    conv.weight.copy_(weight.float())
+    # Stored channels-last, the layout of the activations: oneDNN reordered an NCHW weight
+    # into a new tensor on every call (the same values either way).
+    conv.weight = nn.Parameter(weight.float().contiguous(memory_format=torch.channels_last))
     conv_bias(conv).copy_(bias.float())
     return conv

@@ -466,6 +466,9 @@ class SparseEvaluator:
         """
         volume = _check_volume(self.net, cost_volume)
         _, height, width = volume.shape
+        # Every pixel (the node's dense frames): a whole tile goes in and out as a block,
+        # without the index arrays and their gather and scatter (≈ 0.7 ms at 320×240).
+        every = mask is None
         if mask is None:
             mask = np.ones((height, width), dtype=bool)
         mask = np.asarray(mask)
@@ -493,10 +496,21 @@ class SparseEvaluator:
                 y1 = min(height, y0 + rows)
                 for x0 in range(0, width, columns):
                     x1 = min(width, x0 + columns)
-                    ys, xs = np.nonzero(mask[y0:y1, x0:x1])
-                    if ys.size == 0:
+                    ys, xs = (None, None) if every else np.nonzero(mask[y0:y1, x0:x1])
+                    count = (y1 - y0) * (x1 - x0) if ys is None else ys.size
+                    if count == 0:
                         continue
-                    way = self._choose(y1 - y0, x1 - x0, ys.size)
+                    way = self._choose(y1 - y0, x1 - x0, count)
+                    if ys is None or xs is None:
+                        if way == 'tile':
+                            tile = padded[:, y0 : y1 + 2 * PAD, x0 : x1 + 2 * PAD]
+                            tile = tile.to(self.device, self._dtype)[None, None]
+                            result[y0:y1, x0:x1] = self._run(tile)[0].float().cpu().numpy()
+                            done += count
+                            if report is not None:
+                                report(done, total)
+                            continue
+                        ys, xs = np.nonzero(mask[y0:y1, x0:x1])
                     if way == 'extracts':
                         if windows is None:
                             windows = sliding_window_view(
