@@ -431,14 +431,17 @@ class ConfidenceCore(Node):
         self._diag_timer = self.create_timer(
             node_config.diagnostics_period_seconds, self._publish_diagnostics
         )
-        # Once, on the steady clock: under use_sim_time with no /clock (a bag played without
-        # --clock) the diagnostics timer never fires, and nothing said why /diagnostics is mute.
-        self._clock_check = self.create_timer(
-            max(CLOCK_WAIT_S, node_config.diagnostics_period_seconds),
-            self._check_sim_clock,
-            clock=Clock(clock_type=ClockType.STEADY_TIME),
-        )
-        self._owned = [*publishers, self._pub_diagnostics, self._diag_timer, self._clock_check]
+        self._owned = [*publishers, self._pub_diagnostics, self._diag_timer]
+        if getattr(self.get_clock(), 'ros_time_is_active', False):
+            # Once, on the steady clock: under use_sim_time with no /clock (a bag played
+            # without --clock) the diagnostics timer never fires, and nothing said why
+            # /diagnostics is mute.
+            self._clock_check = self.create_timer(
+                max(CLOCK_WAIT_S, node_config.diagnostics_period_seconds),
+                self._check_sim_clock,
+                clock=Clock(clock_type=ClockType.STEADY_TIME),
+            )
+            self._owned.append(self._clock_check)
         self._worker = threading.Thread(
             target=self._work, args=(self._mailbox,), name='cva_confidence_worker'
         )
