@@ -146,6 +146,15 @@ def _popcount_array(values: np.ndarray) -> np.ndarray:
     return out
 
 
+def check_depth_and_step(depth: int, step: int) -> None:
+    """InputError unless ``depth`` is an integer ≥ 1 and ``step`` ±1: the cost kernels read
+    the other view at x + step·d and do not check bounds."""
+    if not is_int(depth) or depth < 1:
+        raise InputError(f'depth must be an integer ≥ 1; got {depth!r}')
+    if step not in (-1, 1):
+        raise InputError(f'step must be -1 or 1; got {step!r}')
+
+
 @njit(cache=True, inline='always')
 def valid_range(width: int, disparity: int, step: int) -> tuple[int, int]:
     """[lo, hi) of the x whose partner x + step·d lies inside [0, width)."""
@@ -218,10 +227,7 @@ def hamming_cost_volume(
             'codes_ref and codes_other must be (H, W) arrays of the same shape; got '
             f'{codes_ref.shape} and {codes_other.shape}'
         )
-    if not is_int(depth) or depth < 1:
-        raise InputError(f'depth must be an integer ≥ 1; got {depth!r}')
-    if step not in (-1, 1):
-        raise InputError(f'step must be -1 or 1; got {step!r}')
+    check_depth_and_step(depth, step)
     height, width = codes_ref.shape
     shape = (height, width, int(depth))
     if out is not None and not isinstance(out, np.ndarray):

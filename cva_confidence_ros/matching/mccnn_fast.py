@@ -19,10 +19,9 @@ from typing import TYPE_CHECKING
 from numba import njit, prange
 import numpy as np
 
-from cva_confidence_ros.checks import is_int
 from cva_confidence_ros.errors import ConfigError, InputError
 from cva_confidence_ros.matching.base import Matcher
-from cva_confidence_ros.matching.census import valid_range
+from cva_confidence_ros.matching.census import check_depth_and_step, valid_range
 
 if TYPE_CHECKING:
     import torch
@@ -151,10 +150,7 @@ def _check_features(
             'features_ref and features_other must be on one device; got '
             f'{features_ref.device} and {features_other.device}'
         )
-    if not is_int(depth) or depth < 1:
-        raise InputError(f'depth must be an integer ≥ 1; got {depth!r}')
-    if step not in (-1, 1):
-        raise InputError(f'step must be -1 or 1; got {step!r}')
+    check_depth_and_step(depth, step)
 
 
 def _kernel_features(features: torch.Tensor) -> np.ndarray:

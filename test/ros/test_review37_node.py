@@ -79,13 +79,17 @@ def _unpaired_message(node: ConfidenceNode, client: StereoClient, stamp: int) ->
     return str(node.diagnostics().message)
 
 
-def test_images_that_stopped_while_the_camera_infos_come_are_not_called_too_large(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    # A rectifier stopped (its camera driver's infos still coming): 64×48 images had arrived,
-    # and the status blamed images over 512 kB lost by Fast DDS.
+@pytest.fixture
+def no_dds_profile(monkeypatch: pytest.MonkeyPatch) -> None:
+    """No large-message DDS profile set: the 512 kB hint is given only without one."""
     for name in PROFILE_VARIABLES:
         monkeypatch.delenv(name, raising=False)
+
+
+@pytest.mark.usefixtures('no_dds_profile')
+def test_images_that_stopped_while_the_camera_infos_come_are_not_called_too_large() -> None:
+    # A rectifier stopped (its camera driver's infos still coming): 64×48 images had arrived,
+    # and the status blamed images over 512 kB lost by Fast DDS.
     with node_and_client(_quiet_node) as (node, client):
         assert client.wait_connected()
         left, right = textured_pair(48, 64)
@@ -97,14 +101,11 @@ def test_images_that_stopped_while_the_camera_infos_come_are_not_called_too_larg
         assert 'come: images over 512 kB' not in message
 
 
-def test_images_without_a_publisher_are_not_called_too_large(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
+@pytest.mark.usefixtures('no_dds_profile')
+def test_images_without_a_publisher_are_not_called_too_large() -> None:
     # No image publisher at all (the rectifier not started, a wrong topic name) and the camera
     # infos coming: the status blamed images over 512 kB lost by Fast DDS. Images that never
     # come from a publisher there is keep the hint.
-    for name in PROFILE_VARIABLES:
-        monkeypatch.delenv(name, raising=False)
     with node_and_client(_quiet_node) as (node, client):
         assert client.wait_connected()
         stamp = first_stamp()
