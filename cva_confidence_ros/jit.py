@@ -8,6 +8,7 @@ there is none at all).
 
 from __future__ import annotations
 
+from functools import cache
 import os
 from pathlib import Path
 import stat
@@ -16,7 +17,7 @@ import tempfile
 
 from cva_confidence_ros.errors import ConfigError
 
-__all__ = ['ensure_jit_cache']
+__all__ = ['ensure_jit_cache', 'start_numba_threads']
 
 
 def ensure_jit_cache() -> str | None:
@@ -74,3 +75,24 @@ def _writable_folder(path: Path) -> bool:
     except OSError:
         return False
     return True
+
+
+@cache
+def start_numba_threads() -> str:
+    """Start numba's threading layer as the first parallel kernel would, keeping torch's
+    thread count; the layer's name (chosen once per process, fixed from then on).
+
+    numba's OpenMP layer sets OpenMP's thread count to its own as it starts, in the libgomp
+    that torch uses too: a user's ``torch.set_num_threads(1)`` read 2 after the first frame
+    (and torch ran on 2 threads). Called before the package's first parallel kernel (a
+    pipeline's first frame, :func:`cva_confidence_ros.matching.compute_cost_volume`).
+    """
+    import numba
+    from numba.np.ufunc import parallel
+
+    torch = sys.modules.get('torch')
+    threads = torch.get_num_threads() if torch is not None else None
+    parallel._launch_threads()
+    if torch is not None and torch.get_num_threads() != threads:
+        torch.set_num_threads(threads)
+    return str(numba.threading_layer())

@@ -8,10 +8,9 @@ from __future__ import annotations
 
 import contextlib
 from dataclasses import dataclass, field, fields
-from functools import cache, cached_property
+from functools import cached_property
 import math
 import os
-import sys
 import threading
 import time
 from typing import TYPE_CHECKING, Any
@@ -700,24 +699,12 @@ class StereoPipeline:
         return self._reduced[1]
 
 
-@cache
 def _workqueue_layer() -> bool:
     """Whether numba's parallel kernels run on its ``workqueue`` threading layer (chosen once
-    per process, and fixed from then on)."""
-    import numba
-    from numba.np.ufunc import parallel
+    per process, and fixed from then on; started here keeping torch's thread count)."""
+    from cva_confidence_ros.jit import start_numba_threads
 
-    # numba's OpenMP layer sets OpenMP's thread count to its own as it starts, in the libgomp
-    # that torch uses too: a user's torch.set_num_threads(1) read 2 after the first frame
-    # (and torch ran on 2 threads). Put back.
-    torch = sys.modules.get('torch')
-    threads = torch.get_num_threads() if torch is not None else None
-    # Chooses the layer as the first parallel kernel call would, so that it can be read
-    # before the first kernel runs.
-    parallel._launch_threads()
-    if torch is not None and torch.get_num_threads() != threads:
-        torch.set_num_threads(threads)
-    return bool(numba.threading_layer() == 'workqueue')
+    return start_numba_threads() == 'workqueue'
 
 
 def _frame_guard() -> contextlib.AbstractContextManager[object]:

@@ -42,6 +42,24 @@ def test_torch_thread_count_set_by_the_user_survives_the_first_frame() -> None:
     assert 'threads 1' in done.stdout
 
 
+def test_torch_thread_count_survives_a_cost_volume_computed_directly() -> None:
+    # compute_cost_volume outside a pipeline (MC-CNN's parallel correlation) started numba's
+    # OpenMP threads unguarded: torch.set_num_threads(1) read 2 after it.
+    script = textwrap.dedent("""
+        import numpy as np
+        import torch
+        torch.set_num_threads(1)
+        from cva_confidence_ros.matching import compute_cost_volume
+        texture = np.random.default_rng(0).integers(0, 256, (24, 43), dtype=np.uint8)
+        compute_cost_volume(texture[:, :40].copy(), texture[:, 3:].copy(), 'mccnn_fast', 8)
+        print('threads', torch.get_num_threads())
+    """)
+    done = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
+                          timeout=300, check=False)
+    assert done.returncode == 0, done.stderr
+    assert 'threads 1' in done.stdout
+
+
 def test_result_and_pipeline_reprs_are_one_line() -> None:
     pipeline = StereoPipeline(PipelineConfig(max_disparity=8, confidence_method='pkrn',
                                              device='cpu', roi_top=0.25, speckle_size=0))

@@ -92,4 +92,7 @@ def compute_cost_volume(
     instance = matcher_class.from_params(**params)
     left_u8, right_u8 = check_image_pair(left, right)
     depth = check_max_disparity(max_disparity, left_u8.shape[1])
+    from cva_confidence_ros.jit import start_numba_threads
+
+    start_numba_threads()  # keeps a user's torch.set_num_threads (as a pipeline does)
     return instance.compute(left_u8, right_u8, depth, view)
