@@ -21,43 +21,42 @@ def _pair(height: int = 24, width: int = 40, shift: int = 3) -> tuple[np.ndarray
     return texture[:, :width].copy(), texture[:, shift:].copy()
 
 
-def test_torch_thread_count_set_by_the_user_survives_the_first_frame() -> None:
-    # A fresh process: numba starts its OpenMP threads once, on the first frame. It set
-    # OpenMP's count (shared with torch) to its own, and torch.set_num_threads(1) read 2.
+def _torch_threads_after(lines: str) -> str:
+    """The stdout of a fresh process (numba starts its OpenMP threads once per process) that
+    sets torch to 1 thread, runs ``lines`` on a 24×40 pair (``left``, ``right``) and prints
+    torch's thread count."""
     script = textwrap.dedent("""
         import numpy as np
         import torch
         torch.set_num_threads(1)
         assert torch.get_num_threads() == 1
-        from cva_confidence_ros.pipeline import PipelineConfig, StereoPipeline
         texture = np.random.default_rng(0).integers(0, 256, (24, 43), dtype=np.uint8)
-        pipeline = StereoPipeline(PipelineConfig(max_disparity=8, confidence_method='pkrn',
-                                                 device='cpu'))
-        pipeline.process(texture[:, :40].copy(), texture[:, 3:].copy())
-        print('threads', torch.get_num_threads())
-    """)
+        left, right = texture[:, :40].copy(), texture[:, 3:].copy()
+    """) + textwrap.dedent(lines) + "print('threads', torch.get_num_threads())\n"
     done = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
                           timeout=300, check=False)
     assert done.returncode == 0, done.stderr
-    assert 'threads 1' in done.stdout
+    return done.stdout
+
+
+def test_torch_thread_count_set_by_the_user_survives_the_first_frame() -> None:
+    # numba starts its OpenMP threads on the first frame. It set OpenMP's count (shared with
+    # torch) to its own, and torch.set_num_threads(1) read 2.
+    assert 'threads 1' in _torch_threads_after("""
+        from cva_confidence_ros.pipeline import PipelineConfig, StereoPipeline
+        pipeline = StereoPipeline(PipelineConfig(max_disparity=8, confidence_method='pkrn',
+                                                 device='cpu'))
+        pipeline.process(left, right)
+    """)
 
 
 def test_torch_thread_count_survives_a_cost_volume_computed_directly() -> None:
     # compute_cost_volume outside a pipeline (MC-CNN's parallel correlation) started numba's
     # OpenMP threads unguarded: torch.set_num_threads(1) read 2 after it.
-    script = textwrap.dedent("""
-        import numpy as np
-        import torch
-        torch.set_num_threads(1)
+    assert 'threads 1' in _torch_threads_after("""
         from cva_confidence_ros.matching import compute_cost_volume
-        texture = np.random.default_rng(0).integers(0, 256, (24, 43), dtype=np.uint8)
-        compute_cost_volume(texture[:, :40].copy(), texture[:, 3:].copy(), 'mccnn_fast', 8)
-        print('threads', torch.get_num_threads())
+        compute_cost_volume(left, right, 'mccnn_fast', 8)
     """)
-    done = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
-                          timeout=300, check=False)
-    assert done.returncode == 0, done.stderr
-    assert 'threads 1' in done.stdout
 
 
 def test_result_and_pipeline_reprs_are_one_line() -> None:
