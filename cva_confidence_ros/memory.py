@@ -12,6 +12,9 @@ size then stays at the peak of a frame, which a long-running node reaches anyway
 Only the command-line programs call :func:`keep_freed_memory` (the node, the bag replay, the
 evaluation, training and demo tools, ``cva-benchmark --suite fast``); importing the library
 changes nothing. ``CVA_MALLOC_TUNING=0`` in the environment turns it off.
+
+:func:`available_memory` is what a frame may still allocate here (the pipeline refuses a frame
+whose arrays cannot fit, before allocating them); ``CVA_MEMORY_CHECK=0`` turns that check off.
 """
 
 from __future__ import annotations
@@ -21,14 +24,19 @@ import ctypes.util
 import os
 import sys
 
-__all__ = ['ENV_SWITCH', 'keep_freed_memory']
+__all__ = ['CHECK_SWITCH', 'ENV_SWITCH', 'available_memory', 'keep_freed_memory', 'shortfall']
 
 #: Environment variable that turns the tuning off when set to ``0``.
 ENV_SWITCH = 'CVA_MALLOC_TUNING'
+#: Environment variable that turns the pipeline's memory check off when set to ``0``.
+CHECK_SWITCH = 'CVA_MEMORY_CHECK'
 # mallopt parameters of glibc's <malloc.h>
 _M_TRIM_THRESHOLD = -1
 _M_MMAP_THRESHOLD = -3
 _THRESHOLD = 1 << 30  # 1 GiB: no frame allocates a single block that large
+# Needs below this are not checked against the memory left (no read of /proc on small frames,
+# where nothing is at stake).
+_CHECKED_FROM = 256 * 2**20
 
 _applied: bool | None = None
 
@@ -57,3 +65,52 @@ def keep_freed_memory() -> bool:
         mallopt(_M_TRIM_THRESHOLD, _THRESHOLD)
     )
     return _applied
+
+
+def _read_int(path: str, key: str = '') -> int | None:
+    """The integer in the file at ``path`` (or on its line ``key: N kB``, in bytes); None when
+    it cannot be read or holds none (cgroup v2's ``max``)."""
+    try:
+        with open(path, encoding='ascii') as stream:
+            if not key:
+                return int(stream.read().strip())
+            for line in stream:
+                name, _, value = line.partition(':')
+                if name == key:
+                    parts = value.split()
+                    return int(parts[0]) * (1024 if parts[1:] == ['kB'] else 1)
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def available_memory() -> int | None:
+    """Bytes this process can still hold in physical memory: the kernel's ``MemAvailable``,
+    within the cgroup's ``memory.max`` (a container's limit), plus the process's own resident
+    memory (the freed blocks :func:`keep_freed_memory` keeps, SGM's work arrays: a frame reuses
+    them). Generous on purpose, so that what exceeds it surely does not fit: the process would
+    swap or be killed by the kernel's OOM killer (no exception, nothing logged).
+
+    Returns:
+        None off Linux, when ``/proc`` cannot be read, or with ``CVA_MEMORY_CHECK=0``.
+    """
+    if os.environ.get(CHECK_SWITCH, '1') == '0':
+        return None
+    free = _read_int('/proc/meminfo', 'MemAvailable')
+    own = _read_int('/proc/self/status', 'VmRSS')
+    if free is None or own is None:
+        return None
+    limit = _read_int('/sys/fs/cgroup/memory.max')
+    used = _read_int('/sys/fs/cgroup/memory.current')
+    if limit is not None and used is not None:
+        free = min(free, max(0, limit - used))
+    return free + own
+
+
+def shortfall(need: int) -> int | None:
+    """The bytes available (:func:`available_memory`) when ``need`` bytes exceed them, else
+    None (also for needs under 256 MiB, which are not checked)."""
+    if need <= _CHECKED_FROM:
+        return None
+    available = available_memory()
+    return available if available is not None and need > available else None

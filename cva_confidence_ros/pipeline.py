@@ -435,8 +435,10 @@ class StereoPipeline:
 
         Raises:
             InputError: Too small for ``downsample``, narrower than ``max_disparity`` + 1
-                after downsampling, not the size of the mask, or with no pixel that both the
-                region of interest and the mask leave.
+                after downsampling, not the size of the mask, with no pixel that both the
+                region of interest and the mask leave, or whose matching needs more memory
+                (:meth:`memory_needed`) than is available here (the need in GB and what
+                lowers it).
         """
         cfg = self.config
         if min(width, height) < cfg.downsample:
@@ -453,6 +455,68 @@ class StereoPipeline:
                 + (f' ({width} px at downsample = {cfg.downsample})' if cfg.downsample > 1 else '')
                 + f'; got {cfg.max_disparity}'
             )
+        self._check_memory(width, height)
+
+    def memory_needed(self, width: int, height: int) -> int:
+        """Bytes that the matching of one ``width`` × ``height`` px pair allocates at least: the
+        cost volume(s) (float32, D × rows processed × columns, the right view's too with
+        ``lr_check`` or a method that needs it), SGM's work arrays (uint8 costs and uint16
+        sums of the same size) and MC-CNN's features (64 float32 channels of both images).
+        The confidence method's own memory comes on top: the networks' tiles (up to about
+        ``tile_budget_mb``) and a zero-padded copy of the whole volume (CVA-Net-Fast: 5 to 10
+        bytes a voxel in all, measured at 640×480)."""
+        cfg = self.config
+        rows = cfg.roi_rows(height // cfg.downsample)
+        mask = self._processed_mask((height, width))
+        if mask is not None:
+            rows = _judged_rows(rows, mask)
+        return self._matching_bytes(width // cfg.downsample, height // cfg.downsample, rows)
+
+    def _matching_bytes(self, width: int, height: int, rows: tuple[int, int]) -> int:
+        """:meth:`memory_needed` at the processed size ``width`` × ``height``, ``rows`` judged."""
+        cfg = self.config
+        # Python ints: H·W·D of a 2448×2048 camera at D = 512 is 2.6e9, past int32.
+        pixels = (min(height, rows[1] + ROI_MARGIN) - max(0, rows[0] - ROI_MARGIN)) * width
+        voxels = pixels * cfg.max_disparity
+        views = 2 if cfg.lr_check or getattr(self._method, 'needs_right', False) else 1
+        from cva_confidence_ros.matching import MATCHERS
+
+        matcher = MATCHERS.get(cfg.matcher)
+        # The second view's volume is new; its work arrays are the first one's.
+        return (matcher.bytes_per_voxel + 4 * (views - 1)) * voxels + (
+            matcher.bytes_per_pixel * pixels)
+
+    def _check_memory(self, width: int, height: int) -> None:
+        """InputError when the matching of such a pair cannot fit the memory left here
+        (:func:`memory.available_memory`): refused up front, instead of swapping or the
+        kernel's OOM killer ending the process (a node) without a word."""
+        from cva_confidence_ros.memory import CHECK_SWITCH, shortfall
+
+        need = self.memory_needed(width, height)
+        available = shortfall(need)
+        if available is None:
+            return
+        cfg = self.config
+        gb = 1e9
+        hints = [f'a smaller max_disparity (now {cfg.max_disparity})']
+        for factor in (2, 4):
+            if factor > cfg.downsample and cfg.max_disparity < width // factor:
+                smaller = self._matching_bytes(
+                    width // factor, height // factor, cfg.roi_rows(height // factor)
+                )
+                if smaller <= available:
+                    hints.insert(0, f'downsample = {factor} ({smaller / gb:.2f} GB)')
+                    break
+        hints.append('a narrower roi_top / roi_bottom')
+        if cfg.lr_check:
+            hints.append('lr_check off')
+        raise InputError(
+            f'a {width}×{height} px pair at max_disparity = {cfg.max_disparity}, downsample = '
+            f'{cfg.downsample} with {cfg.matcher} needs at least {need / gb:.2f} GB for the '
+            f'matching alone (cost volumes, work arrays), but {available / gb:.2f} GB of memory '
+            f'are available; use '
+            + ', '.join(hints) + f' ({CHECK_SWITCH}=0 in the environment turns this check off)'
+        )
 
     def warm_up(self) -> None:
         """Run the whole pipeline once on a small synthetic pair, outside every statistic.

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from cva_confidence_ros.errors import InputError
 from cva_confidence_ros.matching.base import (
     VIEWS,
     Matcher,
@@ -83,7 +84,8 @@ def compute_cost_volume(
 
     Raises:
         InputError: Images that are not arrays, of different shapes, empty, of another dtype,
-            or with NaN/inf or out-of-range float values.
+            or with NaN/inf or out-of-range float values, or a volume (with the matcher's work
+            arrays) larger than the memory available (``memory.available_memory``).
         ConfigError: Unknown matcher, view or parameter, bad parameter values, or
             max_disparity not an integer in [1, W).
     """
@@ -92,6 +94,22 @@ def compute_cost_volume(
     instance = matcher_class.from_params(**params)
     left_u8, right_u8 = check_image_pair(left, right)
     depth = check_max_disparity(max_disparity, left_u8.shape[1])
+    from cva_confidence_ros.memory import CHECK_SWITCH, shortfall
+
+    height, width = left_u8.shape[:2]
+    # Python ints: H·W·D of a 2448×2048 pair at D = 512 is 2.6e9, past int32.
+    need = matcher_class.bytes_per_voxel * depth * height * width + (
+        matcher_class.bytes_per_pixel * height * width)
+    available = shortfall(need)
+    if available is not None:
+        # Refused before allocating: numpy's lazy allocation succeeds, and the kernel's OOM
+        # killer ends the process once the volume is written.
+        raise InputError(
+            f'the {matcher} cost volume of a {width}×{height} px pair at max_disparity = '
+            f'{depth} needs at least {need / 1e9:.2f} GB, but {available / 1e9:.2f} GB of '
+            f'memory are available; use a smaller max_disparity or shrink the pair '
+            f'(datasets.resize_image) ({CHECK_SWITCH}=0 in the environment turns this check off)'
+        )
     from cva_confidence_ros.jit import start_numba_threads
 
     start_numba_threads()  # keeps a user's torch.set_num_threads (as a pipeline does)

@@ -42,6 +42,11 @@ class Matcher(ABC):
     """
 
     Config: ClassVar[type]
+    #: Bytes :meth:`compute` allocates per (D, H, W) entry of its volume: the float32 volume
+    #: and its work arrays of the same size (SGM: 3 more).
+    bytes_per_voxel: ClassVar[int] = 4
+    #: Bytes it allocates per pixel of the pair besides (MC-CNN: both images' features).
+    bytes_per_pixel: ClassVar[int] = 0
 
     def __init__(self, config: Any = None) -> None:
         if config is None:

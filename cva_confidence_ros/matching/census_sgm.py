@@ -53,6 +53,8 @@ class CensusSGMMatcher(Matcher):
     """
 
     Config = CensusSGMConfig
+    # The volume, and the uint8 Hamming costs and uint16 sums kept between frames.
+    bytes_per_voxel = 4 + 1 + 2
     config: CensusSGMConfig
 
     def compute(

@@ -245,6 +245,8 @@ class MCCNNFastMatcher(Matcher):
     """
 
     Config = MCCNNFastConfig
+    # The 64 float32 features of both images (kept for the other view's volume).
+    bytes_per_pixel = 2 * 64 * 4
     config: MCCNNFastConfig
 
     def compute(

@@ -23,6 +23,7 @@ from cva_confidence_ros.devices import resolve_device
 from cva_confidence_ros.errors import InputError, ModelError, reason
 
 __all__ = [
+    'BAND_BYTES',
     'FEATURES',
     'PADDING',
     'McCnnFastFeatures',
@@ -36,6 +37,8 @@ __all__ = [
 FEATURES = 64
 #: Pixels lost on each side by the five valid 3×3 convolutions.
 PADDING = 5
+#: Bytes of activations :func:`extract_features` lets the network hold at once (one band of rows).
+BAND_BYTES = 64 * 2**20
 _LAYERS = 5
 _WEIGHTS_FILE = 'mc_cnn_fast_mb_weights.pt'
 # ITU-R 601 luma weights, as the mccnn package converts colour images for training.
@@ -187,5 +190,20 @@ def extract_features(
     batch = np.stack(
         [np.pad(normalise_image(image), PADDING, mode='reflect') for image in images]
     )[:, None]
+    count = batch.shape[0]
+    height, width = (side - 2 * PADDING for side in batch.shape[2:])
+    # In bands of rows (each with the 2·PADDING rows of context its convolutions take): the
+    # network's activations of a whole image, about 1 KB per pixel and image, came on top of
+    # the features (3.1 GB for a 1920×1080 pair, past a small robot computer's memory).
+    rows = max(1, BAND_BYTES // (count * FEATURES * 4 * 4 * width))
     with torch.inference_mode():
-        return network(torch.from_numpy(batch).to(device))
+        padded = torch.from_numpy(batch)
+        # Channels last: each image's (H, W, 64) is then contiguous as the correlation kernel
+        # reads it, which took a copy of the features of both images (another 512 B a pixel).
+        out = torch.empty(
+            (count, FEATURES, height, width), device=device, memory_format=torch.channels_last
+        )
+        for top in range(0, height, rows):
+            bottom = min(height, top + rows)
+            out[:, :, top:bottom] = network(padded[:, :, top:bottom + 2 * PADDING].to(device))
+        return out
