@@ -9,7 +9,9 @@ Example (the paper's protocol at D = 64 on the KITTI 2012 pairs plus synthetic d
 
 Multi-GPU: ``torchrun --nproc_per_node=N -m cva_confidence_ros.training.cli --device cuda ...``
 (or the ``cva-train`` script under torchrun). Bad input ends with a one-line message and exit
-code 2; an interrupted run continues with ``--resume`` from its last finished epoch.
+code 2; an interrupted run continues with ``--resume`` from its last checkpoint: the end of an
+epoch, or a step within one (``--checkpoint-every N`` steps; and where SIGTERM or Ctrl-C stops
+a one-process run, which checkpoints the step it is in first and exits 143 / 130).
 
 A resume must keep what the finished epochs were trained with: data, matcher, D, arch, mode,
 sampling, batch size (and number of processes), seed, teacher and warm start, and the learning
@@ -36,6 +38,7 @@ from collections.abc import Iterator, Sequence
 import contextlib
 import os
 import shlex
+import signal
 import sys
 import traceback
 
@@ -244,6 +247,16 @@ def build_parser() -> argparse.ArgumentParser:
         help='checkpoints and log (refused while another cva-train run trains there)',
     )
     output.add_argument(
+        '--checkpoint-every',
+        type=int,
+        metavar='N',
+        default=0,
+        help='also checkpoint every N training steps within an epoch (default: 0, at the end '
+        'of each epoch only), for long epochs: a --resume goes on from the last such step, to '
+        'the bit as if the run had not stopped. A one-process run stopped by SIGTERM or '
+        'Ctrl-C checkpoints the step it is in anyway',
+    )
+    output.add_argument(
         '--weights-out', default=None, help='final weights PATH.pt (+ PATH.md, PATH.json)'
     )
     # A resume continues the run in OUT, an overwrite starts it afresh: one of them.
@@ -313,6 +326,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         init_weights=args.init_weights,
         fusion_split=args.fusion_split,
         volume_cache=args.volume_cache,
+        checkpoint_every=args.checkpoint_every,
     )
 
 
@@ -343,9 +357,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _train(args: argparse.Namespace, argv: list[str]) -> int:
     try:
         config = config_from_args(args)
-        from cva_confidence_ros.training.trainer import train
+        from cva_confidence_ros.training.trainer import stop_on_signals, train
 
-        with _hold_out(config):
+        with _hold_out(config), stop_on_signals():
             train(config, command=shlex.join([PROG, *argv]))
     except CVAError as exc:
         print(f'{PROG}: error: {exc}', file=sys.stderr)
@@ -354,9 +368,29 @@ def _train(args: argparse.Namespace, argv: list[str]) -> int:
         # A Ctrl-C in a numba kernel (the cost volumes) surfaces as a SystemError.
         if not from_interrupt(exc):
             raise
-        print(f'{PROG}: interrupted; continue with --resume', file=sys.stderr)
-        return 130
+        signum, saved = _stopped(exc)
+        if saved:
+            where = f'the checkpoint in {args.out} holds {saved}: --resume goes on from there'
+        else:
+            where = (f'--resume goes on from the last checkpoint in {args.out} (the work '
+                     'since it is lost)')
+        print(f'{PROG}: stopped by {signal.Signals(signum).name}; {where}', file=sys.stderr)
+        return 128 + signum
     return 0
+
+
+def _stopped(exc: BaseException) -> tuple[int, str]:
+    """(signal, what the checkpoint holds) of the trainer's ``Stopped`` in ``exc`` or its
+    causes (a numba kernel's SystemError); (SIGINT, '') for a plain Ctrl-C."""
+    seen: set[int] = set()
+    current: BaseException | None = exc
+    while current is not None and id(current) not in seen:
+        signum = getattr(current, 'signum', None)
+        if isinstance(current, KeyboardInterrupt) and isinstance(signum, int):
+            return signum, str(getattr(current, 'saved', ''))
+        seen.add(id(current))
+        current = current.__cause__ or current.__context__
+    return int(signal.SIGINT), ''
 
 
 def _is_terminal(stream: object) -> bool:

@@ -206,6 +206,9 @@ class TrainConfig:
         volume_cache: Folder that keeps the scenes' cost volumes on disk, mapped into memory
             (``training.data.VolumeCache``), instead of all of them in memory; reused by later
             runs and resumes on the same pairs, matcher and D. None = in memory.
+        checkpoint_every: Also checkpoint every N training steps within an epoch (0 = at the
+            end of each epoch only): an hours-long epoch stopped (preempted, a lost node)
+            resumes at its last such step, to the bit as if it had not stopped.
     """
 
     arch: str = 'cvanet'
@@ -244,6 +247,7 @@ class TrainConfig:
     init_weights: str | None = None
     fusion_split: str = 'alternate'
     volume_cache: str | None = None
+    checkpoint_every: int = 0
 
     def __post_init__(self) -> None:
         from cva_confidence_ros.model import ARCHITECTURES
@@ -334,6 +338,7 @@ class TrainConfig:
             _at_least('samples_per_epoch', self.samples_per_epoch, 1)
         if self.threads is not None:
             _at_least('threads', self.threads, 1)
+        _at_least('checkpoint_every', self.checkpoint_every, 0)
         if self.arch not in ARCHITECTURES:
             raise ConfigError(
                 f'unknown arch {self.arch!r}; expected one of {ARCHITECTURES.names()}'
@@ -356,6 +361,12 @@ class TrainConfig:
                 f'--arch {self.arch} trains in float32 without flips: --vflip and --precision '
                 'bf16 are for the cost-volume networks (cvanet, cvanet_lite, cvanet_fast); got '
                 f'vflip {self.vflip}, precision {self.precision!r}'
+            )
+        if self.arch in BASELINE_ARCHS and self.checkpoint_every:
+            raise ConfigError(
+                f'--arch {self.arch} checkpoints at the end of each epoch only: '
+                '--checkpoint-every is for the cost-volume networks (cvanet, cvanet_lite, '
+                f'cvanet_fast); got checkpoint_every {self.checkpoint_every!r}'
             )
         if self.arch in BASELINE_ARCHS and self.volume_cache:
             # Their scenes keep disparity maps, no cost volumes: the option did nothing.

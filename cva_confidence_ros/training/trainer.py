@@ -19,9 +19,11 @@ import math
 import os
 from pathlib import Path
 import shutil
+import signal
 import sys
+import threading
 import time
-from typing import Any, TypeVar, cast
+from typing import Any, BinaryIO, TypeVar, cast
 
 import numpy as np
 import torch
@@ -75,7 +77,14 @@ from cva_confidence_ros.training.distill import (
     teacher_logits,
 )
 
-__all__ = ['CHECKPOINT_NAME', 'VAL_SEED_OFFSET', 'available_memory', 'train']
+__all__ = [
+    'CHECKPOINT_NAME',
+    'VAL_SEED_OFFSET',
+    'Stopped',
+    'available_memory',
+    'stop_on_signals',
+    'train',
+]
 
 CHECKPOINT_NAME = 'checkpoint.pt'
 _HISTORY_NAME = 'history.json'
@@ -126,6 +135,58 @@ _VOLUME_SHARE = 0.8
 
 
 _T = TypeVar('_T')
+
+
+class Stopped(KeyboardInterrupt):
+    """A run stopped by SIGTERM or SIGINT (``signum``); ``saved`` says what its checkpoint
+    holds where the run wrote one on the way out ('' where it did not)."""
+
+    def __init__(self, signum: int, saved: str = '') -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+        self.saved = saved
+
+
+class _Signals:
+    """What :func:`stop_on_signals` caught: within the steps of a one-process run
+    (``deferring``) a signal is noted in ``received`` and the run stops at the end of its
+    step, after a checkpoint of it."""
+
+    deferring = False
+    received: int | None = None
+
+
+_SIGNALS = _Signals()
+
+
+@contextlib.contextmanager
+def stop_on_signals() -> Any:
+    """Turn SIGTERM (a Slurm preemption, ``kill``, torchrun ending its workers) and SIGINT
+    into :class:`Stopped` meanwhile (main thread only).
+
+    SIGTERM ended the process at once, without a word, and a run preempted in an hours-long
+    epoch lost all of it. Within an epoch's steps of a one-process run the signal is noted
+    and the run checkpoints the step it reached first (a second signal stops it at once);
+    under torchrun the processes would stop at different steps, so they stop at once and a
+    resume starts from the last checkpoint (``--checkpoint-every`` writes them within epochs).
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, _frame: object) -> None:
+        if _SIGNALS.deferring and _SIGNALS.received is None:
+            _SIGNALS.received = signum
+            return
+        raise Stopped(signum)
+
+    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        yield
+    finally:
+        for sig, action in previous.items():
+            signal.signal(sig, action)
+        _SIGNALS.deferring, _SIGNALS.received = False, None
 
 
 @dataclass(frozen=True)
@@ -747,13 +808,39 @@ def _save_checkpoint(path: Path, state: dict[str, Any]) -> None:
         DataError: The checkpoint cannot be written (a full disk, a folder in the way); the
             one at ``path`` is left as it was.
     """
+    failed: list[OSError] = []
+
+    def save(handle: BinaryIO) -> None:
+        torch.save(state, cast('BinaryIO', _KeptErrors(handle, failed)))  # write, flush
+
     try:
         # Into a file opened by write_atomic, not by torch's writer: an OSError names the
         # cause (torch's says '[enforce fail at inline_container.cc:…]').
-        write_atomic(path, partial(torch.save, state))
+        write_atomic(path, save)
     except (OSError, RuntimeError) as exc:  # torch's writer raises RuntimeError
         kept = '; the one there was left as it was' if path.is_file() else ''
-        raise DataError(f'cannot write checkpoint {path} ({reason(exc)}){kept}') from exc
+        # torch's writer answers a failed write (a full disk) with 'unexpected pos …'.
+        cause = failed[0] if failed else exc
+        raise DataError(f'cannot write checkpoint {path} ({reason(cause)}){kept}') from exc
+
+
+class _KeptErrors:
+    """A binary file whose write errors are kept in ``failed`` before they are raised:
+    torch's writer turns them (ENOSPC: 'No space left on device') into 'unexpected pos'."""
+
+    def __init__(self, handle: BinaryIO, failed: list[OSError]) -> None:
+        self.handle = handle
+        self.failed = failed
+
+    def write(self, data: bytes) -> int:
+        try:
+            return self.handle.write(data)
+        except OSError as exc:
+            self.failed.append(exc)
+            raise
+
+    def flush(self) -> None:
+        self.handle.flush()
 
 
 def _write_history(out: Path, history: list[dict[str, Any]]) -> None:
@@ -815,7 +902,9 @@ def _load_checkpoint(
             f'cannot resume from {path}: the run was started with other settings ({detail}); '
             'use another --out folder or the original settings'
         )
-    _check_schedule(path, saved, config, int(state['epoch']), schedule)
+    # An epoch stopped within keeps its learning rate too.
+    within = 1 if state.get('partial') else 0
+    _check_schedule(path, saved, config, int(state['epoch']) + within, schedule)
     return state
 
 
@@ -1040,13 +1129,34 @@ def _run_epoch(
     epoch: int,
     dist: _Dist,
     teacher: nn.Module | None = None,
+    resume_at: dict[str, Any] | None = None,
+    save_step: Callable[[dict[str, Any]], None] | None = None,
 ) -> tuple[float, int, float]:
-    """One epoch; returns (mean loss over all processes, samples seen in all, seconds)."""
+    """One epoch; returns (mean loss over all processes, samples seen in all, seconds).
+
+    ``resume_at`` (a checkpoint's ``partial``, see :func:`_step_state`) continues the epoch
+    after its step; ``save_step`` checkpoints such a state every ``config.checkpoint_every``
+    steps, and before a stop for a signal that :func:`stop_on_signals` noted.
+
+    Raises:
+        Stopped: After ``save_step``, for a noted signal.
+    """
     model.train()
     device = dist.device
     tic = time.perf_counter()
     loss_sum = 0.0
     seen = 0
+    first = 0
+    if resume_at is not None:
+        # Where the stopped epoch was: its steps done, each process's sums and dropout draws.
+        first = int(resume_at['step'])
+        sums = resume_at['sums'][dist.rank]
+        loss_sum, seen = float(sums[0]), int(sums[1])
+        torch.set_rng_state(resume_at['rng'][dist.rank])
+        cuda_rng = resume_at['cuda_rng'][dist.rank]
+        if device.type == 'cuda' and cuda_rng is not None:  # None: stopped on a CPU
+            torch.cuda.set_rng_state(cuda_rng, device)
+        tic -= float(resume_at['seconds'])
     if config.mode == 'sparse':
         order = _share(epoch_order(len(index), n_samples, config.seed, epoch), dist)
         flips = _share(flip_draws(n_samples, config.seed, epoch, config.vflip), dist)
@@ -1062,7 +1172,8 @@ def _run_epoch(
         total = int(crops.n_labelled[order].sum())
     description = f'epoch {epoch + 1}/{config.total_epochs}'
     with _progress(total, description, config.progress and dist.main) as bar:
-        for step in steps:
+        bar.update(seen)
+        for number, step in enumerate(steps[first:], first):
             autocast = _autocast(config.precision, device)
             if config.mode == 'sparse':
                 volumes, targets = gather_extracts(scenes, index, order[step], flips[step])
@@ -1095,8 +1206,45 @@ def _run_epoch(
             bar.update(count)
             elapsed = time.perf_counter() - tic
             bar.set_postfix(loss=f'{loss_sum / max(1, seen):.4f}', sps=f'{seen / elapsed:.0f}')
+            done = number + 1
+            # Only one process notes signals (stop_on_signals): every process decides alike.
+            stop = _SIGNALS.received
+            every = config.checkpoint_every
+            if save_step is None or done == len(steps) or not (
+                stop is not None or (every and done % every == 0)
+            ):
+                continue
+            save_step(_step_state(done, loss_sum, seen, elapsed, dist))
+            if stop is not None:
+                raise Stopped(
+                    stop, f'step {done} of {len(steps)} of epoch {epoch + 1}/{config.total_epochs}'
+                )
     loss_total, seen_total = dist.sum([loss_sum, float(seen)])
     return loss_total / max(1.0, seen_total), int(seen_total), time.perf_counter() - tic
+
+
+def _step_state(
+    done: int, loss_sum: float, seen: int, seconds: float, dist: _Dist
+) -> dict[str, Any]:
+    """The ``partial`` of a checkpoint within an epoch after step ``done``: what
+    :func:`_run_epoch` needs to go on from there as if it had not stopped (each process's loss
+    sum, samples and random-number state: dropout draws)."""
+    own: list[Any] = [
+        [loss_sum, seen],
+        torch.get_rng_state(),
+        torch.cuda.get_rng_state(dist.device) if dist.device.type == 'cuda' else None,
+    ]
+    every: list[Any] = [own]
+    if dist.world > 1:
+        every = [None] * dist.world
+        torch.distributed.all_gather_object(every, own)
+    return {
+        'step': done,
+        'seconds': seconds,
+        'sums': [part[0] for part in every],
+        'rng': [part[1] for part in every],
+        'cuda_rng': [part[2] for part in every],
+    }
 
 
 def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
@@ -1221,6 +1369,7 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
     history: list[dict[str, Any]] = []
     start_epoch = 0
     previous_wall = 0.0
+    resume_at: dict[str, Any] | None = None
     if state is not None:
         try:
             net.load_state_dict(state['model'])
@@ -1232,7 +1381,12 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         history = list(state['history'])
         start_epoch = int(state['epoch'])
         previous_wall = float(state.get('wall_time_s', 0.0))
-        log(f'resumed from {checkpoint} after epoch {start_epoch}')
+        resume_at = state.get('partial')
+        log(
+            f'resumed from {checkpoint} after epoch {start_epoch}'
+            + (f', within epoch {start_epoch + 1} after its step {resume_at["step"]}'
+               if resume_at else '')
+        )
         # A run stopped between its checkpoint and history.json left that one short; a
         # resume with no epoch left to train would never write it.
         dist.on_main(partial(_write_history, out, history), None)
@@ -1254,30 +1408,37 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         device_ids = [dist.device.index] if dist.device.type == 'cuda' else None
         model = nn.parallel.DistributedDataParallel(model, device_ids=device_ids)
 
+    def run_state(finished: int) -> dict[str, Any]:
+        """The checkpoint after ``finished`` epochs (and a ``partial`` one, added by
+        ``save_step``)."""
+        return {
+            'format': 1,
+            'epoch': finished,
+            'model': {k: v.detach().cpu() for k, v in net.state_dict().items()},
+            'optimizer': optimiser.state_dict(),
+            'history': history,
+            'config': config.to_dict(),
+            'processes': dist.world,
+            'wall_time_s': previous_wall + time.perf_counter() - started,
+            'init_meta': _weights_facts(init_meta) if init_meta else None,
+            'teacher_sha256': teacher_digest,
+            'train_pairs': train_pairs,
+            'val_pairs': val_pairs,
+            'weights_out_path': weights_out_path(config),
+        }
+
+    def save_step(epoch: int, part: dict[str, Any]) -> None:
+        """Checkpoint within ``epoch`` (0-based) after ``part['step']`` (every process)."""
+        dist.on_main(
+            lambda: _save_checkpoint(checkpoint, {**run_state(epoch), 'partial': part}), None
+        )
+
     def finish_epoch(epoch: int, record: dict[str, Any]) -> None:
         """Validate, checkpoint, history and log line of an epoch (the main process)."""
         lr = record['lr']
         record.update(_validate(net, val_scenes, val_subsets, dist.device, epoch, lr, out))
         history.append(record)
-        wall = previous_wall + time.perf_counter() - started
-        _save_checkpoint(
-            checkpoint,
-            {
-                'format': 1,
-                'epoch': epoch + 1,
-                'model': {k: v.detach().cpu() for k, v in net.state_dict().items()},
-                'optimizer': optimiser.state_dict(),
-                'history': history,
-                'config': config.to_dict(),
-                'processes': dist.world,
-                'wall_time_s': wall,
-                'init_meta': _weights_facts(init_meta) if init_meta else None,
-                'teacher_sha256': teacher_digest,
-                'train_pairs': train_pairs,
-                'val_pairs': val_pairs,
-                'weights_out_path': weights_out_path(config),
-            },
-        )
+        _save_checkpoint(checkpoint, run_state(epoch + 1))
         _write_history(out, history)
         val = record.get('val_auc')
         log(
@@ -1298,8 +1459,11 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
             group['lr'] = lr
         # Dropout draws depend on (seed, epoch, rank) only: a resumed epoch repeats exactly.
         torch.manual_seed(config.seed * 1_000_003 + epoch * 7919 + dist.rank + 1)
+        # One process notes a signal and stops after the step (and the checkpoint) it is in.
+        _SIGNALS.deferring = dist.world == 1
         loss, seen, seconds = _run_epoch(
-            config, model, optimiser, scenes, index, n_samples, epoch, dist, teacher
+            config, model, optimiser, scenes, index, n_samples, epoch, dist, teacher,
+            resume_at if epoch == start_epoch else None, partial(save_step, epoch),
         )
         check_finite_loss(loss, epoch, config.lr_at(epoch), out)
         collapsed = _check_finite_network(net, scenes, index, dist, epoch, lr, out)
@@ -1316,6 +1480,9 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
             'samples_per_s': seen / max(seconds, 1e-9),
         }
         dist.on_main(partial(finish_epoch, epoch, record), None)
+        if _SIGNALS.received is not None:  # in the last step, the checks or the checkpoint
+            raise Stopped(_SIGNALS.received, f'epoch {epoch + 1}/{config.total_epochs}')
+    _SIGNALS.deferring = False
 
     wall = previous_wall + time.perf_counter() - started
     last = history[-1] if history else {}
