@@ -200,6 +200,8 @@ class DatasetBagSummary:
     assumed_calibration: bool = False
     interrupted: bool = False
     kept_old: bool = False
+    #: The exit status of an interrupted run: 130 Ctrl-C, 143 SIGTERM.
+    interrupt_code: int = 130
 
 
 def sample_geometry(sample: Any, spec: BagSpec) -> tuple[StereoGeometry, bool]:
@@ -318,6 +320,7 @@ def write_dataset_bag(
                 interrupts.check()  # before the next scene is loaded, which takes a while
         except KeyboardInterrupt:
             summary.interrupted = True
+            summary.interrupt_code = interrupts.exit_code
         except Exception as err:
             # A failed run replaces no old bag and leaves no empty one that a retry would have
             # to --overwrite; a new bag keeps the frames written, and the message says which.
@@ -342,8 +345,10 @@ def _failed_state(bag: OutputBag, out: str | Path, frames: int) -> str:
         return f'the existing bag {out} was left as it was{dropped}'
     if bag.dropped_empty:
         return f'no bag was written at {out}'
-    if bag.replacing:
-        return ''  # the new bag could not be written: the error says the old one was kept
+    if bag.replacing or bag.lost:
+        # The new bag could not be written, or its storage lost every frame (sqlite3 on a
+        # full disk): the error says what was kept.
+        return ''
     return f'{out} holds the {frames} frames written before it'
 
 
@@ -462,14 +467,14 @@ def main(argv: list[str] | None = None) -> int:
         if summary.interrupted:
             print(f'cva-bag-from-dataset: interrupted before the first frame was written; '
                   f'{state}', file=sys.stderr)
-            return 130
+            return summary.interrupt_code
         print(f'cva-bag-from-dataset: error: data set {args.dataset!r} yielded no frames; '
               f'{state}', file=sys.stderr)
         return 2
     state = 'interrupted: ' if summary.interrupted else ''
     print(f'{state}wrote {summary.frames} frames to {summary.path} ({spec.storage}, rosbag2 '
           f'version {BAG_VERSION}, topics: {", ".join(sorted(summary.counts))})')
-    return 130 if summary.interrupted else 0
+    return summary.interrupt_code if summary.interrupted else 0
 
 
 if __name__ == '__main__':

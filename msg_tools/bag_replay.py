@@ -26,7 +26,7 @@ to the node (started as a subprocess with the same parameters, or a running one 
 publishes, dropped frames included.
 
 Exit codes: 0 done, 2 bad input or a fault that stopped the run (one line on stderr), 130
-interrupted (the outputs hold the frames done).
+interrupted by Ctrl-C, 143 by SIGTERM (the outputs hold the frames done).
 
 Example::
 
@@ -456,12 +456,13 @@ def main(argv: list[str] | None = None) -> int:
         if not from_interrupt(exc):
             raise
         print('cva-bag-replay: interrupted', file=sys.stderr)
-        return 130
+        return interrupts.exit_code
     if outcome.exit_code == 0:
         print(outcome.message)
         print('outputs: ' + ', '.join(f'{k} {v}' for k, v in sorted(outcome.paths.items())))
     elif outcome.exit_code == 130:
         print(f'cva-bag-replay: {outcome.message}', file=sys.stderr)
+        return interrupts.exit_code  # 143 for SIGTERM
     else:
         print(f'cva-bag-replay: error: {outcome.message}', file=sys.stderr)
     return outcome.exit_code

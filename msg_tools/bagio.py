@@ -434,7 +434,8 @@ def check_replaceable(path: str | Path, what: str = 'output bag') -> bool:
     """Check that ``path`` is nothing or a bag that ``--overwrite`` may replace.
 
     A bag is a folder with a ``metadata.yaml``, or a single ``.mcap`` / ``.db3`` file that
-    starts with its format's magic bytes; a symbolic link is never followed.
+    starts with its format's magic bytes; a symbolic link is never followed. So is the
+    folder a killed writer left (:func:`_unfinished_bag`): only its storage files.
 
     Returns:
         Whether ``path`` exists (and is a bag).
@@ -448,6 +449,8 @@ def check_replaceable(path: str | Path, what: str = 'output bag') -> bool:
     if target.is_symlink():
         raise BagError(f'refusing to overwrite {target}: it is a symbolic link, not a rosbag2')
     if target.is_dir() and (target / 'metadata.yaml').is_file():
+        return True
+    if target.is_dir() and _unfinished_bag(target):
         return True
     if target.is_file() and target.suffix in _STORAGE_MAGIC:
         magic = _STORAGE_MAGIC[target.suffix]
@@ -466,6 +469,34 @@ def check_replaceable(path: str | Path, what: str = 'output bag') -> bool:
         f'refusing to overwrite {target}: it is not a rosbag2 folder '
         f'(with metadata.yaml) or a .mcap/.db3 bag file'
     )
+
+
+def _unfinished_bag(folder: Path) -> bool:
+    """Whether ``folder`` is what a bag writer that was killed (or hit a full disk) left:
+    only its storage files (``<folder>.mcap``, ``<folder>_<n>.db3``, ..., starting with
+    their format's magic, and sqlite3's journals), no ``metadata.yaml``.
+
+    Refused as "no bag", such a folder made ``--overwrite`` a dead end for the very run that
+    had left it.
+    """
+    name = re.escape(folder.name)
+    storage = re.compile(rf'{name}(_[0-9]+)?(\.mcap|\.db3)(-journal|-wal|-shm)?')
+    try:
+        entries = list(folder.iterdir())
+        if not any(re.fullmatch(rf'{name}(_[0-9]+)?(\.mcap|\.db3)', e.name) for e in entries):
+            return False  # an empty folder is no bag (one may have made it for anything)
+        for entry in entries:
+            match = storage.fullmatch(entry.name)
+            if match is None or entry.is_symlink() or not entry.is_file():
+                return False
+            if match.group(3) is None:
+                magic = _STORAGE_MAGIC[match.group(2)]
+                with entry.open('rb') as stream:
+                    if stream.read(len(magic)) != magic:
+                        return False
+    except OSError:
+        return False
+    return True
 
 
 def _delete(target: Path) -> None:
@@ -533,6 +564,8 @@ class OutputBag:
         dropped_empty: After :meth:`close`: the new bag held nothing and ``keep_empty`` was
             off (or the run failed), so it was removed (there is no bag at ``path``).
         replacing: After :meth:`open`: the bag is written aside, to replace an old one.
+        lost: A storage fault lost every message written (sqlite3 rolls back its one
+            transaction on a full disk); a bag this object created was removed.
 
     Raises:
         BagError: Unknown storage or compression.
@@ -561,6 +594,7 @@ class OutputBag:
         self.kept_old = False
         self.dropped_empty = False
         self.replacing = False
+        self.lost = False
         self._created = False
         self._writer: Any = None
         self._staging: Path | None = None
@@ -678,10 +712,33 @@ class OutputBag:
                 self._discard_staging()
                 self._staging = None
                 state = '; the old bag was left as it was'
+            elif self._rolled_back():
+                # rosbags keeps every sqlite3 message in one transaction until close, which
+                # the fault rolled back: closed, the bag's metadata.yaml listed messages its
+                # storage does not hold. What holds none of them is no bag to keep.
+                writer, self._writer = self._writer, None
+                with contextlib.suppress(OSError, sqlite3.Error):
+                    getattr(writer, 'abort', writer.close)()
+                lost, self.counts = self.written, {}
+                state = f'; sqlite3 dropped the {lost} messages written (none was committed)'
+                if self._created:
+                    self._created = False
+                    with contextlib.suppress(OSError):
+                        _delete(self.path)
+                    state += ', so no bag was left there'
+                self.lost = True
             raise BagError(
                 f'cannot write to output bag {self.path}: {reason(err)}{state}'
             ) from None
         self.counts[topic] = self.counts.get(topic, 0) + 1
+
+    def _rolled_back(self) -> bool:
+        """Whether the sqlite3 storage is out of the transaction that held the messages."""
+        conn = getattr(getattr(self._writer, 'storage', None), 'conn', None)
+        return (
+            self.storage == 'sqlite3' and self.written > 0
+            and isinstance(conn, sqlite3.Connection) and not conn.in_transaction
+        )
 
     def close(self, failed: bool = False) -> None:
         """Finalise the bag; put a staged bag in place of the old one if it holds anything,

@@ -135,6 +135,7 @@ class GracefulInterrupt:
     def __init__(self, notice: str = '') -> None:
         self.notice = notice
         self._signals = 0
+        self.signum = 0
         self._depth = 0
         self._closing = False
         self._entered = 0
@@ -145,8 +146,16 @@ class GracefulInterrupt:
         """Whether a signal came."""
         return self._signals > 0
 
+    @property
+    def exit_code(self) -> int:
+        """The status of a run the signals stopped: 128 + the first one's number, as a shell
+        reports a process it ended (130 Ctrl-C, 143 SIGTERM, as ``cva-evaluate`` and
+        ``cva-param``); 130 when none came (a Ctrl-C outside the handlers)."""
+        return 128 + (self.signum or signal.SIGINT)
+
     def _handler(self, signum: int, frame: FrameType | None) -> None:
         self._signals += 1
+        self.signum = self.signum or signum
         if self._closing:
             return
         if self._signals > 1:
@@ -156,7 +165,11 @@ class GracefulInterrupt:
         # Said inside a critical section too (its next check stops the run all the same): a
         # first Ctrl-C there went without a word, and a user pressed again, unanswered.
         if self.notice:
-            print_above(f'{self.notice} (Ctrl-C again to stop at once)')
+            notice = self.notice
+            if signum == signal.SIGTERM:
+                # A batch system's time limit or `kill` is no Ctrl-C that anyone pressed.
+                notice = notice.replace('Ctrl-C:', 'SIGTERM:')
+            print_above(f'{notice} (Ctrl-C again to stop at once)')
 
     def __enter__(self) -> GracefulInterrupt:
         self._entered += 1

@@ -1573,6 +1573,8 @@ class ReplaySession:
             )
         elif self.out is not None and self.out.dropped_empty:
             bag = f'no output bag written (nothing to write at {self.options.out})'
+        elif self.out is not None and self.out.lost:
+            bag = f'no output bag (its storage lost the frames; nothing at {self.options.out})'
         else:
             bag = f'output bag {self.options.out}'
         where = f'{bag}, report {self.paths.get("json", self.options.report)}'
