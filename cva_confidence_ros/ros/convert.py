@@ -150,17 +150,30 @@ def image_to_array(msg: Image, name: str = 'image') -> np.ndarray:
     return np.ascontiguousarray(pixels[..., list(order)])
 
 
+# The YUV formats of sensor_msgs/image_encodings (lower-case), raw camera images.
+_YUV_ENCODINGS = ('yuv422', 'yuv422_yuy2', 'uyvy', 'yuyv', 'nv21', 'nv24')
+
+
 def _encoding_hint(encoding: str) -> str:
     """What to do about an unsupported ``encoding`` (lower-case) that cameras are known to send,
     as the end of the error; '' for any other."""
     if encoding.startswith('bayer_'):
         # A camera's raw output: neither debayered nor rectified, so no rectified pair either.
+        # Of a 16-bit one, debayer makes mono16 and bgr16: only image_rect is read then.
+        deep = encoding.endswith('16')
         return (
             ': a raw Bayer (colour filter) image, neither debayered nor rectified; run '
             'image_proc on the camera (debayer, then rectify: stereo_image_proc does both) and '
-            'give the node its image_rect (mono8) or image_rect_color (bgr8)'
+            + ('give the node its image_rect (mono16)' if deep
+               else 'give the node its image_rect (mono8) or image_rect_color (bgr8)')
         )
-    if encoding in ('yuv422', 'yuv422_yuy2', 'uyvy', 'yuyv', 'nv21', 'nv24'):
+    if encoding in ('rgb16', 'bgr16', 'rgba16', 'bgra16'):
+        # What stereo_image_proc's image_rect_color is for a 16-bit Bayer camera.
+        return (
+            ': 16-bit colour is not read; give the node the 16-bit gray image_rect (mono16) of '
+            'the same camera (stereo_image_proc publishes both), or 8-bit colour (bgr8)'
+        )
+    if encoding in _YUV_ENCODINGS:
         # What USB cameras send as their raw image; image_proc converts and rectifies it.
         return (
             ': a YUV camera format (a raw image, as USB cameras send it); run image_proc on '
@@ -187,8 +200,9 @@ def compressed_image_to_array(msg: Any, name: str = 'image') -> np.ndarray:
     uint16 (see :func:`pair_to_uint8`).
 
     Raises:
-        InputError: A ``compressedDepth`` format (depth, not intensity), empty data, data
-            that is no JPEG or PNG or whose header names more than
+        InputError: A ``compressedDepth`` format (depth, not intensity), one that names a raw
+            Bayer or YUV image before its ``;`` (as ``image_transport`` writes it), empty data,
+            data that is no JPEG or PNG or whose header names more than
             :data:`~cva_confidence_ros.ros.transport.MAX_PNG_PIXELS` pixels (checked before
             decoding), or data that OpenCV cannot decode.
     """
@@ -199,6 +213,16 @@ def compressed_image_to_array(msg: Any, name: str = 'image') -> np.ndarray:
         raise InputError(
             f'{name} is a compressedDepth image (format {text!r}): a depth map, not an '
             'intensity image; expected image_transport compressed (jpeg or png)'
+        )
+    # compressed_image_transport converts colour encodings to bgr8 and compresses any other
+    # as it is, naming it before the ';': a Bayer camera's image_raw/compressed is a gray
+    # JPEG/PNG of the raw mosaic, decoded as a plausible gray image, while the same image
+    # raw is refused (image_to_array).
+    source, separator, _ = text.partition(';')
+    source = source.strip().lower()
+    if separator and (source.startswith('bayer_') or source in _YUV_ENCODINGS):
+        raise InputError(
+            f'{name} is a compressed {source!r} image (format {text!r})' + _encoding_hint(source)
         )
     raw = bytes(msg.data)
     if not raw:
