@@ -21,8 +21,9 @@ import weakref
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.clock import Clock, ClockType
+from rclpy.clock import Clock, ClockType, JumpThreshold
 from rclpy.context import Context
+from rclpy.duration import Duration
 import rclpy.logging
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -358,6 +359,10 @@ class ConfidenceCore(Node):
         self._worker = None
         self._subscriptions_in: list[Any] = []
         self._owned: list[Any] = []
+        # Under use_sim_time: the jump callback of the node's clock (see _on_clock_back), and
+        # when /diagnostics was published last (monotonic s).
+        self._clock_back: Any = None
+        self._diagnostics_at = 0.0
         self._mailbox = _Mailbox()
         self._mailbox.close()  # nothing to hand over before the first configuration
         #: Set by :meth:`destroy_node` when a frame outlasted the stop's wait.
@@ -442,6 +447,15 @@ class ConfidenceCore(Node):
                 clock=Clock(clock_type=ClockType.STEADY_TIME),
             )
             self._owned.append(self._clock_check)
+            # rcl's timer waits a whole period of the new time after the clock went back: a
+            # bag on a loop shorter than the period (ros2 bag play --loop --clock) left
+            # /diagnostics mute for good after its first loop.
+            self._diagnostics_at = time.monotonic()
+            self._clock_back = self.get_clock().create_jump_callback(
+                JumpThreshold(min_forward=None, min_backward=Duration(nanoseconds=-1),
+                              on_clock_change=False),
+                post_callback=self._on_clock_back,
+            )
         self._worker = threading.Thread(
             target=self._work, args=(self._mailbox,), name='cva_confidence_worker'
         )
@@ -538,9 +552,16 @@ class ConfidenceCore(Node):
             else:
                 self.destroy_publisher(entity)
         self._owned = []
+        self._release_clock_back()
         with self._lock:
             self._pipeline = self._cold = None
         return stopped
+
+    def _release_clock_back(self) -> None:
+        # The clock outlives a cleanup: its callback would publish on a destroyed publisher.
+        if self._clock_back is not None:
+            self._clock_back.unregister()
+            self._clock_back = None
 
     def _stop_worker(self) -> bool:
         if self.stop():
@@ -1410,7 +1431,17 @@ class ConfidenceCore(Node):
             return None
         return clock.now().nanoseconds or None
 
+    def _on_clock_back(self, jump: object) -> None:
+        """Publish /diagnostics as the simulated clock goes back (a bag's loop, a simulator
+        reset) where a period of wall time has passed without: the timer then waits a whole
+        period of the new time, which a loop shorter than the period never reaches."""
+        with self._lock:
+            period = self._node_config.diagnostics_period_seconds
+        if time.monotonic() - self._diagnostics_at >= period:
+            self._publish_diagnostics()
+
     def _publish_diagnostics(self) -> None:
+        self._diagnostics_at = time.monotonic()
         status = self.diagnostics()
         publish_status(self, self._pub_diagnostics, status)
         summary = {kv.key: kv.value for kv in status.values}
@@ -1491,6 +1522,7 @@ class ConfidenceCore(Node):
         :func:`~cva_confidence_ros.ros.common.run_node` ends the process without waiting.
         """
         self._stop_worker()
+        self._release_clock_back()
         super().destroy_node()
 
 
