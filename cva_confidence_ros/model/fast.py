@@ -40,6 +40,7 @@ from numba import njit, prange
 import numpy as np
 import torch
 from torch import nn
+import torch.autograd.forward_ad as fwAD
 import torch.nn.functional as F
 
 from cva_confidence_ros.model.lite import check_volume_tensor, init_light_network
@@ -91,8 +92,8 @@ def aligned_curve(
     Channels 0–8: the costs at d_WTA − 4 … d_WTA + 4 (1.0 outside [0, D)); channel 9:
     d_WTA / D. d_WTA is the smallest d of the lowest cost (ties as ``argmin``). Float32 CPU
     tensors without gradient go through a compiled one-pass kernel (6× faster than the
-    torch ops here), everything else (CUDA, autograd, tracing for an ONNX or TorchScript
-    export, ``torch.func.vmap``) through torch; both give the same values (tested).
+    torch ops here), everything else (CUDA, autograd, forward-mode AD, tracing for an ONNX or
+    TorchScript export, ``torch.func.vmap``) through torch; both give the same values (tested).
     ``memory_format``: the layout of the result (the kernel writes channels-last directly,
     which the folded network's convolutions take without a copy).
     """
@@ -101,6 +102,9 @@ def aligned_curve(
         costs.device.type == 'cpu'
         and costs.dtype == torch.float32
         and not (torch.is_grad_enabled() and costs.requires_grad)
+        # A forward-mode dual tensor (torch.autograd.forward_ad): the kernel's output carried
+        # no tangent, and CVA-Net-Fast's jvp came out None where float64 gave it.
+        and fwAD.unpack_dual(costs).tangent is None
         and not torch.jit.is_tracing()
         and not torch.compiler.is_exporting()
     ):

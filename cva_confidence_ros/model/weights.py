@@ -184,6 +184,16 @@ def _check_stored_tensors(stored: Any, own: Mapping[str, torch.Tensor]) -> None:
             )
 
 
+def _class_name(arch: str, meta: Mapping[str, Any]) -> str:
+    """The class the weights of ``arch`` load into (``'CVANetFast'``), for messages; '' for
+    an architecture that is not registered or a ``meta`` it cannot be built from."""
+    try:
+        with torch.device('meta'):  # shapes only: nothing is allocated
+            return type(ARCHITECTURES.get(arch)(meta)).__name__
+    except (ConfigError, KeyError, TypeError, ValueError):
+        return ''
+
+
 def load_weights(
     path: str | os.PathLike[str],
     matcher: str | None = None,
@@ -269,7 +279,16 @@ def load_weights(
             f'got {type(stored).__name__} {stored!r}'
         )
     if arch is not None and stored != arch:
-        raise ModelError(f'{path} holds weights of arch {stored!r}; expected {arch!r}')
+        # Named with the class they load into and how: 'expected cvanet' alone left a user
+        # of load_weights(path) with a CVA-Net-Fast file to guess the class and the argument.
+        owner = _class_name(stored, meta)
+        hint = (
+            f' (they are {owner} weights: load them with arch={stored!r}, or arch=None for '
+            'any architecture)'
+            if owner
+            else ''  # an unregistered arch: no class would load them
+        )
+        raise ModelError(f'{path} holds weights of arch {stored!r}; expected {arch!r}{hint}')
     if stored not in ARCHITECTURES:
         raise ModelError(
             f'{path} holds weights of arch {stored!r}; expected one of {ARCHITECTURES.names()}'
