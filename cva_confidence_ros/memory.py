@@ -37,6 +37,8 @@ _THRESHOLD = 1 << 30  # 1 GiB: no frame allocates a single block that large
 # Needs below this are not checked against the memory left (no read of /proc on small frames,
 # where nothing is at stake).
 _CHECKED_FROM = 256 * 2**20
+#: The cgroup v2 files of this process's group (a container's own group).
+_CGROUP = '/sys/fs/cgroup'
 
 _applied: bool | None = None
 
@@ -84,12 +86,28 @@ def _read_int(path: str, key: str = '') -> int | None:
     return None
 
 
+def _page_cache(path: str) -> int:
+    """Bytes of page cache (``active_file`` + ``inactive_file``) in a cgroup ``memory.stat``
+    (0 where it cannot be read); tmpfs files (``shmem``, in ``file`` too) are not reclaimed."""
+    total = 0
+    try:
+        with open(path, encoding='ascii') as stream:
+            for line in stream:
+                name, _, value = line.partition(' ')
+                if name in ('active_file', 'inactive_file'):
+                    total += int(value)
+    except (OSError, ValueError):
+        return 0
+    return total
+
+
 def available_memory() -> int | None:
     """Bytes this process can still hold in physical memory: the kernel's ``MemAvailable``,
-    within the cgroup's ``memory.max`` (a container's limit), plus the process's own resident
-    memory (the freed blocks :func:`keep_freed_memory` keeps, SGM's work arrays: a frame reuses
-    them). Generous on purpose, so that what exceeds it surely does not fit: the process would
-    swap or be killed by the kernel's OOM killer (no exception, nothing logged).
+    within what the cgroup's ``memory.max`` (a container's limit) leaves, its page cache
+    counted as free, plus the process's own resident memory (the freed blocks
+    :func:`keep_freed_memory` keeps, SGM's work arrays: a frame reuses them). Generous on
+    purpose, so that what exceeds it surely does not fit: the process would swap or be killed
+    by the kernel's OOM killer (no exception, nothing logged).
 
     Returns:
         None off Linux, when ``/proc`` cannot be read, or with ``CVA_MEMORY_CHECK=0``.
@@ -100,9 +118,13 @@ def available_memory() -> int | None:
     own = _read_int('/proc/self/status', 'VmRSS')
     if free is None or own is None:
         return None
-    limit = _read_int('/sys/fs/cgroup/memory.max')
-    used = _read_int('/sys/fs/cgroup/memory.current')
+    limit = _read_int(f'{_CGROUP}/memory.max')
+    used = _read_int(f'{_CGROUP}/memory.current')
     if limit is not None and used is not None:
+        # memory.current counts the page cache (the bags read, the files written), which the
+        # kernel reclaims before the limit is reached: a container that had read its limit in
+        # files refused every large frame ("0.11 GB available" of a 4 GB limit).
+        used -= _page_cache(f'{_CGROUP}/memory.stat')
         free = min(free, max(0, limit - used))
     return free + own
 

@@ -482,9 +482,10 @@ class StereoPipeline:
         from cva_confidence_ros.matching import MATCHERS
 
         matcher = MATCHERS.get(cfg.matcher)
+        # MC-CNN's features live where its network runs: on a GPU they take no host memory.
+        per_pixel = matcher.bytes_per_pixel if self.device.type == 'cpu' else 0
         # The second view's volume is new; its work arrays are the first one's.
-        return (matcher.bytes_per_voxel + 4 * (views - 1)) * voxels + (
-            matcher.bytes_per_pixel * pixels)
+        return (matcher.bytes_per_voxel + 4 * (views - 1)) * voxels + per_pixel * pixels
 
     def _check_memory(self, width: int, height: int) -> None:
         """InputError when the matching of such a pair cannot fit the memory left here

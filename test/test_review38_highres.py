@@ -121,3 +121,30 @@ def test_mccnn_features_in_bands_match_whole_image(monkeypatch: pytest.MonkeyPat
     torch.testing.assert_close(banded, whole, rtol=0, atol=1e-5)
     # Each image's (H, W, 64) as the correlation reads it, without a copy.
     assert banded[0].permute(1, 2, 0).is_contiguous()
+
+
+
+def test_mccnn_features_on_a_gpu_are_not_counted_as_host_memory(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # On a GPU the 2·64 float32 features per pixel live there: counted as host memory they
+    # overstated a 2448×2048 frame's need by 2.6 GB (a desktop with a GPU refused it).
+    import torch
+
+    from cva_confidence_ros import matching
+    from cva_confidence_ros.errors import CVAError
+
+    pipe = _pipeline(matcher='mccnn_fast', max_disparity=64)
+    monkeypatch.setattr(pipe, 'device', torch.device('cuda'))
+    assert pipe.memory_needed(640, 480) == 4 * 64 * 640 * 480
+    monkeypatch.setattr(memory, '_CHECKED_FROM', 0)
+    monkeypatch.setattr(memory, 'available_memory', lambda: int(0.3e9))
+    left, right = _pair(1200, 800)
+    # The volume 4·64·1200·800 = 0.25 GB, the features 0.49 GB more on the CPU.
+    with pytest.raises(InputError, match=r'needs at least 0\.74 GB'):
+        matching.compute_cost_volume(left, right, 'mccnn_fast', 64, device='cpu')
+    monkeypatch.setattr(matching, '_cuda_available', lambda: True)
+    # On 'cuda' the memory check passes (0.25 GB); what stops it here is the missing GPU.
+    with pytest.raises(CVAError) as caught:
+        matching.compute_cost_volume(left, right, 'mccnn_fast', 64, device='cuda')
+    assert 'GB' not in str(caught.value)

@@ -98,8 +98,10 @@ def compute_cost_volume(
 
     height, width = left_u8.shape[:2]
     # Python ints: H·W·D of a 2448×2048 pair at D = 512 is 2.6e9, past int32.
+    # MC-CNN's features live where its network runs: on a GPU they take no host memory.
+    on_host = getattr(instance.config, 'device', 'cpu') == 'cpu' or not _cuda_available()
     need = matcher_class.bytes_per_voxel * depth * height * width + (
-        matcher_class.bytes_per_pixel * height * width)
+        matcher_class.bytes_per_pixel * height * width if on_host else 0)
     available = shortfall(need)
     if available is not None:
         # Refused before allocating: numpy's lazy allocation succeeds, and the kernel's OOM
@@ -114,3 +116,9 @@ def compute_cost_volume(
 
     start_numba_threads()  # keeps a user's torch.set_num_threads (as a pipeline does)
     return instance.compute(left_u8, right_u8, depth, view)
+
+
+def _cuda_available() -> bool:
+    import torch
+
+    return torch.cuda.is_available()

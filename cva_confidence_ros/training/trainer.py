@@ -1453,36 +1453,41 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
             )
         )
 
-    for epoch in range(start_epoch, config.total_epochs):
-        lr = config.lr_at(epoch)
-        for group in optimiser.param_groups:
-            group['lr'] = lr
-        # Dropout draws depend on (seed, epoch, rank) only: a resumed epoch repeats exactly.
-        torch.manual_seed(config.seed * 1_000_003 + epoch * 7919 + dist.rank + 1)
-        # One process notes a signal and stops after the step (and the checkpoint) it is in.
-        _SIGNALS.deferring = dist.world == 1
-        loss, seen, seconds = _run_epoch(
-            config, model, optimiser, scenes, index, n_samples, epoch, dist, teacher,
-            resume_at if epoch == start_epoch else None, partial(save_step, epoch),
-        )
-        check_finite_loss(loss, epoch, config.lr_at(epoch), out)
-        collapsed = _check_finite_network(net, scenes, index, dist, epoch, lr, out)
-        if collapsed and epoch + 1 == config.total_epochs:
-            raise _diverged(collapsed, epoch, lr, out)  # no such weights as the final ones
-        if collapsed:
-            log(f'warning: {collapsed} (lr {lr:g}); lower --lr unless later epochs undo it')
-        record: dict[str, Any] = {
-            'epoch': epoch + 1,
-            'lr': lr,
-            'train_loss': loss,
-            'samples': seen,
-            'seconds': seconds,
-            'samples_per_s': seen / max(seconds, 1e-9),
-        }
-        dist.on_main(partial(finish_epoch, epoch, record), None)
-        if _SIGNALS.received is not None:  # in the last step, the checks or the checkpoint
-            raise Stopped(_SIGNALS.received, f'epoch {epoch + 1}/{config.total_epochs}')
-    _SIGNALS.deferring = False
+    try:
+        for epoch in range(start_epoch, config.total_epochs):
+            lr = config.lr_at(epoch)
+            for group in optimiser.param_groups:
+                group['lr'] = lr
+            # Dropout draws depend on (seed, epoch, rank) only: a resumed epoch repeats exactly.
+            torch.manual_seed(config.seed * 1_000_003 + epoch * 7919 + dist.rank + 1)
+            # One process notes a signal and stops after the step (and the checkpoint) it is in.
+            _SIGNALS.deferring = dist.world == 1
+            loss, seen, seconds = _run_epoch(
+                config, model, optimiser, scenes, index, n_samples, epoch, dist, teacher,
+                resume_at if epoch == start_epoch else None, partial(save_step, epoch),
+            )
+            check_finite_loss(loss, epoch, config.lr_at(epoch), out)
+            collapsed = _check_finite_network(net, scenes, index, dist, epoch, lr, out)
+            if collapsed and epoch + 1 == config.total_epochs:
+                raise _diverged(collapsed, epoch, lr, out)  # no such weights as the final ones
+            if collapsed:
+                log(f'warning: {collapsed} (lr {lr:g}); lower --lr unless later epochs undo it')
+            record: dict[str, Any] = {
+                'epoch': epoch + 1,
+                'lr': lr,
+                'train_loss': loss,
+                'samples': seen,
+                'seconds': seconds,
+                'samples_per_s': seen / max(seconds, 1e-9),
+            }
+            dist.on_main(partial(finish_epoch, epoch, record), None)
+            if _SIGNALS.received is not None:  # in the last step, the checks or the checkpoint
+                raise Stopped(_SIGNALS.received, f'epoch {epoch + 1}/{config.total_epochs}')
+    finally:
+        # Also when the run fails (a diverged epoch, a bad batch): left on, it made the next
+        # run of this process (a notebook's, a test's) ignore a signal while it prepared its
+        # scenes, until its first step was done.
+        _SIGNALS.deferring = False
 
     wall = previous_wall + time.perf_counter() - started
     last = history[-1] if history else {}
