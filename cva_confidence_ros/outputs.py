@@ -9,13 +9,13 @@ behind, which the job would make anyway.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 import contextlib
 import os
 from pathlib import Path
 import tempfile
 import threading
-from typing import BinaryIO
+from typing import BinaryIO, cast
 
 from cva_confidence_ros.errors import ConfigError, DataError, reason
 
@@ -23,7 +23,9 @@ __all__ = [
     'check_output_dir',
     'check_output_file',
     'lock_folder',
+    'naming',
     'temporary_sibling',
+    'torch_save_atomic',
     'write_atomic',
     'write_text_atomic',
 ]
@@ -159,6 +161,68 @@ def write_atomic(path: Path, write: Callable[[BinaryIO], object]) -> None:
             tmp.unlink(missing_ok=True)
         raise
     _sync_folder(path.parent)
+
+
+def torch_save_atomic(path: Path, obj: object) -> None:
+    """``torch.save(obj)`` through :func:`write_atomic` (a temporary file beside ``path``,
+    synced, moved in place), raising the file system's own error on a failed write.
+
+    torch's writer, given a path, reports a full disk as ``RuntimeError: [enforce fail at
+    inline_container.cc:…] unexpected pos …`` and a missing folder as a RuntimeError too; here
+    it writes into a file opened by Python, whose OSError is kept and raised instead.
+
+    Raises:
+        OSError: The write failed (ENOSPC 'No space left on device', EFBIG, EIO); a file at
+            ``path`` is left as it was and no temporary file is left behind.
+        RuntimeError: torch's writer failed for another reason.
+    """
+    import torch  # not at the top: most users of this module need no torch
+
+    failed: list[OSError] = []
+
+    def save(handle: BinaryIO) -> None:
+        torch.save(obj, cast('BinaryIO', _KeptErrors(handle, failed)))
+
+    try:
+        write_atomic(path, save)
+    except RuntimeError as exc:
+        if failed:
+            raise failed[0] from exc
+        raise
+
+
+class _KeptErrors:
+    """A binary file whose write errors are kept in ``failed`` before they are raised:
+    torch's writer swallows them and raises its 'unexpected pos' instead."""
+
+    def __init__(self, handle: BinaryIO, failed: list[OSError]) -> None:
+        self.handle = handle
+        self.failed = failed
+
+    def write(self, data: bytes) -> int:
+        try:
+            return self.handle.write(data)
+        except OSError as exc:
+            self.failed.append(exc)
+            raise
+
+    def flush(self) -> None:
+        self.handle.flush()
+
+
+@contextlib.contextmanager
+def naming(path: Path) -> Iterator[None]:
+    """Meanwhile an OSError that does not name ``path`` is raised again naming it (of the same
+    errno, hence class): a write that fails half-way (a full disk) said only '[Errno 28] No
+    space left on device', or named the temporary file beside ``path``."""
+    try:
+        yield
+    except OSError as exc:
+        if str(path) in str(exc):
+            raise
+        if exc.errno is None:
+            raise OSError(f'cannot write {path}: {exc}') from exc
+        raise OSError(exc.errno, exc.strerror, str(path)) from exc
 
 
 def lock_folder(folder: Path, shared: bool = False) -> int | None:

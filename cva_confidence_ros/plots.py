@@ -24,6 +24,7 @@ import numpy as np
 
 from cva_confidence_ros.checks import is_int, is_real
 from cva_confidence_ros.errors import InputError
+from cva_confidence_ros.outputs import naming
 
 if TYPE_CHECKING:
     from cva_confidence_ros.calibration import ReliabilityTable
@@ -90,8 +91,10 @@ def _save(path: PathLike, write: Callable[[Path], object]) -> Path:
     # leaves no truncated PNG, and a PNG already at ``path`` stays whole until then.
     partial = out.with_name(f'.{out.name[:200]}.{os.getpid()}-{next(_PARTIAL_IDS)}.part')
     try:
-        write(partial)
-        os.replace(partial, out)
+        # A write that fails half-way names the PNG, not the temporary file (or nothing).
+        with naming(out):
+            write(partial)
+            os.replace(partial, out)
     except BaseException:
         partial.unlink(missing_ok=True)
         raise

@@ -43,17 +43,21 @@ from collections import Counter
 from collections.abc import Callable, Collection
 import csv
 from dataclasses import asdict, dataclass, field
+import io
 import math
 import os
 from pathlib import Path
 import re
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, BinaryIO, cast
 
 import numpy as np
 
 from cva_confidence_ros import strict_json
 from cva_confidence_ros.errors import ConfigError, InputError, reason
-from cva_confidence_ros.outputs import lock_folder
+from cva_confidence_ros.outputs import lock_folder, write_atomic
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = [
     'FRAME_KEYS',
@@ -81,9 +85,11 @@ _EXTRA_KEYS = (
     'processing_ms', 'latency_ms', 'note',
 )
 #: Names of the files a replay writes into its report folder (``node.log``: live mode).
+#: (A killed writer's partial file, ``report.csv.<pid>-<thread>.tmp``, is one of them.)
 _REPORT_FILE = re.compile(
-    r'report\.json|report\.json\.tmp|report\.csv|summary\.md|auc_over_time\.png|node\.log'
-    r'|confidence_over_time\.png|(confidence|roc|overlay|least_kept)_\d+\.png'
+    r'((report\.json|report\.csv|summary\.md|auc_over_time\.png|confidence_over_time\.png)'
+    r'(\.\d+-\d+\.tmp)?)|report\.json\.tmp|node\.log'
+    r'|(confidence|roc|overlay|least_kept)_\d+\.png'
 )
 #: Unpaired messages listed one by one in ``report.json`` (all are counted).
 MAX_LISTED_UNPAIRED = 100
@@ -744,8 +750,11 @@ class ReportWriter:
     def write(self, report: ReplayReport) -> dict[str, Path]:
         """Write JSON, CSV, Markdown and the AUC-over-time plot; return their paths.
 
+        Each file is written beside its place and renamed onto it: a file that cannot be
+        written is left as an earlier run wrote it, or not there.
+
         Raises:
-            ConfigError: A file cannot be written (a full disk), naming the folder.
+            ConfigError: A file cannot be written (a full disk), naming the file.
         """
         try:
             return self._write(report)
@@ -761,16 +770,17 @@ class ReportWriter:
             'csv': self.folder / 'report.csv',
             'markdown': self.folder / 'summary.md',
         }
-        tmp = paths['json'].with_suffix('.json.tmp')
-        tmp.write_text(strict_json.dumps(document, indent=2) + '\n', encoding='utf-8')
-        tmp.replace(paths['json'])
-        with paths['csv'].open('w', newline='', encoding='utf-8') as stream:
-            writer = csv.writer(stream)
-            keys = (*REPORT_KEYS, *_EXTRA_KEYS)
-            writer.writerow(keys)
-            for record in document['frames']:
-                writer.writerow(['' if record[k] is None else record[k] for k in keys])
-        paths['markdown'].write_text(format_summary(document), encoding='utf-8')
+        # Each file to a temporary one beside it, renamed in place: written directly, a full
+        # disk left a truncated report.csv or summary.md (an error naming only the folder).
+        _write_file(paths['json'], strict_json.dumps(document, indent=2) + '\n')
+        stream = io.StringIO()
+        writer = csv.writer(stream)
+        keys = (*REPORT_KEYS, *_EXTRA_KEYS)
+        writer.writerow(keys)
+        for record in document['frames']:
+            writer.writerow(['' if record[k] is None else record[k] for k in keys])
+        _write_file(paths['csv'], stream.getvalue())
+        _write_file(paths['markdown'], format_summary(document))
         plot = self._auc_plot(report)
         if plot is not None:
             paths['auc_over_time'] = plot
@@ -781,9 +791,11 @@ class ReportWriter:
             from cva_confidence_ros.plots import save_confidence_overlay
 
             (_, frame), (left, confidence, kept) = self._least
-            paths['least_kept'] = save_confidence_overlay(
-                left, confidence, kept, self.folder / f'least_kept_{frame:05d}.png'
-            )
+            least = self.folder / f'least_kept_{frame:05d}.png'
+            try:
+                paths['least_kept'] = save_confidence_overlay(left, confidence, kept, least)
+            except OSError as err:
+                raise _unwritable(least, err) from None
         return paths
 
     def _confidence_plot(self, report: ReplayReport) -> Path | None:
@@ -842,9 +854,7 @@ class ReportWriter:
                             f"{report.config.get('confidence_method', '')}, threshold "
                             f"{report.config.get('confidence_threshold', '')}", fontsize=9)
         figure.tight_layout()
-        path = self.folder / 'confidence_over_time.png'
-        figure.savefig(path, format='png')
-        return path
+        return _write_file(self.folder / 'confidence_over_time.png', figure)
 
     def _auc_plot(self, report: ReplayReport) -> Path | None:
         from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -875,9 +885,33 @@ class ReportWriter:
         axes.grid(True, alpha=0.3)
         axes.legend(fontsize=8)
         figure.tight_layout()
-        path = self.folder / 'auc_over_time.png'
-        figure.savefig(path, format='png')
-        return path
+        return _write_file(self.folder / 'auc_over_time.png', figure)
+
+
+def _unwritable(path: Path, err: OSError) -> ConfigError:
+    """The error of a report file that cannot be written, naming it (not only its folder)."""
+    kept = '; the one there was left as it was' if path.is_file() else ''
+    return ConfigError(f'cannot write the report file {path}: {reason(err)}{kept}')
+
+
+def _write_file(path: Path, content: str | Figure) -> Path:
+    """Write ``content`` (text, UTF-8; or a figure, as PNG) to ``path`` atomically.
+
+    Raises:
+        ConfigError: ``path`` cannot be written (:func:`_unwritable`).
+    """
+
+    def write(handle: BinaryIO) -> None:
+        if isinstance(content, str):
+            handle.write(content.encode('utf-8'))
+        else:
+            content.savefig(handle, format='png')
+
+    try:
+        write_atomic(path, write)
+    except OSError as err:
+        raise _unwritable(path, err) from None
+    return path
 
 
 def format_summary(document: dict[str, Any], max_rows: int = 200) -> str:

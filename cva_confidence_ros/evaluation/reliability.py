@@ -136,7 +136,7 @@ def write_calibration(tables: Mapping[Key, ReliabilityTable], out_dir: str | Pat
         DataError: ``calibration.json`` or ``.md`` cannot be written (an old one is left as
             it was: each is written beside, synced, then moved in place).
     """
-    from cva_confidence_ros.outputs import write_text_atomic
+    from cva_confidence_ros.outputs import naming, write_text_atomic
     from cva_confidence_ros.plots import save_reliability_diagram
 
     if not tables:
@@ -157,10 +157,9 @@ def write_calibration(tables: Mapping[Key, ReliabilityTable], out_dir: str | Pat
         write_text_atomic(path, text)  # whole or not at all: an old file stays as it was
     for dataset, matcher in sorted({(key[0], key[1]) for key in rows}):
         per_method = {key[2]: t for key, t in rows.items() if key[:2] == (dataset, matcher)}
-        written.append(
-            save_reliability_diagram(
-                per_method, out / f'reliability_{dataset}_{matcher}.png',
-                title=f'{dataset}  {matcher}',
+        path = out / f'reliability_{dataset}_{matcher}.png'
+        with naming(path):  # a full disk's error named no file
+            written.append(
+                save_reliability_diagram(per_method, path, title=f'{dataset}  {matcher}')
             )
-        )
     return written

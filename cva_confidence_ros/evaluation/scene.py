@@ -25,6 +25,7 @@ import numpy as np
 from cva_confidence_ros.checks import is_int
 from cva_confidence_ros.errors import InputError
 from cva_confidence_ros.evaluation.records import EvalRecord
+from cva_confidence_ros.outputs import naming
 
 if TYPE_CHECKING:
     from cva_confidence_ros.calibration import ReliabilityTable
@@ -277,30 +278,38 @@ def _write_plots(
 
     mask = np.zeros(disparity.shape, dtype=bool)
     mask[ys, xs] = True
-    save_disparity_map(disparity, plot_dir / 'disparity.png', max_disparity=max_disparity - 1)
+    # Each under naming(): a full disk said only '[Errno 28] No space left on device'.
+    path = plot_dir / 'disparity.png'
+    with naming(path):
+        save_disparity_map(disparity, path, max_disparity=max_disparity - 1)
     for name, confidence in maps.items():
         vmin, vmax, how = _map_range(confidence)
         tau = overlay_threshold(confidence[ys, xs], scores[name].error_rate)
         # A hand-crafted measure's map is stretched over its own percentiles: without the
         # values a reader could not tell what black and white mean, nor compare two PNGs.
-        save_confidence_map(
-            confidence, plot_dir / f'confidence_{name}.png', vmin, vmax,
-            description=f'{sample.dataset}/{sample.scene} {matcher} {name}: black = '
-            f'{vmin:.6g}, white = {vmax:.6g} ({how}); correct_{name}.png τ = {tau:.6g}',
-        )
-        save_correctness_overlay(
-            confidence, error, plot_dir / f'correct_{name}.png', tau=tau,
-            image=sample.left, mask=mask,
-        )
+        path = plot_dir / f'confidence_{name}.png'
+        with naming(path):
+            save_confidence_map(
+                confidence, path, vmin, vmax,
+                description=f'{sample.dataset}/{sample.scene} {matcher} {name}: black = '
+                f'{vmin:.6g}, white = {vmax:.6g} ({how}); correct_{name}.png τ = {tau:.6g}',
+            )
+        path = plot_dir / f'correct_{name}.png'
+        with naming(path):
+            save_correctness_overlay(
+                confidence, error, path, tau=tau, image=sample.left, mask=mask,
+            )
     any_score = next(iter(scores.values()))
-    save_roc_curves(
-        {name: (s.density, s.roc_error) for name, s in scores.items()},
-        plot_dir / 'roc.png',
-        error_rate=any_score.error_rate,
-        # The matcher too: the PNG pasted into a report no longer has its folder's name.
-        title=f'{sample.dataset}/{sample.scene}  {matcher}  '
-        f'ε = {100 * any_score.error_rate:.1f} %',
-    )
+    path = plot_dir / 'roc.png'
+    with naming(path):
+        save_roc_curves(
+            {name: (s.density, s.roc_error) for name, s in scores.items()},
+            path,
+            error_rate=any_score.error_rate,
+            # The matcher too: the PNG pasted into a report no longer has its folder's name.
+            title=f'{sample.dataset}/{sample.scene}  {matcher}  '
+            f'ε = {100 * any_score.error_rate:.1f} %',
+        )
 
 
 def evaluate_scene(
@@ -473,10 +482,11 @@ def evaluate_scene(
         if tables:
             from cva_confidence_ros.plots import save_reliability_diagram
 
-            save_reliability_diagram(
-                tables, Path(plot_dir) / 'reliability.png',
-                title=f'{sample.dataset}/{sample.scene}  {matcher}',
-            )
+            path = Path(plot_dir) / 'reliability.png'
+            with naming(path):
+                save_reliability_diagram(
+                    tables, path, title=f'{sample.dataset}/{sample.scene}  {matcher}',
+                )
         _remove_stale_plots(Path(plot_dir), set(maps), bool(tables))
     return records
 

@@ -41,7 +41,7 @@ import sys
 from typing import Any, cast
 
 from cva_confidence_ros.errors import ConfigError, DataError, InputError, ModelError, reason
-from cva_confidence_ros.outputs import check_output_dir, write_text_atomic
+from cva_confidence_ros.outputs import check_output_dir, naming, write_atomic, write_text_atomic
 
 __all__ = [
     'COLUMNS',
@@ -362,8 +362,11 @@ def save_table_png(
     path.parent.mkdir(parents=True, exist_ok=True)
     # Cropped to what is drawn: sized by the columns, the figure cut a title longer than the
     # table off at the right (one method: "... AUC × 10², mea"), and the centred table left
-    # a wide blank band under the title.
-    figure.savefig(path, dpi=130, bbox_inches='tight', pad_inches=0.15)
+    # a wide blank band under the title. Beside it first, then moved in place: written
+    # directly, a full disk left a truncated PNG and an error that named no file.
+    with naming(path):
+        write_atomic(path, lambda handle: figure.savefig(
+            handle, format='png', dpi=130, bbox_inches='tight', pad_inches=0.15))
     return path
 
 

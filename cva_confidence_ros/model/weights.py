@@ -30,7 +30,7 @@ from cva_confidence_ros.model.fast import CVANetFast
 from cva_confidence_ros.model.inference import resolve_device
 from cva_confidence_ros.model.lite import CVANetLite
 from cva_confidence_ros.model.network import CVANet
-from cva_confidence_ros.outputs import temporary_sibling
+from cva_confidence_ros.outputs import torch_save_atomic
 from cva_confidence_ros.registry import Registry
 
 __all__ = [
@@ -149,16 +149,13 @@ def save_weights(net: nn.Module, path: str | os.PathLike[str], meta: Mapping[str
     state = {k: v.detach().cpu() for k, v in model.state_dict().items()}
     if path.is_dir():
         raise ModelError(f'weights file {path} is a directory; expected a .pt file path')
-    tmp = temporary_sibling(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        torch.save({'state_dict': state, 'meta': meta}, tmp)
-        os.replace(tmp, path)
-    except (OSError, RuntimeError) as exc:  # torch.save reports a missing folder as Runtime
-        raise ModelError(f'cannot write weights file {path} ({reason(exc)})') from exc
-    finally:
-        with contextlib.suppress(OSError):
-            tmp.unlink(missing_ok=True)  # gone after a successful rename
+        # Not torch.save(path): it reported a full disk as 'unexpected pos …', not ENOSPC.
+        torch_save_atomic(path, {'state_dict': state, 'meta': meta})
+    except (OSError, RuntimeError) as exc:
+        kept = '; the one there was left as it was' if path.is_file() else ''
+        raise ModelError(f'cannot write weights file {path} ({reason(exc)}){kept}') from exc
     return path
 
 

@@ -331,7 +331,8 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run ``cva-train``; returns the exit code (0 = done, 2 = bad input).
+    """Run ``cva-train``; returns the exit code (0 = done, 2 = bad input, 1 = failed: under
+    torchrun also a process that lost another of its group, said in one line).
 
     Under torchrun a run that failed ends its process here, with the code: its process group
     is left as it was (see ``_Dist.settle``), and finalising the interpreter under gloo's
@@ -344,10 +345,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     keep_freed_memory()
     try:
         code = _train(args, argv)
-    except Exception:
+    except Exception as exc:
         if not _group_left():
             raise
-        traceback.print_exc()
+        lost = _lost_process(exc)
+        if lost:
+            # Exit 1, not 2 (bad input): the run is fine and goes on with --resume.
+            print(f'{PROG}: error: {lost}; --resume goes on from the last checkpoint in '
+                  f'{args.out} (the work since it is lost)', file=sys.stderr)
+        else:
+            traceback.print_exc()
         code = 1
     if _group_left():
         end_process(code)
@@ -436,6 +443,34 @@ def _hold_out(config: TrainConfig) -> Iterator[None]:
     finally:
         if handle is not None:
             os.close(handle)
+
+
+#: What gloo and NCCL raise on a process whose peer in the group is gone (killed, out of
+#: memory, its node down): a traceback ending in 'Connection reset by peer' told no cause.
+_LOST_PEER = (
+    'Connection reset by peer', 'Connection closed by peer', 'Broken pipe',
+    'NCCL communicator was aborted', 'remote process exited',
+)
+
+
+def _lost_process(exc: BaseException) -> str:
+    """Why a torchrun process failed, where ``exc`` (or an error it came from) says that
+    another process of the group is gone; '' otherwise."""
+    seen: set[int] = set()
+    current: BaseException | None = exc
+    while current is not None and id(current) not in seen:
+        if isinstance(current, RuntimeError):  # torch's DistBackendError is one
+            said = str(current)
+            found = next((words for words in _LOST_PEER if words in said), None)
+            if found is not None:
+                rank = os.environ.get('RANK', '?')
+                world = os.environ.get('WORLD_SIZE', '?')
+                return (f'process {rank} of {world} lost another process of its torchrun '
+                        f'group ({found}): it was killed or ended (out of memory, its node '
+                        "down, an error in its own output); torchrun's summary names it")
+        seen.add(id(current))
+        current = current.__cause__ or current.__context__
+    return ''
 
 
 def _group_left() -> bool:

@@ -23,7 +23,7 @@ import signal
 import sys
 import threading
 import time
-from typing import Any, BinaryIO, TypeVar, cast
+from typing import Any, TypeVar, cast
 
 import numpy as np
 import torch
@@ -49,7 +49,7 @@ from cva_confidence_ros.model import (
 from cva_confidence_ros.outputs import (
     check_output_dir,
     check_output_file,
-    write_atomic,
+    torch_save_atomic,
     write_text_atomic,
 )
 from cva_confidence_ros.training.card import card_paths, hardware_facts, write_model_card
@@ -808,39 +808,13 @@ def _save_checkpoint(path: Path, state: dict[str, Any]) -> None:
         DataError: The checkpoint cannot be written (a full disk, a folder in the way); the
             one at ``path`` is left as it was.
     """
-    failed: list[OSError] = []
-
-    def save(handle: BinaryIO) -> None:
-        torch.save(state, cast('BinaryIO', _KeptErrors(handle, failed)))  # write, flush
-
     try:
-        # Into a file opened by write_atomic, not by torch's writer: an OSError names the
-        # cause (torch's says '[enforce fail at inline_container.cc:…]').
-        write_atomic(path, save)
+        # torch_save_atomic raises the file system's error (a full disk: ENOSPC), where torch's
+        # own writer says '[enforce fail at inline_container.cc:…] unexpected pos …'.
+        torch_save_atomic(path, state)
     except (OSError, RuntimeError) as exc:  # torch's writer raises RuntimeError
         kept = '; the one there was left as it was' if path.is_file() else ''
-        # torch's writer answers a failed write (a full disk) with 'unexpected pos …'.
-        cause = failed[0] if failed else exc
-        raise DataError(f'cannot write checkpoint {path} ({reason(cause)}){kept}') from exc
-
-
-class _KeptErrors:
-    """A binary file whose write errors are kept in ``failed`` before they are raised:
-    torch's writer turns them (ENOSPC: 'No space left on device') into 'unexpected pos'."""
-
-    def __init__(self, handle: BinaryIO, failed: list[OSError]) -> None:
-        self.handle = handle
-        self.failed = failed
-
-    def write(self, data: bytes) -> int:
-        try:
-            return self.handle.write(data)
-        except OSError as exc:
-            self.failed.append(exc)
-            raise
-
-    def flush(self) -> None:
-        self.handle.flush()
+        raise DataError(f'cannot write checkpoint {path} ({reason(exc)}){kept}') from exc
 
 
 def _write_history(out: Path, history: list[dict[str, Any]]) -> None:

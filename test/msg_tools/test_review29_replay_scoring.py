@@ -117,8 +117,9 @@ def test_a_report_that_cannot_be_written_is_a_config_error(tmp_path: Path) -> No
     from msg_tools.scoring import ReplayReport, ReportWriter
 
     writer = ReportWriter(tmp_path / 'report')
-    (tmp_path / 'report' / 'report.json.tmp').mkdir()  # in the way, as a full disk would be
+    (tmp_path / 'report' / 'report.json').mkdir()  # in the way, as a full disk would be
     # Before: IsADirectoryError out of the replay's end.
-    with pytest.raises(ConfigError, match=f'cannot write the report into {tmp_path / "report"}: '
+    with pytest.raises(ConfigError, match=f'cannot write the report file '
+                                          f'{tmp_path / "report" / "report.json"}: '
                                           'IsADirectoryError'):
         writer.write(ReplayReport())
