@@ -18,6 +18,7 @@ __all__ = [
     'DataError',
     'end_process',
     'InputError',
+    'MemoryShortfallError',
     'ModelError',
     'from_interrupt',
     'reason',
@@ -50,6 +51,12 @@ class ConfigError(CVAError, ValueError):
 
 class InputError(CVAError, ValueError):
     """An input array or message has the wrong shape, dtype, encoding or values."""
+
+
+class MemoryShortfallError(InputError):
+    """An input whose processing needs more memory than is left here
+    (``memory.available_memory``): refused before anything is allocated, the need in GB and
+    what lowers it in the message."""
 
 
 class DataError(CVAError):

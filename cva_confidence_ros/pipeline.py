@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from cva_confidence_ros.checks import is_int, is_real
-from cva_confidence_ros.errors import ConfigError, InputError
+from cva_confidence_ros.errors import ConfigError, InputError, MemoryShortfallError
 
 if TYPE_CHECKING:
     from cva_confidence_ros.confidence import ConfidenceInputs
@@ -435,8 +435,9 @@ class StereoPipeline:
 
         Raises:
             InputError: Too small for ``downsample``, narrower than ``max_disparity`` + 1
-                after downsampling, not the size of the mask, with no pixel that both the
-                region of interest and the mask leave, or whose matching needs more memory
+                after downsampling, not the size of the mask, or with no pixel that both the
+                region of interest and the mask leave.
+            MemoryShortfallError: An InputError too: its matching needs more memory
                 (:meth:`memory_needed`) than is available here (the need in GB and what
                 lowers it).
         """
@@ -511,7 +512,7 @@ class StereoPipeline:
         hints.append('a narrower roi_top / roi_bottom')
         if cfg.lr_check:
             hints.append('lr_check off')
-        raise InputError(
+        raise MemoryShortfallError(
             f'a {width}×{height} px pair at max_disparity = {cfg.max_disparity}, downsample = '
             f'{cfg.downsample} with {cfg.matcher} needs at least {need / gb:.2f} GB for the '
             f'matching alone (cost volumes, work arrays), but {available / gb:.2f} GB of memory '

@@ -148,3 +148,19 @@ def test_mccnn_features_on_a_gpu_are_not_counted_as_host_memory(
     with pytest.raises(CVAError) as caught:
         matching.compute_cost_volume(left, right, 'mccnn_fast', 64, device='cuda')
     assert 'GB' not in str(caught.value)
+
+
+def test_a_memory_refusal_is_its_own_input_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    # The node tells a step toward a configuration that fits from other refusals by the
+    # class (it read the traceback's last frame name), and callers may catch it alone.
+    from cva_confidence_ros.errors import MemoryShortfallError
+    from cva_confidence_ros.matching import compute_cost_volume
+
+    monkeypatch.setattr(memory, 'available_memory', lambda: 10_000)
+    monkeypatch.setattr(memory, '_CHECKED_FROM', 0)
+    with pytest.raises(MemoryShortfallError):
+        _pipeline(matcher='census_bm', max_disparity=16).check_input_size(64, 48)
+    left, right = _pair(48, 64)
+    with pytest.raises(MemoryShortfallError, match='cva-evaluate --downsample'):
+        compute_cost_volume(left, right, 'census_bm', 16)
+    assert issubclass(MemoryShortfallError, InputError)

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from cva_confidence_ros.errors import InputError
+from cva_confidence_ros.errors import MemoryShortfallError
 from cva_confidence_ros.matching.base import (
     VIEWS,
     Matcher,
@@ -84,8 +84,9 @@ def compute_cost_volume(
 
     Raises:
         InputError: Images that are not arrays, of different shapes, empty, of another dtype,
-            or with NaN/inf or out-of-range float values, or a volume (with the matcher's work
-            arrays) larger than the memory available (``memory.available_memory``).
+            or with NaN/inf or out-of-range float values.
+        MemoryShortfallError: A volume (with the matcher's work arrays) larger than the memory
+            available (``memory.available_memory``); an InputError too.
         ConfigError: Unknown matcher, view or parameter, bad parameter values, or
             max_disparity not an integer in [1, W).
     """
@@ -106,11 +107,12 @@ def compute_cost_volume(
     if available is not None:
         # Refused before allocating: numpy's lazy allocation succeeds, and the kernel's OOM
         # killer ends the process once the volume is written.
-        raise InputError(
+        raise MemoryShortfallError(
             f'the {matcher} cost volume of a {width}×{height} px pair at max_disparity = '
             f'{depth} needs at least {need / 1e9:.2f} GB, but {available / 1e9:.2f} GB of '
             f'memory are available; use a smaller max_disparity or shrink the pair '
-            f'(datasets.resize_image) ({CHECK_SWITCH}=0 in the environment turns this check off)'
+            f'(datasets.resize_image; cva-evaluate --downsample) '
+            f'({CHECK_SWITCH}=0 in the environment turns this check off)'
         )
     from cva_confidence_ros.jit import start_numba_threads
 

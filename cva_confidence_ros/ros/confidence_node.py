@@ -32,7 +32,7 @@ from rclpy.timer import Timer
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, LaserScan, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
-from cva_confidence_ros.errors import ConfigError, CVAError, InputError
+from cva_confidence_ros.errors import ConfigError, CVAError, InputError, MemoryShortfallError
 from cva_confidence_ros.pipeline import (
     COST_VOLUME_NETWORKS,
     PipelineConfig,
@@ -695,6 +695,7 @@ class ConfidenceCore(Node):
                 p.name in _FILE_PARAMETERS and p.value and files[p.name] != self._files[p.name]
                 for p in params
             )
+            still: InputError | None = None
             if reload or pipeline_config != self.pipeline_config:
                 # Built here, before accepting, so that e.g. missing weights or a device that
                 # is not there reject the change, and checked against the images coming in.
@@ -707,10 +708,13 @@ class ConfidenceCore(Node):
                     except InputError as error:
                         # Say which images: a camera restarted with another resolution is
                         # judged by its first frame, not before.
-                        raise InputError(
+                        said = InputError(
                             f'{error} (the images coming in: {size[0]}×{size[1]} px, the last '
                             f'one {time.monotonic() - seen_at:.1f} s ago)'
-                        ) from error
+                        )
+                        if not self._eases_memory(pipeline, size, error):
+                            raise said from error
+                        still = said
         except CVAError as error:
             self.get_logger().warning(f'parameter change refused ({asked}): {error}')
             return SetParametersResult(successful=False, reason=str(error))
@@ -741,11 +745,42 @@ class ConfidenceCore(Node):
                 # A user's change is judged afresh: still too wide, it is logged with its new
                 # value; set back to a value logged a moment ago, it is logged again too.
                 self._reset_wide_tolerance()
-        self.get_logger().info(f'parameters set: {asked}')
+        if still is not None:
+            # Taken though its frames are still dropped (rclpy's reply to a change taken has
+            # no reason: the log says it).
+            self.get_logger().warning(
+                f'parameters set: {asked}; the images coming in still do not fit: {still}'
+            )
+        else:
+            self.get_logger().info(f'parameters set: {asked}')
         if pipeline is not None:
             self._mailbox.poke()
             self._warn_if_slow(pipeline)
         return SetParametersResult(successful=True)
+
+    def _eases_memory(
+        self, pipeline: StereoPipeline, size: tuple[int, int], error: InputError
+    ) -> bool:
+        """Whether ``error``, of ``pipeline.check_input_size(*size)``, is its memory check's
+        alone and ``pipeline`` needs less memory for such images than the current one, which
+        does not fit them either: a step toward a configuration that fits, taken (warned)
+        rather than refused. Refused, an operator had no way out one ``param set`` at a time
+        while every frame was dropped: 2448×2048 px with census_sgm at D = 256 and 0.5 GB
+        left, downsample 4 needs 0.56 GB and max_disparity 128 4.49 GB, both at once 0.28."""
+        from cva_confidence_ros.memory import shortfall
+
+        # The memory check comes last: raised there, the size, mask and width checks passed.
+        if not isinstance(error, MemoryShortfallError):
+            return False
+        with self._lock:
+            current = self._pipeline
+        if current is None:
+            return False
+        try:
+            need = current.memory_needed(*size)
+        except InputError:  # the current mask is not of these images: nothing to compare
+            return False
+        return pipeline.memory_needed(*size) < need and shortfall(need) is not None
 
     # Executor side ------------------------------------------------------------------------
 
