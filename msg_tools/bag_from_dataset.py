@@ -13,6 +13,10 @@ pinhole with f = image width and B = 0.1 m is assumed (and said so). Frames are 
 ``--start-time + i / --rate``; every frame carries its own size. Bags are rosbag2 version 8
 with ROS 2 Jazzy message definitions, MCAP by default, readable by ``ros2 bag info/play``.
 
+Exit codes: 0 done, 2 bad input or a scene that cannot be read (one line on stderr), 130
+interrupted by Ctrl-C, 143 by SIGTERM (the bag keeps the frames written). ``--overwrite``
+also replaces the folder that a killed or disk-full run left without its ``metadata.yaml``.
+
 Example::
 
     cva-bag-from-dataset --dataset motorcycle --out motorcycle_bag
@@ -385,6 +389,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog='cva-bag-from-dataset',
         description='Write a stereo data set (images, camera infos, ground-truth disparity) '
         'as a rosbag2 (MCAP or sqlite3) readable by ros2 bag and rosbags.',
+        epilog='Exit codes: 0 done, 2 bad input or a scene that cannot be read (one line on '
+        'stderr: an old bag stays as it was, a new one keeps the frames before it), 130 '
+        'interrupted by Ctrl-C, 143 by SIGTERM (the bag keeps the frames written).',
     )
     parser.add_argument('--data-root', type=Path, default=None,
                         help='folder holding the data set (not needed for motorcycle)')
@@ -413,12 +420,15 @@ def build_parser() -> argparse.ArgumentParser:
                         help='frame_id of the left camera')
     parser.add_argument('--right-frame', default='right_camera_optical_frame',
                         help='frame_id of the right camera')
-    parser.add_argument('--overwrite', action='store_true', help='replace an existing bag')
+    parser.add_argument('--overwrite', action='store_true',
+                        help='replace an existing bag (also the folder a killed or disk-full '
+                        'run left without its metadata.yaml)')
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``cva-bag-from-dataset``; returns the exit code (2 on bad input)."""
+    """Entry point of ``cva-bag-from-dataset``; returns the exit code (0 done, 2 bad input or a
+    scene that cannot be read, 130 Ctrl-C, 143 SIGTERM)."""
     args = build_parser().parse_args(argv)
     try:
         if args.max_frames is not None and args.max_frames < 1:

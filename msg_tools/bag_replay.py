@@ -16,7 +16,8 @@ confidence method, weights, downsample, threshold), and writes
 
 An existing output bag, or a report folder that holds an earlier report, is refused before any
 work unless ``--overwrite`` is given; then the old report's files are deleted (nothing else in
-the folder), and the old bag is replaced only once the new one holds a frame. Input messages
+the folder), and the old bag is replaced only once the new one holds a frame (an output folder
+that a killed or disk-full run left without its ``metadata.yaml`` is replaced too). Input messages
 that pair with nothing (a stamp off by a few µs, a duplicate stamp) and frames whose ground
 truth is unusable are named on stderr (the first few) and listed in the report.
 
@@ -129,6 +130,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog='cva-bag-replay',
         description='Replay a stereo rosbag2 through the CVA confidence pipeline; write an '
         'output bag and a per-frame confidence report.',
+        epilog='Exit codes: 0 done, 2 bad input or a fault that stopped the run (one line on '
+        'stderr), 130 interrupted by Ctrl-C, 143 by SIGTERM (the output bag and the report '
+        'hold the frames done).',
     )
     parser.add_argument('bag', type=Path, help='input bag (folder, .mcap or .db3)')
     parser.add_argument('--out', type=Path, required=True, help='output bag folder to create')
@@ -271,8 +275,9 @@ def build_parser() -> argparse.ArgumentParser:
     output.add_argument('--storage', choices=STORAGES, default='mcap',
                         help='storage of the output bag (default mcap)')
     output.add_argument('--overwrite', action='store_true',
-                        help='replace an existing output bag (once the new one holds a frame) '
-                        'and the files of an earlier report in the report folder')
+                        help='replace an existing output bag (once the new one holds a frame; '
+                        'also the folder a killed or disk-full run left without its '
+                        'metadata.yaml) and the files of an earlier report in the report folder')
 
     live = parser.add_argument_group('live mode')
     live.add_argument('--rate-scale', type=float, default=1.0,

@@ -165,11 +165,11 @@ class GracefulInterrupt:
         # Said inside a critical section too (its next check stops the run all the same): a
         # first Ctrl-C there went without a word, and a user pressed again, unanswered.
         if self.notice:
-            notice = self.notice
+            notice, again = self.notice, 'Ctrl-C again'
             if signum == signal.SIGTERM:
                 # A batch system's time limit or `kill` is no Ctrl-C that anyone pressed.
-                notice = notice.replace('Ctrl-C:', 'SIGTERM:')
-            print_above(f'{notice} (Ctrl-C again to stop at once)')
+                notice, again = notice.replace('Ctrl-C:', 'SIGTERM:'), 'a second signal'
+            print_above(f'{notice} ({again} to stop at once)')
 
     def __enter__(self) -> GracefulInterrupt:
         self._entered += 1

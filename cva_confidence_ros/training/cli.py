@@ -87,6 +87,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog=PROG,
         description='Train CVA-Net (confidence from cost volumes) for one matcher and depth D.',
+        epilog='Exit codes: 0 done, 2 bad input (one line on stderr), 1 failed (under torchrun '
+        'also a process that lost another of its group: --resume goes on), 130 stopped by '
+        'Ctrl-C, 143 by SIGTERM (a Slurm preemption); --resume goes on from the checkpoint '
+        'the message names.',
         formatter_class=_DefaultsFormatter,
     )
     data = parser.add_argument_group('data')
@@ -253,8 +257,9 @@ def build_parser() -> argparse.ArgumentParser:
         default=0,
         help='also checkpoint every N training steps within an epoch (default: 0, at the end '
         'of each epoch only), for long epochs: a --resume goes on from the last such step, to '
-        'the bit as if the run had not stopped. A one-process run stopped by SIGTERM or '
-        'Ctrl-C checkpoints the step it is in anyway',
+        'the bit as if the run had not stopped. A one-process run of these networks stopped '
+        'by SIGTERM or Ctrl-C checkpoints the step it is in anyway (exit 143 / 130); under '
+        'torchrun the processes stop at once, and --resume goes on from the last checkpoint',
     )
     output.add_argument(
         '--weights-out', default=None, help='final weights PATH.pt (+ PATH.md, PATH.json)'
@@ -264,7 +269,9 @@ def build_parser() -> argparse.ArgumentParser:
     restart.add_argument(
         '--resume',
         action='store_true',
-        help='continue from OUT/checkpoint.pt after its last finished epoch; refused unless the '
+        help='continue from OUT/checkpoint.pt: after its last finished epoch, or within an '
+        'epoch at the step a --checkpoint-every checkpoint or a stop by SIGTERM / Ctrl-C '
+        'saved; refused unless the '
         'data (validation scenes included), matcher, D, arch, mode, sampling, batch size, '
         'processes, seed, teacher and warm start are those of the run and every finished '
         'epoch keeps its learning rate; '
@@ -332,7 +339,8 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``cva-train``; returns the exit code (0 = done, 2 = bad input, 1 = failed: under
-    torchrun also a process that lost another of its group, said in one line).
+    torchrun also a process that lost another of its group, said in one line; 130 / 143 =
+    stopped by Ctrl-C / SIGTERM, said in one line with what the checkpoint holds).
 
     Under torchrun a run that failed ends its process here, with the code: its process group
     is left as it was (see ``_Dist.settle``), and finalising the interpreter under gloo's
@@ -378,12 +386,23 @@ def _train(args: argparse.Namespace, argv: list[str]) -> int:
         signum, saved = _stopped(exc)
         if saved:
             where = f'the checkpoint in {args.out} holds {saved}: --resume goes on from there'
-        else:
+        elif _has_checkpoint(args.out):
             where = (f'--resume goes on from the last checkpoint in {args.out} (the work '
                      'since it is lost)')
+        else:
+            # Stopped while the scenes were prepared, say: a resume has nothing to go on from.
+            where = f'no checkpoint was written in {args.out} yet: run it again from the start'
         print(f'{PROG}: stopped by {signal.Signals(signum).name}; {where}', file=sys.stderr)
         return 128 + signum
     return 0
+
+
+def _has_checkpoint(out: str) -> bool:
+    from pathlib import Path
+
+    from cva_confidence_ros.training.trainer import CHECKPOINT_NAME
+
+    return (Path(out) / CHECKPOINT_NAME).is_file()
 
 
 def _stopped(exc: BaseException) -> tuple[int, str]:

@@ -183,3 +183,14 @@ def test_bag_from_dataset_on_a_full_disk_says_no_bag_was_left(
     # Before: "... holds the N frames written before it", of a bag that held none.
     assert 'no bag was left there' in err and 'frames written before' not in err
     assert not bag.exists()
+
+
+def test_a_sigterm_notice_does_not_ask_for_ctrl_c(capsys: pytest.CaptureFixture[str]) -> None:
+    # Nobody pressed Ctrl-C under a batch system's SIGTERM: the notice said to press it again.
+    from msg_tools.progress import GracefulInterrupt
+
+    with GracefulInterrupt('Ctrl-C: stopping after this frame') as interrupts:
+        signal.raise_signal(signal.SIGTERM)
+    err = capsys.readouterr().err
+    assert 'SIGTERM: stopping after this frame (a second signal to stop at once)' in err
+    assert interrupts.exit_code == 143

@@ -109,9 +109,10 @@ def test_a_signal_outside_the_steps_says_what_is_lost(
     monkeypatch.setattr(trainer, 'sample_index', stop)  # while the scenes are prepared
     assert main([*RUN, '--out', str(tmp_path / 'run')]) == 143
     err = capsys.readouterr().err
+    # No checkpoint yet (stopped while the scenes were prepared): no --resume to advise.
     assert (
-        f'stopped by SIGTERM; --resume goes on from the last checkpoint in {tmp_path / "run"}'
-        in err
+        f'stopped by SIGTERM; no checkpoint was written in {tmp_path / "run"} yet: run it '
+        'again from the start' in err
     )
 
 
