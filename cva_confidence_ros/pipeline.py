@@ -473,12 +473,15 @@ class StereoPipeline:
             rows = _judged_rows(rows, mask)
         return self._matching_bytes(width // cfg.downsample, height // cfg.downsample, rows)
 
-    def _matching_bytes(self, width: int, height: int, rows: tuple[int, int]) -> int:
-        """:meth:`memory_needed` at the processed size ``width`` × ``height``, ``rows`` judged."""
+    def _matching_bytes(
+        self, width: int, height: int, rows: tuple[int, int], depth: int | None = None
+    ) -> int:
+        """:meth:`memory_needed` at the processed size ``width`` × ``height``, ``rows`` judged
+        (at cost-volume depth ``depth``; None = ``max_disparity``)."""
         cfg = self.config
         # Python ints: H·W·D of a 2448×2048 camera at D = 512 is 2.6e9, past int32.
         pixels = (min(height, rows[1] + ROI_MARGIN) - max(0, rows[0] - ROI_MARGIN)) * width
-        voxels = pixels * cfg.max_disparity
+        voxels = pixels * (cfg.max_disparity if depth is None else depth)
         views = 2 if cfg.lr_check or getattr(self._method, 'needs_right', False) else 1
         from cva_confidence_ros.matching import MATCHERS
 
@@ -500,15 +503,31 @@ class StereoPipeline:
             return
         cfg = self.config
         gb = 1e9
-        hints = [f'a smaller max_disparity (now {cfg.max_disparity})']
+
+        def need_at(factor: int, depth: int) -> int:
+            return self._matching_bytes(
+                width // factor, height // factor, cfg.roi_rows(height // factor), depth
+            )
+
+        depth = cfg.max_disparity
+        # The largest halving of max_disparity that fits at the current downsample.
+        smaller = next((d for d in (depth >> k for k in range(1, 8)) if d >= 8
+                        and need_at(cfg.downsample, d) <= available), None)
+        hints = [f'a smaller max_disparity (now {depth}' + (
+            f'; {smaller}: {need_at(cfg.downsample, smaller) / gb:.2f} GB)' if smaller else ')')]
         for factor in (2, 4):
-            if factor > cfg.downsample and cfg.max_disparity < width // factor:
-                smaller = self._matching_bytes(
-                    width // factor, height // factor, cfg.roi_rows(height // factor)
-                )
-                if smaller <= available:
-                    hints.insert(0, f'downsample = {factor} ({smaller / gb:.2f} GB)')
-                    break
+            if factor <= cfg.downsample:
+                continue
+            if depth < width // factor and need_at(factor, depth) <= available:
+                hints.insert(0, f'downsample = {factor} ({need_at(factor, depth) / gb:.2f} GB)')
+                break
+            # The same depth range at a lower resolution takes a smaller max_disparity: with
+            # neither downsample fitting alone, one param set at a time found no way out.
+            fewer = max(1, depth * cfg.downsample // factor)
+            if need_at(factor, fewer) <= available:
+                hints.insert(0, f'downsample = {factor} with max_disparity = {fewer} (the same '
+                                f'depth range, {need_at(factor, fewer) / gb:.2f} GB)')
+                break
         hints.append('a narrower roi_top / roi_bottom')
         if cfg.lr_check:
             hints.append('lr_check off')

@@ -164,3 +164,19 @@ def test_a_memory_refusal_is_its_own_input_error(monkeypatch: pytest.MonkeyPatch
     with pytest.raises(MemoryShortfallError, match='cva-evaluate --downsample'):
         compute_cost_volume(left, right, 'census_bm', 16)
     assert issubclass(MemoryShortfallError, InputError)
+
+
+def test_a_refusal_with_no_downsample_alone_names_one_with_a_smaller_depth(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # 2448×2048 with census_sgm at D = 256 and 0.5 GB left: neither downsample 2 (2.25 GB)
+    # nor 4 (0.56 GB) fits alone; the message offered only "a smaller max_disparity".
+    monkeypatch.setattr(memory, 'available_memory', lambda: int(0.5e9))
+    sgm = _pipeline(matcher='census_sgm', max_disparity=256)
+    with pytest.raises(InputError) as caught:
+        sgm.check_input_size(2448, 2048)
+    message = str(caught.value)
+    assert 'downsample = 4 with max_disparity = 64 (the same depth range, 0.14 GB)' in message
+    assert 'a smaller max_disparity (now 256; 8: 0.28 GB)' in message
+    taken = _pipeline(matcher='census_sgm', max_disparity=64, downsample=4)
+    taken.check_input_size(2448, 2048)  # what it names fits
