@@ -64,7 +64,15 @@ import cv2
 import numpy as np
 
 from cva_confidence_ros import strict_json
-from cva_confidence_ros.errors import ConfigError, CVAError, ModelError
+from cva_confidence_ros.errors import (
+    ConfigError,
+    CVAError,
+    ModelError,
+    closed_stdout,
+    from_interrupt,
+    sigterm_as_interrupt,
+    stdout_closed,
+)
 from cva_confidence_ros.outputs import check_output_file
 from cva_confidence_ros.registry import Registry
 
@@ -602,11 +610,18 @@ def format_table(records: Sequence[dict[str, Any]], threads: int) -> str:
     return '\n'.join(lines)
 
 
+#: The --help epilog of every suite.
+EXIT_CODES = ('Exit codes: 0 done, 2 bad input (one line on stderr), 130 stopped by Ctrl-C, 143 '
+              'by SIGTERM (nothing is written then). The table goes to stdout, progress to '
+              'stderr.')
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='cva-benchmark',
         description='Milliseconds per frame and peak memory of the stereo matchers, next to '
         'OpenCV StereoSGBM (MODE_HH) on the same pairs.',
+        epilog=EXIT_CODES,
     )
     defaults = BenchSettings()
     parser.add_argument('--width', type=int, default=defaults.width)
@@ -637,7 +652,28 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``cva-benchmark``; returns the process exit code."""
+    """Entry point of ``cva-benchmark`` (every suite); returns the process exit code: 0 done,
+    2 bad input (one line on stderr), 130 / 143 stopped by Ctrl-C / SIGTERM (one line; nothing
+    measured is printed or written), 141 without a word when stdout's reader went away
+    (``| head -1``; the ``--json`` records are written before the table)."""
+    # A Ctrl-C printed a KeyboardInterrupt traceback, a SIGTERM ended it without a word, and a
+    # closed pipe printed a BrokenPipeError traceback and exited 1.
+    with sigterm_as_interrupt() as terminated:
+        try:
+            return _main(argv)
+        except BrokenPipeError:
+            if not stdout_closed():  # a node suite's subprocess pipe, say: not our reader
+                raise
+            return closed_stdout()
+        except (KeyboardInterrupt, SystemError) as exc:
+            if not from_interrupt(exc):
+                raise
+            print(f'cva-benchmark: {"terminated" if terminated else "interrupted"}',
+                  file=sys.stderr)
+            return 143 if terminated else 130
+
+
+def _main(argv: Sequence[str] | None) -> int:
     suite = argparse.ArgumentParser(add_help=False)
     suite.add_argument('--suite', choices=_SUITES, default='matchers')
     chosen, rest = suite.parse_known_args(argv)

@@ -23,7 +23,16 @@ import time
 import numpy as np
 
 from cva_confidence_ros import strict_json
-from cva_confidence_ros.errors import ConfigError, CVAError, DataError, reason
+from cva_confidence_ros.errors import (
+    ConfigError,
+    CVAError,
+    DataError,
+    closed_stdout,
+    from_interrupt,
+    reason,
+    sigterm_as_interrupt,
+    stdout_closed,
+)
 from cva_confidence_ros.outputs import check_output_dir
 
 __all__ = ['main']
@@ -181,7 +190,10 @@ def main(argv: list[str] | None = None) -> int:
     from cva_confidence_ros.memory import keep_freed_memory
 
     keep_freed_memory()
-    parser = argparse.ArgumentParser(prog='cva-demo', description=__doc__.split('\n\n')[0])
+    parser = argparse.ArgumentParser(
+        prog='cva-demo', description=__doc__.split('\n\n')[0],
+        epilog='Exit codes: 0 done, 2 bad input or a step that failed (one line on stderr), '
+        '130 stopped by Ctrl-C, 143 by SIGTERM.')
     parser.add_argument('--out', default='out/demo', help='output folder (default: %(default)s)')
     parser.add_argument(
         '--downsample', type=int, default=4,
@@ -202,6 +214,27 @@ def main(argv: list[str] | None = None) -> int:
     except CVAError as err:
         parser.error(str(err))
 
+    # SIGTERM (a CI job's time limit) ended step 1 without a word: it is a Ctrl-C here (exit
+    # 143); steps 2 and 3 (the bag tools) answer both signals with 130 / 143 themselves.
+    step = [1]
+    with sigterm_as_interrupt() as terminated:
+        try:
+            return _run(args, matchers, methods, step)
+        except BrokenPipeError:
+            if not stdout_closed():
+                raise
+            return closed_stdout()
+        except (KeyboardInterrupt, SystemError) as exc:
+            if not from_interrupt(exc):
+                raise
+            how = 'stopped by SIGTERM' if terminated else 'interrupted'
+            print(f'cva-demo: {how} in step {step[0]}', file=sys.stderr)
+            return 143 if terminated else 130
+
+
+def _run(args: argparse.Namespace, matchers: list[str], methods: list[str],
+         step: list[int]) -> int:
+    """Steps 1 to 3 of :func:`main`; ``step[0]`` says which one is under way."""
     from msg_tools import bag_from_dataset, bag_replay
 
     out: Path = args.out
@@ -213,10 +246,8 @@ def main(argv: list[str] | None = None) -> int:
     except CVAError as err:  # e.g. a depth too wide for the pair at this size
         print(f'cva-demo: error: {err}', file=sys.stderr)
         return 2
-    except KeyboardInterrupt:  # steps 2 and 3 answer Ctrl-C with 130 themselves
-        print('cva-demo: interrupted in step 1', file=sys.stderr)
-        return 130
 
+    step[0] = 2
     bag = out / 'motorcycle_bag'
     _log(f'step 2/3: writing the pair as a rosbag2 (MCAP) to {bag}')
     if bag.exists():
@@ -227,6 +258,7 @@ def main(argv: list[str] | None = None) -> int:
     if code:
         return code
 
+    step[0] = 3
     _log('step 3/3: replaying the bag through the pipeline (matcher x confidence method)')
     table: list[tuple[str, str, dict[str, float]]] = []
     for matcher in matchers:

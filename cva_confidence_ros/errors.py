@@ -6,9 +6,13 @@ Every message says what was expected and what came, e.g.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+import contextlib
 import os
 import re
+import signal
 import sys
+import threading
 from typing import NoReturn
 
 __all__ = [
@@ -16,13 +20,21 @@ __all__ = [
     'CVAError',
     'ConfigError',
     'DataError',
+    'EXIT_CLOSED_STDOUT',
+    'closed_stdout',
     'end_process',
     'InputError',
     'MemoryShortfallError',
     'ModelError',
     'from_interrupt',
     'reason',
+    'sigterm_as_interrupt',
+    'stdout_closed',
 ]
+
+#: Exit status of a tool whose stdout reader went away (``cva-benchmark … | head -1``):
+#: 128 + SIGPIPE, as a shell reports ``cat`` that the closed pipe ended.
+EXIT_CLOSED_STDOUT = 128 + signal.SIGPIPE
 
 
 class CVAError(Exception):
@@ -123,3 +135,55 @@ def end_process(code: int) -> NoReturn:
         except (OSError, ValueError):
             pass
     os._exit(code)
+
+
+@contextlib.contextmanager
+def sigterm_as_interrupt() -> Iterator[list[int]]:
+    """Treat SIGTERM (a batch system's time limit, ``timeout``, ``kill``) as Ctrl-C meanwhile:
+    its default action ends the process at once, without a word and without its ``finally``
+    blocks. Yields a list that holds the signal once it came (the tool then exits 143 instead
+    of 130). Only in the main thread, only over the default action."""
+    came: list[int] = []
+    if threading.current_thread() is not threading.main_thread() or (
+        signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL
+    ):
+        yield came
+        return
+
+    def interrupt(signum: int, _frame: object) -> None:
+        came.append(signum)
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield came
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def stdout_closed() -> bool:
+    """Whether stdout is a pipe whose reader went away (poll says POLLERR): a BrokenPipeError
+    of another pipe (a subprocess, a socket) is no reader that wanted no more."""
+    import select
+
+    try:
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(events & select.POLLERR for _, events in poller.poll(0))
+    except (AttributeError, OSError, ValueError):  # no poll (Windows), no file descriptor
+        return False
+
+
+def closed_stdout() -> int:
+    """For a :class:`BrokenPipeError` on stdout, whose reader went away (``| head -1``): point
+    stdout at ``/dev/null``, so that the interpreter's last flush raises nothing either, and
+    return :data:`EXIT_CLOSED_STDOUT`. Nothing is said: the reader wanted no more, as ``cat``
+    ends quietly there (a tool said ``error: [Errno 32] Broken pipe`` and exited 1, another
+    printed a traceback)."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):  # no file descriptor (a replaced sys.stdout)
+        pass
+    return EXIT_CLOSED_STDOUT

@@ -38,15 +38,12 @@ Ctrl-C with 130, SIGTERM with 143, after writing what was done.
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable, Iterator, Sequence
-import contextlib
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 import math
 import os
 from pathlib import Path
-import signal
 import sys
-import threading
 import time
 from typing import Any, cast
 
@@ -55,7 +52,10 @@ from cva_confidence_ros.errors import (
     CVAError,
     DataError,
     InputError,
+    closed_stdout,
     from_interrupt,
+    sigterm_as_interrupt,
+    stdout_closed,
 )
 from cva_confidence_ros.outputs import check_output_dir, check_output_file, write_text_atomic
 
@@ -196,6 +196,11 @@ def _build_parser() -> argparse.ArgumentParser:
         prog=PROG,
         description='Score stereo confidence methods (CVA-Net and hand-crafted measures) on '
         'data sets with ground truth: per-scene JSON, a Table-1 Markdown table, PNGs.',
+        epilog='Exit codes: 0 done, 2 bad input or an output that cannot be written (one line '
+        'on stderr), or a partial run (scenes that could not be used; scenes left out for a '
+        'missing file, unless --allow-missing-files: the records and table of the others are '
+        'written), 130 stopped by Ctrl-C, 143 by SIGTERM (the scenes done are '
+        'written; --resume goes on). The table goes to stdout, progress to stderr.',
     )
     parser.add_argument('--data-root', type=Path, default=None,
                         help='folder holding the data sets (not needed for motorcycle)')
@@ -728,18 +733,25 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def exit_code(prog: str, command: Callable[[], int]) -> int:
     """Run ``command`` the way the evaluation tools end: its own code, or one line on stderr
-    and 2 for bad input (:class:`CVAError`), 1 for an output that cannot be written, 130 on
+    and 2 for bad input (:class:`CVAError`), 1 for an output that cannot be written, 141
+    without a word for a closed stdout (:func:`closed_stdout`), 130 on
     Ctrl-C (also when it surfaced inside a numba kernel, see :func:`from_interrupt`). Large
     freed blocks are kept for the next scene first (:mod:`cva_confidence_ros.memory`)."""
     from cva_confidence_ros.memory import keep_freed_memory
 
     keep_freed_memory()
-    with _sigterm_as_interrupt() as terminated:
+    with sigterm_as_interrupt() as terminated:
         try:
             code = command()
         except CVAError as exc:
             print(f'{prog}: error: {exc}', file=sys.stderr)
             return 2
+        except BrokenPipeError as exc:
+            if not stdout_closed():  # another pipe: an error as any other OSError
+                print(f'{prog}: error: {exc}', file=sys.stderr)
+                return 1
+            # The table's reader went away (`| head -1`); the records were written before it.
+            return closed_stdout()
         except OSError as exc:
             print(f'{prog}: error: {exc}', file=sys.stderr)
             return 1
@@ -750,30 +762,6 @@ def exit_code(prog: str, command: Callable[[], int]) -> int:
             code = 130
         # 128 + 15, as a shell reports a process that SIGTERM ended.
         return 143 if terminated and code == 130 else code
-
-
-@contextlib.contextmanager
-def _sigterm_as_interrupt() -> Iterator[list[int]]:
-    """Treat SIGTERM (a batch system's time limit, ``timeout``, ``kill``) as Ctrl-C meanwhile:
-    its default action ended the process at once, without writing the scenes done. Yields a
-    list that holds the signal once it came. Only in the main thread, only over the default
-    action."""
-    came: list[int] = []
-    if threading.current_thread() is not threading.main_thread() or (
-        signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL
-    ):
-        yield came
-        return
-
-    def interrupt(signum: int, _frame: object) -> None:
-        came.append(signum)
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, interrupt)
-    try:
-        yield came
-    finally:
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 if __name__ == '__main__':

@@ -375,6 +375,10 @@ def _build_parser() -> argparse.ArgumentParser:
         prog=PROG,
         description="Reproduce the paper's Table 1: AUC of CCNN, LFN, LGC-Net, CVA-Net and "
         'the hand-crafted measures for every matcher on KITTI 2012 / 2015 and Middlebury v3.',
+        epilog='Exit codes: 0 done, 2 bad input or an output that cannot be written (one line '
+        'on stderr), or a partial table (scenes that could not be used; scenes left out for a '
+        'missing file, unless --allow-missing-files), 130 stopped by Ctrl-C, 143 by SIGTERM '
+        '(the scenes done are written). The table goes to stdout, progress to stderr.',
     )
     parser.add_argument('--data-root', type=Path, required=True,
                         help='folder holding the data sets (e.g. ../shared/data)')

@@ -44,6 +44,8 @@ def _parser() -> argparse.ArgumentParser:
         prog='cva-lifecycle',
         description='Get or change the state of a ROS 2 managed (lifecycle) node, as '
         '`ros2 lifecycle` does.',
+        epilog='Exit codes: 0 done, 1 the node refused the transition, 2 bad arguments or no '
+        'answer within --timeout, 130 stopped by Ctrl-C, 143 by SIGTERM.',
     )
     parser.add_argument('--timeout', type=float, default=10.0,
                         help='seconds to wait for the node and its answer (default 10)')

@@ -75,6 +75,8 @@ def _parser() -> argparse.ArgumentParser:
         prog='cva-param',
         description="List, get, set, describe or dump a running ROS 2 node's parameters, as "
         '`ros2 param` does.',
+        epilog='Exit codes: 0 done, 1 the node refused the value or has no such parameter, 2 '
+        'bad arguments or no answer within --timeout, 130 stopped by Ctrl-C, 143 by SIGTERM.',
     )
     parser.add_argument('--timeout', type=float, default=10.0,
                         help='seconds to wait for the node and its answer (default 10)')
