@@ -155,8 +155,12 @@ FAST_CONFIGS: tuple[FastConfig, ...] = (
     FastConfig('pipeline:fast', pipeline=True, arch=_FAST),
 )
 _EXTRAPOLATED = ('exact', 'bf16')
-#: Environment variables of the thread pools that start after ``--threads`` is applied.
-_THREAD_ENV = ('OMP_NUM_THREADS', 'MKL_NUM_THREADS', 'NUMBA_NUM_THREADS')
+#: Environment variables of the thread pools that start after ``--threads`` is applied. Not
+#: NUMBA_NUM_THREADS: numba reads it again at every compilation, and one that differs from the
+#: pool it launched raised "Cannot set NUMBA_NUM_THREADS to a different value once the threads
+#: have been launched" (a first run, whose kernels compile inside the block, crashed);
+#: ``numba.set_num_threads`` limits the kernels instead.
+_THREAD_ENV = ('OMP_NUM_THREADS', 'MKL_NUM_THREADS')
 #: Develop window the AUC rows are scored on. 120×200 leaves a stride-8 grid 15×25 samples; on
 #: the 48×96 windows used before (6×12 samples) most filled pixels lay in the grid's border
 #: cells, which overstated the loss of the sparse rows (stride 8: 2.75 there, 1.45 here).
