@@ -463,9 +463,9 @@ class StereoPipeline:
         cost volume(s) (float32, D × rows processed × columns, the right view's too with
         ``lr_check`` or a method that needs it), SGM's work arrays (uint8 costs and uint16
         sums of the same size) and MC-CNN's features (64 float32 channels of both images).
-        The confidence method's own memory comes on top: the networks' tiles (up to about
-        ``tile_budget_mb``) and a zero-padded copy of the whole volume (CVA-Net-Fast: 5 to 10
-        bytes a voxel in all, measured at 640×480)."""
+        The confidence method's own memory comes on top: the networks' tiles, each padded on
+        its own (about ``tile_budget_mb``; 1.5–1.8× that with glibc's fragmentation under
+        the node's allocator setting)."""
         cfg = self.config
         rows = cfg.roi_rows(height // cfg.downsample)
         mask = self._processed_mask((height, width))

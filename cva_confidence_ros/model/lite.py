@@ -337,7 +337,8 @@ class FoldedCVANetLite(nn.Module):
         check_volume_tensor(volume, self.max_disparity)
         x = volume.to(_weights_dtype(self))  # a float64 or float16 volume, as unfolded
         for conv in self.fusion:
-            x = F.relu(conv(x))
+            # In place on the fresh output: two live activations, not three.
+            x = F.relu(_inference_conv3d(conv, x), inplace=True)
         return x
 
     def head_logits(self, curves: torch.Tensor) -> torch.Tensor:
@@ -347,7 +348,8 @@ class FoldedCVANetLite(nn.Module):
         x = curves.flatten(1)
         for index in range(len(LITE_DEPTH_KERNELS)):
             matrix = getattr(self, f'depth_matrix{index}')
-            x = F.relu(torch.addmm(getattr(self, f'depth_bias{index}'), x, matrix))
+            # In place: the (N, 16·D'') product is as wide as the fusion's output.
+            x = F.relu(torch.addmm(getattr(self, f'depth_bias{index}'), x, matrix), inplace=True)
         x = F.relu(torch.addmm(conv_bias(self.fc1), x, self.fc1_matrix))
         x = x @ self.fc2.weight[:, :, 0].t() + conv_bias(self.fc2)
         return x.reshape(-1)
@@ -362,6 +364,37 @@ class FoldedCVANetLite(nn.Module):
     def forward(self, volume: torch.Tensor) -> torch.Tensor:
         """Confidence in (0, 1), (B, H, W)."""
         return confidence_from_logits(self.forward_logits(volume))
+
+
+def _inference_conv3d(conv: nn.Module, x: torch.Tensor) -> torch.Tensor:
+    """``conv(x)`` for a folded (inference-only) network, through oneDNN where it can run.
+
+    PyTorch's CPU heuristic gives a batch-1 Conv3d with a 3-wide kernel and N·C·D·H ≤ 20480 to
+    its native vol2col convolution: every layer of a CVA-Net-Lite tile of fewer than 74 rows
+    (D = 64), and its one-channel first layer below about 310 rows. Its work buffer holds
+    C_in·k values per output voxel, far beyond the widest activation the tile budget counts:
+    6 480 float32 a pixel in CVA-Net-Lite's later layers at D = 64 (27×), 1 080 in its first
+    (CVA-Net's first layer: 1 674, within its 6 144). oneDNN needs no such buffer and is
+    faster. The plain module runs everywhere else: autograd, CUDA, another dtype, autocast,
+    tracing or export (the ONNX graph keeps its Conv node).
+    """
+    assert isinstance(conv, nn.Conv3d)
+    if (
+        torch.is_inference_mode_enabled()
+        and x.device.type == 'cpu'
+        and x.dtype == conv.weight.dtype == torch.float32
+        and isinstance(conv.padding, tuple)
+        and conv.padding_mode == 'zeros'
+        and torch.backends.mkldnn.is_available()
+        and torch.backends.mkldnn.enabled
+        and not torch.is_autocast_enabled('cpu')
+        and not torch.jit.is_tracing()
+        and not torch.compiler.is_exporting()
+    ):
+        return torch.mkldnn_convolution(
+            x, conv.weight, conv.bias, conv.padding, conv.stride, conv.dilation, conv.groups
+        )
+    return conv(x)
 
 
 def _banded_matrix(weight: torch.Tensor, depth: int, before: int) -> torch.Tensor:

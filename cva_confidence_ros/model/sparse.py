@@ -66,7 +66,6 @@ from typing import cast
 
 import numba
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 import torch
 from torch import nn
 
@@ -79,11 +78,12 @@ from cva_confidence_ros.model.inference import (
     _check_pixels,
     _check_tile_budget,
     _check_volume,
+    _extract_batch,
     _input_dtype,
+    _padded_tile,
     _unwrap,
     activations_per_pixel,
     fold_batchnorm,
-    pad_cost_volume,
     resolve_device,
     tile_shape,
 )
@@ -132,7 +132,7 @@ _LOGIT_EPS = 1e-6
 #: Most 13×13×D extracts run at once (fewer where ``tile_budget_mb`` asks for it).
 _EXTRACT_BATCH = 512
 #: What one value of a 13×13×D extract costs beyond the network's counted operations (its
-#: gather from the padded volume into a contiguous batch; CVA-Net-Fast's WTA scan, which the
+#: gather from the volume into a contiguous batch; CVA-Net-Fast's WTA scan, which the
 #: operation count does not see), in operations, when the evaluator picks a way. Measured on
 #: the 2-core CPU: CVA-Net-Fast at stride 8 (320×240, D = 64) counts 7.4 GFLOP as extracts
 #: against 9.3 fused, yet took 115 ms against 72 (≈ 4.4 ns a value, ≈ 570 operations at the
@@ -484,9 +484,6 @@ class SparseEvaluator:
             self.tile_budget_mb,
             activations_per_pixel(self.net, self.max_disparity),
         )
-        padded_np = pad_cost_volume(volume)
-        padded = torch.from_numpy(padded_np)
-        windows = None
         total, done = int(np.count_nonzero(mask)), 0
         report = self._reporter()
         with contextlib.ExitStack() as stack:
@@ -503,26 +500,18 @@ class SparseEvaluator:
                     way = self._choose(y1 - y0, x1 - x0, count)
                     if ys is None or xs is None:
                         if way == 'tile':
-                            tile = padded[:, y0 : y1 + 2 * PAD, x0 : x1 + 2 * PAD]
-                            tile = tile.to(self.device, self._dtype)[None, None]
+                            tile = self._tile(volume, y0, y1, x0, x1)
                             result[y0:y1, x0:x1] = self._run(tile)[0].float().cpu().numpy()
+                            del tile  # not alive while the next one is built
                             done += count
                             if report is not None:
                                 report(done, total)
                             continue
                         ys, xs = np.nonzero(mask[y0:y1, x0:x1])
                     if way == 'extracts':
-                        if windows is None:
-                            windows = sliding_window_view(
-                                padded_np, (PATCH_SIZE, PATCH_SIZE), axis=(1, 2)
-                            )
-                        values = self._extracts(
-                            windows, ys + y0, xs + x0, (done, total), report
-                        )
+                        values = self._extracts(volume, ys + y0, xs + x0, (done, total), report)
                     else:
-                        tile = padded[:, y0 : y1 + 2 * PAD, x0 : x1 + 2 * PAD]
-                        tile = tile.to(self.device, self._dtype)[None, None]
-                        values = self._dense(tile, way, ys, xs)
+                        values = self._dense(self._tile(volume, y0, y1, x0, x1), way, ys, xs)
                     result[ys + y0, xs + x0] = values
                     done += ys.size
                     if report is not None:
@@ -545,11 +534,14 @@ class SparseEvaluator:
         """
         volume = _check_volume(self.net, cost_volume)
         ys, xs = _check_pixels(ys, xs, volume.shape[1:])
-        padded = pad_cost_volume(volume)
-        windows = sliding_window_view(padded, (PATCH_SIZE, PATCH_SIZE), axis=(1, 2))
         self._count('extracts', ys.size * self._flops('tile', 1, 1))
         with torch.inference_mode(), precision_context(self.device, self.precision):
-            return self._extracts(windows, ys, xs, (0, ys.size), self._reporter())
+            return self._extracts(volume, ys, xs, (0, ys.size), self._reporter())
+
+    def _tile(self, volume: np.ndarray, y0: int, y1: int, x0: int, x1: int) -> torch.Tensor:
+        """The network's input for output rows y0:y1, columns x0:x1: (1, 1, D, h + 12, w + 12)
+        on the device, zero-padded tile by tile (no padded copy of the whole volume)."""
+        return _padded_tile(volume, y0, y1, x0, x1).to(self.device, self._dtype)[None, None]
 
     def _dense(self, tile: torch.Tensor, way: str, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
         index_y = torch.from_numpy(ys).to(self.device)
@@ -576,7 +568,7 @@ class SparseEvaluator:
 
     def _extracts(
         self,
-        windows: np.ndarray,
+        volume: np.ndarray,
         ys: np.ndarray,
         xs: np.ndarray,
         progress: tuple[int, int],
@@ -589,9 +581,8 @@ class SparseEvaluator:
         batch_size = self.extract_batch
         for start in range(0, ys.size, batch_size):
             stop = min(ys.size, start + batch_size)
-            # (D, n, 13, 13) → (n, 1, D, 13, 13)
-            batch = np.ascontiguousarray(windows[:, ys[start:stop], xs[start:stop]].swapaxes(0, 1))
-            extracts = torch.from_numpy(batch)[:, None].to(self.device, self._dtype)
+            batch = _extract_batch(volume, ys[start:stop], xs[start:stop])
+            extracts = torch.from_numpy(batch).to(self.device, self._dtype)
             out[start:stop] = self._run(extracts)[:, 0, 0].float().cpu().numpy()
             if report is not None:
                 report(done_before + stop, total)
