@@ -612,8 +612,8 @@ def format_table(records: Sequence[dict[str, Any]], threads: int) -> str:
 
 #: The --help epilog of every suite.
 EXIT_CODES = ('Exit codes: 0 done, 2 bad input (one line on stderr), 130 stopped by Ctrl-C, 143 '
-              'by SIGTERM (nothing is written then). The table goes to stdout, progress to '
-              'stderr.')
+              "by SIGTERM (nothing is written then), 141 quietly when stdout's reader went "
+              'away (| head). The table goes to stdout, progress to stderr.')
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from cva_confidence_ros.benchmark import BenchSettings, make_pairs, run_suite
+from cva_confidence_ros.benchmark import EXIT_CODES, BenchSettings, make_pairs, run_suite
 from cva_confidence_ros.checks import is_real
 
 __all__ = ['format_cloud_table', 'main', 'run_cloud']
@@ -176,6 +176,7 @@ def _parser() -> argparse.ArgumentParser:
         description="Milliseconds per frame of the point-cloud stages: the node's points2 "
         "with and without the confidence field, the cloud_filter node's cut, the node's "
         'depth image in both encodings and its laser scan.',
+        epilog=EXIT_CODES,
     )
     parser.add_argument('--width', type=int, default=640)
     parser.add_argument('--height', type=int, default=480)

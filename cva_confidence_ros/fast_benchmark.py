@@ -58,6 +58,7 @@ from typing import Any, cast
 import numpy as np
 
 from cva_confidence_ros.benchmark import (
+    EXIT_CODES,
     NETWORK_MATCHER,
     BenchSettings,
     _gemm_gflops,
@@ -647,6 +648,7 @@ def _parser() -> argparse.ArgumentParser:
         prog='cva-benchmark --suite fast',
         description='CVA-Net fast paths (sparse grid, cascades, bf16): ms per frame, GFLOP/s, '
         'peak memory and develop-split AUC relative to the exact network.',
+        epilog=EXIT_CODES,
     )
     parser.add_argument('--width', type=int, default=320)
     parser.add_argument('--height', type=int, default=240)

@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from cva_confidence_ros.benchmark import (
+    EXIT_CODES,
     NETWORK_MATCHER,
     BenchSettings,
     _gemm_gflops,
@@ -355,6 +356,7 @@ def _parser() -> argparse.ArgumentParser:
         description='CVA-Net, -Lite and -Fast on a CUDA GPU in fp32 / fp16 / bf16: ms per frame, '
         "network TFLOP/s against the same GPU's matmul, peak memory and develop-split AUC "
         'relative to the exact float32 network.',
+        epilog=EXIT_CODES,
     )
     parser.add_argument('--device', default='cuda', help='cuda, cuda:N, or cpu (a smoke run)')
     parser.add_argument('--width', type=int, default=640)

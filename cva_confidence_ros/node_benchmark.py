@@ -67,9 +67,16 @@ from typing import Any, cast
 import numpy as np
 
 from cva_confidence_ros import strict_json
+from cva_confidence_ros.benchmark import (
+    EXIT_CODES,
+    BenchSettings,
+    host_summary,
+    make_pairs,
+    memory_kb,
+)
 from cva_confidence_ros.benchmark import RECORD_KEYS as MATCHER_RECORD_KEYS
-from cva_confidence_ros.benchmark import BenchSettings, host_summary, make_pairs, memory_kb
 from cva_confidence_ros.errors import ConfigError, CVAError, ModelError
+from cva_confidence_ros.outputs import check_output_file
 from cva_confidence_ros.ros.dds_profile import (  # noqa: F401 (the profile, for callers)
     FASTDDS_LARGE_MESSAGES_XML,
     profile_environment,
@@ -94,6 +101,7 @@ __all__ = [
     'run_suite',
 ]
 
+_PROG = 'cva-benchmark --suite node'
 #: Keys of every record written by ``--json`` (those of the matcher suite first).
 RECORD_KEYS = MATCHER_RECORD_KEYS + ('latency_ms_median', 'fps', 'online', 'extrapolated')
 #: A configuration is online from this output rate on (frames per second).
@@ -402,9 +410,10 @@ class NodeProcess:
 
 @contextlib.contextmanager
 def _stop_on_sigterm() -> Iterator[None]:
-    """Turn SIGTERM (``timeout``, CI runners, systemd) into :class:`SystemExit` meanwhile, so
-    that ``finally`` blocks stop the node; its default action would end this process at once
-    and leave the node running. Only in the main thread, and only over the default action."""
+    """Turn SIGTERM (``timeout``, CI runners, systemd) into :class:`SystemExit` (143, with one
+    line on stderr) meanwhile, so that ``finally`` blocks stop the node; its default action
+    would end this process at once and leave the node running. Only in the main thread, and
+    only over the default action (``cva-benchmark`` sets its own, which says the same)."""
     if threading.current_thread() is not threading.main_thread() or (
         signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL
     ):
@@ -412,6 +421,8 @@ def _stop_on_sigterm() -> Iterator[None]:
         return
 
     def _exit(signum: int, _frame: object) -> None:
+        # Said, as cva-benchmark says it: a bare 143 looked like a crash in a CI log.
+        print(f'{_PROG}: terminated', file=sys.stderr, flush=True)
         raise SystemExit(128 + signum)
 
     signal.signal(signal.SIGTERM, _exit)
@@ -1310,9 +1321,10 @@ def format_table(records: Sequence[dict[str, Any]], threads: int) -> str:
 def _parser() -> argparse.ArgumentParser:
     defaults = NodeBenchSettings()
     parser = argparse.ArgumentParser(
-        prog='cva-benchmark --suite node',
+        prog=_PROG,
         description='End-to-end latency, throughput and peak memory of cva-node over DDS, '
         'for every matcher and confidence method (one node process each).',
+        epilog=EXIT_CODES,
     )
     parser.add_argument('--width', type=int, default=defaults.width)
     parser.add_argument('--height', type=int, default=defaults.height)
@@ -1381,17 +1393,21 @@ def main(argv: Sequence[str] | None = None) -> int:
             record = measure_network_crop(settings, args.crop_worker, args.weights)
             print(_RECORD_PREFIX + json.dumps(record), flush=True)
             return 0
+        if args.json is not None:  # a folder or an unwritable place: refused before the run
+            check_output_file(args.json, '--json')
         records = run_suite(settings, args.matchers, args.methods)
     except CVAError as error:
-        parser.exit(2, f'cva-benchmark --suite node: error: {error}\n')
+        parser.exit(2, f'{_PROG}: error: {error}\n')
     host = host_summary()
-    print(format_table(records, os.cpu_count() or 1))
-    print(f'host: {host}')
+    # The records are saved before anything is printed, as the other suites do: a table that
+    # fails to print (`| head -1`, exit 141) lost a run of minutes.
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         rows = [{**record, 'host': host} for record in records]
         args.json.write_text(strict_json.dumps(rows, indent=2) + '\n', encoding='utf-8')
         _log(f'wrote {args.json}')
+    print(format_table(records, os.cpu_count() or 1))
+    print(f'host: {host}')
     return 0
 
 

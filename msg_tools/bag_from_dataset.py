@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from cva_confidence_ros.errors import BagError, ConfigError, CVAError
+from cva_confidence_ros.errors import BagError, ConfigError, CVAError, sigterm_as_interrupt
 from cva_confidence_ros.pointcloud import StereoGeometry
 from msg_tools.bagio import (
     BAG_VERSION,
@@ -426,49 +426,59 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _run(args: argparse.Namespace) -> tuple[BagSpec, DatasetBagSummary]:
+    """Check the options, load the data set and write the bag (``main`` without its exit
+    codes)."""
+    if args.max_frames is not None and args.max_frames < 1:
+        raise ConfigError(f'--max-frames must be >= 1; got {args.max_frames}')
+    spec = BagSpec(
+        storage=args.storage,
+        compression=args.compression,
+        rate_hz=args.rate,
+        start_time_s=args.start_time,
+        focal=args.focal,
+        baseline=args.baseline,
+        topic_prefix=args.topic_prefix,
+        left_frame=args.left_frame,
+        right_frame=args.right_frame,
+    )
+    from cva_confidence_ros.datasets import DATASETS, load_dataset, skipped_notice
+
+    DATASETS.get(args.dataset)  # a misspelt name is that, not a missing --data-root
+    root = args.data_root
+    if root is None and args.dataset != 'motorcycle':
+        raise ConfigError(f'--data-root is needed for data set {args.dataset!r}')
+    # Before any work: an existing --out needs --overwrite and must be a bag.
+    if args.out.exists() or args.out.is_symlink():
+        if not args.overwrite:
+            raise BagError(
+                f'output bag {args.out} exists already; use --overwrite to replace it, or '
+                f'pick another'
+            )
+        check_replaceable(args.out)
+    notice = skipped_notice(args.dataset, root, split=args.split)
+    if notice:
+        _log_stderr(notice)  # a partial download: fewer frames than scenes in the folder
+    samples = load_dataset(args.dataset, root, split=args.split, max_scenes=args.max_frames)
+    return spec, write_dataset_bag(samples, args.out, spec, overwrite=args.overwrite)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``cva-bag-from-dataset``; returns the exit code (0 done, 2 bad input or a
     scene that cannot be read, 130 Ctrl-C, 143 SIGTERM)."""
     args = build_parser().parse_args(argv)
-    try:
-        if args.max_frames is not None and args.max_frames < 1:
-            raise ConfigError(f'--max-frames must be >= 1; got {args.max_frames}')
-        spec = BagSpec(
-            storage=args.storage,
-            compression=args.compression,
-            rate_hz=args.rate,
-            start_time_s=args.start_time,
-            focal=args.focal,
-            baseline=args.baseline,
-            topic_prefix=args.topic_prefix,
-            left_frame=args.left_frame,
-            right_frame=args.right_frame,
-        )
-        from cva_confidence_ros.datasets import DATASETS, load_dataset, skipped_notice
-
-        DATASETS.get(args.dataset)  # a misspelt name is that, not a missing --data-root
-        root = args.data_root
-        if root is None and args.dataset != 'motorcycle':
-            raise ConfigError(f'--data-root is needed for data set {args.dataset!r}')
-        # Before any work: an existing --out needs --overwrite and must be a bag.
-        if args.out.exists() or args.out.is_symlink():
-            if not args.overwrite:
-                raise BagError(
-                    f'output bag {args.out} exists already; use --overwrite to replace it, or '
-                    f'pick another'
-                )
-            check_replaceable(args.out)
-        notice = skipped_notice(args.dataset, root, split=args.split)
-        if notice:
-            _log_stderr(notice)  # a partial download: fewer frames than scenes in the folder
-        samples = load_dataset(args.dataset, root, split=args.split, max_scenes=args.max_frames)
-        summary = write_dataset_bag(samples, args.out, spec, overwrite=args.overwrite)
-    except CVAError as err:
-        print(f'cva-bag-from-dataset: error: {err}', file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print('cva-bag-from-dataset: interrupted before the bag was created', file=sys.stderr)
-        return 130
+    # Until write_dataset_bag's own handlers are set (a data set still loading), a SIGTERM took
+    # its default action: 143 without a word. ``terminated`` tells it from Ctrl-C.
+    with sigterm_as_interrupt() as terminated:
+        try:
+            spec, summary = _run(args)
+        except CVAError as err:
+            print(f'cva-bag-from-dataset: error: {err}', file=sys.stderr)
+            return 2
+        except KeyboardInterrupt:
+            how = 'terminated' if terminated else 'interrupted'
+            print(f'cva-bag-from-dataset: {how} before the bag was created', file=sys.stderr)
+            return 143 if terminated else 130
     if summary.frames == 0:
         state = (
             f'the existing bag {args.out} was left as it was' if summary.kept_old

@@ -758,7 +758,8 @@ def exit_code(prog: str, command: Callable[[], int]) -> int:
         except (KeyboardInterrupt, SystemError) as exc:
             if not from_interrupt(exc):
                 raise
-            print(f'{prog}: interrupted', file=sys.stderr)
+            # A batch system's SIGTERM is no Ctrl-C that anyone pressed.
+            print(f'{prog}: {"terminated" if terminated else "interrupted"}', file=sys.stderr)
             code = 130
         # 128 + 15, as a shell reports a process that SIGTERM ended.
         return 143 if terminated and code == 130 else code

@@ -20,6 +20,7 @@ import argparse
 from collections.abc import Iterator, Mapping, Sequence
 import contextlib
 import copy
+import json
 import os
 from pathlib import Path
 import sys
@@ -35,7 +36,14 @@ import torch.nn.functional as F
 
 from cva_confidence_ros import strict_json
 from cva_confidence_ros.checks import is_int
-from cva_confidence_ros.errors import ConfigError, InputError, ModelError, reason
+from cva_confidence_ros.errors import (
+    ConfigError,
+    InputError,
+    ModelError,
+    from_interrupt,
+    reason,
+    sigterm_as_interrupt,
+)
 from cva_confidence_ros.model.fast import FoldedCVANetFast
 from cva_confidence_ros.model.inference import PAD, FoldedCVANet
 from cva_confidence_ros.model.lite import FoldedCVANetLite, check_volume_tensor
@@ -433,6 +441,9 @@ def _build_parser() -> argparse.ArgumentParser:
         prog=PROG,
         description='Export CVA-Net, CVA-Net-Lite or CVA-Net-Fast weights to ONNX: input '
         'cost_volume (B, D, H, W) float32 in [0, 1], output confidence (B, H, W).',
+        epilog='Exit codes: 0 written, 2 bad input or a graph or card that cannot be written '
+        '(one line on stderr; a graph and card from before stay as they were), 1 the checked '
+        'graph cannot be moved in place, 130 stopped by Ctrl-C, 143 by SIGTERM.',
     )
     parser.add_argument('weights', nargs='?', default=None,
                         help='weights file (.pt); default: the shipped file for --arch, '
@@ -448,13 +459,37 @@ def _build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--max-disparity', type=int, default=None,
                         help='depth D of the shipped weights (default 64); with WEIGHTS: '
                         'checked against the file')
-    parser.add_argument('--out', type=Path, required=True, help='the .onnx file to write')
+    parser.add_argument('--out', type=Path, required=True,
+                        help='the .onnx file to write (its card: the .json beside it); a '
+                        'graph and card from before are replaced once the new graph is checked')
+    parser.add_argument('--overwrite', action='store_true',
+                        help='also replace a .json beside --out that is not a card of '
+                        'cva-export (refused otherwise)')
     parser.add_argument('--opset', type=int, default=DEFAULT_OPSET, help='ONNX opset version')
     parser.add_argument('--check-size', type=_size, default=None, metavar='HxW',
                         help='volume size of the ONNX Runtime check (default 240x320 for '
                         'CVA-Net-Fast, 60x80 for the 3-D networks: seconds a frame on a CPU)')
     parser.add_argument('--no-check', action='store_true', help='skip the ONNX Runtime check')
     return parser
+
+
+def _not_a_card(card: Path) -> str:
+    """Why the file at ``card`` (the .json beside ``--out``) is not the card of an earlier
+    export that ``cva-export`` may replace; '' when it is, or when there is none."""
+    try:
+        held = json.loads(card.read_text(encoding='utf-8'))
+    except FileNotFoundError:
+        return ''
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        return f'{card} exists and is not a card of cva-export ({reason(exc)})'
+    if not (
+        isinstance(held, dict)
+        and held.get('arch') in EXPORTABLE
+        and isinstance(held.get('input'), dict)
+        and held['input'].get('name') == 'cost_volume'
+    ):
+        return f'{card} exists and is not a card of cva-export (no arch and cost_volume input)'
+    return ''
 
 
 def run(args: argparse.Namespace) -> int:
@@ -466,6 +501,13 @@ def run(args: argparse.Namespace) -> int:
     out = check_output_file(args.out, '--out')
     # The card beside the graph: refused up front, as --out is, rather than after the graph.
     card = check_output_file(out.with_suffix('.json'), 'the card beside --out:')
+    # An earlier graph and card are replaced, as the README promises (the graph stays until
+    # the new one is checked); another .json is not: a cva-evaluate --json named like the
+    # graph was replaced by the card without a word.
+    foreign = '' if getattr(args, 'overwrite', False) else _not_a_card(card)
+    if foreign:
+        raise ConfigError(f'the card beside --out {out}: {foreign}; --overwrite to replace it, '
+                          'or another --out')
     if args.weights:
         # Checked, not ignored (--max-disparity 32 exported a D = 64 file without a word).
         weights = Path(args.weights)
@@ -534,12 +576,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     Returns:
         0 when written (and checked); 2 on bad input or a graph or card that cannot be
         written (one line on stderr; a graph and card from before are left as they were); 1 if
-        the checked graph cannot be moved in place.
+        the checked graph cannot be moved in place; 130 / 143 stopped by Ctrl-C / SIGTERM.
     """
     from cva_confidence_ros.evaluation.cli import exit_code
 
     args = _build_parser().parse_args(argv)
-    return exit_code(PROG, lambda: run(args))
+    # SIGTERM said 'cva-export: interrupted' as if Ctrl-C had been pressed: it is told apart
+    # here, as cva-benchmark does (exit_code sees this handler and sets none of its own).
+    with sigterm_as_interrupt() as terminated:
+
+        def command() -> int:
+            try:
+                return run(args)
+            except (KeyboardInterrupt, SystemError) as exc:
+                if not from_interrupt(exc):
+                    raise
+                print(f'{PROG}: {"terminated" if terminated else "interrupted"}',
+                      file=sys.stderr)
+                return 143 if terminated else 130
+
+        return exit_code(PROG, command)
 
 
 if __name__ == '__main__':
