@@ -8,6 +8,7 @@ runner; a closed stdout is a real pipe's), with the slow parts of the tools repl
 from __future__ import annotations
 
 from collections.abc import Callable
+import json
 import os
 from pathlib import Path
 import signal
@@ -31,7 +32,7 @@ def _with_closed_stdout(code: str) -> subprocess.CompletedProcess[str]:
     os.close(read)
     try:
         return subprocess.run([sys.executable, '-c', textwrap.dedent(code)], stdout=write,
-                              stderr=subprocess.PIPE, text=True, env=_env(), timeout=60,
+                              stderr=subprocess.PIPE, text=True, env=_env(), timeout=120,
                               check=False)
     finally:
         os.close(write)
@@ -49,7 +50,7 @@ def _signalled(code: str, signum: int, marker: str) -> tuple[int, str]:
         if marker in line:
             process.send_signal(signum)
             break
-    out, err = process.communicate(timeout=60)
+    out, err = process.communicate(timeout=120)
     return process.returncode, ''.join(lines) + err
 
 
@@ -166,3 +167,153 @@ def test_a_broken_pipe_other_than_stdout_is_not_swallowed(monkeypatch: pytest.Mo
     monkeypatch.setattr(benchmark, '_main', broken)
     with pytest.raises(BrokenPipeError):
         benchmark.main([])
+
+def _signalled_term(code: str, marker: str) -> tuple[int, str]:
+    return _signalled(code, signal.SIGTERM, marker)
+
+
+# Follow-ups (once the contract above was in place): the node suite, cva-export, the bag
+# tools while loading, the evaluation tools' word for SIGTERM.
+
+
+def test_node_suite_writes_its_json_before_the_table(tmp_path: Path) -> None:
+    # The table was printed first: `cva-benchmark --suite node --json X | head -1` ended with
+    # 141 and no X, the run's minutes lost.
+    out = tmp_path / 'node.json'
+    result = _with_closed_stdout(f"""
+        import sys
+        from cva_confidence_ros import benchmark, node_benchmark
+
+        node_benchmark.run_suite = lambda settings, matchers, methods: [{{'config': 'x'}}]
+        node_benchmark.format_table = lambda records, threads: 'row\\n' * 25000
+        sys.exit(benchmark.main(['--suite', 'node', '--json', {str(out)!r}]))
+    """)
+    assert result.returncode == 141, result.stderr
+    assert 'Traceback' not in result.stderr
+    assert json.loads(out.read_text())[0]['config'] == 'x'
+
+
+def test_node_suite_refuses_a_json_folder_before_measuring(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # A --json that names a folder was found only after every node had run: IsADirectoryError,
+    # a traceback and exit 1.
+    from cva_confidence_ros import benchmark, node_benchmark
+
+    ran = []
+    monkeypatch.setattr(node_benchmark, 'run_suite', lambda *args: ran.append(args) or [])
+    with pytest.raises(SystemExit) as ended:
+        benchmark.main(['--suite', 'node', '--json', str(tmp_path)])
+    assert ended.value.code == 2
+    assert not ran
+    err = capsys.readouterr().err
+    assert err.startswith('cva-benchmark --suite node: error: --json') and err.count('\n') == 1
+
+
+def test_node_suite_on_its_own_says_one_line_on_sigterm() -> None:
+    # node_benchmark.main called on its own (not under cva-benchmark's handler): SIGTERM ended
+    # it with 143 and not a word.
+    code, err = _signalled_term("""
+        import sys, time
+        from cva_confidence_ros import node_benchmark
+
+        def run_suite(settings, matchers, methods):
+            with node_benchmark._stop_on_sigterm():
+                print('measuring', file=sys.stderr, flush=True)
+                time.sleep(30)
+        node_benchmark.run_suite = run_suite
+        sys.exit(node_benchmark.main([]))
+    """, 'measuring')
+    assert code == 143, err
+    assert err.splitlines()[-1] == 'cva-benchmark --suite node: terminated'
+
+
+@pytest.mark.parametrize('suite', ['fast', 'gpu', 'cloud', 'node'])
+def test_every_benchmark_suite_names_the_exit_codes_in_its_help(
+    suite: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Only the matcher suite's --help had the epilog.
+    from cva_confidence_ros import benchmark
+
+    with pytest.raises(SystemExit) as ended:
+        benchmark.main(['--suite', suite, '--help'])
+    assert ended.value.code == 0
+    text = ' '.join(capsys.readouterr().out.split())
+    assert ' '.join(benchmark.EXIT_CODES.split()) in text
+
+
+def test_export_replaces_its_own_earlier_export_only(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # The card replaced any .json beside --out without a word (a cva-evaluate --json named
+    # like the graph); an earlier export is still replaced, as the README promises.
+    from cva_confidence_ros.model.export import main
+
+    out = tmp_path / 'census_bm.onnx'
+    results = tmp_path / 'census_bm.json'
+    results.write_text('{"records": []}\n')
+    assert main(['--out', str(out), '--no-check']) == 2
+    err = capsys.readouterr().err
+    assert err.startswith('cva-export: error: the card beside --out') and '--overwrite' in err
+    assert err.count('\n') == 1
+    assert results.read_text() == '{"records": []}\n' and not out.exists()
+    assert main(['--out', str(out), '--no-check', '--overwrite']) == 0
+    assert json.loads(results.read_text())['arch'] == 'cvanet_fast'
+    out.write_bytes(b'older graph')
+    assert main(['--out', str(out), '--no-check']) == 0  # an earlier export: replaced
+    assert out.read_bytes() != b'older graph'
+    results.write_text('not json')
+    assert main(['--out', str(out), '--no-check']) == 2
+    assert 'not a card of cva-export' in capsys.readouterr().err
+    assert results.read_text() == 'not json'
+    with pytest.raises(SystemExit):
+        main(['--help'])
+    assert '130 stopped by Ctrl-C, 143 by SIGTERM' in ' '.join(capsys.readouterr().out.split())
+
+
+def test_export_says_terminated_on_sigterm(tmp_path: Path) -> None:
+    # It said 'cva-export: interrupted' (as for Ctrl-C) and exited 143.
+    code, err = _signalled_term(f"""
+        import sys, time
+        from cva_confidence_ros.model import export
+
+        def export_onnx(*args, **kwargs):
+            print('exporting', file=sys.stderr, flush=True)
+            time.sleep(30)
+        export.export_onnx = export_onnx
+        sys.exit(export.main(['--out', {str(tmp_path / 'x.onnx')!r}, '--no-check']))
+    """, 'exporting')
+    assert code == 143, err
+    assert err.splitlines()[-1] == 'cva-export: terminated'
+
+
+def test_bag_from_dataset_sigterm_while_loading_says_one_line(tmp_path: Path) -> None:
+    # Before write_dataset_bag set its handlers (the data set still loading), SIGTERM took its
+    # default action: 143 without a word.
+    code, err = _signalled_term(f"""
+        import sys, time
+        from cva_confidence_ros import datasets
+        from msg_tools import bag_from_dataset
+
+        def load_dataset(*args, **kwargs):
+            print('loading', file=sys.stderr, flush=True)
+            time.sleep(30)
+        datasets.load_dataset = load_dataset
+        sys.exit(bag_from_dataset.main(['--dataset', 'motorcycle', '--out',
+                                        {str(tmp_path / 'bag')!r}]))
+    """, 'loading')
+    assert code == 143, err
+    assert err.splitlines()[-1] == 'cva-bag-from-dataset: terminated before the bag was created'
+    assert not (tmp_path / 'bag').exists()
+
+
+def test_evaluation_tools_say_terminated_on_sigterm(capsys: pytest.CaptureFixture[str]) -> None:
+    # cva-evaluate and cva-table1 exited 143 on SIGTERM but said 'interrupted', as for Ctrl-C.
+    from cva_confidence_ros.evaluation.cli import exit_code
+
+    def killed() -> int:
+        signal.raise_signal(signal.SIGTERM)
+        return 0
+
+    assert exit_code('cva-evaluate', killed) == 143
+    assert capsys.readouterr().err.splitlines() == ['cva-evaluate: terminated']
