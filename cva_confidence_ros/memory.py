@@ -19,12 +19,22 @@ whose arrays cannot fit, before allocating them); ``CVA_MEMORY_CHECK=0`` turns t
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import ctypes.util
 import os
+from pathlib import Path
 import sys
 
-__all__ = ['CHECK_SWITCH', 'ENV_SWITCH', 'available_memory', 'keep_freed_memory', 'shortfall']
+__all__ = [
+    'CHECK_SWITCH',
+    'ENV_SWITCH',
+    'available_memory',
+    'keep_freed_memory',
+    'memory_left',
+    'shortfall',
+    'size_text',
+]
 
 #: Environment variable that turns the tuning off when set to ``0``.
 ENV_SWITCH = 'CVA_MALLOC_TUNING'
@@ -37,8 +47,10 @@ _THRESHOLD = 1 << 30  # 1 GiB: no frame allocates a single block that large
 # Needs below this are not checked against the memory left (no read of /proc on small frames,
 # where nothing is at stake).
 _CHECKED_FROM = 256 * 2**20
-#: The cgroup v2 files of this process's group (a container's own group).
+#: Where the cgroup file systems are mounted (v2 unified, or v1's memory controller below it).
 _CGROUP = '/sys/fs/cgroup'
+#: This process's cgroups: ``0::/path`` (v2), ``N:memory:/path`` (v1), relative to the root.
+_PROC_CGROUP = Path('/proc/self/cgroup')
 
 _applied: bool | None = None
 
@@ -86,19 +98,86 @@ def _read_int(path: str, key: str = '') -> int | None:
     return None
 
 
-def _page_cache(path: str) -> int:
-    """Bytes of page cache (``active_file`` + ``inactive_file``) in a cgroup ``memory.stat``
-    (0 where it cannot be read); tmpfs files (``shmem``, in ``file`` too) are not reclaimed."""
-    total = 0
+def size_text(count: float) -> str:
+    """Bytes as GB (MB below 0.1 GB)."""
+    return f'{count / 1e9:.1f} GB' if count >= 1e8 else f'{count / 1e6:.1f} MB'
+
+
+def _read_number(path: Path) -> int | None:
+    """The integer in a cgroup file; None where it is absent, ``max`` or unreadable."""
     try:
-        with open(path, encoding='ascii') as stream:
-            for line in stream:
-                name, _, value = line.partition(' ')
-                if name in ('active_file', 'inactive_file'):
-                    total += int(value)
-    except (OSError, ValueError):
-        return 0
+        text = path.read_text().strip()
+    except OSError:
+        return None
+    return int(text) if text.isdecimal() else None
+
+
+def _stat_value(path: Path, keys: tuple[str, ...]) -> int:
+    """The sum of ``keys``' values in a cgroup ``memory.stat`` (0 for those absent)."""
+    total = 0
+    with contextlib.suppress(OSError, ValueError):
+        for line in path.read_text().splitlines():
+            name, _, value = line.partition(' ')
+            if name in keys:
+                total += int(value)
     return total
+
+
+def _cgroup_left(root: Path) -> tuple[int, str] | None:
+    """What the tightest cgroup memory limit over this process leaves: limit − usage + the
+    page cache (active and inactive files, which the kernel reclaims before the limit binds;
+    tmpfs files it cannot), of its own group and of every group above it; None where no limit
+    is set. A Slurm job's or a systemd slice's limit is set on a parent whose child groups,
+    the process's among them, read ``max``: only the own group and the root were read, and
+    such a limit was missed; a container that had read its limit in bag files refused every
+    large frame ("0.11 GB available" of a 4 GB limit) while its page cache was counted used."""
+    relative = {'v2': '', 'v1': ''}
+    with contextlib.suppress(OSError):
+        for line in _PROC_CGROUP.read_text().splitlines():
+            number, _, rest = line.partition(':')
+            controllers, _, path = rest.partition(':')
+            if number == '0' and not controllers:
+                relative['v2'] = path
+            elif 'memory' in controllers.split(','):
+                relative['v1'] = path
+    layouts = (
+        ('memory.max', 'memory.current', ('active_file', 'inactive_file'), root,
+         relative['v2']),
+        ('memory.limit_in_bytes', 'memory.usage_in_bytes',
+         ('total_active_file', 'total_inactive_file'), root / 'memory', relative['v1']),
+    )
+    found: list[tuple[int, str]] = []
+    for limit_name, usage_name, cache, top, path in layouts:
+        parts = Path(path.strip().lstrip('/')).parts
+        # The own group up to the root (in a container, the own path may not exist below a
+        # root that already is the container's group: those folders read nothing).
+        for depth in range(len(parts), -1, -1):
+            folder = top.joinpath(*parts[:depth])
+            limit = _read_number(folder / limit_name)
+            usage = _read_number(folder / usage_name)
+            # v1 writes "no limit" as a number near 2**63.
+            if limit is None or usage is None or limit >= 1 << 60:
+                continue
+            left = limit - usage + _stat_value(folder / 'memory.stat', cache)
+            found.append(
+                (max(0, min(left, limit)), f'cgroup limit {size_text(limit)} in {folder}')
+            )
+    return min(found) if found else None
+
+
+def memory_left(cgroup_root: Path | None = None) -> tuple[int | None, str]:
+    """(bytes, where from) of the memory this process may still take: the smaller of
+    MemAvailable in /proc/meminfo and what a cgroup memory limit leaves (a container's or a
+    job's; ``cgroup_root``: where the cgroup file systems are mounted); ``(None, '')`` where
+    neither is known (not Linux)."""
+    found: list[tuple[int, str]] = []
+    free = _read_int('/proc/meminfo', 'MemAvailable')
+    if free is not None:
+        found.append((free, 'MemAvailable in /proc/meminfo'))
+    limited = _cgroup_left(Path(_CGROUP) if cgroup_root is None else cgroup_root)
+    if limited is not None:
+        found.append(limited)
+    return min(found) if found else (None, '')
 
 
 def available_memory() -> int | None:
@@ -114,19 +193,11 @@ def available_memory() -> int | None:
     """
     if os.environ.get(CHECK_SWITCH, '1') == '0':
         return None
-    free = _read_int('/proc/meminfo', 'MemAvailable')
+    left, _ = memory_left()
     own = _read_int('/proc/self/status', 'VmRSS')
-    if free is None or own is None:
+    if left is None or own is None:
         return None
-    limit = _read_int(f'{_CGROUP}/memory.max')
-    used = _read_int(f'{_CGROUP}/memory.current')
-    if limit is not None and used is not None:
-        # memory.current counts the page cache (the bags read, the files written), which the
-        # kernel reclaims before the limit is reached: a container that had read its limit in
-        # files refused every large frame ("0.11 GB available" of a 4 GB limit).
-        used -= _page_cache(f'{_CGROUP}/memory.stat')
-        free = min(free, max(0, limit - used))
-    return free + own
+    return left + own
 
 
 def shortfall(need: int) -> int | None:

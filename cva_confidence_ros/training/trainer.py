@@ -39,6 +39,8 @@ from cva_confidence_ros.datasets import (
 )
 from cva_confidence_ros.datasets.synthetic import synthetic_pair
 from cva_confidence_ros.errors import ConfigError, DataError, ModelError, reason
+from cva_confidence_ros.memory import memory_left as available_memory
+from cva_confidence_ros.memory import size_text
 from cva_confidence_ros.model import (
     ARCHITECTURES,
     PATCH_SIZE,
@@ -125,10 +127,6 @@ _SCHEDULE_KEYS = ('epochs', 'epochs_low_lr', 'lr', 'low_lr_factor')
 Schedule = list[tuple[str, float]]
 #: Labelled training pixels whose logits are checked after each epoch (NaN, infinity).
 _PROBE_PIXELS = 256
-#: Where the cgroup file systems are mounted (v2 unified, or v1's memory controller below it).
-_CGROUP_ROOT = Path('/sys/fs/cgroup')
-#: This process's cgroups: ``0::/path`` (v2), ``N:memory:/path`` (v1), relative to the root.
-_PROC_CGROUP = Path('/proc/self/cgroup')
 #: Share of the available memory the cost volumes may take without a note: matching a scene
 #: needs its float32 volume on top, and the network and batches need some.
 _VOLUME_SHARE = 0.8
@@ -523,84 +521,6 @@ def _pair_fingerprint(sample: StereoSample) -> str:
     return digest.hexdigest()
 
 
-def _size_text(count: float) -> str:
-    """Bytes as GB (MB below 0.1 GB)."""
-    return f'{count / 1e9:.1f} GB' if count >= 1e8 else f'{count / 1e6:.1f} MB'
-
-
-def _read_number(path: Path) -> int | None:
-    """The integer in a cgroup file; None where it is absent, ``max`` or unreadable."""
-    try:
-        text = path.read_text().strip()
-    except OSError:
-        return None
-    return int(text) if text.isdecimal() else None
-
-
-def _stat_value(path: Path, key: str) -> int:
-    """``key``'s value in a cgroup ``memory.stat`` (0 where absent)."""
-    with contextlib.suppress(OSError, ValueError):
-        for line in path.read_text().splitlines():
-            name, _, value = line.partition(' ')
-            if name == key:
-                return int(value)
-    return 0
-
-
-def _cgroup_left(root: Path) -> tuple[int, str] | None:
-    """What the tightest cgroup memory limit over this process leaves: limit − usage + the
-    inactive page cache (which the kernel reclaims first), of its own group and of every group
-    above it; None where no limit is set. A Slurm job's or a systemd slice's limit is set on a
-    parent whose child groups, the process's among them, read ``max``: only the own group and
-    the root were read, and such a limit was missed."""
-    relative = {'v2': '', 'v1': ''}
-    with contextlib.suppress(OSError):
-        for line in _PROC_CGROUP.read_text().splitlines():
-            number, _, rest = line.partition(':')
-            controllers, _, path = rest.partition(':')
-            if number == '0' and not controllers:
-                relative['v2'] = path
-            elif 'memory' in controllers.split(','):
-                relative['v1'] = path
-    layouts = (
-        ('memory.max', 'memory.current', 'inactive_file', root, relative['v2']),
-        ('memory.limit_in_bytes', 'memory.usage_in_bytes', 'total_inactive_file',
-         root / 'memory', relative['v1']),
-    )
-    found: list[tuple[int, str]] = []
-    for limit_name, usage_name, inactive, top, path in layouts:
-        parts = Path(path.strip().lstrip('/')).parts
-        # The own group up to the root (in a container, the own path may not exist below a
-        # root that already is the container's group: those folders read nothing).
-        for depth in range(len(parts), -1, -1):
-            folder = top.joinpath(*parts[:depth])
-            limit = _read_number(folder / limit_name)
-            usage = _read_number(folder / usage_name)
-            # v1 writes "no limit" as a number near 2**63.
-            if limit is None or usage is None or limit >= 1 << 60:
-                continue
-            left = limit - usage + _stat_value(folder / 'memory.stat', inactive)
-            found.append(
-                (max(0, min(left, limit)), f'cgroup limit {_size_text(limit)} in {folder}')
-            )
-    return min(found) if found else None
-
-
-def available_memory(cgroup_root: Path = _CGROUP_ROOT) -> tuple[int | None, str]:
-    """(bytes, where from) of the memory a run may still take: the smaller of MemAvailable
-    in /proc/meminfo and what a cgroup memory limit leaves (a container's or a job's);
-    ``(None, '')`` where neither is known (not Linux)."""
-    found: list[tuple[int, str]] = []
-    with contextlib.suppress(OSError, ValueError, IndexError):
-        for line in Path('/proc/meminfo').read_text().splitlines():
-            if line.startswith('MemAvailable:'):
-                found.append((int(line.split()[1]) * 1024, 'MemAvailable in /proc/meminfo'))
-    limited = _cgroup_left(cgroup_root)
-    if limited is not None:
-        found.append(limited)
-    return min(found) if found else (None, '')
-
-
 def _plan_volumes(
     loaders: list[tuple[str, Callable[[], StereoSample]]],
     val_loaders: list[tuple[str, Callable[[], StereoSample]]],
@@ -644,51 +564,51 @@ def _plan_volumes(
                 cached += size
     depth = config.max_disparity
     scenes = (
-        f'{counts[0]} training scenes {_size_text(sizes[0])}'
+        f'{counts[0]} training scenes {size_text(sizes[0])}'
         # Copies in memory, not on disk: the processes map the same files.
         + (f' (× {processes} processes)' if processes > 1 and cache is None else '')
-        + (f', {counts[1]} validation scenes {_size_text(sizes[1])}' if counts[1] else '')
+        + (f', {counts[1]} validation scenes {size_text(sizes[1])}' if counts[1] else '')
     )
     took = f'sized in {time.perf_counter() - tic:.1f} s'
     if cache is not None:
         total = sum(sizes)
         free = shutil.disk_usage(cache.folder).free
         log(
-            f'cost volumes (float16, D = {depth}): {scenes}: {_size_text(total)} on disk in '
-            f'--volume-cache {cache.folder}, {_size_text(cached)} of it there already, '
-            f'{_size_text(free)} free there ({took})'
+            f'cost volumes (float16, D = {depth}): {scenes}: {size_text(total)} on disk in '
+            f'--volume-cache {cache.folder}, {size_text(cached)} of it there already, '
+            f'{size_text(free)} free there ({took})'
         )
         if total - cached > free:
             raise ConfigError(
                 f'--volume-cache {cache.folder}: the cost volumes still to write take '
-                f'{_size_text(total - cached)} ({scenes} at D = {depth}), more than the '
-                f'{_size_text(free)} free there; free space, give a folder on a larger disk, '
+                f'{size_text(total - cached)} ({scenes} at D = {depth}), more than the '
+                f'{size_text(free)} free there; free space, give a folder on a larger disk, '
                 'or train on fewer scenes (--max-scenes N)'
             )
         return
     need = sizes[0] * processes + sizes[1]
     available, source = available_memory()
     log(
-        f'cost volumes (float16, D = {depth}): {scenes}: {_size_text(need)} in memory for the '
+        f'cost volumes (float16, D = {depth}): {scenes}: {size_text(need)} in memory for the '
         'whole run'
-        + (f'; {_size_text(available)} available ({source})' if available is not None else '')
+        + (f'; {size_text(available)} available ({source})' if available is not None else '')
         + f' ({took})'
     )
     if available is None:
         return
     if need > available:
         raise ConfigError(
-            f'the cost volumes of this run take {_size_text(need)} of memory ({scenes} at '
-            f'D = {depth}, float16), more than the {_size_text(available)} available '
+            f'the cost volumes of this run take {size_text(need)} of memory ({scenes} at '
+            f'D = {depth}, float16), more than the {size_text(available)} available '
             f'({source}): the system would end the run while it matches. Keep them on disk '
-            f'with --volume-cache DIR ({_size_text(sizes[0] + sizes[1])} there; epochs then '
+            f'with --volume-cache DIR ({size_text(sizes[0] + sizes[1])} there; epochs then '
             'read what the page cache does not hold from the disk), train on fewer scenes '
             '(--max-scenes N, fewer --datasets), or use a smaller --max-disparity'
         )
     if need + 2 * largest > _VOLUME_SHARE * available:
         log(
             f'note: the cost volumes take {need / available:.0%} of the available memory, and '
-            f'matching a scene needs up to {_size_text(3 * largest)} more (its float32 '
+            f'matching a scene needs up to {size_text(3 * largest)} more (its float32 '
             'volume): the run may run short; --volume-cache DIR keeps the volumes on disk'
         )
 
@@ -1310,7 +1230,7 @@ def train(config: TrainConfig, command: str = '') -> dict[str, Any]:
         f'{len(scenes)} training scenes, {len(index)} labelled pixels, '
         f'{index.fraction_wrong:.1%} labelled wrong; {n_samples} samples per epoch '
         f'({config.mode} mode); {len(val_scenes)} validation scenes; cost volumes '
-        + _size_text(sum(int(s.volume.nbytes) for s in [*scenes, *val_scenes]))
+        + size_text(sum(int(s.volume.nbytes) for s in [*scenes, *val_scenes]))
         + (f' on disk in --volume-cache {config.volume_cache}' if cache else ' in memory')
     )
     if index.fraction_wrong in (0.0, 1.0):

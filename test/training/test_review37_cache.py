@@ -14,6 +14,7 @@ import time
 import pytest
 import torch
 
+from cva_confidence_ros import memory
 from cva_confidence_ros.datasets.synthetic import synthetic_pair
 from cva_confidence_ros.errors import ConfigError
 from cva_confidence_ros.training import data, trainer
@@ -38,7 +39,7 @@ def test_a_memory_limit_on_a_parent_cgroup_is_taken(tmp_path: Path, monkeypatch)
     _cgroup(job / 'step_0' / 'task_0', 'max', 2_000_000)
     proc = tmp_path / 'cgroup'
     proc.write_text('0::/system.slice/job_1/step_0/task_0\n')
-    monkeypatch.setattr(trainer, '_PROC_CGROUP', proc)
+    monkeypatch.setattr(memory, '_PROC_CGROUP', proc)
     left, source = trainer.available_memory(root)
     assert left == 1_500_000 and str(job) in source
     # The tightest of the own group's limit and a parent's.
