@@ -70,6 +70,7 @@ from cva_confidence_ros.errors import (
     ModelError,
     closed_stdout,
     from_interrupt,
+    interrupted_exit,
     sigterm_as_interrupt,
     stdout_closed,
 )
@@ -668,9 +669,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         except (KeyboardInterrupt, SystemError) as exc:
             if not from_interrupt(exc):
                 raise
-            print(f'cva-benchmark: {"terminated" if terminated else "interrupted"}',
-                  file=sys.stderr)
-            return 143 if terminated else 130
+            return interrupted_exit('cva-benchmark', terminated)
 
 
 def _main(argv: Sequence[str] | None) -> int:

@@ -27,6 +27,7 @@ __all__ = [
     'MemoryShortfallError',
     'ModelError',
     'from_interrupt',
+    'interrupted_exit',
     'reason',
     'sigterm_as_interrupt',
     'stdout_closed',
@@ -172,6 +173,15 @@ def stdout_closed() -> bool:
         return any(events & select.POLLERR for _, events in poller.poll(0))
     except (AttributeError, OSError, ValueError):  # no poll (Windows), no file descriptor
         return False
+
+
+def interrupted_exit(prog: str, terminated: list[int], detail: str = '') -> int:
+    """Say in one line on stderr how ``prog`` was stopped (``terminated`` by SIGTERM, as
+    :func:`sigterm_as_interrupt` yields it, else ``interrupted``: a batch system's SIGTERM is
+    no Ctrl-C that anyone pressed), ``detail`` after it; return 143 or 130, as a shell reports
+    a process that the signal ended."""
+    print(f'{prog}: {"terminated" if terminated else "interrupted"}{detail}', file=sys.stderr)
+    return 143 if terminated else 130
 
 
 def closed_stdout() -> int:

@@ -36,7 +36,13 @@ from typing import Any
 
 import numpy as np
 
-from cva_confidence_ros.errors import BagError, ConfigError, CVAError, sigterm_as_interrupt
+from cva_confidence_ros.errors import (
+    BagError,
+    ConfigError,
+    CVAError,
+    interrupted_exit,
+    sigterm_as_interrupt,
+)
 from cva_confidence_ros.pointcloud import StereoGeometry
 from msg_tools.bagio import (
     BAG_VERSION,
@@ -476,9 +482,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f'cva-bag-from-dataset: error: {err}', file=sys.stderr)
             return 2
         except KeyboardInterrupt:
-            how = 'terminated' if terminated else 'interrupted'
-            print(f'cva-bag-from-dataset: {how} before the bag was created', file=sys.stderr)
-            return 143 if terminated else 130
+            return interrupted_exit(
+                'cva-bag-from-dataset', terminated, ' before the bag was created'
+            )
     if summary.frames == 0:
         state = (
             f'the existing bag {args.out} was left as it was' if summary.kept_old

@@ -54,6 +54,7 @@ from cva_confidence_ros.errors import (
     InputError,
     closed_stdout,
     from_interrupt,
+    interrupted_exit,
     sigterm_as_interrupt,
     stdout_closed,
 )
@@ -758,9 +759,7 @@ def exit_code(prog: str, command: Callable[[], int]) -> int:
         except (KeyboardInterrupt, SystemError) as exc:
             if not from_interrupt(exc):
                 raise
-            # A batch system's SIGTERM is no Ctrl-C that anyone pressed.
-            print(f'{prog}: {"terminated" if terminated else "interrupted"}', file=sys.stderr)
-            code = 130
+            return interrupted_exit(prog, terminated)
         # 128 + 15, as a shell reports a process that SIGTERM ended.
         return 143 if terminated and code == 130 else code
 

@@ -40,9 +40,7 @@ from cva_confidence_ros.errors import (
     ConfigError,
     InputError,
     ModelError,
-    from_interrupt,
     reason,
-    sigterm_as_interrupt,
 )
 from cva_confidence_ros.model.fast import FoldedCVANetFast
 from cva_confidence_ros.model.inference import PAD, FoldedCVANet
@@ -581,21 +579,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     from cva_confidence_ros.evaluation.cli import exit_code
 
     args = _build_parser().parse_args(argv)
-    # SIGTERM said 'cva-export: interrupted' as if Ctrl-C had been pressed: it is told apart
-    # here, as cva-benchmark does (exit_code sees this handler and sets none of its own).
-    with sigterm_as_interrupt() as terminated:
-
-        def command() -> int:
-            try:
-                return run(args)
-            except (KeyboardInterrupt, SystemError) as exc:
-                if not from_interrupt(exc):
-                    raise
-                print(f'{PROG}: {"terminated" if terminated else "interrupted"}',
-                      file=sys.stderr)
-                return 143 if terminated else 130
-
-        return exit_code(PROG, command)
+    # exit_code tells SIGTERM ('terminated', 143) from Ctrl-C ('interrupted', 130).
+    return exit_code(PROG, lambda: run(args))
 
 
 if __name__ == '__main__':
